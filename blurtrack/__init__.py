@@ -1,0 +1,1 @@
+"""blurtrack package."""

@@ -1,0 +1,1 @@
+"""gamd package."""
