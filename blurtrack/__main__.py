@@ -1,0 +1,1 @@
+from blurtrack.cli import main; import sys; sys.exit(main())

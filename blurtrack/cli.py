@@ -1,0 +1,66 @@
+"""The ``blurtrack`` command line.
+
+Subcommands live in modules that expose ``register(subparsers) -> None``; each registered parser
+sets ``func`` to a callable ``(argparse.Namespace) -> int``. The modules of the other packages
+(rigs, calib) are imported only when the parser is built, and they import their heavy
+dependencies inside their command functions, so ``blurtrack --help`` stays fast.
+
+This is the only layer that prints summaries and chooses exit codes: library code raises
+:class:`blurtrack.errors.BlurTrackError` subclasses, which become one line on stderr and exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from blurtrack.errors import BlurTrackError
+
+#: Modules that contribute subcommands, in help order. A module that is missing from an
+#: installation (an optional package) is skipped, not fatal.
+COMMAND_MODULES: tuple[str, ...] = (
+    "blurtrack.commands.simulate",
+    "blurtrack.commands.importers",
+    "blurtrack.commands.detect",
+    "calib.commands",
+    "blurtrack.commands.predict",
+    "blurtrack.commands.synth",
+    "rigs.commands",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="blurtrack",
+        description="Calibration and validation workbench for gyro-assisted motion deblurring.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name is not None and name.startswith(exc.name):
+                continue  # that command module is not part of this installation
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except BlurTrackError as exc:
+        print(f"blurtrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"blurtrack {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the blurtrack CLI (one module each, see blurtrack.cli)."""
