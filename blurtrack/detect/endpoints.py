@@ -1,0 +1,174 @@
+"""Sub-pixel streak endpoints from brightness profiles (batched over the streaks of a frame).
+
+At an end, the profile ``I(s)`` (cross-section integral along the centre line) is an erf edge
+``P(s) Phi((s - s0) / sigma)`` around the true endpoint ``s0``: the true end is where the
+profile is at half the local plateau, not where it vanishes. We locate ``s0`` by the edge's
+area, which is linear in the data and unbiased under noise: for a plateau ``P(s) = P + g (s -
+s_in)`` the integral of ``I`` from outside the streak to a point ``s_in`` on the plateau is
+``P d - g d**2 / 2 - g sigma**2 / 2`` with ``d = s_in - s0``. Streaks too short to have a
+plateau at each end use the profile's moments: for uniform brightness and length L,
+``var = L**2 / 12 + sigma**2``.
+
+All positions here are in sample-index units of uniformly sampled profiles; rows of the
+matrices are streaks, padded with zeros past each row's length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Plateau fit window (samples) and how far inside the half-level crossing it starts (sigmas).
+PLATEAU_WINDOW = 7
+PLATEAU_INSET_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class EdgeFit:
+    """Per streak (``(N,)`` each): endpoint positions at both ends (index units from the
+    row's first sample), plateau levels there, whether each end came from an edge fit, and
+    whether the moments method was used (short streak)."""
+
+    pos_a: np.ndarray
+    pos_b: np.ndarray
+    plateau_a: np.ndarray
+    plateau_b: np.ndarray
+    short: np.ndarray
+    valid: np.ndarray
+
+
+def _at(A: np.ndarray, x: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each row of ``A`` at fractional indices ``x`` (``(N,)`` or
+    ``(N, K)``), clamped to the row's samples."""
+    rows = np.arange(A.shape[0]).reshape((-1,) + (1,) * (x.ndim - 1))
+    hi = (lens - 1).reshape(rows.shape).astype(np.float64)
+    x = np.clip(x, 0.0, hi)
+    i0 = np.floor(x).astype(np.int64)
+    i1 = np.minimum(i0 + 1, hi.astype(np.int64))
+    f = x - i0
+    return A[rows, i0] * (1 - f) + A[rows, i1] * f
+
+
+def _first_crossing(A: np.ndarray, lens: np.ndarray, level: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Fractional index where each row first rises through ``level``, and whether it does."""
+    cols = np.arange(A.shape[1])[None, :]
+    above = (level[:, None] <= A) & (cols < lens[:, None])
+    has = above.any(axis=1)
+    k = np.argmax(above, axis=1)
+    rows = np.arange(A.shape[0])
+    km1 = np.maximum(k - 1, 0)
+    a0, a1 = A[rows, km1], A[rows, k]
+    den = np.where(a1 != a0, a1 - a0, 1.0)
+    f = np.clip((level - a0) / den, 0.0, 1.0)
+    return np.where(k > 0, km1 + f, 0.0), has
+
+
+def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares line through ``PLATEAU_WINDOW`` samples from ``s_in`` on: value at
+    ``s_in``, slope, and whether the window fits inside the row."""
+    j = np.arange(PLATEAU_WINDOW, dtype=np.float64)
+    v = _at(A, s_in[:, None] + j[None, :], lens)
+    jc = j - j.mean()
+    slope = (v @ jc) / float(jc @ jc)
+    value = v.mean(axis=1) - slope * j.mean()
+    ok = s_in + PLATEAU_WINDOW - 1 <= lens - 1
+    return value, slope, ok
+
+
+def _cumulative(A: np.ndarray) -> np.ndarray:
+    """Trapezoid integral of each row from index 0 to every index, same shape as ``A``."""
+    C = np.zeros_like(A)
+    C[:, 1:] = np.cumsum(0.5 * (A[:, 1:] + A[:, :-1]), axis=1)
+    return C
+
+
+def _integral_to(A: np.ndarray, C: np.ndarray, x: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """Integral of each (piecewise-linear) row from index 0 to fractional index ``x``."""
+    rows = np.arange(A.shape[0])
+    x = np.clip(x, 0.0, (lens - 1).astype(np.float64))
+    i0 = np.floor(x).astype(np.int64)
+    i1 = np.minimum(i0 + 1, lens - 1)
+    f = x - i0
+    a0, a1 = A[rows, i0], A[rows, i1]
+    return C[rows, i0] + f * (a0 + 0.5 * f * (a1 - a0))
+
+
+def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: float, guess: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Endpoint (fractional index), plateau level and validity of the rising edge at the
+    START of every row of ``A (N, L)``. ``guess``: a first plateau level per row."""
+    s_half, has = _first_crossing(A, lens, 0.5 * guess)
+    ok = has.copy()
+    for _ in range(2):
+        s_in = s_half + PLATEAU_INSET_SIGMAS * sigma
+        value, slope, fits = _plateau(A, lens, s_in)
+        ok &= fits & (value > 0)
+        s_half, has = _first_crossing(A, lens, 0.5 * np.where(value > 0, value, guess))
+        ok &= has
+    s_far = np.maximum(s_half - PLATEAU_INSET_SIGMAS * sigma - 1.0, 0.0)
+    C = _cumulative(A)
+    # Local baseline from the samples beyond s_far (when there are enough of them).
+    n_tail = np.floor(s_far).astype(np.int64)
+    S = np.concatenate([np.zeros((A.shape[0], 1)), np.cumsum(A, axis=1)], axis=1)
+    base = np.where(n_tail >= 4, S[np.arange(A.shape[0]), n_tail] / np.maximum(n_tail, 1), 0.0)
+    M = _integral_to(A, C, s_in, lens) - _integral_to(A, C, s_far, lens) - base * (s_in - s_far)
+    P = value - base
+    ok &= P > 0
+    P = np.where(P > 0, P, 1.0)
+    d = M / P
+    for _ in range(2):
+        d = (M + 0.5 * slope * (d * d + sigma * sigma)) / P
+    return s_in - d, P, ok
+
+
+def reverse_rows(A: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """Each row's first ``lens[i]`` samples reversed (padding kept)."""
+    cols = np.arange(A.shape[1])[None, :]
+    src = np.where(cols < lens[:, None], lens[:, None] - 1 - cols, cols)
+    return np.take_along_axis(A, src, axis=1)
+
+
+def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
+    """Endpoints of every streak from its uniformly sampled profile.
+
+    Args:
+        A: ``(N, L)`` profiles, zero-padded past ``lens``.
+        lens: ``(N,)`` number of samples per row.
+        sigma: ``(N,)`` edge sigma per row in index units.
+    """
+    N = A.shape[0]
+    peak = A.max(axis=1)
+    pa, Pa, oka = rising_edges(A, lens, sigma, peak)
+    pb_rev, Pb, okb = rising_edges(reverse_rows(A, lens), lens, sigma, peak)
+    pb = (lens - 1) - pb_rev
+    short = ~(oka & okb) | (pb - pa < 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)
+    # Moments of the profile for short streaks: within the half-peak crossings +- 3 sigma + 1.
+    lo, has_lo = _first_crossing(A, lens, 0.5 * peak)
+    hi_rev, has_hi = _first_crossing(reverse_rows(A, lens), lens, 0.5 * peak)
+    lo = np.maximum(lo - PLATEAU_INSET_SIGMAS * sigma - 1.0, 0.0)
+    hi = np.minimum((lens - 1) - hi_rev + PLATEAU_INSET_SIGMAS * sigma + 1.0, lens - 1.0)
+    cols = np.arange(A.shape[1], dtype=np.float64)[None, :]
+    w = np.where((cols >= lo[:, None]) & (cols <= hi[:, None]), np.maximum(A, 0.0), 0.0)
+    sw = np.maximum(w.sum(axis=1), 1e-12)
+    mu = (w @ cols[0]) / sw
+    var = (w * (cols - mu[:, None]) ** 2).sum(axis=1) / sw
+    half_len = 0.5 * np.sqrt(np.maximum(12.0 * (var - sigma**2), 0.0))
+    level = sw / np.maximum(2.0 * half_len, 1.0)
+    pos_a = np.where(short, mu - half_len, pa)
+    pos_b = np.where(short, mu + half_len, pb)
+    swap = pos_b < pos_a
+    mid = 0.5 * (pos_a + pos_b)
+    pos_a = np.where(swap, mid, pos_a)
+    pos_b = np.where(swap, mid, pos_b)
+    valid = np.where(short, has_lo & has_hi & (w.sum(axis=1) > 0), oka & okb) & (peak > 0)
+    return EdgeFit(
+        pos_a=pos_a,
+        pos_b=pos_b,
+        plateau_a=np.where(short, level, Pa),
+        plateau_b=np.where(short, level, Pb),
+        short=short,
+        valid=valid & np.isfinite(pos_a) & np.isfinite(pos_b) & (N > 0),
+    )

@@ -1,0 +1,159 @@
+"""Detection in one frame: from a stored image to measured, not yet oriented, streaks."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.centreline import refine_lines, trim_lines
+from blurtrack.detect.endpoints import fit_edges
+from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.ragged import to_matrix
+from blurtrack.detect.segment import axis_polylines, find_components
+from blurtrack.detect.skeleton import trace_paths
+
+#: Flag columns, in table order.
+FLAG_NAMES: tuple[str, ...] = ("clipped", "saturated", "crossing", "merged", "looped", "faint")
+
+
+@dataclass
+class FrameStreaks:
+    """Streaks of one frame, each oriented from its end A to its end B (arbitrary so far).
+
+    Arrays have one row per streak (N). ``points``/``profile`` are per-streak lists of
+    ``(n, 2)`` / ``(n,)`` arrays. ``flags`` maps each name of :data:`FLAG_NAMES` to ``(N,)``
+    bools. ``snr``: peak of the smoothed signal in noise sigmas. ``sigma_c_px``: the frame's
+    cross-section sigma in the smoothed image. ``shape``: ``(H, W)``.
+    """
+
+    shape: tuple[int, int]
+    end_a: np.ndarray
+    end_b: np.ndarray
+    time_mid: np.ndarray
+    plateau: np.ndarray
+    length_px: np.ndarray
+    width_px: np.ndarray
+    snr: np.ndarray
+    points: list[np.ndarray]
+    profile: list[np.ndarray]
+    flags: dict[str, np.ndarray]
+    sigma_c_px: float
+    noise: float
+    hot_pixels: int
+    short: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+    def __len__(self) -> int:
+        return int(self.end_a.shape[0])
+
+    def reverse(self, which: np.ndarray) -> None:
+        """Swap ends A and B (and reverse the lines) of the streaks where ``which`` is True."""
+        for i in np.flatnonzero(which):
+            self.end_a[i], self.end_b[i] = self.end_b[i].copy(), self.end_a[i].copy()
+            self.plateau[i] = self.plateau[i][::-1].copy()
+            self.points[i] = self.points[i][::-1].copy()
+            self.profile[i] = self.profile[i][::-1].copy()
+
+
+def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:
+    z2 = np.zeros((0, 2))
+    return FrameStreaks(shape, z2, z2.copy(), z2.copy(), z2.copy(), np.zeros(0), np.zeros(0),
+                        np.zeros(0), [], [], {k: np.zeros(0, bool) for k in FLAG_NAMES},
+                        sigma_c, noise, hot)
+
+
+def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> FrameStreaks:
+    """Find and measure every streak of one frame.
+
+    Args:
+        image: ``(H, W)`` or ``(H, W, 3|4)`` uint8/uint16 frame as stored.
+        params: detection parameters (defaults if None).
+    Returns:
+        The frame's streaks (possibly none: a frame without dots is a valid result here; the
+        session level decides whether that is an error).
+    """
+    p = params or DetectParams()
+    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    H, W = prep.signal.shape
+    psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
+    sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
+    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
+    comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
+    if comps.ids.size == 0:
+        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels)
+    polylines, folded = axis_polylines(prep.smooth, comps, sigma_c)
+    owner: list[int] = []  # component index of each line
+    lines: list[np.ndarray] = []
+    crossing: list[bool] = []
+    looped: list[bool] = []
+    spur = 2.0 * sigma_c + 3.0
+    for i, poly in enumerate(polylines):
+        if not folded[i]:
+            if len(poly) < 2 or abs(poly[-1] - poly[0]).sum() < 1e-9:
+                poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
+            owner.append(i)
+            lines.append(poly)
+            crossing.append(False)
+            looped.append(False)
+            continue
+        x, y, w, h = comps.boxes[i]
+        mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
+        paths = trace_paths(np.pad(mask, 1), spur, spur)
+        for path in paths:
+            owner.append(i)
+            lines.append(path.points + np.array([x - 1.0, y - 1.0]))
+            crossing.append(path.shares_junction or len(paths) > 1)
+            looped.append(path.self_crossing)
+    ref = refine_lines(prep.smooth, lines, sigma_c)
+    finite = ref.width[np.isfinite(ref.width)]
+    if p.psf_sigma_px is None and finite.size:
+        sigma_c = float(np.median(finite))
+    lens = ref.lines.sizes
+    fit = fit_edges(to_matrix(ref.profile, lens), lens, sigma_c / ref.step)
+    pos_a = np.where(fit.valid, fit.pos_a, 0.0)
+    pos_b = np.where(fit.valid, fit.pos_b, 1.0)
+    trimmed = trim_lines(ref, pos_a, pos_b)
+    keep = np.flatnonzero(fit.valid)
+    if keep.size == 0:
+        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels)
+    own = np.asarray(owner)[keep]
+    end_a = trimmed.end_a[keep]
+    end_b = trimmed.end_b[keep]
+    ends = np.stack([end_a, end_b], axis=1)
+    m_px = p.border_margin_px
+    near = (ends[..., 0] < m_px) | (ends[..., 0] > W - 1 - m_px) | \
+           (ends[..., 1] < m_px) | (ends[..., 1] > H - 1 - m_px)
+    sat_count = np.zeros(int(comps.ids.max()) + 1, np.int64)
+    if prep.saturated.any():
+        nz = cv2.findNonZero(prep.saturated.view(np.uint8)).reshape(-1, 2)
+        lab = comps.labels[nz[:, 1], nz[:, 0]]
+        sat_count = np.bincount(lab, minlength=sat_count.size)
+    width = ref.width[keep]
+    flags = {
+        "clipped": near.any(axis=1),
+        "saturated": sat_count[comps.ids[own]] > 0,
+        "crossing": np.asarray(crossing, bool)[keep],
+        "merged": np.isfinite(width) & (width > 1.5 * sigma_c),
+        "looped": np.asarray(looped, bool)[keep],
+        "faint": comps.peaks[own] < p.faint_snr * prep.noise_smooth,
+    }
+    plateau = np.stack([fit.plateau_a, fit.plateau_b], axis=1)[keep]
+    return FrameStreaks(
+        shape=(H, W),
+        end_a=end_a,
+        end_b=end_b,
+        time_mid=trimmed.time_mid[keep],
+        plateau=plateau,
+        length_px=trimmed.length_px[keep],
+        width_px=width,
+        snr=comps.peaks[own] / prep.noise_smooth,
+        points=[trimmed.points[k] for k in keep],
+        profile=[trimmed.profile[k] for k in keep],
+        flags=flags,
+        sigma_c_px=sigma_c,
+        noise=prep.noise,
+        hot_pixels=prep.hot_pixels,
+        short=fit.short[keep],
+    )

@@ -1,0 +1,90 @@
+"""Parameters of streak detection (a frozen, self-validating dataclass with YAML I/O)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from blurtrack.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class DetectParams:
+    """Tuning of :func:`blurtrack.detect.detect_frame`.
+
+    Intensities are relative to the image's full scale (0..1 after conversion); lengths in px.
+
+    - ``smooth_sigma_px``: Gaussian pre-smoothing (noise suppression) before thresholding and
+      profile sampling; it widens every edge by the same known amount.
+    - ``threshold_snr``: segmentation threshold in units of the smoothed image's noise.
+    - ``min_threshold``: absolute floor of that threshold (full-scale units).
+    - ``min_area_px``: smallest connected component kept.
+    - ``psf_sigma_px``: dot spread sigma; ``None`` estimates it per frame from the streaks.
+    - ``faint_snr``: streaks whose peak is below this many noise sigmas are flagged ``faint``.
+    - ``hot_pixel_ratio``: a pixel brighter than its brightest 8-neighbour by this factor
+      (above background) is a hot pixel and is replaced by that neighbour.
+    - ``saturation_level``: raw value treated as saturated (``None``: the dtype's maximum).
+    - ``border_margin_px``: endpoints closer than this to the border are flagged ``clipped``.
+    - ``max_streaks``: hard cap of streaks per frame (bad input guard).
+    """
+
+    smooth_sigma_px: float = 1.0
+    threshold_snr: float = 6.0
+    min_threshold: float = 0.01
+    min_area_px: int = 6
+    psf_sigma_px: float | None = None
+    faint_snr: float = 12.0
+    hot_pixel_ratio: float = 3.0
+    saturation_level: float | None = None
+    border_margin_px: float = 2.0
+    max_streaks: int = 5000
+
+    def __post_init__(self) -> None:
+        positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"detect parameter {name} must be positive, got {value!r}")
+        if not (math.isfinite(self.min_threshold) and self.min_threshold >= 0):
+            raise ConfigError(f"detect min_threshold must be >= 0: {self.min_threshold!r}")
+        if self.psf_sigma_px is not None and not (0.3 <= self.psf_sigma_px <= 10.0):
+            raise ConfigError(f"detect psf_sigma_px not in [0.3, 10]: {self.psf_sigma_px!r}")
+        if self.saturation_level is not None and not self.saturation_level > 0:
+            raise ConfigError("detect parameter saturation_level must be positive")
+        if int(self.min_area_px) != self.min_area_px or self.min_area_px < 1:
+            raise ConfigError(f"detect min_area_px must be an integer >= 1: {self.min_area_px!r}")
+        if not self.border_margin_px >= 0:
+            raise ConfigError("detect parameter border_margin_px must be >= 0")
+        if int(self.max_streaks) != self.max_streaks or self.max_streaks < 1:
+            raise ConfigError("detect parameter max_streaks must be a positive integer")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> DetectParams:
+        if not isinstance(data, dict):
+            raise ConfigError("detect parameters must be a mapping")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown detect parameter(s): {', '.join(unknown)}")
+        try:
+            return cls(**data)
+        except TypeError as exc:  # wrong value types surface here
+            raise ConfigError(f"invalid detect parameters: {exc}") from exc
+
+    def to_yaml(self, path: str | Path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=True))
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> DetectParams:
+        try:
+            data = yaml.safe_load(Path(path).read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise ConfigError(f"cannot read detect parameters {path}: {exc}") from exc
+        return cls.from_dict(data or {})

@@ -1,0 +1,143 @@
+"""Operations on batches of polylines stored ragged: one ``(M, 2)`` array plus sizes ``(N,)``.
+
+A frame holds tens to hundreds of streaks; doing the per-streak geometry (smoothing, tangents,
+resampling, extension) as whole-array numpy operations keeps the per-streak Python cost near
+zero, which the detection speed target (60 frames/s at 1280x720 on one core) requires.
+Every line must have at least 2 points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Ragged:
+    """``points (M, 2)`` of N polylines; line ``i`` is ``points[starts[i]:starts[i] + sizes[i]]``.
+    """
+
+    points: np.ndarray
+    sizes: np.ndarray
+
+    @property
+    def starts(self) -> np.ndarray:
+        return np.concatenate(([0], np.cumsum(self.sizes)[:-1])).astype(np.int64)
+
+    @property
+    def line_of(self) -> np.ndarray:
+        """Line index of every point, ``(M,)``."""
+        return np.repeat(np.arange(self.sizes.size), self.sizes)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per point: first and last index of its line, ``(M,)`` each."""
+        st = self.starts
+        lo = np.repeat(st, self.sizes)
+        return lo, lo + np.repeat(self.sizes, self.sizes) - 1
+
+    def split(self) -> list[np.ndarray]:
+        return np.split(self.points, np.cumsum(self.sizes)[:-1])
+
+    @staticmethod
+    def from_list(lines: list[np.ndarray]) -> Ragged:
+        return Ragged(np.concatenate(lines).astype(np.float64),
+                      np.array([len(p) for p in lines], dtype=np.int64))
+
+
+def smooth(r: Ragged) -> Ragged:
+    """Binomial [1 4 6 4 1]/16 smoothing within each line (indices clamped at the ends); the
+    end points are kept."""
+    lo, hi = r.bounds()
+    idx = np.arange(r.points.shape[0])
+    out = np.zeros_like(r.points)
+    for off, w in ((-2, 1.0), (-1, 4.0), (0, 6.0), (1, 4.0), (2, 1.0)):
+        out += w * r.points[np.clip(idx + off, lo, hi)]
+    out /= 16.0
+    ends = np.concatenate([lo[idx == lo], hi[idx == hi]])
+    out[ends] = r.points[ends]
+    return Ragged(out, r.sizes)
+
+
+def tangents(r: Ragged) -> np.ndarray:
+    """Unit tangents ``(M, 2)`` by central differences (one-sided at the ends)."""
+    lo, hi = r.bounds()
+    idx = np.arange(r.points.shape[0])
+    d = r.points[np.minimum(idx + 1, hi)] - r.points[np.maximum(idx - 1, lo)]
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
+
+def arc_lengths(r: Ragged) -> tuple[np.ndarray, np.ndarray]:
+    """Per point the arc length from its line's start ``(M,)``; per line the total ``(N,)``."""
+    seg = np.linalg.norm(np.diff(r.points, axis=0), axis=1)
+    ends = np.cumsum(r.sizes)[:-1] - 1  # last point of every line but the last
+    seg[ends] = 0.0
+    cs = np.concatenate(([0.0], np.cumsum(seg)))
+    st = r.starts
+    s = cs - np.repeat(cs[st], r.sizes)
+    total = s[st + r.sizes - 1]
+    return s, total
+
+
+def resample(r: Ragged, step: float = 1.0) -> Ragged:
+    """Resample every line at constant arc-length spacing close to ``step`` px, ends kept.
+
+    A line of length L gets ``round(L / step) + 1`` points (at least 2); zero-length lines
+    become two coincident points.
+    """
+    s, total = arc_lengths(r)
+    n_new = np.maximum(np.rint(total / step).astype(np.int64), 1) + 1
+    line_new = np.repeat(np.arange(n_new.size), n_new)
+    j = np.arange(line_new.size) - np.repeat(np.concatenate(([0], np.cumsum(n_new)[:-1])), n_new)
+    u = j * np.repeat(total / (n_new - 1), n_new)
+    # One global search: shift each line's arc lengths past the previous lines'.
+    shift = np.concatenate(([0.0], np.cumsum(total + 1.0)[:-1]))
+    key = s + np.repeat(shift, r.sizes)
+    k = np.searchsorted(key, u + shift[line_new], side="right") - 1
+    st = r.starts
+    k = np.clip(k, st[line_new], st[line_new] + r.sizes[line_new] - 2)
+    ds = s[k + 1] - s[k]
+    f = np.where(ds > 0, (u - s[k]) / np.where(ds > 0, ds, 1.0), 0.0)
+    f = np.clip(f, 0.0, 1.0)[:, None]
+    pts = r.points[k] * (1 - f) + r.points[k + 1] * f
+    return Ragged(pts, n_new)
+
+
+def extend(r: Ragged, n_ext: int, span: int = 3) -> Ragged:
+    """Extend both ends of every (about 1 px sampled) line straight by ``n_ext`` points, 1 px
+    apart, along the direction of its last ``span`` points."""
+    st = r.starts
+    en = st + r.sizes - 1
+    p = r.points
+    d_tail = p[en] - p[np.maximum(en - span, st)]
+    d_head = p[st] - p[np.minimum(st + span, en)]
+    d_tail /= np.maximum(np.linalg.norm(d_tail, axis=1, keepdims=True), 1e-12)
+    d_head /= np.maximum(np.linalg.norm(d_head, axis=1, keepdims=True), 1e-12)
+    zero = np.linalg.norm(p[en] - p[st], axis=1) < 1e-9  # round spots: any axis
+    d_tail[zero] = [1.0, 0.0]
+    d_head[zero] = [-1.0, 0.0]
+    steps = np.arange(1, n_ext + 1, dtype=np.float64)
+    head = p[st][:, None, :] + d_head[:, None, :] * steps[::-1][None, :, None]
+    tail = p[en][:, None, :] + d_tail[:, None, :] * steps[None, :, None]
+    N = r.sizes.size
+    sizes = r.sizes + 2 * n_ext
+    out = np.empty((int(sizes.sum()), 2))
+    new_st = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    body_idx = np.repeat(new_st + n_ext - st, r.sizes) + np.arange(p.shape[0])
+    out[body_idx] = p
+    ext_idx = new_st[:, None] + np.arange(n_ext)[None, :]
+    out[ext_idx.ravel()] = head.reshape(N * n_ext, 2)
+    tail_idx = (new_st + n_ext + r.sizes)[:, None] + np.arange(n_ext)[None, :]
+    out[tail_idx.ravel()] = tail.reshape(N * n_ext, 2)
+    return Ragged(out, sizes)
+
+
+def to_matrix(values: np.ndarray, sizes: np.ndarray, fill: float = 0.0) -> np.ndarray:
+    """Pad ragged scalars ``(M,)`` into ``(N, max(sizes))`` rows."""
+    N = sizes.size
+    L = int(sizes.max()) if N else 0
+    out = np.full((N, L), fill, dtype=np.float64)
+    st = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    j = np.arange(values.size) - np.repeat(st, sizes)
+    out[np.repeat(np.arange(N), sizes), j] = values
+    return out

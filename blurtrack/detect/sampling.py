@@ -1,0 +1,33 @@
+"""Batched image sampling along polylines (one ``cv2.remap`` call for all streaks of a frame)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+_ROW = 1024  # remap wants both map dimensions below 32767: sample in rows of this length
+
+
+def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` (float32 ``(H, W)``) at float coordinates of any shape.
+
+    Outside the image the value is 0. Returns float64 of ``x.shape``.
+    """
+    shape = x.shape
+    n = x.size
+    if n == 0:
+        return np.zeros(shape)
+    rows = -(-n // _ROW)
+    mx = np.zeros(rows * _ROW, np.float32)
+    my = np.full(rows * _ROW, -10.0, np.float32)
+    mx[:n] = x.ravel()
+    my[:n] = y.ravel()
+    out = cv2.remap(
+        image,
+        mx.reshape(rows, _ROW),
+        my.reshape(rows, _ROW),
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0.0,
+    )
+    return out.ravel()[:n].reshape(shape).astype(np.float64)
