@@ -72,10 +72,10 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
     """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image."""
     half = int(np.ceil(3.0 * sigma_c)) + 1
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3
-    r = ragged.extend(ragged.resample(ragged.smooth(Ragged.from_list(polylines))), n_ext)
+    r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
     for it in range(3):
-        if it:
-            r = ragged.resample(ragged.smooth(r))
+        # Extensions always start from refined points, along the refined end tangents.
+        r = ragged.extend(r, n_ext)
         nrm, v = _cross_samples(smooth, r, half)
         prof = v.sum(axis=1)
         if it == 2:
@@ -83,9 +83,11 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
         vp = np.maximum(v, 0.0)
         off = np.arange(-half, half + 1, dtype=np.float64)
         shift = np.clip((vp @ off) / np.maximum(vp.sum(axis=1), 1e-12), -half, half)
-        # Only move points that carry signal (a quarter of their line's peak profile).
-        shift = np.where(prof > 0.25 * _line_max(prof, r), shift, 0.0)
-        r = Ragged(r.points + shift[:, None] * nrm, r.sizes)
+        # Only points that carry signal (a quarter of their line's peak profile) are moved
+        # and kept; the unlit rest of the extensions is rebuilt on the next pass.
+        lit = prof > 0.25 * _line_max(prof, r)
+        r = Ragged(r.points + np.where(lit, shift, 0.0)[:, None] * nrm, r.sizes)
+        r = ragged.resample(ragged.smooth(ragged.cut(r, lit)))
     sig = cross_section_sigma(v, half)
     good = (prof > 0.5 * _line_max(prof, r)) & np.isfinite(sig)
     line_of = r.line_of

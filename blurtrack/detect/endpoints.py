@@ -141,8 +141,14 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     """
     N = A.shape[0]
     peak = A.max(axis=1)
-    pa, Pa, oka = rising_edges(A, lens, sigma, peak)
-    pb_rev, Pb, okb = rising_edges(reverse_rows(A, lens), lens, sigma, peak)
+    # First plateau guess: the median of the clearly lit samples (a crossing or a slow spot
+    # can make the peak many times the plateau, so the peak is no reference).
+    with np.errstate(all="ignore"):
+        m1 = np.nanmedian(np.where(A > 0, A, np.nan), axis=1) if N else peak
+        lit = np.where(0.3 * np.nan_to_num(m1)[:, None] < A, A, np.nan)
+        guess = np.nan_to_num(np.nanmedian(lit, axis=1), nan=0.0) if N else peak
+    pa, Pa, oka = rising_edges(A, lens, sigma, guess)
+    pb_rev, Pb, okb = rising_edges(reverse_rows(A, lens), lens, sigma, guess)
     pb = (lens - 1) - pb_rev
     short = ~(oka & okb) | (pb - pa < 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)
     # Moments of the profile for short streaks: within the half-peak crossings +- 3 sigma + 1.
@@ -172,3 +178,26 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
         short=short,
         valid=valid & np.isfinite(pos_a) & np.isfinite(pos_b) & (N > 0),
     )
+
+
+def clipped_integral(a: np.ndarray, saturation: float, sigma: float) -> np.ndarray:
+    """Cross-section integral of a Gaussian line ``a g(o)`` (``g`` of sigma ``sigma``, unit
+    integral) clipped at ``saturation``: ``J(a) = 2 o* S + 2 a Phi(-o* / sigma)`` where the
+    line is clipped (``|o| < o*``), else ``a``."""
+    from scipy.special import ndtr
+
+    g0 = 1.0 / (sigma * np.sqrt(2 * np.pi))
+    ratio = np.maximum(a * g0 / saturation, 1.0)
+    o_star = sigma * np.sqrt(2.0 * np.log(ratio))
+    return np.where(ratio > 1.0, 2 * o_star * saturation + 2 * a * ndtr(-o_star / sigma), a)
+
+
+def unclip_profiles(A: np.ndarray, saturation: float, sigma: float) -> np.ndarray:
+    """Undo saturation on cross-section integrals: invert :func:`clipped_integral` (monotone)
+    by table lookup. Rows of ``A`` are profiles measured on a frame clipped at
+    ``saturation`` (signal units); ``sigma`` is the raw cross-section sigma."""
+    g0 = 1.0 / (sigma * np.sqrt(2 * np.pi))
+    a_knee = saturation / g0
+    a = a_knee * np.exp(np.linspace(0.0, 12.0, 400))
+    J = clipped_integral(a, saturation, sigma)
+    return np.where(a_knee < A, np.interp(A, J, a), A)

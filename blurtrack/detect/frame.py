@@ -6,13 +6,14 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from blurtrack.detect.centreline import refine_lines, trim_lines
-from blurtrack.detect.endpoints import fit_edges
+from blurtrack.detect.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import to_matrix
-from blurtrack.detect.segment import axis_polylines, find_components
+from blurtrack.detect.segment import Components, axis_polylines, find_components
 from blurtrack.detect.skeleton import trace_paths
 
 #: Flag columns, in table order.
@@ -57,6 +58,24 @@ class FrameStreaks:
             self.profile[i] = self.profile[i][::-1].copy()
 
 
+def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
+    """Whether a ~1 px sampled centre line comes back within 1 px of itself after more than
+    ``min_arc_px`` of arc (a loop)."""
+    if len(points) < 3:
+        return False
+    pairs = cKDTree(points).query_pairs(1.0, output_type="ndarray")
+    return bool(np.any(np.abs(pairs[:, 0] - pairs[:, 1]) > min_arc_px)) if len(pairs) else False
+
+
+def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: which kept components contain saturated pixels."""
+    nz = cv2.findNonZero(saturated.view(np.uint8))
+    nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2)
+    lab = comps.labels[nz[:, 1], nz[:, 0]]
+    count = np.bincount(lab, minlength=int(comps.labels.max()) + 1)
+    return count[comps.ids] > 0
+
+
 def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:
     z2 = np.zeros((0, 2))
     return FrameStreaks(shape, z2, z2.copy(), z2.copy(), z2.copy(), np.zeros(0), np.zeros(0),
@@ -78,7 +97,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.signal.shape
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
-    sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
+    sigma_c = sigma_guess = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
     if comps.ids.size == 0:
@@ -111,7 +130,20 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     if p.psf_sigma_px is None and finite.size:
         sigma_c = float(np.median(finite))
     lens = ref.lines.sizes
-    fit = fit_edges(to_matrix(ref.profile, lens), lens, sigma_c / ref.step)
+    A = to_matrix(ref.profile, lens)
+    line_sat = np.zeros(lens.size, bool)
+    if prep.saturated.any():
+        sat_comp = _saturated_components(comps, prep.saturated)
+        line_sat = sat_comp[np.asarray(owner)]
+        clean = ref.width[~line_sat]
+        clean = clean[np.isfinite(clean)]
+        # Saturated streaks look wider than they are: their width comes from the others.
+        sig_c = float(np.median(clean)) if clean.size else sigma_guess
+        sigma_raw = float(np.sqrt(max(sig_c**2 - p.smooth_sigma_px**2, 0.25)))
+        A[line_sat] = unclip_profiles(A[line_sat], prep.saturation, sigma_raw)
+        if p.psf_sigma_px is None:
+            sigma_c = sig_c
+    fit = fit_edges(A, lens, sigma_c / ref.step)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
     trimmed = trim_lines(ref, pos_a, pos_b)
@@ -125,18 +157,14 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     m_px = p.border_margin_px
     near = (ends[..., 0] < m_px) | (ends[..., 0] > W - 1 - m_px) | \
            (ends[..., 1] < m_px) | (ends[..., 1] > H - 1 - m_px)
-    sat_count = np.zeros(int(comps.ids.max()) + 1, np.int64)
-    if prep.saturated.any():
-        nz = cv2.findNonZero(prep.saturated.view(np.uint8)).reshape(-1, 2)
-        lab = comps.labels[nz[:, 1], nz[:, 0]]
-        sat_count = np.bincount(lab, minlength=sat_count.size)
     width = ref.width[keep]
     flags = {
         "clipped": near.any(axis=1),
-        "saturated": sat_count[comps.ids[own]] > 0,
+        "saturated": line_sat[keep],
         "crossing": np.asarray(crossing, bool)[keep],
         "merged": np.isfinite(width) & (width > 1.5 * sigma_c),
-        "looped": np.asarray(looped, bool)[keep],
+        "looped": np.array([looped[k] or (folded[owner[k]] and _self_crossing(
+            trimmed.points[k], 4.0 * sigma_c)) for k in keep], bool),
         "faint": comps.peaks[own] < p.faint_snr * prep.noise_smooth,
     }
     plateau = np.stack([fit.plateau_a, fit.plateau_b], axis=1)[keep]

@@ -37,7 +37,7 @@ class DetectParams:
     min_threshold: float = 0.01
     min_area_px: int = 6
     psf_sigma_px: float | None = None
-    faint_snr: float = 12.0
+    faint_snr: float = 25.0
     hot_pixel_ratio: float = 3.0
     saturation_level: float | None = None
     border_margin_px: float = 2.0

@@ -104,8 +104,11 @@ def resample(r: Ragged, step: float = 1.0) -> Ragged:
 
 
 def extend(r: Ragged, n_ext: int, span: int = 3) -> Ragged:
-    """Extend both ends of every (about 1 px sampled) line straight by ``n_ext`` points, 1 px
-    apart, along the direction of its last ``span`` points."""
+    """Extend both ends of every (uniformly sampled) line straight by ``n_ext`` points, at the
+    line's own mean spacing, along the direction of its last ``span`` points."""
+    _, total = arc_lengths(r)
+    spacing = np.where(r.sizes > 1, total / np.maximum(r.sizes - 1, 1), 1.0)
+    spacing = np.where(spacing > 1e-9, spacing, 1.0)
     st = r.starts
     en = st + r.sizes - 1
     p = r.points
@@ -117,6 +120,8 @@ def extend(r: Ragged, n_ext: int, span: int = 3) -> Ragged:
     d_tail[zero] = [1.0, 0.0]
     d_head[zero] = [-1.0, 0.0]
     steps = np.arange(1, n_ext + 1, dtype=np.float64)
+    d_head *= spacing[:, None]
+    d_tail *= spacing[:, None]
     head = p[st][:, None, :] + d_head[:, None, :] * steps[::-1][None, :, None]
     tail = p[en][:, None, :] + d_tail[:, None, :] * steps[None, :, None]
     N = r.sizes.size
@@ -141,3 +146,19 @@ def to_matrix(values: np.ndarray, sizes: np.ndarray, fill: float = 0.0) -> np.nd
     j = np.arange(values.size) - np.repeat(st, sizes)
     out[np.repeat(np.arange(N), sizes), j] = values
     return out
+
+
+def cut(r: Ragged, keep: np.ndarray) -> Ragged:
+    """Keep, per line, the points from its first to its last ``keep`` point (``keep (M,)``);
+    lines with fewer than 2 such points are left whole."""
+    idx = np.arange(r.points.shape[0])
+    st = r.starts
+    big = r.points.shape[0]
+    first = np.minimum.reduceat(np.where(keep, idx, big), st)
+    last = np.maximum.reduceat(np.where(keep, idx, -1), st)
+    whole = last - first < 1
+    first = np.where(whole, st, first)
+    last = np.where(whole, st + r.sizes - 1, last)
+    line = r.line_of
+    sel = (idx >= first[line]) & (idx <= last[line])
+    return Ragged(r.points[sel], last - first + 1)

@@ -26,7 +26,7 @@ def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
         image,
         mx.reshape(rows, _ROW),
         my.reshape(rows, _ROW),
-        interpolation=cv2.INTER_LINEAR,
+        interpolation=cv2.INTER_CUBIC,
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=0.0,
     )

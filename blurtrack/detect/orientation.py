@@ -1,0 +1,161 @@
+"""Which end of a streak is the start of exposure.
+
+A single image cannot tell: the streak of a motion and of its reverse are the same picture.
+Three cues, each a log-likelihood ratio (LLR, natural log) in favour of "end A is the start"
+(positive) against "end B is the start", are summed:
+
+- ``gyro``: the blur model with the session's initial calibration predicts, from the streak's
+  time midpoint (the point that halves its light, i.e. its mid-exposure position), where the
+  dot was at the start and at the end of its row's exposure. The pairing of detected ends with
+  predicted ones that fits better wins; the prediction's uncertainty grows with the streak's
+  length, since the initial guesses (time shift, intrinsics, R_cam_imu) may be off.
+- ``profile``: brightness is inversely proportional to speed. The gyro predicts the dot's speed
+  at the start and at the end; the plateau brightness ratio of the two ends must match.
+- ``continuity``: in the gap between exposures the dot keeps moving. Extrapolating each end
+  outwards along its tangent, at the speed its brightness implies, over the gap, the previous
+  frame must have an end near the extrapolated start and the next frame one near the
+  extrapolated end.
+
+``confidence = sigmoid(|LLR|)`` in [0.5, 1); ``source`` names the cue that contributed most to
+the decision (``none`` when no cue had evidence).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from blurtrack.detect.frame import FrameStreaks
+
+#: Largest |LLR| a single cue may contribute (one cue must not drown out the others entirely).
+MAX_CUE_LLR = 25.0
+#: Gyro prediction error model: sigma = GYRO_SIGMA_PX + GYRO_SIGMA_REL * length.
+GYRO_SIGMA_PX = 1.5
+GYRO_SIGMA_REL = 0.25
+#: Profile cue: sigma of log brightness ratios.
+PROFILE_SIGMA_LOG = 0.35
+CUE_NAMES = ("gyro", "profile", "continuity")
+
+
+@dataclass(frozen=True)
+class FrameTiming:
+    """Timing of one frame on the camera clock (seconds)."""
+
+    t_s: float
+    exposure_s: float
+
+
+@dataclass(frozen=True)
+class Orientation:
+    """Per streak of a frame: ``swap`` (end B is the start), ``confidence``, ``source``, and
+    the per-cue LLRs ``(N, 3)`` in :data:`CUE_NAMES` order (positive: A is the start)."""
+
+    swap: np.ndarray
+    confidence: np.ndarray
+    source: list[str]
+    llr: np.ndarray
+
+
+def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object) -> np.ndarray:
+    """``(N, 2)`` LLRs of the gyro and profile cues for one frame.
+
+    ``model`` is a :class:`blurtrack.trajectory.BlurModel` (camera clock); it must cover the
+    frame's exposure (the caller checks coverage).
+    """
+    N = len(fs)
+    out = np.zeros((N, 2))
+    if N == 0:
+        return out
+    cam = model.camera  # type: ignore[attr-defined]
+    mid = fs.time_mid
+    row_t = timing.t_s + cam.readout_s * np.clip(mid[:, 1], 0, cam.height - 1) / cam.height
+    t_ref = row_t + 0.5 * timing.exposure_s
+    start, end, t_s, t_e = model.streak_endpoints(  # type: ignore[attr-defined]
+        mid, t_ref, timing.t_s, timing.exposure_s)
+    A, B = fs.end_a, fs.end_b
+    cost_a = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
+    cost_b = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
+    sig = GYRO_SIGMA_PX + GYRO_SIGMA_REL * fs.length_px
+    out[:, 0] = (cost_b - cost_a) / (2 * sig**2)
+    # Profile: predicted speeds at both ends vs the ends' plateau brightness.
+    dt = max(timing.exposure_s / 20.0, 1e-5)
+    v_s = np.linalg.norm(model.warp(start, t_s, t_s + dt) - start, axis=1)  # type: ignore[attr-defined]
+    v_e = np.linalg.norm(model.warp(end, t_e, t_e - dt) - end, axis=1)  # type: ignore[attr-defined]
+    usable = (~fs.short) & np.all(fs.plateau > 0, axis=1) & (v_s > 0) & (v_e > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(fs.plateau[:, 0] / fs.plateau[:, 1])
+        q = np.log(v_e / v_s)  # expected r if A is the start
+    llr = ((r + q) ** 2 - (r - q) ** 2) / (2 * PROFILE_SIGMA_LOG**2)
+    out[:, 1] = np.where(usable & np.isfinite(llr), llr, 0.0)
+    return np.clip(out, -MAX_CUE_LLR, MAX_CUE_LLR)
+
+
+def _extrapolated_ends(fs: FrameStreaks, timing: FrameTiming, gap_s: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ends A and B pushed outwards over ``gap_s`` at the speed their brightness implies, and
+    the per-streak uncertainty (px) of that extrapolation."""
+    N = len(fs)
+    out_a = np.zeros((N, 2))
+    out_b = np.zeros((N, 2))
+    for i, pts in enumerate(fs.points):  # outward unit tangents from the last ~3 px
+        k = min(3, len(pts) - 1)
+        da = pts[0] - pts[k]
+        db = pts[-1] - pts[-1 - k]
+        out_a[i] = da / max(float(np.linalg.norm(da)), 1e-9)
+        out_b[i] = db / max(float(np.linalg.norm(db)), 1e-9)
+    mean_speed = fs.length_px / max(timing.exposure_s, 1e-6)  # px/s
+    level = np.array([float(np.mean(p)) if p.size else 0.0 for p in fs.profile])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(fs.plateau > 0, level[:, None] / fs.plateau, 1.0)
+    ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 0.2, 5.0)
+    step = mean_speed[:, None] * ratio * gap_s  # (N, 2) px travelled in the gap
+    ext_a = fs.end_a + out_a * step[:, 0:1]
+    ext_b = fs.end_b + out_b * step[:, 1:2]
+    unc = 2.0 + 0.5 * np.max(step, axis=1)
+    return ext_a, ext_b, unc
+
+
+def continuity_cues(frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming]
+                    ) -> list[np.ndarray]:
+    """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence)."""
+    out = [np.zeros(len(fs)) for fs in frames]
+    trees: list[cKDTree | None] = []
+    for fs in frames:
+        ends = np.concatenate([fs.end_a, fs.end_b]) if len(fs) else np.zeros((0, 2))
+        trees.append(cKDTree(ends) if len(ends) else None)
+    for k, fs in enumerate(frames):
+        if len(fs) == 0:
+            continue
+        for nb, sign in ((k - 1, 1.0), (k + 1, -1.0)):
+            if nb < 0 or nb >= len(frames) or trees[nb] is None:
+                continue
+            first, second = (nb, k) if nb < k else (k, nb)
+            gap = timings[second].t_s - timings[first].t_s - timings[first].exposure_s
+            if gap < 0 or gap > 4 * max(timings[first].exposure_s, 1e-3):
+                continue  # overlapping or far-apart exposures: no usable continuity
+            ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap)
+            gate = 3.0 * unc
+            tree = trees[nb]
+            assert tree is not None
+            d_a = np.minimum(tree.query(ext_a)[0], gate)
+            d_b = np.minimum(tree.query(ext_b)[0], gate)
+            # Previous frame (sign +1): an end near ext_a supports "A is the start".
+            out[k] += sign * (d_b**2 - d_a**2) / (2 * unc**2)
+    return [np.clip(o, -MAX_CUE_LLR, MAX_CUE_LLR) for o in out]
+
+
+def combine(llr: np.ndarray) -> Orientation:
+    """Decide from per-cue LLRs ``(N, 3)`` (:data:`CUE_NAMES` order)."""
+    total = llr.sum(axis=1)
+    swap = total < 0
+    confidence = 1.0 / (1.0 + np.exp(-np.abs(total)))
+    agree = np.where(swap[:, None], -llr, llr)
+    best = np.argmax(agree, axis=1)
+    source = [
+        CUE_NAMES[b] if agree[i, b] > 0 and total[i] != 0 else "none"
+        for i, b in enumerate(best)
+    ]
+    return Orientation(swap=swap, confidence=confidence, source=source, llr=llr)
