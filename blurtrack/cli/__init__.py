@@ -24,6 +24,7 @@ from blurtrack.errors import BlurTrackError
 COMMAND_MODULES: tuple[str, ...] = (
     "blurtrack.cli.simulate",
     "blurtrack.cli.importers",
+    "blurtrack.cli.validate",
     "blurtrack.cli.detect",
     "calib.cli",
     "blurtrack.cli.predict",
