@@ -15,6 +15,7 @@ matrices are streaks, padded with zeros past each row's length.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,7 +144,8 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     peak = A.max(axis=1)
     # First plateau guess: the median of the clearly lit samples (a crossing or a slow spot
     # can make the peak many times the plateau, so the peak is no reference).
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no lit sample
         m1 = np.nanmedian(np.where(A > 0, A, np.nan), axis=1) if N else peak
         lit = np.where(0.3 * np.nan_to_num(m1)[:, None] < A, A, np.nan)
         guess = np.nan_to_num(np.nanmedian(lit, axis=1), nan=0.0) if N else peak

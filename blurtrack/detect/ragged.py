@@ -46,17 +46,22 @@ class Ragged:
 
 
 def smooth(r: Ragged) -> Ragged:
-    """Binomial [1 4 6 4 1]/16 smoothing within each line (indices clamped at the ends); the
-    end points are kept."""
+    """Binomial [1 4 6 4 1]/16 smoothing within each line; beyond its ends a line is continued
+    by point reflection through the end point, so straight lines and the end points are kept
+    exactly."""
     lo, hi = r.bounds()
     idx = np.arange(r.points.shape[0])
-    out = np.zeros_like(r.points)
-    for off, w in ((-2, 1.0), (-1, 4.0), (0, 6.0), (1, 4.0), (2, 1.0)):
-        out += w * r.points[np.clip(idx + off, lo, hi)]
-    out /= 16.0
-    ends = np.concatenate([lo[idx == lo], hi[idx == hi]])
-    out[ends] = r.points[ends]
-    return Ragged(out, r.sizes)
+    p = r.points
+    out = 6.0 * p
+    for off, w in ((-2, 1.0), (-1, 4.0), (1, 4.0), (2, 1.0)):
+        j = idx + off
+        below, above = j < lo, j > hi
+        src = np.clip(np.where(below, 2 * lo - j, np.where(above, 2 * hi - j, j)), lo, hi)
+        q = p[src]
+        q = np.where(below[:, None], 2 * p[lo] - q, q)
+        q = np.where(above[:, None], 2 * p[hi] - q, q)
+        out += w * q
+    return Ragged(out / 16.0, r.sizes)
 
 
 def tangents(r: Ragged) -> np.ndarray:

@@ -69,7 +69,8 @@ def write_synthetic_session(
             t0 = (k + 1) / fps
             times = np.linspace(t0, t0 + exposure_s, 600)
             tracks = model.point_track(dots, np.full(len(dots), t_ref),
-                                       np.broadcast_to(times, (len(dots), times.size)))
+                                       np.broadcast_to(times, (len(dots), times.size))
+                                       ) if len(dots) else np.zeros((0, times.size, 2))
             flux = rng.uniform(1.5, 3.0, len(dots))
             img = render_streaks((H, W), list(tracks), flux, sigma_px, 0.03, noise, seed + k)
             ts = round(t0 * 1e9)

@@ -1,0 +1,157 @@
+"""Session-level detection: start/end resolution, the table, the CLI."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blurtrack import streaks
+from blurtrack.cli import main
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.orientation import FrameTiming, combine, continuity_cues
+from blurtrack.detect.session import detect_session
+from blurtrack.detect.synthsession import write_synthetic_session
+from blurtrack.detect.table import EXTRA_COLUMNS, read_table, write_table
+from blurtrack.errors import CoverageError, DetectionError
+from blurtrack.session import load_session
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    folder = tmp_path_factory.mktemp("det") / "session"
+    truth = write_synthetic_session(folder, n_frames=5, seed=3)
+    return folder, truth
+
+
+def _oriented_fraction(df: pd.DataFrame, truth: dict, min_len: float = 5.0
+                       ) -> tuple[int, int, list[float]]:
+    tr = streaks.from_truth(truth)
+    ok = n = 0
+    errors: list[float] = []
+    for _, r in tr.iterrows():
+        d = df[df.frame == r.frame]
+        mid = np.array([(r.start_x + r.end_x) / 2, (r.start_y + r.end_y) / 2])
+        j = int(np.argmin(np.hypot(d.start_x + d.end_x - 2 * mid[0],
+                                   d.start_y + d.end_y - 2 * mid[1])))
+        m = d.iloc[j]
+        right = [np.hypot(m.start_x - r.start_x, m.start_y - r.start_y),
+                 np.hypot(m.end_x - r.end_x, m.end_y - r.end_y)]
+        wrong = [np.hypot(m.start_x - r.end_x, m.start_y - r.end_y),
+                 np.hypot(m.end_x - r.start_x, m.end_y - r.start_y)]
+        if r.length_px > min_len:
+            n += 1
+            ok += sum(right) < sum(wrong)
+            errors += right
+    return ok, n, errors
+
+
+def test_gyro_resolves_start_and_end(synthetic: tuple[Path, dict]) -> None:
+    folder, truth = synthetic
+    res = detect_session(load_session(folder), gyro="on")
+    ok, n, errors = _oriented_fraction(res.table, truth)
+    assert n >= 30
+    assert ok == n
+    assert np.median(errors) < 0.3
+    assert res.summary["orientation_sources"].get("gyro", 0) > 0.5 * len(res.table)
+    assert res.summary["orientation_confidence_median"] > 0.99
+
+
+def test_image_only_orientation_from_continuity(synthetic: tuple[Path, dict]) -> None:
+    folder, truth = synthetic
+    res = detect_session(load_session(folder), gyro="off")
+    ok, n, _ = _oriented_fraction(res.table, truth)
+    assert ok >= 0.8 * n
+    assert set(res.table.orientation_source) <= {"continuity", "none"}
+    assert (res.table.llr_gyro == 0).all()
+
+
+def test_gyro_on_without_coverage_is_an_error(tmp_path: Path) -> None:
+    folder = tmp_path / "s"
+    write_synthetic_session(folder, n_frames=2, seed=1, with_imu=False)
+    session = load_session(folder)
+    with pytest.raises(CoverageError):
+        detect_session(session, gyro="on")
+    res = detect_session(session, gyro="auto")  # image only, and said so
+    assert res.summary["gyro"] == "off"
+
+
+def test_table_schema_and_parquet_round_trip(synthetic: tuple[Path, dict], tmp_path: Path
+                                             ) -> None:
+    folder, _ = synthetic
+    res = detect_session(load_session(folder))
+    path = tmp_path / "t.parquet"
+    write_table(res.table, str(path))
+    back = read_table(str(path))
+    for col in list(streaks.COLUMNS) + list(EXTRA_COLUMNS):
+        assert col in back.columns
+    assert len(back) == len(res.table)
+    row = back.iloc[0]
+    cl = np.asarray(list(row["centerline"]), dtype=float).reshape(-1, 2)
+    assert cl.shape[0] == len(row["profile"]) >= 2
+    assert np.allclose(cl[0], [row.start_x, row.start_y], atol=1e-3)
+    assert np.allclose(cl[-1], [row.end_x, row.end_y], atol=1e-3)
+    assert row.length_px == pytest.approx(np.linalg.norm(np.diff(cl, axis=0), axis=1).sum(),
+                                          abs=0.05)
+    assert back["orientation_confidence"].between(0.5, 1.0).all()
+
+
+def _streaks(ends_a: list, ends_b: list) -> FrameStreaks:
+    a, b = np.array(ends_a, float), np.array(ends_b, float)
+    pts = [np.linspace(p, q, int(np.linalg.norm(q - p)) + 1) for p, q in zip(a, b, strict=True)]
+    n = len(a)
+    return FrameStreaks(
+        shape=(100, 100), end_a=a, end_b=b, time_mid=(a + b) / 2, plateau=np.ones((n, 2)),
+        length_px=np.linalg.norm(b - a, axis=1), width_px=np.ones(n), snr=np.full(n, 50.0),
+        points=pts, profile=[np.ones(len(p)) for p in pts],
+        flags={}, sigma_c_px=1.8, noise=0.01, hot_pixels=0, short=np.zeros(n, bool))
+
+
+def test_continuity_orients_a_chain_of_streaks() -> None:
+    # A dot moving right at 1000 px/s; 10 ms exposures every 12 ms (2 px gaps). Frame 1's
+    # streak is stored reversed (A at its right end): continuity must say "swap".
+    timings = [FrameTiming(0.012 * k, 0.010) for k in range(3)]
+    f0 = _streaks([[10, 50]], [[20, 50]])
+    f1 = _streaks([[32, 50]], [[22, 50]])
+    f2 = _streaks([[34, 50]], [[44, 50]])
+    llr = continuity_cues([f0, f1, f2], timings)
+    assert llr[0][0] > 2 and llr[2][0] > 2
+    assert llr[1][0] < -2
+    ori = combine(np.column_stack([np.zeros(1), np.zeros(1), llr[1]]))
+    assert ori.swap[0] and ori.source == ["continuity"] and ori.confidence[0] > 0.9
+
+
+def test_combine_without_evidence_is_undecided() -> None:
+    ori = combine(np.zeros((2, 3)))
+    assert not ori.swap.any()
+    assert ori.source == ["none", "none"]
+    assert np.allclose(ori.confidence, 0.5)
+
+
+def test_cli_detect_writes_table_summary_and_overlay(synthetic: tuple[Path, dict],
+                                                     tmp_path: Path) -> None:
+    folder, _ = synthetic
+    out = tmp_path / "out" / "streaks.parquet"
+    png = tmp_path / "out" / "overlay.png"
+    assert main(["detect", str(folder), "--out", str(out), "--overlay", str(png)]) == 0
+    df = pd.read_parquet(out)
+    assert len(df) > 0 and {"start_x", "centerline", "orientation_source"} <= set(df.columns)
+    summary = json.loads((tmp_path / "out" / "streaks.summary.json").read_text())
+    assert summary["streaks"] == len(df)
+    assert png.stat().st_size > 1000
+
+
+def test_cli_detect_bad_input_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main(["detect", str(tmp_path / "missing"), "--out", str(tmp_path / "x.parquet")]) == 2
+    assert "error" in capsys.readouterr().err
+    assert not (tmp_path / "x.parquet").exists()
+
+
+def test_session_without_any_dots_is_reported(tmp_path: Path) -> None:
+    folder = tmp_path / "dark"
+    write_synthetic_session(folder, n_frames=2, seed=0, grid=(0, 0))
+    with pytest.raises(DetectionError, match="no laser-dot streaks"):
+        detect_session(load_session(folder))
