@@ -19,7 +19,7 @@ import numpy as np
 
 from blurtrack.detect import ragged
 from blurtrack.detect.ragged import Ragged
-from blurtrack.detect.sampling import sample_bilinear
+from blurtrack.detect.sampling import sample_image
 
 
 @dataclass(frozen=True)
@@ -39,14 +39,17 @@ class RefinedLines:
     step: np.ndarray
 
 
-def _cross_samples(image: np.ndarray, r: Ragged, half: int) -> tuple[np.ndarray, np.ndarray]:
+def _cross_samples(image: np.ndarray, r: Ragged, half: int, cubic: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Normals ``(M, 2)`` and samples ``(M, 2 half + 1)`` across every line point."""
     tan = ragged.tangents(r)
     nrm = np.stack([-tan[:, 1], tan[:, 0]], axis=1)
-    off = np.arange(-half, half + 1, dtype=np.float64)
-    x = r.points[:, 0:1] + off[None, :] * nrm[:, 0:1]
-    y = r.points[:, 1:2] + off[None, :] * nrm[:, 1:2]
-    return nrm, sample_bilinear(image, x, y)
+    off = np.arange(-half, half + 1, dtype=np.float32)
+    pts = r.points.astype(np.float32)
+    nrm32 = nrm.astype(np.float32)
+    x = pts[:, 0:1] + off[None, :] * nrm32[:, 0:1]
+    y = pts[:, 1:2] + off[None, :] * nrm32[:, 1:2]
+    return nrm, sample_image(image, x, y, cubic)
 
 
 def cross_section_sigma(v: np.ndarray, half: int) -> np.ndarray:
@@ -76,7 +79,7 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
     for it in range(3):
         # Extensions always start from refined points, along the refined end tangents.
         r = ragged.extend(r, n_ext)
-        nrm, v = _cross_samples(smooth, r, half)
+        nrm, v = _cross_samples(smooth, r, half, cubic=it == 2)
         prof = v.sum(axis=1)
         if it == 2:
             break

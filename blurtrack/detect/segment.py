@@ -22,7 +22,8 @@ class Components:
     """Connected components of the thresholded frame.
 
     - ``labels``: ``(H, W)`` int32 label image (0 = background).
-    - ``ys``, ``xs``: coordinates of all labelled pixels (any component).
+    - ``ys``, ``xs``: coordinates of the kept components' pixels, grouped by component;
+      component ``i`` owns ``starts[i] : starts[i] + areas[i]``.
     - ``ids``: ``(N,)`` labels kept (large and bright enough).
     - ``boxes``: ``(N, 4)`` int ``x, y, w, h`` bounding boxes.
     - ``peaks``: ``(N,)`` peak of the smoothed signal per component.
@@ -33,6 +34,7 @@ class Components:
     ys: np.ndarray
     xs: np.ndarray
     ids: np.ndarray
+    starts: np.ndarray
     boxes: np.ndarray
     peaks: np.ndarray
     areas: np.ndarray
@@ -48,30 +50,36 @@ def find_components(
     n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SAUF)
     nz = cv2.findNonZero(mask)  # much faster than np.nonzero on a full frame
     nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
-    xs, ys = nz[:, 0], nz[:, 1]
-    lab = labels[ys, xs]
+    lab = labels[nz[:, 1], nz[:, 0]]
     areas = np.bincount(lab, minlength=n)
-    ids = np.flatnonzero(areas >= min_area_px)
-    ids = ids[ids > 0].astype(np.int32)
+    keep_label = areas >= min_area_px
+    keep_label[0] = False
+    ids = np.flatnonzero(keep_label).astype(np.int32)
     if ids.size > max_streaks:
         raise DetectionError(
             f"{ids.size} bright components in one frame (limit {max_streaks}): "
             "not a laser-dot frame"
         )
-    lo = np.full((n, 2), np.iinfo(np.int64).max)
-    hi = np.full((n, 2), -1)
-    np.minimum.at(lo, lab, nz)
-    np.maximum.at(hi, lab, nz)
-    best = np.zeros(n, dtype=np.float64)
-    np.maximum.at(best, lab, smooth[ys, xs])
-    boxes = np.concatenate([lo[ids], hi[ids] - lo[ids] + 1], axis=1)
-    peaks = best[ids]
+    # Pixels of kept components, grouped by component (per-component reductions then run
+    # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls).
+    sel = keep_label[lab]
+    order = np.argsort(lab[sel], kind="stable")
+    xs, ys = nz[sel][order, 0], nz[sel][order, 1]
+    starts = np.concatenate(([0], np.cumsum(areas[ids])[:-1])).astype(np.int64)
+    if ids.size:
+        x0, x1 = np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts)
+        y0, y1 = np.minimum.reduceat(ys, starts), np.maximum.reduceat(ys, starts)
+        peaks = np.maximum.reduceat(smooth[ys, xs].astype(np.float64), starts)
+    else:
+        x0 = x1 = y0 = y1 = np.zeros(0, np.int64)
+        peaks = np.zeros(0)
     return Components(
         labels=labels,
         ys=ys,
         xs=xs,
         ids=ids,
-        boxes=boxes,
+        starts=starts,
+        boxes=np.stack([x0, y0, x1 - x0 + 1, y1 - y0 + 1], axis=1),
         peaks=peaks,
         areas=areas[ids],
     )
@@ -95,32 +103,25 @@ def axis_polylines(
     N = comps.ids.size
     if N == 0:
         return [], np.zeros(0, bool)
-    lut = np.zeros(comps.labels.max() + 1, dtype=np.int64)
-    lut[:] = -1
-    lut[comps.ids] = np.arange(N)
-    ys, xs = comps.ys, comps.xs
-    idx = lut[comps.labels[ys, xs]]
-    sel = idx >= 0
-    ys, xs, idx = ys[sel], xs[sel], idx[sel]
+    ys, xs, st = comps.ys, comps.xs, comps.starts
+    idx = np.repeat(np.arange(N), comps.areas)
     w = np.maximum(smooth[ys, xs].astype(np.float64), 1e-12)
     x = xs.astype(np.float64)
     y = ys.astype(np.float64)
-    sw = np.bincount(idx, w, N)
-    mx = np.bincount(idx, w * x, N) / sw
-    my = np.bincount(idx, w * y, N) / sw
+    sw = np.add.reduceat(w, st)
+    mx = np.add.reduceat(w * x, st) / sw
+    my = np.add.reduceat(w * y, st) / sw
     dx = x - mx[idx]
     dy = y - my[idx]
-    cxx = np.bincount(idx, w * dx * dx, N) / sw
-    cyy = np.bincount(idx, w * dy * dy, N) / sw
-    cxy = np.bincount(idx, w * dx * dy, N) / sw
+    cxx = np.add.reduceat(w * dx * dx, st) / sw
+    cyy = np.add.reduceat(w * dy * dy, st) / sw
+    cxy = np.add.reduceat(w * dx * dy, st) / sw
     theta = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # principal axis angle per component
     ux, uy = np.cos(theta), np.sin(theta)
     s = dx * ux[idx] + dy * uy[idx]
     t = -dx * uy[idx] + dy * ux[idx]
-    smin = np.full(N, np.inf)
-    smax = np.full(N, -np.inf)
-    np.minimum.at(smin, idx, s)
-    np.maximum.at(smax, idx, s)
+    smin = np.minimum.reduceat(s, st)
+    smax = np.maximum.reduceat(s, st)
     nbins = (np.floor(smax - smin) + 1).astype(np.int64)
     offsets = np.concatenate(([0], np.cumsum(nbins)))
     gb = offsets[idx] + np.floor(s - smin[idx]).astype(np.int64)
@@ -133,18 +134,11 @@ def axis_polylines(
     # Single-valued test: no empty bin, and no well-filled bin much wider than a straight
     # streak cut obliquely (a 60 degree slope doubles the width).
     bin_label = np.repeat(np.arange(N), nbins)
-    med_w = np.zeros(N)
-    np.maximum.at(med_w, bin_label, bw)
-    strong = bw > 0.25 * med_w[bin_label]
-    wide = strong & (btt > (2.0 * sigma_px) ** 2)
-    empty = bw <= 0
-    folded = np.zeros(N, bool)
-    np.logical_or.at(folded, bin_label, wide | empty)
-    polylines: list[np.ndarray] = []
-    for i in range(N):
-        a, b = offsets[i], offsets[i + 1]
-        ss, tt = bs[a:b], bt[a:b]
-        px = mx[i] + ss * ux[i] - tt * uy[i]
-        py = my[i] + ss * uy[i] + tt * ux[i]
-        polylines.append(np.stack([px, py], axis=1))
+    max_w = np.maximum.reduceat(bw, offsets[:-1])
+    strong = bw > 0.25 * max_w[bin_label]
+    bad = (strong & (btt > (2.0 * sigma_px) ** 2)) | (bw <= 0)
+    folded = np.maximum.reduceat(bad.astype(np.int8), offsets[:-1]) > 0
+    px = mx[bin_label] + bs * ux[bin_label] - bt * uy[bin_label]
+    py = my[bin_label] + bs * uy[bin_label] + bt * ux[bin_label]
+    polylines = np.split(np.stack([px, py], axis=1), offsets[1:-1])
     return polylines, folded

@@ -1,0 +1,184 @@
+"""Benchmark of streak detection against simulator truth (prints JSON).
+
+For each preset and seed: simulate a session with ``blurtrack simulate`` (or use ``--session``),
+run ``detect_session`` and compare with ``truth.yaml``:
+
+- endpoint error after start/end resolution (median, 95th percentile) on matched streaks that
+  lie fully inside the frame;
+- start/end resolved correctly, for true streaks longer than 5 px;
+- recall (true inside streaks found) and precision (unclipped detections that are real);
+- speed: frames/s of the per-frame detection on one core, and the same frames through a plain
+  ``cv2.GaussianBlur`` + ``cv2.connectedComponentsWithStats`` pass in the same run (ratio).
+
+Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.session import load_session  # noqa: E402
+
+MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
+
+
+def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
+    folder = out / f"{preset}-s{seed}-f{frames}"
+    if not (folder / "truth.yaml").is_file():
+        cmd = [sys.executable, "-m", "blurtrack", "simulate", str(folder), "--preset", preset,
+               "--frames", str(frames), "--seed", str(seed)]
+        subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True)
+    return folder
+
+
+def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                   np.ndarray]:
+    st = frame.get("streaks") or []
+    S = np.array([s["start"] for s in st], float).reshape(-1, 2)
+    E = np.array([s["end"] for s in st], float).reshape(-1, 2)
+    inside = np.array([bool(s.get("inside", True)) for s in st], bool)
+    length = np.array([float(s.get("length_px", np.linalg.norm(np.subtract(s["end"],
+                       s["start"])))) for s in st])
+    return S, E, inside, length
+
+
+def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
+    errors: list[float] = []
+    n_oriented = n_long = 0
+    n_inside = n_found = 0
+    n_det_unclipped = n_det_real = 0
+    for fr in truth["frames"]:
+        S, E, inside, length = _truth_arrays(fr)
+        d = table[table["frame"] == fr["index"]]
+        s = d[["start_x", "start_y"]].to_numpy(float)
+        e = d[["end_x", "end_y"]].to_numpy(float)
+        clipped = d["clipped"].to_numpy(bool)
+        n_inside += int(inside.sum())
+        n_det_unclipped += int((~clipped).sum())
+        if len(d) == 0 or len(S) == 0:
+            continue
+        same = (np.linalg.norm(s[:, None] - S[None], axis=2)
+                + np.linalg.norm(e[:, None] - E[None], axis=2)) / 2
+        swap = (np.linalg.norm(s[:, None] - E[None], axis=2)
+                + np.linalg.norm(e[:, None] - S[None], axis=2)) / 2
+        cost = np.minimum(same, swap)
+        rows, cols = linear_sum_assignment(np.where(cost < MATCH_GATE_PX, cost, 1e6))
+        ok = cost[rows, cols] < MATCH_GATE_PX
+        rows, cols = rows[ok], cols[ok]
+        n_found += int(inside[cols].sum())
+        n_det_real += int((~clipped[rows]).sum())
+        for r, c in zip(rows, cols, strict=True):
+            if not inside[c]:
+                continue
+            errors += [float(np.linalg.norm(s[r] - S[c])), float(np.linalg.norm(e[r] - E[c]))]
+            if length[c] > 5.0:
+                n_long += 1
+                n_oriented += int(same[r, c] <= swap[r, c])
+    err = np.array(errors) if errors else np.array([np.nan])
+    return {
+        "endpoint_error_median_px": float(np.median(err)),
+        "endpoint_error_p95_px": float(np.percentile(err, 95)),
+        "orientation_correct": n_oriented / max(n_long, 1),
+        "orientation_streaks_over_5px": n_long,
+        "recall_inside": n_found / max(n_inside, 1),
+        "precision_unclipped": n_det_real / max(n_det_unclipped, 1),
+        "true_inside_streaks": n_inside,
+    }
+
+
+def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[str, float]:
+    cv2.setNumThreads(1)
+    def base(img: np.ndarray) -> None:
+        g = cv2.GaussianBlur(img, (0, 0), 1.0)
+        thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
+        cv2.connectedComponentsWithStats((g > thr).view(np.uint8), connectivity=8)
+
+    t_det: list[float] = []
+    t_base: list[float] = []
+    for _ in range(repeat):  # interleaved, so that machine load affects both alike
+        for img in frames:
+            t0 = time.perf_counter()
+            base(img)
+            t1 = time.perf_counter()
+            detect_frame(img, params)
+            t2 = time.perf_counter()
+            t_base.append(t1 - t0)
+            t_det.append(t2 - t1)
+    det, bas = float(np.median(t_det)), float(np.median(t_base))
+    return {"detect_fps": 1.0 / det, "baseline_fps": 1.0 / bas, "time_ratio": det / bas,
+            "detect_ms_median": det * 1e3, "baseline_ms_median": bas * 1e3}
+
+
+def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
+    session = load_session(folder)
+    params = DetectParams()
+    t0 = time.perf_counter()
+    res = detect_session(session, params, gyro=gyro)
+    wall = time.perf_counter() - t0
+    out = evaluate(res.table, session.truth or {"frames": []})
+    frames = [session.read_image(i) for i in range(len(session.frames))]
+    out.update(speed(frames, params, repeat))
+    out.update({"session_wall_s": wall, "frames": len(frames), "streaks": len(res.table),
+                "orientation_sources": res.summary["orientation_sources"],
+                "flags": res.summary["flags"],
+                "gyro_timeshift_s": res.summary.get("gyro_timeshift_s")})
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", nargs="+", default=["clean", "realistic", "hard"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--gyro", default="auto", choices=("auto", "off"))
+    ap.add_argument("--repeat", type=int, default=3, help="speed passes over the frames")
+    ap.add_argument("--work", type=Path, default=ROOT / "bench_out" / "detect")
+    ap.add_argument("--session", type=Path, default=None, help="benchmark this session only")
+    args = ap.parse_args()
+    results: dict[str, Any] = {"runs": []}
+    if args.session is not None:
+        results["runs"].append({"session": str(args.session),
+                                **run_one(args.session, args.gyro, args.repeat)})
+    else:
+        args.work.mkdir(parents=True, exist_ok=True)
+        for preset in args.presets:
+            for seed in args.seeds:
+                folder = simulate(args.work, preset, args.frames, seed)
+                r = run_one(folder, args.gyro, args.repeat)
+                results["runs"].append({"preset": preset, "seed": seed, **r})
+                print(json.dumps({"preset": preset, "seed": seed, **{
+                    k: r[k] for k in ("endpoint_error_median_px", "endpoint_error_p95_px",
+                                      "orientation_correct", "recall_inside",
+                                      "precision_unclipped", "time_ratio", "detect_fps")}}),
+                      file=sys.stderr)
+        summary = {}
+        for preset in args.presets:
+            rs = [r for r in results["runs"] if r["preset"] == preset]
+            keys = ("endpoint_error_median_px", "endpoint_error_p95_px", "orientation_correct",
+                    "recall_inside", "precision_unclipped", "detect_fps", "baseline_fps",
+                    "time_ratio")
+            summary[preset] = {k: float(np.median([r[k] for r in rs])) for k in keys}
+            summary[preset]["worst_orientation_correct"] = min(r["orientation_correct"]
+                                                               for r in rs)
+        results["median_over_seeds"] = summary
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
