@@ -65,6 +65,13 @@ def cross_section_sigma(v: np.ndarray, half: int) -> np.ndarray:
     return np.where(ok & (curv < 0), sig, np.nan)
 
 
+def raw_profiles(signal: np.ndarray, r: Ragged, sigma_c: float) -> np.ndarray:
+    """Cross-section integrals ``(M,)`` of the unsmoothed ``signal`` along refined lines
+    (bilinear: no overshoot at clipped plateaus)."""
+    half = int(np.ceil(3.0 * sigma_c)) + 1
+    return _cross_samples(signal, r, half)[1].sum(axis=1)
+
+
 def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     """Per-point maximum of ``values`` over the point's line, ``(M,)``."""
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)

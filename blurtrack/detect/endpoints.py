@@ -6,8 +6,8 @@ profile is at half the local plateau, not where it vanishes. We locate ``s0`` by
 area, which is linear in the data and unbiased under noise: for a plateau ``P(s) = P + g (s -
 s_in)`` the integral of ``I`` from outside the streak to a point ``s_in`` on the plateau is
 ``P d - g d**2 / 2 - g sigma**2 / 2`` with ``d = s_in - s0``. Streaks too short to have a
-plateau at each end use the profile's moments: for uniform brightness and length L,
-``var = L**2 / 12 + sigma**2``.
+plateau at each end use the profile's first three moments (a segment of linearly varying
+brightness, :func:`linear_density_segment`).
 
 All positions here are in sample-index units of uniformly sampled profiles; rows of the
 matrices are streaks, padded with zeros past each row's length.
@@ -19,10 +19,15 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import ndtr
+
+from blurtrack.detect.shortfit import fit_short
 
 #: Plateau fit window (samples) and how far inside the half-level crossing it starts (sigmas).
 PLATEAU_WINDOW = 7
-PLATEAU_INSET_SIGMAS = 3.0
+PLATEAU_INSET_SIGMAS = 2.0
+#: Margin (sigmas) beyond the half-peak crossings over which short profiles' moments are taken.
+MOMENT_MARGIN_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -66,12 +71,13 @@ def _first_crossing(A: np.ndarray, lens: np.ndarray, level: np.ndarray
     return np.where(k > 0, km1 + f, 0.0), has
 
 
-def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray
+def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares line through ``PLATEAU_WINDOW`` samples from ``s_in`` on: value at
-    ``s_in``, slope, and whether the window fits inside the row."""
+    """Least-squares line through ``PLATEAU_WINDOW`` samples from ``s_in`` on, each divided by
+    the edge's remaining rise ``rise (N, PLATEAU_WINDOW)``: value at ``s_in``, slope, and
+    whether the window fits inside the row."""
     j = np.arange(PLATEAU_WINDOW, dtype=np.float64)
-    v = _at(A, s_in[:, None] + j[None, :], lens)
+    v = _at(A, s_in[:, None] + j[None, :], lens) / rise
     jc = j - j.mean()
     slope = (v @ jc) / float(jc @ jc)
     value = v.mean(axis=1) - slope * j.mean()
@@ -97,19 +103,28 @@ def _integral_to(A: np.ndarray, C: np.ndarray, x: np.ndarray, lens: np.ndarray) 
     return C[rows, i0] + f * (a0 + 0.5 * f * (a1 - a0))
 
 
-def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: float, guess: np.ndarray
+def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, guess: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Endpoint (fractional index), plateau level and validity of the rising edge at the
-    START of every row of ``A (N, L)``. ``guess``: a first plateau level per row."""
+    START of every row of ``A (N, L)``. ``guess``: a first plateau level per row.
+
+    The plateau is fitted from ``PLATEAU_INSET_SIGMAS`` sigmas inside the half-level crossing
+    on, with the window's samples divided by the erf still rising there; the edge's area up to
+    the window start then gives the endpoint, including the erf tail beyond it:
+    ``M = P (d + sigma psi(d / sigma))``, ``psi(x) = phi(x) - x Phi(-x)``.
+    """
     s_half, has = _first_crossing(A, lens, 0.5 * guess)
     ok = has.copy()
+    j = np.arange(PLATEAU_WINDOW, dtype=np.float64)
     for _ in range(2):
         s_in = s_half + PLATEAU_INSET_SIGMAS * sigma
-        value, slope, fits = _plateau(A, lens, s_in)
+        x = s_in[:, None] + j[None, :]
+        rise = np.maximum(ndtr((x - s_half[:, None]) / sigma[:, None]), 0.5)
+        value, slope, fits = _plateau(A, lens, s_in, rise)
         ok &= fits & (value > 0)
         s_half, has = _first_crossing(A, lens, 0.5 * np.where(value > 0, value, guess))
         ok &= has
-    s_far = np.maximum(s_half - PLATEAU_INSET_SIGMAS * sigma - 1.0, 0.0)
+    s_far = np.maximum(s_half - 3.0 * sigma - 1.0, 0.0)
     C = _cumulative(A)
     # Local baseline from the samples beyond s_far (when there are enough of them).
     n_tail = np.floor(s_far).astype(np.int64)
@@ -120,9 +135,46 @@ def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: float, guess: np.ndarra
     ok &= P > 0
     P = np.where(P > 0, P, 1.0)
     d = M / P
-    for _ in range(2):
-        d = (M + 0.5 * slope * (d * d + sigma * sigma)) / P
+    for _ in range(3):
+        z = d / sigma
+        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * ndtr(-z)
+        d = (M + 0.5 * slope * (d * d + sigma * sigma)) / P - sigma * psi
     return s_in - d, P, ok
+
+
+def _skew_of_slope(beta: np.ndarray) -> np.ndarray:
+    """Skewness of the density ``1 + 2 beta x`` on ``x in [-1/2, 1/2]`` (``|beta| <= 1``)."""
+    return (-beta / 60 + beta**3 / 108) / (1 / 12 - beta**2 / 36) ** 1.5
+
+
+_BETA = np.linspace(1.0, -1.0, 201)  # skewness increases along this table
+_SKEW = _skew_of_slope(_BETA)
+
+
+def linear_density_segment(mean: np.ndarray, var: np.ndarray, mu3: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The segment ``[lo, hi]`` carrying a linearly varying density with the given mean,
+    variance and third central moment (moments of the profile with the blur's variance
+    removed; a Gaussian blur adds nothing to the third moment). Brightness is proportional
+    to 1 / speed, so an accelerating short streak is lopsided: assuming a uniform density
+    would shift it towards its bright end. Returns ``lo``, ``hi`` and the mean density per
+    unit mass (``1 / length``). For density ``1 + 2 beta x`` on ``x in [-1/2, 1/2]`` (times L):
+    mean ``L beta / 6``, variance ``L^2 (1/12 - beta^2/36)``, third moment
+    ``L^3 (-beta/60 + beta^3/108)``.
+
+    >>> lo, hi, _ = linear_density_segment(np.array([5.0]), np.array([12.0]), np.array([0.0]))
+    >>> float(lo[0]), float(hi[0])
+    (-1.0, 11.0)
+    """
+    var = np.maximum(var, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        skew = np.where(var > 0, mu3 / np.maximum(var, 1e-12) ** 1.5, 0.0)
+    beta = np.interp(skew, _SKEW, _BETA)
+    # Below ~2 px the skewness is mostly noise: fall back to a uniform density.
+    beta = np.where(var * 12.0 < 4.0, 0.0, beta)
+    L = np.sqrt(var / (1 / 12 - beta**2 / 36))
+    lo = mean - L * (0.5 + beta / 6)
+    return lo, lo + L, 1.0 / np.maximum(L, 1.0)
 
 
 def reverse_rows(A: np.ndarray, lens: np.ndarray) -> np.ndarray:
@@ -156,17 +208,32 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     # Moments of the profile for short streaks: within the half-peak crossings +- 3 sigma + 1.
     lo, has_lo = _first_crossing(A, lens, 0.5 * peak)
     hi_rev, has_hi = _first_crossing(reverse_rows(A, lens), lens, 0.5 * peak)
-    lo = np.maximum(lo - PLATEAU_INSET_SIGMAS * sigma - 1.0, 0.0)
-    hi = np.minimum((lens - 1) - hi_rev + PLATEAU_INSET_SIGMAS * sigma + 1.0, lens - 1.0)
+    lo = np.maximum(lo - MOMENT_MARGIN_SIGMAS * sigma - 1.0, 0.0)
+    hi = np.minimum((lens - 1) - hi_rev + MOMENT_MARGIN_SIGMAS * sigma + 1.0, lens - 1.0)
     cols = np.arange(A.shape[1], dtype=np.float64)[None, :]
-    w = np.where((cols >= lo[:, None]) & (cols <= hi[:, None]), np.maximum(A, 0.0), 0.0)
-    sw = np.maximum(w.sum(axis=1), 1e-12)
+    inside = (cols >= lo[:, None]) & (cols <= hi[:, None])
+    outside = ~inside & (cols < lens[:, None])
+    n_out = outside.sum(axis=1)
+    # Baseline from the samples outside the window; no clipping of negative samples inside
+    # (clipping noise would bias every moment).
+    base = np.where(n_out >= 3, (A * outside).sum(axis=1) / np.maximum(n_out, 1), 0.0)
+    w = np.where(inside, A - base[:, None], 0.0)
+    sw = np.where(w.sum(axis=1) > 0, w.sum(axis=1), 1e-12)
     mu = (w @ cols[0]) / sw
-    var = (w * (cols - mu[:, None]) ** 2).sum(axis=1) / sw
-    half_len = 0.5 * np.sqrt(np.maximum(12.0 * (var - sigma**2), 0.0))
-    level = sw / np.maximum(2.0 * half_len, 1.0)
-    pos_a = np.where(short, mu - half_len, pa)
-    pos_b = np.where(short, mu + half_len, pb)
+    dev = cols - mu[:, None]
+    var = (w * dev**2).sum(axis=1) / sw
+    mu3 = (w * dev**3).sum(axis=1) / sw
+    s_lo, s_hi, _ = linear_density_segment(mu, var - sigma**2, mu3)
+    # The moments start a least-squares fit (robust to noise far from the streak).
+    sel = np.flatnonzero(short & (sw > 1e-9))
+    level = np.zeros(N)
+    if sel.size:
+        a_fit, L_fit, c0 = fit_short(np.where(inside[sel], A[sel] - base[sel, None], 0.0),
+                                     inside[sel].astype(np.float64), sigma[sel], s_lo[sel],
+                                     s_hi[sel] - s_lo[sel])
+        s_lo[sel], s_hi[sel], level[sel] = a_fit, a_fit + L_fit, c0
+    pos_a = np.where(short, s_lo, pa)
+    pos_b = np.where(short, s_hi, pb)
     swap = pos_b < pos_a
     mid = 0.5 * (pos_a + pos_b)
     pos_a = np.where(swap, mid, pos_a)

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from blurtrack.detect.centreline import refine_lines, trim_lines
+from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import DetectParams
@@ -140,10 +140,14 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         # Saturated streaks look wider than they are: their width comes from the others.
         sig_c = float(np.median(clean)) if clean.size else sigma_guess
         sigma_raw = float(np.sqrt(max(sig_c**2 - p.smooth_sigma_px**2, 0.25)))
-        A[line_sat] = unclip_profiles(A[line_sat], prep.saturation, sigma_raw)
         if p.psf_sigma_px is None:
             sigma_c = sig_c
-    fit = fit_edges(A, lens, sigma_c / ref.step)
+        # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
+        # (there the clipped cross-section integral is an exact function of the true one).
+        raw = to_matrix(raw_profiles(prep.signal, ref.lines, sigma_c), lens)
+        A[line_sat] = unclip_profiles(raw[line_sat], prep.saturation, sigma_raw)
+    edge_sigma = np.where(line_sat, sigma_raw if line_sat.any() else sigma_c, sigma_c)
+    fit = fit_edges(A, lens, edge_sigma / ref.step)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
     trimmed = trim_lines(ref, pos_a, pos_b)

@@ -66,13 +66,13 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     """
     step = max(1, int(np.sqrt(gray.size / 12000)))
     sample = gray[::step, ::step].ravel().astype(np.float64)
-    background = float(np.median(sample))
-    mad = float(np.median(np.abs(sample - background)))
-    noise = 1.4826 * mad
-    if noise == 0.0:
-        # Quantised, nearly noise-free frames: use the spread of the lower half instead.
-        low = sample[sample <= background]
-        noise = float(np.std(low)) if low.size else 0.0
+    median = float(np.median(sample))
+    sigma0 = max(1.4826 * float(np.median(np.abs(sample - median))), 0.5)
+    # The median of integer-valued data is off by up to half a step, which the integrals
+    # along streaks would amplify: take the mean of the central part instead.
+    core = sample[np.abs(sample - median) <= 4.0 * sigma0 + 1.0]
+    background = float(np.mean(core))
+    noise = float(np.std(core))
     return background, noise
 
 

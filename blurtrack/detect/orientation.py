@@ -35,6 +35,7 @@ MAX_CUE_LLR = 25.0
 #: Gyro prediction error model: sigma = GYRO_SIGMA_PX + GYRO_SIGMA_REL * length.
 GYRO_SIGMA_PX = 1.5
 GYRO_SIGMA_REL = 0.25
+GYRO_SIGMA_REL_REFINED = 0.12
 #: Profile cue: sigma of log brightness ratios.
 PROFILE_SIGMA_LOG = 0.35
 CUE_NAMES = ("gyro", "profile", "continuity")
@@ -59,11 +60,13 @@ class Orientation:
     llr: np.ndarray
 
 
-def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object) -> np.ndarray:
+def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object,
+              sigma_rel: float = GYRO_SIGMA_REL) -> np.ndarray:
     """``(N, 2)`` LLRs of the gyro and profile cues for one frame.
 
     ``model`` is a :class:`blurtrack.trajectory.BlurModel` (camera clock); it must cover the
-    frame's exposure (the caller checks coverage).
+    frame's exposure (the caller checks coverage). ``sigma_rel``: prediction uncertainty per
+    px of streak length (smaller once the time shift has been refined).
     """
     N = len(fs)
     out = np.zeros((N, 2))
@@ -78,7 +81,7 @@ def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object) -> np.ndarra
     A, B = fs.end_a, fs.end_b
     cost_a = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
     cost_b = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
-    sig = GYRO_SIGMA_PX + GYRO_SIGMA_REL * fs.length_px
+    sig = GYRO_SIGMA_PX + sigma_rel * fs.length_px
     out[:, 0] = (cost_b - cost_a) / (2 * sig**2)
     # Profile: predicted speeds at both ends vs the ends' plateau brightness.
     dt = max(timing.exposure_s / 20.0, 1e-5)
@@ -118,30 +121,45 @@ def _extrapolated_ends(fs: FrameStreaks, timing: FrameTiming, gap_s: float
     return ext_a, ext_b, unc
 
 
-def continuity_cues(frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming]
-                    ) -> list[np.ndarray]:
-    """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence)."""
+def continuity_cues(frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming],
+                    swaps: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence).
+
+    Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
+    (a tentative orientation of every frame: True where end B is the start) only the
+    previous frame's ends and the next frame's starts count, which removes the ambiguity of
+    a dot that reverses in the gap between exposures.
+    """
     out = [np.zeros(len(fs)) for fs in frames]
-    trees: list[cKDTree | None] = []
-    for fs in frames:
-        ends = np.concatenate([fs.end_a, fs.end_b]) if len(fs) else np.zeros((0, 2))
-        trees.append(cKDTree(ends) if len(ends) else None)
+
+    def tree(k: int, want: str) -> cKDTree | None:
+        fs = frames[k]
+        if len(fs) == 0:
+            return None
+        if swaps is None:
+            return cKDTree(np.concatenate([fs.end_a, fs.end_b]))
+        sw = swaps[k][:, None]
+        starts = np.where(sw, fs.end_b, fs.end_a)
+        ends = np.where(sw, fs.end_a, fs.end_b)
+        return cKDTree(ends if want == "ends" else starts)
+
     for k, fs in enumerate(frames):
         if len(fs) == 0:
             continue
         for nb, sign in ((k - 1, 1.0), (k + 1, -1.0)):
-            if nb < 0 or nb >= len(frames) or trees[nb] is None:
+            if nb < 0 or nb >= len(frames):
                 continue
             first, second = (nb, k) if nb < k else (k, nb)
             gap = timings[second].t_s - timings[first].t_s - timings[first].exposure_s
             if gap < 0 or gap > 4 * max(timings[first].exposure_s, 1e-3):
                 continue  # overlapping or far-apart exposures: no usable continuity
+            t = tree(nb, "ends" if nb < k else "starts")
+            if t is None:
+                continue
             ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap)
             gate = 3.0 * unc
-            tree = trees[nb]
-            assert tree is not None
-            d_a = np.minimum(tree.query(ext_a)[0], gate)
-            d_b = np.minimum(tree.query(ext_b)[0], gate)
+            d_a = np.minimum(t.query(ext_a)[0], gate)
+            d_b = np.minimum(t.query(ext_b)[0], gate)
             # Previous frame (sign +1): an end near ext_a supports "A is the start".
             out[k] += sign * (d_b**2 - d_a**2) / (2 * unc**2)
     return [np.clip(o, -MAX_CUE_LLR, MAX_CUE_LLR) for o in out]

@@ -11,6 +11,8 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
+    GYRO_SIGMA_REL,
+    GYRO_SIGMA_REL_REFINED,
     FrameTiming,
     combine,
     continuity_cues,
@@ -18,6 +20,7 @@ from blurtrack.detect.orientation import (
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.table import build_table, frame_rows
+from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import CoverageError, DetectionError
 
 GYRO_MODES = ("auto", "on", "off")
@@ -36,17 +39,15 @@ class DetectionResult:
     frames: list[FrameStreaks] = field(default_factory=list)
 
 
-def _gyro_model(session: Any, mode: str) -> Any:
-    """The blur model from the session's initial guesses, or None (mode off / no IMU data)."""
+def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
+    """The session's initial calibration and gyro trace, or None (mode off / no IMU data)."""
     if mode == "off":
         return None
     if session.imu_t_ns is None or len(session.imu_t_ns) < 2:
         if mode == "on":
             raise CoverageError("--gyro on, but the session has no gyro samples")
         return None
-    from blurtrack.trajectory import BlurModel
-
-    return BlurModel(session.initial_calibration(), session.gyro())
+    return session.initial_calibration(), session.gyro()
 
 
 def detect_session(
@@ -55,6 +56,7 @@ def detect_session(
     gyro: str = "auto",
     frames: range | None = None,
     on_frame: Callable[[int, FrameStreaks], None] | None = None,
+    refine_timeshift: bool = True,
 ) -> DetectionResult:
     """Detect and orient the streaks of every frame of a loaded session.
 
@@ -65,6 +67,9 @@ def detect_session(
             (every frame must be covered: :class:`CoverageError` otherwise), ``off``.
         frames: subset of frame indices (default: all).
         on_frame: progress callback ``(index, streaks)``.
+        refine_timeshift: before using the gyro, scan the camera-IMU time shift around the
+            session's guess (:mod:`blurtrack.detect.timeshift`); the guess may be off by more
+            than an exposure.
     Raises:
         DetectionError: no streak in any frame.
     """
@@ -77,7 +82,7 @@ def detect_session(
         raise DetectionError("the session has no frames")
     t_s = session.frame_times_s
     exp_s = session.exposures_s
-    model = _gyro_model(session, gyro)
+    inputs = _gyro_inputs(session, gyro)
     found: list[FrameStreaks] = []
     timings: list[FrameTiming] = []
     for i in idx:
@@ -88,17 +93,31 @@ def detect_session(
             on_frame(i, fs)
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
-    if model is not None:
+    model = shift = None
+    if inputs is not None:
+        from blurtrack.trajectory import BlurModel
+
+        calib, trace = inputs
+        shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None
+        if shift is not None:
+            calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
+        model = BlurModel(calib, trace)
         for k, (fs, tm) in enumerate(zip(found, timings, strict=True)):
             if len(fs) == 0:
                 continue
             try:
-                llrs[k][:, 0:2] = gyro_cues(fs, tm, model)
+                llrs[k][:, 0:2] = gyro_cues(
+                    fs, tm, model, GYRO_SIGMA_REL_REFINED if shift is not None else GYRO_SIGMA_REL)
             except CoverageError as exc:
                 if gyro == "on":
                     raise CoverageError(f"frame {idx[k]}: {exc}") from None
                 uncovered.append(idx[k])
+    # Continuity twice: any neighbouring end first, then (with that tentative orientation)
+    # only the previous frame's ends and the next frame's starts.
     for k, c in enumerate(continuity_cues(found, timings)):
+        llrs[k][:, 2] = c
+    tentative = [combine(llr).swap for llr in llrs]
+    for k, c in enumerate(continuity_cues(found, timings, tentative)):
         llrs[k][:, 2] = c
     parts = []
     sources: dict[str, int] = {}
@@ -122,6 +141,9 @@ def detect_session(
         "frames_without_streaks": empty,
         "frames_without_gyro": uncovered,
         "gyro": "off" if model is None else gyro,
+        "gyro_timeshift_initial_s": None if inputs is None else
+        float(inputs[0].timeshift_cam_imu_s),
+        "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),

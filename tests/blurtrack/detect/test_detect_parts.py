@@ -65,8 +65,8 @@ def test_edge_fit_recovers_erf_endpoints(length: float, s0: float, sigma: float,
     A = _erf_profile(length, s0, sigma, plateau, n)[None, :]
     fit = fit_edges(A, np.array([n]), np.array([sigma]))
     assert fit.valid[0]
-    assert fit.pos_a[0] == pytest.approx(s0, abs=0.02)
-    assert fit.pos_b[0] == pytest.approx(s0 + length, abs=0.02)
+    assert fit.pos_a[0] == pytest.approx(s0, abs=0.03)
+    assert fit.pos_b[0] == pytest.approx(s0 + length, abs=0.03)
     if not fit.short[0]:
         assert fit.plateau_a[0] == pytest.approx(plateau, rel=0.01)
 

@@ -1,0 +1,111 @@
+"""A coarse camera–IMU time shift from the streaks themselves, for start/end resolution.
+
+The session's initial time shift may be tens of milliseconds off, comparable with the
+exposure: the gyro then predicts the motion of the wrong instant, and its start/end verdict
+is worthless. Whatever the orientation, a streak's two ends must match the predicted two ends;
+that orientation-free cost, summed over many long streaks, is minimal at the right shift.
+We scan it on a grid and refine around the minimum. This is only a helper for the
+orientation cue (calibration fits the shift properly, with everything else).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.orientation import GYRO_SIGMA_PX, FrameTiming
+
+#: Streaks used per frame and frames used (spread over the session).
+MAX_STREAKS_PER_FRAME = 40
+MAX_FRAMES = 8
+MIN_LENGTH_PX = 5.0
+
+
+@dataclass(frozen=True)
+class TimeshiftEstimate:
+    """``timeshift_s`` (t_imu = t_cam + shift), the initial guess, the scanned grid and its
+    costs, and how many streaks were used."""
+
+    timeshift_s: float
+    initial_s: float
+    grid_s: np.ndarray
+    cost: np.ndarray
+    n_streaks: int
+
+
+def _cost(model: object, batches: list[tuple[FrameStreaks, np.ndarray, FrameTiming]]
+          ) -> float:
+    total = 0.0
+    for fs, sel, tm in batches:
+        cam = model.camera  # type: ignore[attr-defined]
+        mid = fs.time_mid[sel]
+        t_ref = tm.t_s + cam.readout_s * np.clip(mid[:, 1], 0, cam.height - 1) / cam.height \
+            + 0.5 * tm.exposure_s
+        start, end, _, _ = model.streak_endpoints(  # type: ignore[attr-defined]
+            mid, t_ref, tm.t_s, tm.exposure_s)
+        A, B = fs.end_a[sel], fs.end_b[sel]
+        ca = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
+        cb = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
+        sig2 = (GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2
+        total += float(np.sum(np.minimum(np.minimum(ca, cb) / sig2, 25.0)))
+    return total
+
+
+def estimate_timeshift(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    calib: object,
+    gyro: object,
+    search_s: float = 0.05,
+    step_s: float = 0.002,
+) -> TimeshiftEstimate | None:
+    """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage.
+
+    ``calib`` is a :class:`blurtrack.calibration.Calibration` (its ``timeshift_cam_imu_s``
+    is the initial guess), ``gyro`` a :class:`blurtrack.gyro.GyroTrace`.
+    """
+    from blurtrack.errors import CoverageError
+    from blurtrack.trajectory import BlurModel
+
+    initial = float(calib.timeshift_cam_imu_s)  # type: ignore[attr-defined]
+    t_lo = float(gyro.t_s[0]) + search_s  # type: ignore[attr-defined]
+    t_hi = float(gyro.t_s[-1]) - search_s  # type: ignore[attr-defined]
+    usable = [k for k, (fs, tm) in enumerate(zip(frames, timings, strict=True))
+              if len(fs) and t_lo <= tm.t_s + initial
+              and tm.t_s + initial + 2 * tm.exposure_s + 0.05 <= t_hi]
+    if not usable:
+        return None
+    pick = np.unique(np.linspace(0, len(usable) - 1, min(MAX_FRAMES, len(usable))).round())
+    batches = []
+    for k in (usable[int(i)] for i in pick):
+        long = np.flatnonzero((frames[k].length_px > MIN_LENGTH_PX)
+                              & ~frames[k].flags["clipped"] & ~frames[k].flags["merged"])
+        if long.size:
+            sel = long[np.linspace(0, long.size - 1, min(MAX_STREAKS_PER_FRAME, long.size))
+                       .round().astype(int)]
+            batches.append((frames[k], np.unique(sel), timings[k]))
+    n = sum(len(b[1]) for b in batches)
+    if n < 5:
+        return None
+
+    def cost_at(shift: float) -> float:
+        model = BlurModel(calib.with_(timeshift_cam_imu_s=shift), gyro)  # type: ignore[attr-defined]
+        try:
+            return _cost(model, batches)
+        except CoverageError:
+            return float("inf")
+
+    grid = initial + np.arange(-search_s, search_s + 1e-12, step_s)
+    cost = np.array([cost_at(s) for s in grid])
+    if not np.any(np.isfinite(cost)):
+        return None
+    best = float(grid[int(np.argmin(cost))])
+    fine = best + np.arange(-step_s, step_s + 1e-12, step_s / 4)
+    fine_cost = np.array([cost_at(s) for s in fine])
+    best = float(fine[int(np.argmin(fine_cost))])
+    return TimeshiftEstimate(timeshift_s=best, initial_s=initial,
+                             grid_s=np.concatenate([grid, fine]),
+                             cost=np.concatenate([cost, fine_cost]), n_streaks=n)
