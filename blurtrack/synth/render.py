@@ -49,7 +49,9 @@ class RenderSettings:
 
     Args:
         max_step_px: largest motion between consecutive samples (px).
-        grid_px: node spacing of the exact coarse maps in the remap path (px).
+        grid_px: largest node spacing of the exact coarse maps in the remap path (px).
+        map_tol_px: target bilinear-interpolation error of those maps; the spacing shrinks
+            below ``grid_px`` when needed (error ≈ θ s² / (4 f) for a rotation θ, focal f).
         border: ``reflect`` or ``constant`` (see module docstring).
         max_samples: refuse blur that would need more samples than this.
         plan_tau, plan_grid: τ samples and grid nodes per axis of the step planning.
@@ -57,6 +59,7 @@ class RenderSettings:
 
     max_step_px: float = 0.5
     grid_px: int = 16
+    map_tol_px: float = 0.002
     border: str = "reflect"
     max_samples: int = 4000
     plan_tau: int = 129
@@ -67,6 +70,8 @@ class RenderSettings:
             raise SynthesisError(f"max_step_px must be in (0, 4], got {self.max_step_px}")
         if not 2 <= int(self.grid_px) <= 256:
             raise SynthesisError(f"grid_px must be in [2, 256], got {self.grid_px}")
+        if not (math.isfinite(self.map_tol_px) and self.map_tol_px > 0):
+            raise SynthesisError(f"map_tol_px must be positive, got {self.map_tol_px}")
         if self.border not in BORDERS:
             raise SynthesisError(f"border must be one of {sorted(BORDERS)}, got {self.border!r}")
         if int(self.max_samples) < 2 or int(self.plan_tau) < 3 or int(self.plan_grid) < 2:
@@ -110,10 +115,11 @@ def source_positions(model: BlurModel, frame_t_s: float, exposure_s: float, t_re
 
 
 def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
-                 settings: RenderSettings) -> tuple[int, float]:
+                 settings: RenderSettings) -> tuple[int, float, float]:
     """Number of midpoint samples so that consecutive ones move at most ``max_step_px``.
 
-    Returns ``(n, step_px)`` with ``step_px`` the largest planned step between samples.
+    Returns ``(n, step_px, reach_px)``: the largest planned step between samples and the
+    largest distance of a sample from its pixel (``|q|``).
     """
     W, H = model.camera.resolution
     u = np.linspace(0.0, W - 1.0, settings.plan_grid)
@@ -126,7 +132,15 @@ def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s:
     if n > settings.max_samples:
         raise SynthesisError(f"blur moves up to {speed:.0f} px per exposure and would need {n} "
                              f"samples (limit {settings.max_samples})")
-    return n, speed / n
+    reach = float(np.max(np.hypot(mx - u[None, None, :], my - v[None, :, None])))
+    return n, speed / n, reach
+
+
+def node_spacing(model: BlurModel, reach_px: float, settings: RenderSettings) -> int:
+    """Coarse-map node spacing meeting ``map_tol_px``: ``s = 2 f sqrt(tol / reach)``."""
+    f = min(model.camera.intrinsics[:2])
+    s = 2 * f * math.sqrt(settings.map_tol_px / max(reach_px, 1.0))
+    return int(min(settings.grid_px, max(4, math.floor(s))))
 
 
 @dataclass(frozen=True)
@@ -177,11 +191,11 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
                              f"got {img.dtype} {img.shape}")
     t_ref = model.default_reference_time(frame_t_s, exposure_s) if t_ref_s is None \
         else float(t_ref_s)
-    n, step = plan_samples(model, frame_t_s, exposure_s, t_ref, st)
+    n, step, reach = plan_samples(model, frame_t_s, exposure_s, t_ref, st)
     tau = (np.arange(n) + 0.5) / n
     border = BORDERS[st.border]
     acc = np.zeros(img.shape, np.float32)
-    grid = NodeGrid.build(W, H, st.grid_px)
+    grid = NodeGrid.build(W, H, node_spacing(model, reach, st))
     margin = np.full((grid.v.size, grid.u.size), np.inf)
     homography = cam.readout_s == 0 and not cam.dist
     if homography:
