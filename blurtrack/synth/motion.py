@@ -6,9 +6,10 @@ recorded in the manifest:
 * ``session`` — a recorded session folder (its ``imu0``). The calibration belongs to this IMU,
   so its time shift and gyro bias apply (``own_imu``).
 * ``shake`` — a plain shake file (GyroDeblurNet's ``timestamp_ns wx wy wz``), read by
-  :mod:`blurtrack.shake`. The trace is another device's, so the calibration's time shift and
-  bias are not applied (they describe the calibrated IMU, not this one); its axes are taken as
-  the IMU axes and rotated by the calibration's ``R_cam_imu``.
+  :mod:`blurtrack.shake` (manifest times count from the file's first sample). The trace is
+  another device's, so the calibration's time shift and bias are not applied (they describe
+  the calibrated IMU, not this one); its axes are taken as the IMU axes and rotated by the
+  calibration's ``R_cam_imu``.
 * ``synthetic`` — smooth random motion: per axis a sum of sinusoids at hand-tremor frequencies
   (1–12 Hz) scaled to a chosen RMS angular rate, the roll axis at half amplitude.
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from blurtrack.errors import BlurTrackError, CoverageError, SynthesisError
 from blurtrack.gyro import GyroTrace
-from blurtrack.shake import read_shake
+from blurtrack.shake import read_shake_trace
 
 #: Redraws of a segment that hits a gap before giving up.
 MAX_DRAWS = 200
@@ -150,8 +151,7 @@ def open_source(spec: str) -> GyroSource:
                 raise SynthesisError(f"gyro folder {p} must be a session or hold exactly one "
                                      f".txt shake file, found {len(files)}")
             p = files[0]
-        trace, t0 = read_shake(p)
-        return TraceSource(trace, "shake", str(p), own_imu=False, t0_ns=t0)
+        return TraceSource(read_shake_trace(p), "shake", str(p), own_imu=False)
     except SynthesisError:
         raise
     except (BlurTrackError, CoverageError) as exc:

@@ -10,9 +10,8 @@ import pytest
 
 from blurtrack.calibration import Calibration
 from blurtrack.camera import Camera
-from blurtrack.errors import ImportFormatError, SynthesisError
+from blurtrack.errors import SynthesisError
 from blurtrack.gyro import GyroTrace
-from blurtrack.shake import read_shake
 from blurtrack.synth import photometry as ph
 from blurtrack.synth.images import camera_for_size, fit_to_size, list_images, load_image, split_of
 from blurtrack.synth.motion import SyntheticSource, TraceSource, open_source
@@ -57,21 +56,6 @@ def test_saturation_expansion_and_photometry_validation() -> None:
     img = (np.random.default_rng(1).random((32, 48, 3)) * 255).astype(np.uint8)
     jp = ph.jpeg_roundtrip(img, 50)
     assert jp.shape == img.shape and not np.array_equal(jp, img)
-
-
-def test_shake_reader_known_values_and_failures(tmp_path: Path) -> None:
-    f = tmp_path / "s.txt"
-    f.write_text("# comment\n1000\t0.1\t0.2\t0.3\n3000\t0.4\t0.5\t0.6\n")
-    trace, t0 = read_shake(f)
-    assert t0 == 1000
-    np.testing.assert_allclose(trace.t_s, [0.0, 2e-6])
-    np.testing.assert_allclose(trace.omega_radps[1], [0.4, 0.5, 0.6])
-    cases = {"1000\t0.1\t0.2\n": "columns", "1000\t0.1\tx\t0.3\n2000\t1\t1\t1\n": "row 1",
-             "2000\t0\t0\t0\n1000\t0\t0\t0\n": "increasing", "": "empty"}
-    for text, msg in cases.items():
-        f.write_text(text)
-        with pytest.raises(ImportFormatError, match=msg):
-            read_shake(f)
 
 
 @pytest.mark.skipif(not SHAKE.is_dir(), reason="../shared/data/real/gyrodeblurnet-shake absent")
