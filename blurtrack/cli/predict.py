@@ -42,17 +42,19 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--grid needs >= 2 nodes per axis, --stride >= 1, --samples >= 3")
     session = load_session(args.session)
     calib = Calibration.from_yaml(args.calib)
-    bar = tqdm(unit="frame", desc="predict", dynamic_ncols=True)
+    bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
 
     def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
+        if not bars:
+            bars.append(tqdm(total=total, unit="frame", desc="predict", dynamic_ncols=True))
+        bars[0].update(done - bars[0].n)
 
     try:
         res = predict_session(session, calib, args.out, args.stride, args.samples, (gx, gy),
                               args.skip_uncovered, progress)
     finally:
-        bar.close()
+        for b in bars:
+            b.close()
     summary = {"command": "predict", "session": str(args.session), "calib": str(args.calib),
                **res.stats, "skipped_timestamps_ns": res.skipped}
     write_text_atomic(Path(args.out) / "summary.json", json.dumps(summary, indent=2) + "\n")

@@ -110,16 +110,18 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--workers must be >= 1")
     spec = spec_from_args(args)
     shard = parse_shard(args.shard)
-    bar = tqdm(unit="triplet", desc="synth", dynamic_ncols=True)
+    bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
 
     def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
+        if not bars:
+            bars.append(tqdm(total=total, unit="triplet", desc="synth", dynamic_ncols=True))
+        bars[0].update(done - bars[0].n)
 
     try:
         result = build(spec, args.out, shard, args.workers, progress)
     finally:
-        bar.close()
+        for b in bars:
+            b.close()
     summary = {"command": "synth", "shard": list(shard), "count": spec.count,
                "mode": spec.params.mode, "size": list(spec.params.size), **result.to_dict()}
     name = "summary.json" if shard[1] == 1 else f"summary-shard{shard[0]}.json"

@@ -207,8 +207,6 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
             w = cv2.warpPerspective(img, Hk, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                     borderMode=border)
             cv2.accumulate(w, acc)
-    ident = np.dstack(np.meshgrid(np.arange(W, dtype=np.float32),
-                                  np.arange(H, dtype=np.float32))) if not homography else None
     for k0 in range(0, n, _TAU_CHUNK):
         mx, my = source_positions(model, frame_t_s, exposure_s, t_ref, grid.u, grid.v,
                                   tau[k0:k0 + _TAU_CHUNK])
@@ -216,9 +214,9 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
         margin = np.minimum(margin, inside.min(axis=0))
         if homography:
             continue
-        disp = np.stack([mx - grid.u[None, None, :], my - grid.v[None, :, None]], axis=-1)
-        for d in disp.astype(np.float32):
-            m = grid.upsample(d) + ident
+        # Absolute coordinates: the identity is linear, so bilinear upsampling keeps it exact.
+        for node_map in np.stack([mx, my], axis=-1).astype(np.float32):
+            m = grid.upsample(node_map)
             cv2.accumulate(cv2.remap(img, m, None, cv2.INTER_LINEAR, borderMode=border), acc)
     acc *= np.float32(1.0 / n)
     valid = grid.upsample(margin) >= 0

@@ -1,0 +1,127 @@
+"""Benchmark of blur synthesis: triplets per second and the cost over a warp floor.
+
+For each output size (1280x720 and 640x360) the same seeded triplets are made, interleaved, by
+(a) the exact renderer (``mode=exact``), (b) the source paper's approximation (``mode=paper``)
+and (c) the floor: as many ``cv2.warpPerspective`` calls on a float32 RGB image as the exact
+renderer used samples. All single-process, in memory (no file writing). Then the 1280x720
+dataset build with 2 worker processes (PNG + npy writing included) gives the end-to-end rate.
+Also reported: the heat maps' Bezier fit share within 0.5 px, and the error that heat-map
+``stride`` adds against ``stride=1``. Prints one JSON object; ratios and medians, since the
+machine is shared and noisy.
+
+    PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blurtrack.calibration import Calibration
+from blurtrack.camera import Camera
+from blurtrack.synth.dataset import DatasetSpec, build
+from blurtrack.synth.images import camera_for_size, list_images, load_image
+from blurtrack.synth.motion import open_source
+from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
+from blurtrack.trajectory import BlurModel
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CALIB = Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))
+
+
+def floor_time(n: int, size: tuple[int, int], rng: np.random.Generator) -> float:
+    W, H = size
+    img = rng.random((H, W, 3), dtype=np.float32)
+    M = np.array([[1.0, 0.002, 1.3], [-0.002, 1.0, 0.7], [1e-6, -1e-6, 1.0]])
+    t0 = time.perf_counter()
+    for _ in range(n):
+        cv2.warpPerspective(img, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                            borderMode=cv2.BORDER_REFLECT_101)
+    return time.perf_counter() - t0
+
+
+def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
+    src = open_source(gyro)
+    names = list_images(images)
+    rng = np.random.default_rng(0)
+    exact_t, paper_t, floor_t, samples, fits = [], [], [], [], []
+    for i in range(n):
+        img = load_image(images, names[i % len(names)])
+        t0 = time.perf_counter()
+        tr = make_triplet(img, CALIB, src, TripletParams(size=size), triplet_rng(1, i))
+        exact_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        make_triplet(img, CALIB, src, TripletParams(size=size, mode="paper"), triplet_rng(1, i))
+        paper_t.append(time.perf_counter() - t0)
+        floor_t.append(floor_time(tr.info["samples"], size, rng))
+        samples.append(tr.info["samples"])
+        fits.append(tr.info["bezier_fit"]["within_0.5px"])
+    ratio = [e / f for e, f in zip(exact_t, floor_t, strict=True)]
+    return {
+        "size": list(size), "triplets": n, "median_samples": statistics.median(samples),
+        "exact_triplets_per_s": 1 / statistics.median(exact_t),
+        "paper_triplets_per_s": 1 / statistics.median(paper_t),
+        "floor_triplets_per_s": 1 / statistics.median(floor_t),
+        "exact_over_floor_median": statistics.median(ratio),
+        "paper_over_floor_median": statistics.median(
+            [p / f for p, f in zip(paper_t, floor_t, strict=True)]),
+        "bezier_fit_within_0.5px_mean": float(np.mean(fits)),
+        "bezier_fit_within_0.5px_min": float(np.min(fits)),
+    }
+
+
+def stride_error(gyro: str) -> dict:
+    src = open_source(gyro)
+    cam = camera_for_size(CALIB.camera, 1280, 720)
+    out = {}
+    for i in range(3):
+        rng = triplet_rng(5, i)
+        seg = src.segment(rng, 0.045, 0.05)
+        m = BlurModel(Calibration(cam), seg.trace)
+        full, _ = m.heat_maps(seg.frame_t_s, 0.025, 16, None, 1)
+        for s in (4, 8, 16):
+            approx, _ = m.heat_maps(seg.frame_t_s, 0.025, 16, None, s)
+            e = np.abs(approx - full)
+            d = out.setdefault(f"stride_{s}", {"max_px": 0.0, "p99_px": 0.0})
+            d["max_px"] = max(d["max_px"], float(e.max()))
+            d["p99_px"] = max(d["p99_px"], float(np.percentile(e, 99)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=8, help="triplets per size")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--build-count", type=int, default=16)
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    shake = DATA / "real" / "gyrodeblurnet-shake"
+    gyro = str(shake) if shake.is_dir() else "synthetic:0.7"
+    images = DATA / "backgrounds" / "bsds500"
+    if not images.is_dir():
+        raise SystemExit(f"backgrounds not found at {images}")
+    result = {"gyro": Path(gyro).name, "calibration": "1280x720 f=1000 px readout 20 ms",
+              "exposure_ms": [10, 30]}
+    result["sizes"] = [bench_size((1280, 720), args.n, gyro, images),
+                       bench_size((640, 360), 2 * args.n, gyro, images)]
+    result["heat_stride_error_vs_stride_1"] = stride_error(gyro)
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images),
+                           count=args.build_count, seed=3, params=TripletParams())
+        t0 = time.perf_counter()
+        res = build(spec, Path(tmp) / "ds", workers=args.workers)
+        wall = time.perf_counter() - t0
+    result["build_1280x720"] = {"workers": args.workers, "triplets": res.made,
+                                "wall_s": wall, "triplets_per_s": res.made / wall}
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
