@@ -42,6 +42,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--grid-px", type=int, default=16)
     p.add_argument("--border", choices=("reflect", "constant"), default="reflect")
     p.add_argument("--no-upscale", action="store_true", help="refuse photos smaller than --size")
+    p.add_argument("--extras", action="store_true",
+                   help="also write mask/<stem>.png (validity) and fit/<stem>.npy (fit error)")
     p.add_argument("--group", type=int, default=100, help="triplets per <name> folder")
     p.set_defaults(func=run)
 
@@ -96,7 +98,8 @@ def spec_from_args(args: argparse.Namespace):
     calib = Calibration.from_yaml(args.calib)
     gyro = args.gyro if args.gyro.startswith("synthetic") else str(Path(args.gyro).resolve())
     return DatasetSpec(calib=calib.to_dict(), gyro=gyro, images=str(Path(args.images).resolve()),
-                       count=args.count, seed=args.seed, params=params, group=args.group)
+                       count=args.count, seed=args.seed, params=params, group=args.group,
+                       extras=args.extras)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -43,6 +43,8 @@ from blurtrack.yamlio import read_yaml, write_text_atomic, write_yaml
 
 FORMAT = "blurtrack-dataset/1"
 KINDS = (("sharp", ".png"), ("blur", ".png"), ("heat", ".npy"))
+#: Optional extra files (``extras=True``): validity mask (0/255 PNG) and Bezier fit error (px).
+EXTRA_KINDS = (("mask", ".png"), ("fit", ".npy"))
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,7 @@ class DatasetSpec:
     seed: int
     params: TripletParams
     group: int = 100
+    extras: bool = False
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.count) <= 10_000_000 or int(self.group) < 1:
@@ -65,7 +68,7 @@ class DatasetSpec:
     def to_dict(self) -> dict[str, Any]:
         return {"calib": self.calib, "gyro": self.gyro, "images": self.images,
                 "count": int(self.count), "seed": int(self.seed), "group": int(self.group),
-                "params": self.params.to_dict()}
+                "extras": bool(self.extras), "params": self.params.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DatasetSpec:
@@ -83,9 +86,10 @@ class Job:
     stem: str
     image: str
 
-    def paths(self, out: Path) -> dict[str, Path]:
+    def paths(self, out: Path, extras: bool = False) -> dict[str, Path]:
         base = out / self.split / self.name
-        return {k: base / k / f"{self.stem}{ext}" for k, ext in KINDS}
+        kinds = KINDS + (EXTRA_KINDS if extras else ())
+        return {k: base / k / f"{self.stem}{ext}" for k, ext in kinds}
 
 
 def plan(spec: DatasetSpec, images: list[str], tag: str) -> list[Job]:
@@ -148,6 +152,12 @@ def _png(img: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def _npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
 # ------------------------------------------------------------------ worker side
 _STATE: dict[str, Any] = {}
 
@@ -168,12 +178,13 @@ def _work(job: Job) -> dict[str, Any]:
                           triplet_rng(spec.seed, job.index))
     except BlurTrackError as exc:
         raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
-    paths = job.paths(out)
-    buf = io.BytesIO()
-    np.save(buf, tr.heat, allow_pickle=False)
+    paths = job.paths(out, spec.extras)
     _write_atomic(paths["sharp"], _png(tr.sharp))
     _write_atomic(paths["blur"], _png(tr.blur))
-    _write_atomic(paths["heat"], buf.getvalue())
+    _write_atomic(paths["heat"], _npy(tr.heat))
+    if spec.extras:
+        _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255))
+        _write_atomic(paths["fit"], _npy(tr.fit_error.astype(np.float32)))
     info = dict(tr.info)
     return {"index": job.index, "split": job.split, "name": job.name, "stem": job.stem,
             "source_image": job.image, "gyro_segment": info.pop("gyro_segment"),
@@ -213,11 +224,19 @@ def _check_spec(out: Path, spec: DatasetSpec) -> None:
         write_yaml(path, want)
 
 
+def _inside(out: Path, rel: Any) -> bool:
+    """Whether ``rel`` names an existing file inside ``out`` (manifests are untrusted)."""
+    if not isinstance(rel, str) or not rel or Path(rel).is_absolute() or ".." in Path(rel).parts:
+        return False
+    return (out / rel).is_file()
+
+
 def _finished(out: Path, records: dict[int, dict[str, Any]]) -> set[int]:
     done = set()
     for i, rec in records.items():
         files = rec.get("files", {})
-        if all((out / files.get(k, "\0")).is_file() for k, _ in KINDS):
+        if all(_inside(out, files.get(k)) for k, _ in KINDS) and all(
+                _inside(out, f) for f in files.values()):
             done.add(i)
     return done
 
@@ -316,8 +335,8 @@ def merge(out: str | Path, shard_dirs: Iterable[str | Path] = ()) -> dict[str, A
             continue
         for m in sorted([*d.glob("manifest-shard*.jsonl"), d / "manifest.jsonl"]):
             for i, rec in read_manifest(m).items():
-                for rel in rec["files"].values():
-                    if (d / rel).is_file():
+                for rel in rec.get("files", {}).values():
+                    if _inside(d, rel):
                         _move(d / rel, root / rel)
                 records[i] = rec
     done = _finished(root, records)
