@@ -52,14 +52,19 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
     names = list_images(images)
     rng = np.random.default_rng(0)
     exact_t, paper_t, floor_t, samples, fits = [], [], [], [], []
+    img_diff, heat_diff = [], []
     for i in range(n):
         img = load_image(images, names[i % len(names)])
         t0 = time.perf_counter()
         tr = make_triplet(img, CALIB, src, TripletParams(size=size), triplet_rng(1, i))
         exact_t.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        make_triplet(img, CALIB, src, TripletParams(size=size, mode="paper"), triplet_rng(1, i))
+        pp = make_triplet(img, CALIB, src, TripletParams(size=size, mode="paper"),
+                          triplet_rng(1, i))
         paper_t.append(time.perf_counter() - t0)
+        both = tr.valid & pp.valid
+        img_diff.append(float(np.mean(np.abs(tr.blur.astype(float) - pp.blur)[both])))
+        heat_diff.append(float(np.percentile(np.abs(tr.heat - pp.heat), 99)))
         floor_t.append(floor_time(tr.info["samples"], size, rng))
         samples.append(tr.info["samples"])
         fits.append(tr.info["bezier_fit"]["within_0.5px"])
@@ -72,6 +77,8 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
         "exact_over_floor_median": statistics.median(ratio),
         "paper_over_floor_median": statistics.median(
             [p / f for p, f in zip(paper_t, floor_t, strict=True)]),
+        "paper_vs_exact_blur_mean_abs_8bit": statistics.median(img_diff),
+        "paper_vs_exact_heat_p99_px": statistics.median(heat_diff),
         "bezier_fit_within_0.5px_mean": float(np.mean(fits)),
         "bezier_fit_within_0.5px_min": float(np.min(fits)),
     }

@@ -139,3 +139,11 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     assert main([*args[:-7], "--size", "48by32"]) == 2
     assert "--size must be WxH" in capsys.readouterr().err
     assert main(["synth-merge", str(tmp_path / "nothing")]) == 2
+
+
+def test_demo_dataset_from_shared_backgrounds(tmp_path: Path, shared_data: Path) -> None:
+    from blurtrack.synth.demo import demo_dataset
+
+    summary = demo_dataset(tmp_path / "demo", shared_data, count=2, size=(64, 36))
+    assert summary["made"] == 2
+    assert len(read_manifest(tmp_path / "demo" / "manifest.jsonl")) == 2
