@@ -134,9 +134,14 @@ def read_manifest(path: Path, repair: bool = False) -> dict[int, dict[str, Any]]
     return records
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def _write_atomic(path: Path, data: bytes, tag: str = "x") -> None:
+    """Write ``data`` to a hidden ``.<name>.<tag>.<pid>.tmp`` file, then rename it to ``path``.
+
+    ``tag`` names the shard, so a shard cleaning up after a killed run of itself never
+    touches the temporaries of another shard running in the same folder.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(f".{path.name}.{tag}.{os.getpid()}.tmp")
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)
@@ -162,10 +167,10 @@ def _npy(arr: np.ndarray) -> bytes:
 _STATE: dict[str, Any] = {}
 
 
-def _init_worker(spec_dict: dict[str, Any], out: str) -> None:
+def _init_worker(spec_dict: dict[str, Any], out: str, tag: str = "s0of1") -> None:
     cv2.setNumThreads(1)
     spec = DatasetSpec.from_dict(spec_dict)
-    _STATE.update(spec=spec, out=Path(out), calib=Calibration.from_dict(spec.calib),
+    _STATE.update(spec=spec, out=Path(out), tag=tag, calib=Calibration.from_dict(spec.calib),
                   source=open_source(spec.gyro))
 
 
@@ -179,12 +184,13 @@ def _work(job: Job) -> dict[str, Any]:
     except BlurTrackError as exc:
         raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
     paths = job.paths(out, spec.extras)
-    _write_atomic(paths["sharp"], _png(tr.sharp))
-    _write_atomic(paths["blur"], _png(tr.blur))
-    _write_atomic(paths["heat"], _npy(tr.heat))
+    tag = _STATE["tag"]
+    _write_atomic(paths["sharp"], _png(tr.sharp), tag)
+    _write_atomic(paths["blur"], _png(tr.blur), tag)
+    _write_atomic(paths["heat"], _npy(tr.heat), tag)
     if spec.extras:
-        _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255))
-        _write_atomic(paths["fit"], _npy(tr.fit_error.astype(np.float32)))
+        _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255), tag)
+        _write_atomic(paths["fit"], _npy(tr.fit_error.astype(np.float32)), tag)
     info = dict(tr.info)
     return {"index": job.index, "split": job.split, "name": job.name, "stem": job.stem,
             "source_image": job.image, "gyro_segment": info.pop("gyro_segment"),
@@ -259,7 +265,8 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
     records = {**read_manifest(root / "manifest.jsonl"), **read_manifest(manifest, repair=True)}
     done = _finished(root, records)
     todo = [j for j in mine if j.index not in done]
-    for tmp in root.glob("*/*/*/.*.tmp"):  # leftovers of a killed run, never final names
+    tag = f"s{k}of{n}"
+    for tmp in root.glob(f"*/*/*/.*.{tag}.*.tmp"):  # this shard's leftovers of a killed run
         tmp.unlink(missing_ok=True)
     made, fits = 0, []
     with manifest.open("a", encoding="utf-8") as f:
@@ -276,12 +283,12 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
         if progress:
             progress(0, len(todo))
         if workers <= 1 or len(todo) <= 1:
-            _init_worker(spec.to_dict(), str(root))
+            _init_worker(spec.to_dict(), str(root), tag)
             for job in todo:
                 record(_work(job))
         else:
             ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, _init_worker, (spec.to_dict(), str(root))) as pool:
+            with ctx.Pool(workers, _init_worker, (spec.to_dict(), str(root), tag)) as pool:
                 for rec in pool.imap_unordered(_work, todo):
                     record(rec)
     return BuildResult(made, len(mine) - len(todo), len(mine), time.perf_counter() - t0,

@@ -74,11 +74,14 @@ def test_resume_after_kill_redoes_only_missing(images: Path, tmp_path: Path) -> 
     killed = json.loads(lines[-1])
     rec1 = json.loads(lines[1])
     (out / rec1["files"]["blur"]).unlink()
-    tmp = (out / rec1["files"]["sharp"]).with_name(".000099.png.1.tmp")
+    tmp = (out / rec1["files"]["sharp"]).with_name(".000099.png.s0of1.1.tmp")
     tmp.write_bytes(b"partial")
+    other = tmp.with_name(".000099.png.s1of2.1.tmp")  # another shard's, maybe still running
+    other.write_bytes(b"partial")
     res = build(spec(images), out)
     assert res.made == 2 and res.skipped == 3
-    assert digest(out) == before and not tmp.exists()
+    assert digest(out) == before and not tmp.exists() and other.exists()
+    other.unlink()
     recs = read_manifest(man)
     assert sorted(recs) == list(range(5)) and killed["index"] in recs
     with pytest.raises(SynthesisError, match="other parameters"):
