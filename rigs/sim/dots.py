@@ -25,6 +25,8 @@ ROW_TIME_MAX_ITER = 60
 DENSE_SAMPLES = 129
 #: Most centre-line points written per streak.
 MAX_CENTERLINE_POINTS = 32
+#: Target spacing of centre-line points (px); keeps truth.yaml small enough to load fast.
+CENTERLINE_SPACING_PX = 2.0
 #: A streak is ``inside`` when all of it lies this many pixels inside the image.
 INSIDE_MARGIN_PX = 3.0
 
@@ -105,6 +107,7 @@ class FrameStreaks:
     ref: np.ndarray         # (J, 2)
     visible: np.ndarray     # (J,) bool: some of the streak lies in the image
     inside: np.ndarray      # (J,) bool: all of it at least INSIDE_MARGIN_PX inside
+    length_px: np.ndarray   # (J,) arc length of the path
 
     @property
     def start(self) -> np.ndarray:
@@ -114,13 +117,11 @@ class FrameStreaks:
     def end(self) -> np.ndarray:
         return self.path[:, -1]
 
-    @property
-    def length_px(self) -> np.ndarray:
-        return np.linalg.norm(np.diff(self.path, axis=1), axis=2).sum(axis=1)
-
     def centerline(self, j: int) -> np.ndarray:
-        """At most 32 points ``(n, 2)``, start to end, about one per pixel of length."""
-        n = int(np.clip(math.ceil(self.length_px[j]) + 1, 2, MAX_CENTERLINE_POINTS))
+        """At most 32 points ``(n, 2)``, start to end, equally spaced in time, about one per
+        ``CENTERLINE_SPACING_PX`` of length."""
+        n = int(np.clip(math.ceil(self.length_px[j] / CENTERLINE_SPACING_PX) + 1, 2,
+                        MAX_CENTERLINE_POINTS))
         pick = np.round(np.linspace(0, DENSE_SAMPLES - 1, n)).astype(int)
         return self.path[j, pick]
 
@@ -143,4 +144,5 @@ def frame_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
     visible = np.any(ok & (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5), axis=1)
     m = INSIDE_MARGIN_PX
     inside = np.all(ok & (x >= m) & (x <= W - 1 - m) & (y >= m) & (y <= H - 1 - m), axis=1)
-    return FrameStreaks(float(t_ref_s), t0, t1, path, ref, visible, inside)
+    length = np.linalg.norm(np.diff(path, axis=1), axis=2).sum(axis=1)
+    return FrameStreaks(float(t_ref_s), t0, t1, path, ref, visible, inside, length)

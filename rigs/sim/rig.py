@@ -202,7 +202,7 @@ class SimRig:
                 "start": _r(s.start[j], 6), "end": _r(s.end[j], 6),
                 "t_start_ns": round(s.t_start_s[j] * 1e9),
                 "t_end_ns": round(s.t_end_s[j] * 1e9),
-                "centerline": [_r(q, 4) for q in s.centerline(int(j))],
+                "centerline": [_r(q, 3) for q in s.centerline(int(j))],
                 "inside": bool(s.inside[j]),
                 "ref": _r(s.ref[j], 6),
                 "length_px": round(float(s.length_px[j]), 4),
