@@ -255,6 +255,9 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
     """
     t0 = time.perf_counter()
     root = Path(out)
+    if root.resolve().is_relative_to(Path(spec.images).resolve()):
+        raise SynthesisError(f"the dataset folder {root} must not lie inside the image folder "
+                             f"{spec.images} (its images would become inputs)")
     root.mkdir(parents=True, exist_ok=True)
     _check_spec(root, spec)
     images = list_images(spec.images)

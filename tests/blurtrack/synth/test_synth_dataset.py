@@ -86,6 +86,8 @@ def test_resume_after_kill_redoes_only_missing(images: Path, tmp_path: Path) -> 
     assert sorted(recs) == list(range(5)) and killed["index"] in recs
     with pytest.raises(SynthesisError, match="other parameters"):
         build(spec(images, count=6), out)
+    with pytest.raises(SynthesisError, match="inside the image folder"):
+        build(spec(images), images / "ds")
 
 
 def test_shards_on_separate_machines_merge(images: Path, tmp_path: Path) -> None:
