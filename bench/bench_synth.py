@@ -102,11 +102,31 @@ def stride_error(gyro: str) -> dict:
     return out
 
 
+def fit_share(gyro: str, n: int) -> dict:
+    """Share of 1280x720 pixels whose trajectory the quadratic Bezier fits within 0.5 px, over
+    ``n`` random shake segments per exposure (the paper claims 99.9 %)."""
+    src = open_source(gyro)
+    cam = camera_for_size(CALIB.camera, 1280, 720)
+    out = {}
+    for exp_ms in (10.0, 20.0, 30.0, 60.0):
+        shares = []
+        for i in range(n):
+            seg = src.segment(triplet_rng(9, i), cam.readout_s + exp_ms * 1e-3, 0.05)
+            _, err = BlurModel(Calibration(cam), seg.trace).heat_maps(
+                seg.frame_t_s, exp_ms * 1e-3, 16, None, 8)
+            shares.append(float(np.mean(err <= 0.5)))
+        out[f"exposure_{exp_ms:g}ms"] = {"mean": float(np.mean(shares)),
+                                         "p05": float(np.percentile(shares, 5)),
+                                         "min": float(np.min(shares))}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=8, help="triplets per size")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--build-count", type=int, default=16)
+    ap.add_argument("--fit-segments", type=int, default=50)
     args = ap.parse_args()
     cv2.setNumThreads(1)
     shake = DATA / "real" / "gyrodeblurnet-shake"
@@ -119,6 +139,7 @@ def main() -> None:
     result["sizes"] = [bench_size((1280, 720), args.n, gyro, images),
                        bench_size((640, 360), 2 * args.n, gyro, images)]
     result["heat_stride_error_vs_stride_1"] = stride_error(gyro)
+    result["bezier_fit_within_0.5px_1280x720"] = fit_share(gyro, args.fit_segments)
     with tempfile.TemporaryDirectory() as tmp:
         spec = DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images),
                            count=args.build_count, seed=3, params=TripletParams())

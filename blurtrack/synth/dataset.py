@@ -209,13 +209,14 @@ class BuildResult:
     elapsed_s: float
     manifest: Path
     fit_share_min: float | None
+    fit_share_mean: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         rate = self.made / self.elapsed_s if self.elapsed_s > 0 else None
         return {"made": self.made, "skipped": self.skipped, "planned": self.planned,
                 "elapsed_s": self.elapsed_s, "triplets_per_s": rate,
                 "manifest": self.manifest.name, "bezier_fit_within_0.5px_min":
-                self.fit_share_min}
+                self.fit_share_min, "bezier_fit_within_0.5px_mean": self.fit_share_mean}
 
 
 def _check_spec(out: Path, spec: DatasetSpec) -> None:
@@ -295,7 +296,8 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
                 for rec in pool.imap_unordered(_work, todo):
                     record(rec)
     return BuildResult(made, len(mine) - len(todo), len(mine), time.perf_counter() - t0,
-                       manifest, min(fits) if fits else None)
+                       manifest, min(fits) if fits else None,
+                       float(np.mean(fits)) if fits else None)
 
 
 def _move(src: Path, dst: Path) -> None:
