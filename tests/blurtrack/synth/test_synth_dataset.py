@@ -152,3 +152,37 @@ def test_demo_dataset_from_shared_backgrounds(tmp_path: Path, shared_data: Path)
     summary = demo_dataset(tmp_path / "demo", shared_data, count=2, size=(64, 36))
     assert summary["made"] == 2
     assert len(read_manifest(tmp_path / "demo" / "manifest.jsonl")) == 2
+
+
+def test_sigkill_mid_build_then_resume(images: Path, tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cal = tmp_path / "cal.yaml"
+    CAL.to_yaml(cal)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "blurtrack", "synth", "--calib", str(cal), "--gyro",
+           "synthetic:0.8", "--images", str(images), "--out", str(out), "--count", "40",
+           "--size", "96x64", "--seed", "4"]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    man = out / "manifest.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if man.is_file() and man.read_bytes().count(b"\n") >= 3:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not list(out.glob("*/*/*/[!.]*.tmp"))  # nothing partial under a final name
+    done_before = len(read_manifest(man))
+    assert done_before >= 3
+    assert subprocess.run([*cmd], env=env, capture_output=True).returncode == 0
+    ref = tmp_path / "ref"
+    assert subprocess.run([*cmd[:-7], str(ref), *cmd[-6:]], env=env,
+                          capture_output=True).returncode == 0
+    assert sorted(read_manifest(man)) == list(range(40))
+    assert digest(out) == digest(ref)
