@@ -77,11 +77,12 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
                              f"(limit {st.max_samples})")
     border = BORDERS[st.border]
     acc = np.zeros(img.shape, np.float32)
-    times = []
+    times, weights = [], []
     for j, n in enumerate(n_j):
         ta, tb = bounds[j], bounds[j + 1]
         ts = ta + (np.arange(n) + 0.5) / n * (tb - ta)
         times.append(ts)
+        weights.append(np.full(n, (tb - ta) / (n * exposure_s)))
         src = model.warp(np.tile(corners, (n, 1)), np.repeat(ts, 4), np.full(4 * n, t_ref))
         part = np.zeros(img.shape, np.float32)
         for k in range(n):
@@ -96,4 +97,5 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
     mx, my = source_positions(model, t0, exposure_s, t_ref, grid.u, grid.v, tau)
     margin = np.minimum(np.minimum(mx, W - 1.0 - mx), np.minimum(my, H - 1.0 - my)).min(axis=0)
     valid = np.ascontiguousarray(grid.upsample(margin) >= 0)
-    return RenderResult(acc, valid, tau, float(np.max(step / n_j)), "paper")
+    return RenderResult(acc, valid, tau, float(np.max(step / n_j)), "paper",
+                        np.concatenate(weights))

@@ -6,10 +6,11 @@ exposure of ``x``'s row (rolling shutter). Rotations come from
 :meth:`blurtrack.trajectory.BlurModel.rotations` (the one model), so the blur, the heat maps of
 :meth:`~blurtrack.trajectory.BlurModel.heat_maps` and the calibration agree by construction.
 
-The integral is a midpoint rule over ``n`` samples ``τ_k = (k + 0.5) / n``, with ``n`` chosen
-so that consecutive samples of every pixel move at most ``max_step_px`` (0.5 px: the source
-paper's "n_j = trajectory length" rule made sub-pixel), found from the peak trajectory speed on
-a planning grid sampled finely in τ.
+The integral is a midpoint rule ``B ≈ Σ_k w_k S(x + q_x(τ_k))`` whose cells are chosen so that
+consecutive samples of every pixel move at most ``max_step_px`` (0.5 px: the source paper's
+"n_j = trajectory length" rule made sub-pixel): cells of equal *motion* (not of equal time),
+found from the peak trajectory motion on a planning grid sampled finely in τ
+(:func:`plan_samples`).
 
 Two exact warping paths (see docs/synthesis.md):
 
@@ -55,6 +56,7 @@ class RenderSettings:
         border: ``reflect`` or ``constant`` (see module docstring).
         max_samples: refuse blur that would need more samples than this.
         plan_tau, plan_grid: τ samples and grid nodes per axis of the step planning.
+        adaptive: place samples by motion rather than evenly in τ (see :func:`plan_samples`).
     """
 
     max_step_px: float = 0.5
@@ -64,6 +66,7 @@ class RenderSettings:
     max_samples: int = 4000
     plan_tau: int = 129
     plan_grid: int = 9
+    adaptive: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_step_px) and 0 < self.max_step_px <= 4):
@@ -84,13 +87,15 @@ class RenderSettings:
 @dataclass(frozen=True)
 class RenderResult:
     """A rendered blur: ``blur`` float32 like the input, ``valid (H, W)`` bool, the sample
-    parameters ``tau (n,)``, the largest planned step between samples (px) and the path used."""
+    parameters ``tau (n,)`` and their weights, the largest planned step between samples (px)
+    and the path used."""
 
     blur: np.ndarray
     valid: np.ndarray
     tau: np.ndarray
     max_step_px: float
     path: str
+    weights: np.ndarray | None = None
 
 
 def source_positions(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
@@ -114,26 +119,50 @@ def source_positions(model: BlurModel, frame_t_s: float, exposure_s: float, t_re
     return project_c(X, Y, Z, cam.intrinsics, cam.dist)
 
 
-def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
-                 settings: RenderSettings) -> tuple[int, float, float]:
-    """Number of midpoint samples so that consecutive ones move at most ``max_step_px``.
+@dataclass(frozen=True)
+class SamplePlan:
+    """Sample parameters ``tau (n,)`` with weights ``(n,)`` summing to 1, the largest planned
+    step between consecutive samples (px) and the largest ``|q|`` (px)."""
 
-    Returns ``(n, step_px, reach_px)``: the largest planned step between samples and the
-    largest distance of a sample from its pixel (``|q|``).
+    tau: np.ndarray
+    weights: np.ndarray
+    step_px: float
+    reach_px: float
+
+
+def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
+                 settings: RenderSettings) -> SamplePlan:
+    """Samples of the blur integral such that consecutive ones move at most ``max_step_px``.
+
+    The peak (over a planning grid) per-interval motion, accumulated over τ, is a "motion
+    clock" ``A(τ)``; ``n = ceil(A(1) / max_step)`` cells of equal motion are laid out on it and
+    each sample sits at its cell's motion midpoint with the cell's τ width as weight (with
+    ``adaptive=False``: equal cells in τ sized by the peak speed, the plain midpoint rule).
+    Adaptive cells need fewer samples when the camera speeds up and slows down in one exposure.
     """
     W, H = model.camera.resolution
     u = np.linspace(0.0, W - 1.0, settings.plan_grid)
     v = np.linspace(0.0, H - 1.0, settings.plan_grid)
-    tau = np.linspace(0.0, 1.0, settings.plan_tau)
-    mx, my = source_positions(model, frame_t_s, exposure_s, t_ref_s, u, v, tau)
-    speed = float(np.max(np.hypot(np.diff(mx, axis=0), np.diff(my, axis=0)))) \
-        * (settings.plan_tau - 1)
-    n = max(2, math.ceil(speed / settings.max_step_px - 1e-9))
-    if n > settings.max_samples:
-        raise SynthesisError(f"blur moves up to {speed:.0f} px per exposure and would need {n} "
-                             f"samples (limit {settings.max_samples})")
+    fine = np.linspace(0.0, 1.0, settings.plan_tau)
+    mx, my = source_positions(model, frame_t_s, exposure_s, t_ref_s, u, v, fine)
+    seg = np.max(np.hypot(np.diff(mx, axis=0), np.diff(my, axis=0)), axis=(1, 2))
     reach = float(np.max(np.hypot(mx - u[None, None, :], my - v[None, :, None])))
-    return n, speed / n, reach
+    if not settings.adaptive:
+        seg = np.full(seg.shape, float(seg.max()))
+    clock = np.concatenate([[0.0], np.cumsum(seg)])
+    total = float(clock[-1])
+    n = max(2, math.ceil(total / settings.max_step_px - 1e-9))
+    if n > settings.max_samples:
+        raise SynthesisError(f"blur moves up to {total:.0f} px per exposure and would need {n} "
+                             f"samples (limit {settings.max_samples})")
+    if total < 1e-9:  # no motion: any cells will do
+        edges = np.linspace(0.0, 1.0, n + 1)
+        return SamplePlan((edges[:-1] + edges[1:]) / 2, np.diff(edges), 0.0, reach)
+    # A tiny floor keeps the clock strictly increasing where some interval did not move.
+    clock += np.linspace(0.0, 1e-9 * total, clock.size)
+    marks = np.linspace(0.0, float(clock[-1]), 2 * n + 1)
+    tau_marks = np.interp(marks, clock, fine)
+    return SamplePlan(tau_marks[1::2], np.diff(tau_marks[0::2]), total / n, reach)
 
 
 def node_spacing(model: BlurModel, reach_px: float, settings: RenderSettings) -> int:
@@ -191,22 +220,23 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
                              f"got {img.dtype} {img.shape}")
     t_ref = model.default_reference_time(frame_t_s, exposure_s) if t_ref_s is None \
         else float(t_ref_s)
-    n, step, reach = plan_samples(model, frame_t_s, exposure_s, t_ref, st)
-    tau = (np.arange(n) + 0.5) / n
+    plan = plan_samples(model, frame_t_s, exposure_s, t_ref, st)
+    tau, wts = plan.tau, plan.weights.astype(np.float32)
+    n = tau.size
     border = BORDERS[st.border]
     acc = np.zeros(img.shape, np.float32)
-    grid = NodeGrid.build(W, H, node_spacing(model, reach, st))
+    grid = NodeGrid.build(W, H, node_spacing(model, plan.reach_px, st))
     margin = np.full((grid.v.size, grid.u.size), np.inf)
     homography = cam.readout_s == 0 and not cam.dist
     if homography:
         R = model.rotations(frame_t_s + exposure_s * tau, np.full(n, t_ref))
         K = cam.K
         Kinv = np.linalg.inv(K)
-        for Rk in R:
+        for Rk, wk in zip(R, wts, strict=True):
             Hk = K @ Rk.T @ Kinv
             w = cv2.warpPerspective(img, Hk, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                     borderMode=border)
-            cv2.accumulate(w, acc)
+            cv2.scaleAdd(w, float(wk), acc, dst=acc)
     for k0 in range(0, n, _TAU_CHUNK):
         mx, my = source_positions(model, frame_t_s, exposure_s, t_ref, grid.u, grid.v,
                                   tau[k0:k0 + _TAU_CHUNK])
@@ -215,10 +245,11 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
         if homography:
             continue
         # Absolute coordinates: the identity is linear, so bilinear upsampling keeps it exact.
-        for node_map in np.stack([mx, my], axis=-1).astype(np.float32):
+        maps = np.stack([mx, my], axis=-1).astype(np.float32)
+        for node_map, wk in zip(maps, wts[k0:k0 + _TAU_CHUNK], strict=True):
             m = grid.upsample(node_map)
-            cv2.accumulate(cv2.remap(img, m, None, cv2.INTER_LINEAR, borderMode=border), acc)
-    acc *= np.float32(1.0 / n)
+            w = cv2.remap(img, m, None, cv2.INTER_LINEAR, borderMode=border)
+            cv2.scaleAdd(w, float(wk), acc, dst=acc)
     valid = grid.upsample(margin) >= 0
-    return RenderResult(acc, np.ascontiguousarray(valid), tau, step,
-                        "homography" if homography else "remap")
+    return RenderResult(acc, np.ascontiguousarray(valid), tau, plan.step_px,
+                        "homography" if homography else "remap", plan.weights)

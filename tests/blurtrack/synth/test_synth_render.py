@@ -65,8 +65,8 @@ def test_ramp_blur_is_mean_trajectory(readout: float, dist: bool, path: str) -> 
     assert len(px) > 20
     t = m.camera.row_start_s(0.3, px[:, 1])[:, None] + 0.03 * res.tau[None, :]
     n = res.tau.size
-    mean = m.warp(np.repeat(px, n, axis=0), t.reshape(-1), np.full(t.size, t_ref)) \
-        .reshape(-1, n, 2).mean(axis=1)
+    track = m.warp(np.repeat(px, n, axis=0), t.reshape(-1), np.full(t.size, t_ref))
+    mean = np.einsum("pkc,k->pc", track.reshape(-1, n, 2), res.weights)
     got = res.blur[px[:, 1].astype(int), px[:, 0].astype(int), :2]
     np.testing.assert_allclose(got, mean, atol=0.01)
     np.testing.assert_allclose(res.blur[..., 2], 1.0, atol=1e-5)
@@ -75,12 +75,16 @@ def test_ramp_blur_is_mean_trajectory(readout: float, dist: bool, path: str) -> 
 def test_samples_move_at_most_half_a_pixel() -> None:
     m = make_model(0.02, trace=shake_trace(3, 3.0))
     st = RenderSettings()
-    n, step, _ = plan_samples(m, 0.2, 0.04, m.default_reference_time(0.2, 0.04), st)
-    assert step <= 0.5 and n > 20
-    tau = (np.arange(n) + 0.5) / n
+    t_ref = m.default_reference_time(0.2, 0.04)
+    plan = plan_samples(m, 0.2, 0.04, t_ref, st)
+    uniform = plan_samples(m, 0.2, 0.04, t_ref, RenderSettings(adaptive=False))
+    tau = plan.tau
+    assert plan.step_px <= 0.5 and tau.size > 20 and tau.size <= uniform.tau.size
+    assert plan.weights.sum() == pytest.approx(1.0) and np.all(np.diff(tau) > 0)
+    np.testing.assert_allclose(uniform.weights, 1 / uniform.tau.size)
     W, H = m.camera.resolution
     u, v = np.linspace(0, W - 1, 23), np.linspace(0, H - 1, 17)
-    mx, my = source_positions(m, 0.2, 0.04, m.default_reference_time(0.2, 0.04), u, v, tau)
+    mx, my = source_positions(m, 0.2, 0.04, t_ref, u, v, tau)
     assert np.max(np.hypot(np.diff(mx, axis=0), np.diff(my, axis=0))) <= 0.5 + 1e-3
 
 
