@@ -84,9 +84,9 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
     }
 
 
-def stride_error(gyro: str) -> dict:
+def stride_error(gyro: str, size: tuple[int, int]) -> dict:
     src = open_source(gyro)
-    cam = camera_for_size(CALIB.camera, 1280, 720)
+    cam = camera_for_size(CALIB.camera, *size)
     out = {}
     for i in range(3):
         rng = triplet_rng(5, i)
@@ -138,7 +138,8 @@ def main() -> None:
               "exposure_ms": [10, 30]}
     result["sizes"] = [bench_size((1280, 720), args.n, gyro, images),
                        bench_size((640, 360), 2 * args.n, gyro, images)]
-    result["heat_stride_error_vs_stride_1"] = stride_error(gyro)
+    result["heat_stride_error_vs_stride_1"] = {
+        f"{w}x{h}": stride_error(gyro, (w, h)) for w, h in ((1280, 720), (640, 360))}
     result["bezier_fit_within_0.5px_1280x720"] = fit_share(gyro, args.fit_segments)
     with tempfile.TemporaryDirectory() as tmp:
         spec = DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images),

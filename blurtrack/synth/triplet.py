@@ -41,7 +41,7 @@ class TripletParams:
     photometry: ph.Photometry = field(default_factory=ph.Photometry)
     perturbation: Perturbation = field(default_factory=Perturbation)
     render: RenderSettings = field(default_factory=RenderSettings)
-    heat_stride: int = 8
+    heat_stride: int = 16
     heat_n_t: int = 16
     upscale: bool = True
 
