@@ -45,6 +45,9 @@ FORMAT = "blurtrack-dataset/1"
 KINDS = (("sharp", ".png"), ("blur", ".png"), ("heat", ".npy"))
 #: Optional extra files (``extras=True``): validity mask (0/255 PNG) and Bezier fit error (px).
 EXTRA_KINDS = (("mask", ".png"), ("fit", ".npy"))
+#: Largest dataset (triplets) and worker count accepted.
+MAX_COUNT = 1_000_000
+MAX_WORKERS = 64
 
 
 @dataclass(frozen=True)
@@ -61,8 +64,9 @@ class DatasetSpec:
     extras: bool = False
 
     def __post_init__(self) -> None:
-        if not 1 <= int(self.count) <= 10_000_000 or int(self.group) < 1:
-            raise SynthesisError(f"count must be in [1, 1e7] and group >= 1, got {self.count}")
+        if not 1 <= int(self.count) <= MAX_COUNT or int(self.group) < 1:
+            raise SynthesisError(f"count must be in [1, {MAX_COUNT}] and group >= 1, got "
+                                 f"{self.count}")
         Calibration.from_dict(self.calib)  # validates
 
     def to_dict(self) -> dict[str, Any]:
@@ -255,6 +259,8 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
     ``progress(done, total)`` is called after each triplet (the CLI draws its bar with it).
     """
     t0 = time.perf_counter()
+    if not 1 <= workers <= MAX_WORKERS:
+        raise SynthesisError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
     root = Path(out)
     if root.resolve().is_relative_to(Path(spec.images).resolve()):
         raise SynthesisError(f"the dataset folder {root} must not lie inside the image folder "

@@ -88,6 +88,10 @@ def test_resume_after_kill_redoes_only_missing(images: Path, tmp_path: Path) -> 
         build(spec(images, count=6), out)
     with pytest.raises(SynthesisError, match="inside the image folder"):
         build(spec(images), images / "ds")
+    with pytest.raises(SynthesisError, match="workers"):
+        build(spec(images), out, workers=1000)
+    with pytest.raises(SynthesisError, match="count"):
+        spec(images, count=0)
 
 
 def test_shards_on_separate_machines_merge(images: Path, tmp_path: Path) -> None:
