@@ -30,6 +30,7 @@ from rigs.protocol import (
 PROTOCOLS = ("binary", "ascii", "auto")
 MAX_ASCII_LINE = 256
 _VALID_LENGTHS = frozenset(LENGTH_OF_TYPE.values())
+_NUMBER_BYTES = frozenset(bytes([c]) for c in b"0123456789+-.,eE")
 
 
 @dataclass
@@ -113,7 +114,8 @@ class _Ascii:
             pass
         # garbage glued before a good line: try every later start (lines are short)
         for i in range(1, len(line)):
-            if line[i - 1 : i] in (b",", b"."):
+            # a good line can only start at a digit that follows a byte no number contains
+            if not line[i : i + 1].isdigit() or line[i - 1 : i] in _NUMBER_BYTES:
                 continue
             try:
                 sample = decode_ascii_line(line[i:])
