@@ -51,7 +51,8 @@ class RecLogWriter:
     def __init__(self, path: str | Path, metadata: dict[str, str]) -> None:
         self.path = Path(path)
         try:
-            self._file = open(self.path, "xb")  # never overwrite a recording
+            # held open for the whole recording; closed in finish(). "x": never overwrite
+            self._file = open(self.path, "xb")  # noqa: SIM115
         except FileExistsError:
             raise RecorderLogError(f"{self.path} already exists; choose another log path") from None
         except OSError as exc:
@@ -152,7 +153,7 @@ class LogScan:
 def _records(path: Path) -> Iterator[tuple[str, Any]]:
     """Yield ("record", rec) ... then ("end", reason) with reason "" for a complete file."""
     try:
-        f = open(path, "rb")
+        f = open(path, "rb")  # noqa: SIM115 - closed by the with-block below
     except OSError as exc:
         raise RecorderLogError(f"cannot open log {path}: {exc.strerror}") from None
     with f:
