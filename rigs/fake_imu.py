@@ -124,6 +124,7 @@ class VirtualImu:
         self._t_us: list[np.ndarray] = []
         self.damaged: set[int] = set()
         self.error: BaseException | None = None
+        self.bytes_sent = 0
 
     # ----------------------------------------------------------------- truth log
     @property
@@ -253,6 +254,7 @@ class VirtualImu:
             except OSError:
                 return False
             view = view[n:]
+            self.bytes_sent += n
         return True
 
     def _run(self) -> None:
