@@ -29,13 +29,15 @@ from rigs.reclog import RecLogWriter
 
 @dataclass(frozen=True)
 class RecorderConfig:
-    """Timing of flushes and status lines, optional duration, PNG effort, frame queue depth."""
+    """Timing of flushes and status lines, optional duration, PNG effort, frame queue depth,
+    and whether the end of a camera stream (a replayed file) ends the recording."""
 
     flush_interval_s: float = 0.25
     status_interval_s: float = 0.5
     duration_s: float | None = None
     png_compression: int = 1
     frame_queue: int = 8
+    stop_when_camera_ends: bool = True
 
     def __post_init__(self) -> None:
         if not 0.01 <= self.flush_interval_s <= 1.0:
@@ -214,7 +216,7 @@ class Recorder:
                     error, stopped_by = payload, "error"
                     log.write_event(self.clock.now_ns(), "error", payload)
                     break
-                if kind == "camera-ended":
+                if kind == "camera-ended" and cfg.stop_when_camera_ends:
                     stopped_by = "camera-ended"
                     break
                 self._write(log, kind, payload, counts)

@@ -26,8 +26,8 @@ def drain(driver: ImuDriver) -> list[ImuBatch]:
     assert dev is not None
     while time.monotonic() < end:
         batches.append(driver.read())
-        if dev.finished.is_set() and driver.port.in_waiting == 0:
-            batches.append(driver.read())
+        # the pty moves bytes asynchronously: done when every byte sent has been decoded
+        if dev.finished.is_set() and driver.decoder.stats.bytes_in >= dev.bytes_sent:
             return batches
     raise AssertionError("virtual IMU did not finish in time")
 
