@@ -88,9 +88,11 @@ class VirtualCamera:
                 if wait_ns <= 0 or self._stop.is_set():
                     break
                 self._stop.wait(min(wait_ns * 1e-9, 0.05))
-            behind = int((self.clock.now_ns() - self._due_ns(self._next)) * cfg.fps // 1e9)
-            if behind > cfg.buffer_frames:
-                skip = behind - cfg.buffer_frames
+            # newest frame whose exposure has ended; the buffer keeps the last buffer_frames
+            latest = int((self.clock.now_ns() - self._t0_ns - exposure_ns) * cfg.fps // 1e9)
+            oldest_kept = latest - cfg.buffer_frames + 1
+            if self._next < oldest_kept:
+                skip = oldest_kept - self._next
                 if cfg.n_frames is not None:
                     skip = min(skip, cfg.n_frames - self._next)
                 self.frames_dropped += skip

@@ -73,3 +73,28 @@ def test_lower_hull_is_below_all_points() -> None:
 def test_bad_input_is_rejected(dev, host, match) -> None:
     with pytest.raises(TimeSyncError, match=match):
         fit_clock_map(np.array(dev), np.array(host))
+
+
+def test_conversion_maps_drifting_jittery_imu_onto_host_time(tmp_path) -> None:
+    """Through the whole log -> session path: 100 ppm drift, 2 ms jitter, batched reads."""
+    import cv2
+
+    from blurtrack.session import load_session
+    from rigs.camera_types import CameraFrame
+    from rigs.convert import log_to_session
+    from rigs.reclog import RecLogWriter
+
+    dev_ns, host_ns, truth_ns = _scenario("uniform", seed=9, batch=4)
+    w = RecLogWriter(tmp_path / "d.mcap", {})
+    png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))[1].tobytes()
+    w.write_frame(CameraFrame(0, np.zeros((8, 8), np.uint8), int(truth_ns[0]), 1000, 0, "host"),
+                  png)
+    for a in range(0, dev_ns.size, 1000):
+        sl = slice(a, a + 1000)
+        w.write_imu(int(host_ns[sl][-1]), np.arange(a, a + 1000), dev_ns[sl] // 1000,
+                    host_ns[sl], np.zeros((1000, 3)), None)
+    w.finish()
+    res = log_to_session(tmp_path / "d.mcap", tmp_path / "s")
+    s = load_session(tmp_path / "s")
+    assert np.max(np.abs(s.imu_t_ns - truth_ns)) < 200_000  # 0.2 ms
+    assert res.clock_map["drift_ppm"] == pytest.approx(-100.0, abs=5.0)
