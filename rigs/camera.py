@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
-
 from rigs.camera_types import CameraFrame, CameraSource
 from rigs.clock import Clock, MonotonicClock
 from rigs.errors import DeviceDisconnectedError, DeviceError, DeviceUrlError
@@ -125,7 +123,8 @@ def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = 
     if u.scheme == "sim":
         if u.target != "camera":
             raise DeviceUrlError(f"{url}: the simulated camera is sim://camera")
-        u.check_keys({"fps", "width", "height", "exposure_ms", "frames", "realtime"})
+        u.check_keys({"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise",
+                      "seed"})
         frames = u.get_int("frames", -1, -1, 10**9)
         try:
             cfg = VirtualCameraConfig(
@@ -138,15 +137,9 @@ def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = 
             raise DeviceUrlError(f"{url}: {exc}") from None
         if render is None:
             render = dot_grid_renderer(u.get_int("width", 640, 16, 8192),
-                                       u.get_int("height", 480, 16, 8192))
+                                       u.get_int("height", 480, 16, 8192),
+                                       noise=u.get_float("noise", 0.0, 0.0, 100.0),
+                                       seed=u.get_int("seed", 0, 0, 2**31))
         return VirtualCamera(render, cfg, clock, url)
     raise DeviceUrlError(f"{url}: unknown camera scheme {u.scheme!r} (v4l2, opencv, file, sim)")
 
-
-def image_info(image: np.ndarray) -> tuple[int, int, int]:
-    """(width, height, channels) of an image array, checking that it is one."""
-    if image.ndim == 2:
-        return image.shape[1], image.shape[0], 1
-    if image.ndim == 3 and image.shape[2] in (1, 3):
-        return image.shape[1], image.shape[0], image.shape[2]
-    raise DeviceError(f"camera delivered an array of shape {image.shape}, not an image")

@@ -7,6 +7,8 @@ from typing import Protocol
 
 import numpy as np
 
+from rigs.errors import DeviceError
+
 
 @dataclass(frozen=True)
 class CameraFrame:
@@ -37,3 +39,14 @@ class CameraSource(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+def image_info(image: np.ndarray) -> tuple[int, int, int]:
+    """(width, height, channels) of an image array; DeviceError if it is not one."""
+    if image.dtype not in (np.uint8, np.uint16):
+        raise DeviceError(f"camera delivered {image.dtype} pixels, not uint8/uint16")
+    if image.ndim == 2:
+        return image.shape[1], image.shape[0], 1
+    if image.ndim == 3 and image.shape[2] in (1, 3, 4):
+        return image.shape[1], image.shape[0], image.shape[2]
+    raise DeviceError(f"camera delivered an array of shape {image.shape}, not an image")

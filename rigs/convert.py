@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from blurtrack.errors import BlurTrackError
@@ -93,10 +92,7 @@ def log_to_session(log_path: str | Path, folder: str | Path,
         raise RecorderLogError("the camera reported no exposure time for some frames; "
                                "give the exposure explicitly (--exposure-ms)")
     imu_t_ns, keep = _imu_host_times(scan, result)
-    first = next(iter_frames(log_path))
-    image = cv2.imdecode(np.frombuffer(first.png, np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise RecorderLogError(f"{log_path}: the first frame is not a readable PNG")
+    image = next(iter_frames(log_path)).image()
     h, w = image.shape[:2]
     intrinsics = options.intrinsics or (float(w), float(w), (w - 1) / 2.0, (h - 1) / 2.0)
     if options.intrinsics is None:
@@ -128,9 +124,7 @@ def log_to_session(log_path: str | Path, folder: str | Path,
                 if last_ts is not None and rec.timestamp_ns <= last_ts:
                     result.skipped_frames += 1
                     continue
-                img = cv2.imdecode(np.frombuffer(rec.png, np.uint8), cv2.IMREAD_UNCHANGED)
-                if img is None:
-                    raise RecorderLogError(f"frame {rec.index} in {log_path} is not a valid PNG")
+                img = rec.image()
                 exposure = rec.exposure_ns if rec.exposure_ns > 0 else options.exposure_ns
                 writer.add_frame(rec.timestamp_ns, img, int(exposure))
                 last_ts = rec.timestamp_ns

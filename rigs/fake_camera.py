@@ -22,18 +22,33 @@ RenderFn = Callable[[float], np.ndarray]
 
 
 def dot_grid_renderer(
-    width: int, height: int, spacing_px: int = 40, amplitude_px: float = 6.0, freq_hz: float = 1.1
+    width: int, height: int, spacing_px: int = 40, amplitude_px: float = 6.0,
+    freq_hz: float = 1.1, noise: float = 0.0, seed: int = 0,
 ) -> RenderFn:
-    """A grid of bright dots on a dark background that sways sinusoidally (uint8, (H, W))."""
+    """A grid of bright dots on a dark background that sways sinusoidally (uint8, (H, W)).
+
+    ``noise`` > 0 adds Gaussian sensor noise of that standard deviation (grey levels), drawn
+    once into a few frames that are cycled, so that images compress like real ones without the
+    renderer itself costing much CPU.
+    """
     yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
     dx = (xx % spacing_px) - spacing_px / 2
     dy = (yy % spacing_px) - spacing_px / 2
     base = (20 + 220 * np.exp(-(dx * dx + dy * dy) / 8.0)).astype(np.uint8)
+    rng = np.random.default_rng(seed)
+    noise_frames = [np.clip(rng.normal(noise, noise, base.shape), 0, 255).astype(np.uint8)
+                    for _ in range(4)] if noise > 0 else []
+    count = [0]
 
     def render(t_start_s: float) -> np.ndarray:
         sx = round(amplitude_px * np.sin(2 * np.pi * freq_hz * t_start_s))
         sy = round(amplitude_px * np.cos(2 * np.pi * 0.7 * freq_hz * t_start_s))
-        return np.roll(base, (sy, sx), axis=(0, 1))
+        image = np.roll(base, (sy, sx), axis=(0, 1))
+        if noise_frames:
+            count[0] += 1
+            image = np.add(image, noise_frames[count[0] % len(noise_frames)],
+                           dtype=np.uint16).clip(0, 255).astype(np.uint8)
+        return image
 
     return render
 

@@ -8,8 +8,11 @@ complete, indexed MCAP file.
 
 Channels (message log time = host time of arrival, ns):
 - ``/imu``: JSON ``{"index", "t_dev_us", "host_ns", "gyro_radps", "accel_mps2"}`` per read.
-- ``/cam0``: ``blurtrack-frame/1``: a little-endian header ``<qqqqB`` (index, timestamp_ns,
-  exposure_ns, host_ns, stamp source 0 host / 1 driver) followed by the PNG bytes.
+- ``/cam0``: ``blurtrack-frame/1``: a little-endian header ``<qqqqBBHHBB`` (index,
+  timestamp_ns, exposure_ns, host_ns, stamp source 0 host / 1 driver, encoding 0 PNG / 1 raw,
+  height, width, channels, bytes per channel) followed by the PNG bytes or the raw C-order
+  pixels (raw is the default: PNG-encoding 1280 x 720 noisy frames costs ~60 ms each, more
+  than a frame period, so the recorder stores pixels and the conversion encodes offline).
 - ``/stats``: JSON snapshots of driver counters; ``/events``: JSON ``{"level", "message"}``.
 The metadata record ``recording`` (string map) describes the rig; ``format`` must be
 ``blurtrack-reclog/1``.
@@ -35,7 +38,9 @@ from rigs.camera_types import CameraFrame
 from rigs.errors import RecorderLogError
 
 LOG_FORMAT = "blurtrack-reclog/1"
-FRAME_HEADER = struct.Struct("<qqqqB")
+FRAME_HEADER = struct.Struct("<qqqqBBHHBB")
+ENCODINGS = {"png": 0, "raw": 1}
+MAX_FRAME_PIXELS = 1 << 26  # refuse absurd sizes from a damaged header before allocating
 _READ_ERRORS = (McapError, ValueError, struct.error, EOFError, UnicodeDecodeError, KeyError,
                 IndexError)
 _JSON_SCHEMA = {
@@ -89,10 +94,15 @@ class RecLogWriter:
                                   "host_ns": host_ns.tolist(), "gyro_radps": gyro_radps.tolist(),
                                   "accel_mps2": accel})
 
-    def write_frame(self, frame: CameraFrame, png: bytes) -> None:
+    def write_frame(self, frame: CameraFrame, data: bytes, encoding: str = "raw") -> None:
+        """Log a frame; ``data`` is the PNG file (``png``) or ``frame.image.tobytes()``."""
+        img = frame.image
+        h, w = img.shape[:2]
+        channels = 1 if img.ndim == 2 else img.shape[2]
         header = FRAME_HEADER.pack(frame.index, frame.timestamp_ns, frame.exposure_ns,
-                                   frame.host_ns, 1 if frame.stamp_source == "driver" else 0)
-        self._add("/cam0", frame.host_ns, header + png)
+                                   frame.host_ns, 1 if frame.stamp_source == "driver" else 0,
+                                   ENCODINGS[encoding], h, w, channels, img.dtype.itemsize)
+        self._add("/cam0", frame.host_ns, header + data)
 
     def write_stats(self, t_ns: int, stats: dict[str, Any]) -> None:
         self._json("/stats", t_ns, stats)
@@ -117,14 +127,36 @@ class RecLogWriter:
 
 @dataclass
 class FrameRecord:
-    """A frame as logged; ``png`` is the encoded image."""
+    """A frame as logged; :meth:`image` decodes it."""
 
     index: int
     timestamp_ns: int
     exposure_ns: int
     host_ns: int
     stamp_source: str
-    png: bytes
+    encoding: int
+    shape: tuple[int, int, int]  # height, width, channels
+    itemsize: int
+    data: bytes
+
+    def image(self) -> np.ndarray:
+        """(H, W) or (H, W, C) uint8/uint16; RecorderLogError if the bytes do not fit."""
+        h, w, c = self.shape
+        if self.encoding == ENCODINGS["png"]:
+            import cv2
+
+            img = cv2.imdecode(np.frombuffer(self.data, np.uint8), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise RecorderLogError(f"frame {self.index} is not a valid PNG")
+            return img
+        if self.encoding != ENCODINGS["raw"] or self.itemsize not in (1, 2):
+            raise RecorderLogError(f"frame {self.index} has an unknown encoding")
+        if h * w * c > MAX_FRAME_PIXELS or len(self.data) != h * w * c * self.itemsize:
+            raise RecorderLogError(f"frame {self.index}: {len(self.data)} bytes do not make a "
+                                   f"{w}x{h}x{c} image")
+        dtype = np.uint8 if self.itemsize == 1 else np.dtype("<u2")
+        img = np.frombuffer(self.data, dtype=dtype).reshape((h, w, c) if c > 1 else (h, w))
+        return img.astype(np.uint16) if self.itemsize == 2 else img
 
 
 @dataclass
@@ -219,7 +251,7 @@ def scan_log(path: str | Path) -> LogScan:
             k = len(obj["index"])
             cols["acc"] += obj["accel_mps2"] or [[np.nan] * 3] * k
         elif topic == "/cam0":
-            _, ts, exp, _, _ = FRAME_HEADER.unpack_from(rec.data)
+            _, ts, exp, *_ = FRAME_HEADER.unpack_from(rec.data)
             frame_ts.append(ts)
             frame_exp.append(exp)
         elif topic == "/stats":
@@ -245,9 +277,9 @@ def iter_frames(path: str | Path) -> Iterator[FrameRecord]:
     """The logged frames in order, up to the first damaged record."""
     for topic, rec in _walk(Path(path)):
         if topic == "/cam0":
-            index, ts, exp, host, src = FRAME_HEADER.unpack_from(rec.data)
-            yield FrameRecord(index, ts, exp, host, "driver" if src else "host",
-                              bytes(rec.data[FRAME_HEADER.size:]))
+            index, ts, exp, host, src, enc, h, w, c, size = FRAME_HEADER.unpack_from(rec.data)
+            yield FrameRecord(index, ts, exp, host, "driver" if src else "host", enc, (h, w, c),
+                              size, bytes(rec.data[FRAME_HEADER.size:]))
 
 
 @dataclass(frozen=True)

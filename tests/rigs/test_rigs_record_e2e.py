@@ -185,7 +185,8 @@ def test_convert_requires_exposure_when_camera_reports_none(tmp_path: Path) -> N
 
     png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))[1].tobytes()
     for i in range(3):
-        w.write_frame(CameraFrame(i, np.zeros((8, 8), np.uint8), 1000 + i, -1, 5, "host"), png)
+        frame = CameraFrame(i, np.zeros((8, 8), np.uint8), 1000 + i, -1, 5, "host")
+        w.write_frame(frame, png, "png")
     w.write_imu(0, np.arange(4), np.arange(4) * 1000, np.arange(4) * 1_000_000 + 7,
                 np.zeros((4, 3)), None)
     w.finish()
