@@ -58,7 +58,8 @@ def child(mode: str, duration_s: float) -> dict:
         s = res.status
         out.update(imu_samples=s.imu_samples, frames=s.frames, imu_dropped=s.imu_dropped,
                    imu_crc_errors=s.imu_crc_errors, camera_dropped=s.camera_dropped,
-                   error=res.error)
+                   error=res.error, imu_rate_hz=s.imu_rate_hz, fps=s.fps,
+                   recording_s=s.elapsed_s)
     else:
         stop = threading.Event()
         counts = {"imu": 0, "frames": 0}
@@ -82,9 +83,10 @@ def child(mode: str, duration_s: float) -> dict:
     produced = imu.device.sent_index.size if imu.device is not None else 0
     imu.close()
     cam.close()
+    out.setdefault("imu_rate_hz", out["imu_samples"] / wall)
+    out.setdefault("fps", out["frames"] / wall)
     out.update(wall_s=wall, cpu_s=cpu_used, cpu_fraction=cpu_used / wall,
-               imu_produced=int(produced), imu_rate_hz=out["imu_samples"] / wall,
-               fps=out["frames"] / wall)
+               imu_produced=int(produced))
     return out
 
 

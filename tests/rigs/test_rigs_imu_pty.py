@@ -156,3 +156,17 @@ def test_serial_exception_type_is_wrapped() -> None:
     with pytest.raises(DeviceDisconnectedError, match="gone"):
         drv.read()
     drv.close()
+
+
+def test_pause_delivers_every_sample_late_in_a_burst() -> None:
+    drv = open_imu("sim://imu?rate=500&samples=400&pause=0.2:0.4&seed=4")
+    try:
+        batches = drain(drv)
+        index, _, gyro = concat(batches)
+        np.testing.assert_array_equal(index, np.arange(400))
+        np.testing.assert_array_equal(gyro, drv.device.sent_gyro_radps)
+        assert drv.stats["dropped"] == 0
+        host = np.concatenate([b.host_ns for b in batches])
+        assert np.max(np.diff(host)) >= 0.4e9  # nothing arrived while the board stalled
+    finally:
+        drv.close()
