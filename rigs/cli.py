@@ -1,4 +1,5 @@
-"""``blurtrack record`` and ``blurtrack recover``: the rig's command line."""
+"""``blurtrack record`` and ``blurtrack recover``: the rig's command line (listed in
+``blurtrack.cli.COMMAND_MODULES`` as ``rigs.cli``)."""
 
 from __future__ import annotations
 
