@@ -55,13 +55,18 @@ def dot_grid_renderer(
 
 @dataclass(frozen=True)
 class VirtualCameraConfig:
-    """Frame rate, exposure, optional frame limit, pacing and host-side buffer depth."""
+    """Frame rate, exposure, optional frame limit, pacing and host-side buffer depth. Frame i
+    starts exposing at simulation time ``i / fps`` after ``origin_ns`` (default: creation), and
+    ``render`` receives that simulation time; give a VirtualImu the same origin and both devices
+    share one simulated timeline (e.g. ``render=lambda t: rig.render_frame(t0 + t)`` and
+    ``omega_at=lambda t: rig.sample_gyro(t0 + t)`` for a rigs.sim rig)."""
 
     fps: float = 30.0
     exposure_s: float = 0.01
     n_frames: int | None = None
     realtime: bool = True
     buffer_frames: int = 4
+    origin_ns: int | None = None  # host time of frame 0 (share it with a VirtualImu)
 
     def __post_init__(self) -> None:
         if not 0.1 <= self.fps <= 1000:
@@ -83,7 +88,8 @@ class VirtualCamera:
         self.config = config or VirtualCameraConfig()
         self.clock = clock or MonotonicClock()
         self.url = url
-        self._t0_ns = self.clock.now_ns()
+        self._t0_ns = self.clock.now_ns() if self.config.origin_ns is None \
+            else self.config.origin_ns
         self._next = 0
         self.frames_dropped = 0
         self._stop = threading.Event()

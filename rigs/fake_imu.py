@@ -71,7 +71,10 @@ class ImuFaults:
 @dataclass(frozen=True)
 class VirtualImuConfig:
     """What the virtual board does. ``realtime=False`` sends as fast as the reader reads
-    (deterministic, for tests); ``n_samples`` stops the stream after that many samples."""
+    (deterministic, for tests); ``n_samples`` stops the stream after that many samples.
+    Sample k is taken at simulation time ``k / rate_hz`` s after ``origin_ns`` on the host
+    clock (default: when streaming starts); its device stamp is ``t0_us`` plus that time
+    stretched by ``drift_ppm``."""
 
     rate_hz: float = 1000.0
     protocol: str = "binary"
@@ -84,6 +87,7 @@ class VirtualImuConfig:
     realtime: bool = True
     n_samples: int | None = None
     faults: ImuFaults = field(default_factory=ImuFaults)
+    origin_ns: int | None = None  # host time of sample 0 (share it with a VirtualCamera)
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate_hz <= 10_000.0:
@@ -195,7 +199,8 @@ class VirtualImu:
         cfg = self.config
         k = np.arange(k0, k1, dtype=np.int64)
         t_s = k / cfg.rate_hz
-        t_us = cfg.t0_us + np.floor(t_s * 1e6 * (1.0 + cfg.drift_ppm * 1e-6)).astype(np.int64)
+        stretched_us = k * (1e6 / cfg.rate_hz) * (1.0 + cfg.drift_ppm * 1e-6)
+        t_us = cfg.t0_us + np.rint(stretched_us).astype(np.int64)  # nearest microsecond
         omega = np.asarray(self.omega_at(t_s), dtype=float).reshape(k.size, 3)
         if cfg.noise_radps > 0:
             omega = omega + self._rng.normal(0.0, cfg.noise_radps, omega.shape)
@@ -267,7 +272,7 @@ class VirtualImu:
 
     def _loop(self) -> None:
         cfg = self.config
-        start_ns = self.clock.now_ns()
+        start_ns = self.clock.now_ns() if cfg.origin_ns is None else cfg.origin_ns
         k = 0
         paused = False
         while not self._stop.is_set():

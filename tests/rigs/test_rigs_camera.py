@@ -80,3 +80,42 @@ def test_virtual_camera_slow_reader_loses_frames_beyond_the_buffer() -> None:
 def test_bad_camera_urls(url: str, error: type[Exception], match: str) -> None:
     with pytest.raises(error, match=match):
         open_camera(url)
+
+
+def test_shared_origin_puts_imu_and_camera_on_one_timeline() -> None:
+    from rigs.fake_imu import VirtualImu, VirtualImuConfig
+
+    clock = ManualClock(start_ns=7_000_000_000)
+    origin = clock.now_ns()
+    seen: list[float] = []
+    cam = VirtualCamera(lambda t: (seen.append(t), np.zeros((2, 2), np.uint8))[1],
+                        VirtualCameraConfig(fps=20.0, exposure_s=0.01, realtime=False,
+                                            origin_ns=origin), clock)
+    clock.advance_s(3.0)  # the camera was created long before it is read
+    frames = [cam.read() for _ in range(3)]
+    assert seen == [0.0, 0.05, 0.1]
+    assert [f.timestamp_ns - origin for f in frames] == [0, 50_000_000, 100_000_000]
+    # a real-time board on the same origin has, 3 s later, sampled exactly 0 .. 3 s
+    import time
+
+    import serial
+
+    from rigs.imu import ImuDriver
+
+    imu = VirtualImu(lambda t: np.stack([t, t, t], axis=1),
+                     VirtualImuConfig(rate_hz=200.0, realtime=True, origin_ns=origin), clock)
+    drv = ImuDriver(serial.Serial(imu.open_pty(), timeout=0.05), "sim://imu", device=imu)
+    imu.start()
+    try:
+        got = []
+        end = time.monotonic() + 60.0
+        while sum(len(b) for b in got) < 601 and time.monotonic() < end:
+            got.append(drv.read())
+        for _ in range(5):  # the clock stands still: nothing more may come
+            got.append(drv.read())
+        t_us = np.concatenate([b.t_dev_us for b in got])
+        np.testing.assert_array_equal(t_us, np.arange(601) * 5000)
+        gyro = np.concatenate([b.gyro_radps for b in got])
+        np.testing.assert_allclose(gyro[:, 0], np.arange(601) / 200.0, atol=1e-6)
+    finally:
+        drv.close()
