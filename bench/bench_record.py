@@ -3,8 +3,8 @@
 Each measurement runs in a child process pinned to one CPU (``os.sched_setaffinity``) with the
 virtual devices (``sim://imu`` on a real pty, ``sim://camera``) in the same process:
 
-- ``devices``: the baseline, measured in the same run: the devices stream and a reader thread
-  consumes them (no decoding into the log, no PNG encoding, no writing);
+- ``devices``: the baseline, measured in the same run: the devices stream, the IMU driver
+  decodes and timestamps, frames are grabbed (nothing is logged or written);
 - ``record``: the full recorder (decode, timestamp, PNG-encode, write the MCAP log, flush every
   0.25 s).
 
@@ -90,6 +90,23 @@ def child(mode: str, duration_s: float) -> dict:
     return out
 
 
+def png_encode_ms(n: int = 10) -> float:
+    """Why frames are logged raw: median time to PNG-encode one bench frame (level 1)."""
+    import cv2
+
+    from rigs.camera import open_camera
+
+    cam = open_camera(CAM_URL.replace("realtime=1", "") + "&realtime=0")
+    times = []
+    for _ in range(n):
+        image = cam.read().image
+        t0 = time.perf_counter()
+        cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        times.append((time.perf_counter() - t0) * 1e3)
+    cam.close()
+    return statistics.median(times)
+
+
 def run_child(mode: str, duration_s: float) -> dict:
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.run([sys.executable, __file__, "--child", mode, "--duration",
@@ -123,6 +140,7 @@ def main() -> None:
             "camera_dropped_total": sum(r["camera_dropped"] for r in rs),
             "runs": rs,
         }
+    report["png_encode_ms_per_frame_median"] = png_encode_ms()
     base, rec = report["devices"], report["record"]
     report["recorder_cpu_overhead_fraction"] = (rec["cpu_fraction_median"]
                                                 - base["cpu_fraction_median"])

@@ -144,6 +144,11 @@ def run_record(args: argparse.Namespace) -> int:
     s = result.status
     print(f"recorded {s.imu_samples} IMU samples and {s.frames} frames in {s.elapsed_s:.1f} s "
           f"into {log_path} (stopped by {result.stopped_by})")
+    if result.imu_stats:
+        st = result.imu_stats
+        print(f"IMU link: {st['crc_errors']} CRC errors, {st['dropped']} samples dropped in "
+              f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
+              f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps")
     summary: dict[str, Any] = {"command": "record", "recording": result.as_dict()}
     if not args.no_convert:
         conv = log_to_session(log_path, out, options)
