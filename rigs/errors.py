@@ -35,3 +35,7 @@ class TimeSyncError(RigError):
 
 class RecorderLogError(RigError):
     """A recorder log is unreadable, of the wrong format, or holds no usable data."""
+
+
+class RigConfigError(RigError, ValueError):
+    """A configuration dataclass got an invalid value (also a ValueError)."""

@@ -17,6 +17,7 @@ import numpy as np
 
 from rigs.camera_types import CameraFrame
 from rigs.clock import Clock, MonotonicClock
+from rigs.errors import RigConfigError
 
 RenderFn = Callable[[float], np.ndarray]
 
@@ -70,11 +71,11 @@ class VirtualCameraConfig:
 
     def __post_init__(self) -> None:
         if not 0.1 <= self.fps <= 1000:
-            raise ValueError(f"fps={self.fps} outside [0.1, 1000]")
+            raise RigConfigError(f"fps={self.fps} outside [0.1, 1000]")
         if not 0 < self.exposure_s <= 1.0 / self.fps:
-            raise ValueError(f"exposure_s={self.exposure_s} must be in (0, 1/fps]")
+            raise RigConfigError(f"exposure_s={self.exposure_s} must be in (0, 1/fps]")
         if self.buffer_frames < 1 or (self.n_frames is not None and self.n_frames < 0):
-            raise ValueError("buffer_frames must be >= 1 and n_frames >= 0")
+            raise RigConfigError("buffer_frames must be >= 1 and n_frames >= 0")
 
 
 class VirtualCamera:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rigs.clock import Clock, MonotonicClock
-from rigs.errors import DeviceError
+from rigs.errors import DeviceError, RigConfigError
 from rigs.protocol import (
     ACCEL_SCALE_MPS2,
     COUNTER_MODULUS,
@@ -63,9 +63,9 @@ class ImuFaults:
         for name in ("flip", "drop", "garbage"):
             p = getattr(self, name)
             if not 0.0 <= p <= 0.5:
-                raise ValueError(f"fault probability {name}={p} must be in [0, 0.5]")
+                raise RigConfigError(f"fault probability {name}={p} must be in [0, 0.5]")
         if self.pause_s < 0:
-            raise ValueError("pause_s must be non-negative")
+            raise RigConfigError("pause_s must be non-negative")
 
 
 @dataclass(frozen=True)
@@ -91,13 +91,13 @@ class VirtualImuConfig:
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate_hz <= 10_000.0:
-            raise ValueError(f"rate_hz={self.rate_hz} outside [1, 10000]")
+            raise RigConfigError(f"rate_hz={self.rate_hz} outside [1, 10000]")
         if self.protocol not in ("binary", "ascii"):
-            raise ValueError(f"protocol={self.protocol!r} must be binary or ascii")
+            raise RigConfigError(f"protocol={self.protocol!r} must be binary or ascii")
         if self.n_samples is not None and self.n_samples < 0:
-            raise ValueError("n_samples must be non-negative")
+            raise RigConfigError("n_samples must be non-negative")
         if abs(self.drift_ppm) > 10_000 or self.noise_radps < 0:
-            raise ValueError("drift_ppm must be within +-1e4 and noise_radps non-negative")
+            raise RigConfigError("drift_ppm must be within +-1e4 and noise_radps non-negative")
 
 
 class VirtualImu:

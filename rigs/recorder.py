@@ -22,7 +22,7 @@ import numpy as np
 
 from rigs.camera_types import CameraFrame, CameraSource, image_info
 from rigs.clock import Clock, MonotonicClock
-from rigs.errors import DeviceDisconnectedError, RigError
+from rigs.errors import DeviceDisconnectedError, RigConfigError, RigError
 from rigs.imu import ImuBatch, ImuDriver
 from rigs.reclog import RecLogWriter
 
@@ -44,13 +44,13 @@ class RecorderConfig:
 
     def __post_init__(self) -> None:
         if not 0.01 <= self.flush_interval_s <= 1.0:
-            raise ValueError("flush_interval_s must be in [0.01, 1] (crash loss bound)")
+            raise RigConfigError("flush_interval_s must be in [0.01, 1] (crash loss bound)")
         if self.status_interval_s <= 0 or (self.duration_s is not None and self.duration_s <= 0):
-            raise ValueError("status_interval_s and duration_s must be positive")
+            raise RigConfigError("status_interval_s and duration_s must be positive")
         if self.frame_encoding not in ("raw", "png"):
-            raise ValueError("frame_encoding must be raw or png")
+            raise RigConfigError("frame_encoding must be raw or png")
         if not 0 <= self.png_compression <= 9 or self.frame_queue < 1:
-            raise ValueError("png_compression must be 0..9 and frame_queue >= 1")
+            raise RigConfigError("png_compression must be 0..9 and frame_queue >= 1")
 
 
 @dataclass

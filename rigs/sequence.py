@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from rigs.errors import RigConfigError
 from rigs.protocol import COUNTER_MODULUS, TIME_MODULUS_US
 
 
@@ -50,7 +51,7 @@ class Sequencer:
 
     def __init__(self, rate_hz: float | None = None) -> None:
         if rate_hz is not None and not rate_hz > 0:
-            raise ValueError("rate_hz must be positive")
+            raise RigConfigError("rate_hz must be positive")
         self.rate_hz = rate_hz
         self.stats = SequenceStats()
         self._last_counter: int | None = None

@@ -196,3 +196,27 @@ def test_convert_requires_exposure_when_camera_reports_none(tmp_path: Path) -> N
     s = load_session(tmp_path / "s2")
     assert res.frames == 3 and s.frames.exposure_ns.tolist() == [2000] * 3
     assert s.accel_mps2 is None
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: RecorderConfig(flush_interval_s=5.0), "crash loss bound"),
+        (lambda: RecorderConfig(frame_encoding="jpeg"), "raw or png"),
+        (lambda: VirtualCameraConfig(fps=30, exposure_s=0.1), "exposure_s"),
+    ],
+)
+def test_configs_validate_themselves(make, match: str) -> None:
+    from blurtrack.errors import BlurTrackError
+    from rigs.errors import RigConfigError
+
+    with pytest.raises(RigConfigError, match=match) as info:
+        make()
+    assert isinstance(info.value, BlurTrackError)
+
+
+def test_recorder_needs_a_device(tmp_path: Path) -> None:
+    from rigs.errors import RigError
+
+    with pytest.raises(RigError, match="nothing to record"):
+        Recorder(tmp_path / "x.mcap", None, None)
