@@ -114,6 +114,23 @@ def _open_cv(u: DeviceUrl, clock: Clock | None) -> OpenCvCamera:
     return OpenCvCamera(cap, u.url, u.scheme, clock, exposure_ns)
 
 
+def _open_rig_camera(u: DeviceUrl, clock: Clock | None) -> VirtualCamera:
+    """A camera rendering a rigs.sim rig (frame rate and exposure from its preset).
+
+    Not paced by default (``realtime=0``): the renderer is slower than real time at full
+    resolution, and the frames' stamps follow the rig's schedule on the shared timeline
+    whenever they are delivered, so nothing is dropped."""
+    from rigs.simrig import rig_from_params
+
+    u.check_keys({"rig", "seed", "frames", "realtime"})
+    shared = rig_from_params(u.url, u.params, clock)
+    cfg = VirtualCameraConfig(fps=shared.fps, exposure_s=shared.exposure_s,
+                              n_frames=int(shared.rig.n_frames),
+                              realtime=u.get_int("realtime", 0, 0, 1) == 1,
+                              origin_ns=shared.origin_ns)
+    return VirtualCamera(shared.render, cfg, clock, u.url)
+
+
 def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = None
                 ) -> CameraSource:
     """Open the camera named by ``url``; ``render`` drives ``sim://camera`` (default: dots)."""
@@ -123,6 +140,8 @@ def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = 
     if u.scheme == "sim":
         if u.target != "camera":
             raise DeviceUrlError(f"{url}: the simulated camera is sim://camera")
+        if "rig" in u.params:
+            return _open_rig_camera(u, clock)
         u.check_keys({"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise",
                       "seed"})
         frames = u.get_int("frames", -1, -1, 10**9)

@@ -25,7 +25,8 @@ def _add_session_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("session initial guesses")
     g.add_argument("--intrinsics", type=_floats4, default=None, metavar="FX,FY,CX,CY",
                    help="camera intrinsics guess (default: fx = fy = width, image centre)")
-    g.add_argument("--readout-s", type=float, default=0.0, help="rolling-shutter readout (s)")
+    g.add_argument("--readout-s", type=float, default=None,
+                   help="rolling-shutter readout guess (s; default 0)")
     g.add_argument("--exposure-ms", type=float, default=None,
                    help="exposure to assume where the camera does not report one")
     g.add_argument("--target", choices=("laser-grid", "natural"), default="laser-grid")
@@ -92,6 +93,7 @@ def run_record(args: argparse.Namespace) -> int:
     from rigs.errors import RigError
     from rigs.imu import open_imu
     from rigs.recorder import Recorder, RecorderConfig, RecorderStatus
+    from rigs.simrig import rig_guess_for_urls
 
     if not args.imu and not args.camera:
         raise RigError("give --imu URL, --camera URL or both")
@@ -123,6 +125,9 @@ def run_record(args: argparse.Namespace) -> int:
 
     metadata = {"imu_url": args.imu or "", "camera_url": args.camera or "",
                 "imu_min_latency_s": repr(imu.min_latency_s if imu is not None else 0.0)}
+    guess = rig_guess_for_urls(args.imu, args.camera)
+    if guess is not None:
+        metadata["rig_guess"] = json.dumps(guess)
     recorder = Recorder(log_path, imu, camera, metadata, config, on_status=show)
     def on_signal(signum: int, _frame: Any) -> None:
         # first Ctrl-C or SIGTERM: stop cleanly (never interrupt a half-written record);

@@ -9,6 +9,7 @@ What the rig cannot know (intrinsics) is an explicit initial guess, marked as su
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,18 +26,26 @@ from rigs.timesync import fit_clock_map
 
 @dataclass(frozen=True)
 class ConvertOptions:
-    """Initial guesses written to ``session.yaml``. ``intrinsics`` None: fx = fy = image
-    width (about 53 degrees of horizontal field of view) and the image centre.
-    ``exposure_ns`` is used only for frames whose camera reported no exposure."""
+    """Initial guesses written to ``session.yaml``; each one left None comes from the log's
+    ``rig_guess`` metadata (what a simulated rig says about itself), else a default:
+    intrinsics fx = fy = image width (about 53 degrees of horizontal field of view) and the
+    image centre, readout 0, R_cam_imu identity. ``exposure_ns`` is used only for frames whose
+    camera reported no exposure."""
 
     intrinsics: tuple[float, float, float, float] | None = None
-    readout_s: float = 0.0
+    readout_s: float | None = None
     target_kind: str = "laser-grid"
     exposure_ns: int | None = None
+    R_cam_imu: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.exposure_ns is not None and self.exposure_ns <= 0:
             raise RecorderLogError("the fallback exposure must be positive")
+        if self.R_cam_imu is not None:
+            R = np.asarray(self.R_cam_imu, dtype=float)
+            if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or \
+                    np.linalg.det(R) < 0:
+                raise RecorderLogError("R_cam_imu must be a 3x3 rotation matrix")
 
 
 @dataclass
@@ -78,6 +87,28 @@ def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, n
     return cmap.to_host_ns(dev_ns[keep]), keep
 
 
+def _rig_guess(metadata: dict[str, str]) -> dict[str, Any]:
+    """The ``rig_guess`` metadata (JSON) of a log, checked; {} when absent."""
+    text = metadata.get("rig_guess")
+    if not text:
+        return {}
+    try:
+        guess = json.loads(text)
+        out: dict[str, Any] = {}
+        if "intrinsics" in guess:
+            out["intrinsics"] = tuple(float(v) for v in guess["intrinsics"])
+            if len(out["intrinsics"]) != 4:
+                raise ValueError("four intrinsics expected")
+        if "readout_s" in guess:
+            out["readout_s"] = float(guess["readout_s"])
+        if "R_cam_imu" in guess:
+            out["R_cam_imu"] = ConvertOptions(R_cam_imu=tuple(
+                tuple(float(v) for v in row) for row in guess["R_cam_imu"])).R_cam_imu
+        return out
+    except (ValueError, TypeError, KeyError) as exc:
+        raise RecorderLogError(f"the log's rig_guess metadata is malformed ({exc})") from None
+
+
 def log_to_session(log_path: str | Path, folder: str | Path,
                    options: ConvertOptions | None = None) -> ConvertResult:
     """Write the session folder ``folder`` (must not exist or be empty) from a recorder log."""
@@ -94,9 +125,18 @@ def log_to_session(log_path: str | Path, folder: str | Path,
     imu_t_ns, keep = _imu_host_times(scan, result)
     image = next(iter_frames(log_path)).image()
     h, w = image.shape[:2]
-    intrinsics = options.intrinsics or (float(w), float(w), (w - 1) / 2.0, (h - 1) / 2.0)
-    if options.intrinsics is None:
+    guess = _rig_guess(scan.metadata)
+    intrinsics = options.intrinsics or guess.get("intrinsics")
+    guessed = intrinsics is None
+    if intrinsics is None:
+        intrinsics = (float(w), float(w), (w - 1) / 2.0, (h - 1) / 2.0)
         result.notes.append("intrinsics are a guess (fx = fy = width); calibrate them")
+    readout_s = options.readout_s if options.readout_s is not None else \
+        float(guess.get("readout_s", 0.0))
+    T_cam_imu = np.eye(4)
+    R = options.R_cam_imu if options.R_cam_imu is not None else guess.get("R_cam_imu")
+    if R is not None:
+        T_cam_imu[:3, :3] = np.asarray(R, dtype=float)
     if unknown_exposure:
         result.notes.append(f"exposure not reported by the camera; {options.exposure_ns} ns "
                             "assumed as given")
@@ -106,12 +146,12 @@ def log_to_session(log_path: str | Path, folder: str | Path,
                       "damage": scan.damage, "clock_map": result.clock_map,
                       "imu_stats": scan.last_stats.get("imu", {}),
                       "camera_dropped": scan.last_stats.get("camera_dropped", 0),
-                      "intrinsics_guessed": options.intrinsics is None})
+                      "intrinsics_guessed": guessed})
     try:
         meta = SessionMeta(
-            camera=CameraConfig(resolution=(w, h), intrinsics=intrinsics,
-                                readout_s=options.readout_s),
-            imu=ImuConfig(rate_hz=imu_rate if imu_rate > 0 else 200.0),
+            camera=CameraConfig(resolution=(w, h), intrinsics=tuple(intrinsics),
+                                readout_s=readout_s),
+            imu=ImuConfig(rate_hz=imu_rate if imu_rate > 0 else 200.0, T_cam_imu=T_cam_imu),
             target_kind=options.target_kind,
             extra={"recording": recording},
         )

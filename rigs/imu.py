@@ -8,6 +8,7 @@ host time of the read; :mod:`rigs.timesync` later turns device time into host ti
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,6 +87,15 @@ class ImuDriver:
         )
 
     @property
+    def exhausted(self) -> bool:
+        """True once a virtual board with a sample limit has sent everything and all of it has
+        been decoded (or it was unplugged); always False for real devices."""
+        dev = self.device
+        if dev is None or not dev.finished.is_set():
+            return False
+        return dev.unplugged.is_set() or self.decoder.stats.bytes_in >= dev.bytes_sent
+
+    @property
     def stats(self) -> dict[str, int]:
         return {**self.decoder.stats.as_dict(), **self.sequencer.stats.as_dict()}
 
@@ -134,6 +144,19 @@ def _sim_config(u: DeviceUrl) -> VirtualImuConfig:
         raise DeviceUrlError(f"{u.url}: {exc}") from None
 
 
+def _rig_config(u: DeviceUrl, clock: Clock | None) -> tuple[VirtualImuConfig, MotionFn]:
+    """A board sampling a rigs.sim rig (rate from the rig's preset; see rigs.simrig)."""
+    from rigs.simrig import rig_from_params
+
+    if "rate" in u.params or "samples" in u.params:
+        raise DeviceUrlError(f"{u.url}: with rig=..., rate and samples come from the rig")
+    shared = rig_from_params(u.url, u.params, clock)
+    rest = {k: v for k, v in u.params.items() if k not in ("rig", "frames")}
+    rest.update(rate=repr(shared.imu_rate_hz), samples=str(shared.imu_samples()))
+    cfg = _sim_config(DeviceUrl(u.url, u.scheme, u.target, rest))
+    return dataclasses.replace(cfg, origin_ns=shared.imu_origin_ns), shared.omega_at
+
+
 def open_imu(
     url: str,
     clock: Clock | None = None,
@@ -145,7 +168,10 @@ def open_imu(
     if u.scheme == "sim":
         if u.target != "imu":
             raise DeviceUrlError(f"{url}: the simulated IMU is sim://imu")
-        cfg = _sim_config(u)
+        if "rig" in u.params:
+            cfg, motion = _rig_config(u, clock)
+        else:
+            cfg = _sim_config(u)
         device = VirtualImu(motion or sine_motion(), cfg, clock=None)
         path = device.open_pty()
         try:

@@ -41,10 +41,14 @@ class RecorderConfig:
     png_compression: int = 1
     frame_queue: int = 8
     stop_when_camera_ends: bool = True
+    after_camera_end_s: float = 0.3  # IMU keeps recording this long after the last frame
+    # (a virtual board with a sample limit is instead recorded to its last sample)
 
     def __post_init__(self) -> None:
         if not 0.01 <= self.flush_interval_s <= 1.0:
             raise RigConfigError("flush_interval_s must be in [0.01, 1] (crash loss bound)")
+        if self.after_camera_end_s < 0:
+            raise RigConfigError("after_camera_end_s must be non-negative")
         if self.status_interval_s <= 0 or (self.duration_s is not None and self.duration_s <= 0):
             raise RigConfigError("status_interval_s and duration_s must be positive")
         if self.frame_encoding not in ("raw", "png"):
@@ -216,6 +220,7 @@ class Recorder:
         next_flush = start_ns + round(cfg.flush_interval_s * 1e9)
         next_status = start_ns + round(cfg.status_interval_s * 1e9)
         stopped_by, error = "stop", None
+        camera_end_ns: int | None = None
         try:
             while True:
                 try:
@@ -228,8 +233,10 @@ class Recorder:
                     break
                 if kind == "camera-ended" and cfg.stop_when_camera_ends:
                     stopped_by = "camera-ended"
-                    break
+                    camera_end_ns = self.clock.now_ns()
                 self._write(log, kind, payload, counts)
+                if camera_end_ns is not None and self._imu_done(camera_end_ns):
+                    break
                 now = self.clock.now_ns()
                 if now >= next_flush:
                     self._flush(log, now, start_ns, counts, flushed)
@@ -267,6 +274,16 @@ class Recorder:
             self.on_status(status)
         imu_stats = self.imu.stats if self.imu is not None else {}
         return RecordResult(self.log_path, status, imu_stats, stopped_by, error)
+
+    def _imu_done(self, camera_end_ns: int) -> bool:
+        """After the camera ended: has the IMU delivered what belongs to the recording?"""
+        imu = self.imu
+        if imu is None or imu.exhausted:
+            return True
+        dev = imu.device
+        if dev is not None and dev.config.n_samples is not None:
+            return False  # a finite virtual board: wait for its last sample
+        return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
 
     def _flush(self, log: RecLogWriter, now: int, start_ns: int, counts: dict[str, int],
                flushed: dict[str, int]) -> None:
