@@ -129,6 +129,7 @@ class VirtualImu:
         self.damaged: set[int] = set()
         self.error: BaseException | None = None
         self.bytes_sent = 0
+        self.pauses = 0
 
     # ----------------------------------------------------------------- truth log
     @property
@@ -298,6 +299,7 @@ class VirtualImu:
             if cfg.realtime and not paused and f.pause_at_s is not None and (
                     due / cfg.rate_hz >= f.pause_at_s):
                 paused = True
+                self.pauses += 1
                 self._stop.wait(f.pause_s)  # the board stalls; its samples come out late
             idx, t_us, counts, gyro = self._samples(k, due)
             data = self._encode(idx, t_us, counts, gyro)
