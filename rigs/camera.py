@@ -14,6 +14,7 @@ then -1 unless the URL gives ``exposure_ms``.
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 from rigs.camera_types import CameraFrame, CameraSource
 from rigs.clock import Clock, MonotonicClock
@@ -27,7 +28,7 @@ _DRIVER_STAMP_TOLERANCE_NS = 1_000_000_000
 class OpenCvCamera:
     """A ``cv2.VideoCapture`` with timestamps, exposure and gap-based drop counting."""
 
-    def __init__(self, capture, url: str, kind: str, clock: Clock | None = None,
+    def __init__(self, capture: Any, url: str, kind: str, clock: Clock | None = None,
                  exposure_ns: int | None = None, realtime: bool = False) -> None:
         import cv2
 

@@ -64,7 +64,7 @@ def register(subparsers: Any) -> None:
     recov.set_defaults(func=run_recover)
 
 
-def _options(args: argparse.Namespace):
+def _options(args: argparse.Namespace) -> Any:  # rigs.convert.ConvertOptions (lazy import)
     from rigs.convert import ConvertOptions
     from rigs.errors import RigError
 
@@ -156,7 +156,13 @@ def run_record(args: argparse.Namespace) -> int:
               f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps")
     summary: dict[str, Any] = {"command": "record", "recording": result.as_dict()}
     if not args.no_convert:
-        conv = log_to_session(log_path, out, options)
+        try:
+            conv = log_to_session(log_path, out, options)
+        except RigError as exc:
+            if result.error is None:
+                raise
+            raise RigError(f"recording ended early: {result.error}; no session written "
+                           f"({exc}); the log {log_path} keeps what was recorded") from None
         summary["session"] = conv.as_dict()
         _write_summary(out, summary)
         print(f"session {out}: {conv.frames} frames, {conv.imu_samples} IMU samples"

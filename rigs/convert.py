@@ -117,7 +117,8 @@ def log_to_session(log_path: str | Path, folder: str | Path,
     scan = scan_log(log_path)
     result = ConvertResult(folder, 0, 0, scan.complete, scan.damage)
     if scan.frame_timestamps_ns.size == 0:
-        raise RecorderLogError(f"{log_path} holds no camera frames; a session needs a camera")
+        raise RecorderLogError(f"{log_path} holds no camera frames; a session needs a camera "
+                               "(record IMU-only logs with --no-convert)")
     unknown_exposure = bool(np.any(scan.frame_exposures_ns <= 0))
     if unknown_exposure and options.exposure_ns is None:
         raise RecorderLogError("the camera reported no exposure time for some frames; "

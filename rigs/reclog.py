@@ -77,6 +77,12 @@ class RecLogWriter:
         self._final_size = 0
         self.flush()
 
+    def write_message(self, topic: str, t_ns: int, data: bytes) -> None:
+        """Append an already encoded message to one of the log's channels (used by recover)."""
+        if topic not in self._channels:
+            raise RecorderLogError(f"unknown log channel {topic!r}")
+        self._add(topic, t_ns, data)
+
     def _add(self, topic: str, t_ns: int, data: bytes) -> None:
         self._seq += 1
         self._w.add_message(self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
@@ -311,7 +317,7 @@ def recover_log(path: str | Path, out_path: str | Path) -> RecoverResult:
             damage = rec
             break
         assert writer is not None  # the metadata record comes first in our logs
-        writer._add(topic, rec.log_time, rec.data)
+        writer.write_message(topic, rec.log_time, rec.data)
         n += 1
         if topic == "/imu":
             imu_n += len(json.loads(rec.data)["index"])

@@ -208,3 +208,16 @@ def test_recorder_needs_a_device(tmp_path: Path) -> None:
 
     with pytest.raises(RigError, match="nothing to record"):
         Recorder(tmp_path / "x.mcap", None, None)
+
+
+def test_unplug_without_frames_reports_both_problems_and_keeps_the_log(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "session"
+    rc = cli_main(["record", "--imu", "sim://imu?rate=500&unplug=0.2", "--out", str(out),
+                   "--duration", str(DEADLINE_S)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "disconnected" in err and "no session written" in err
+    assert "no camera frames" in err
+    k = scan_log(tmp_path / "session.mcap").imu_index
+    np.testing.assert_array_equal(k, np.arange(k.size))
+    assert 0 < k.size <= 100
