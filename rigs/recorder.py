@@ -1,12 +1,14 @@
 """The recorder: IMU and camera threads feeding one writer that flushes small chunks.
 
-One thread per device reads and timestamps; the camera thread also PNG-encodes (OpenCV releases
-the GIL while it does). The calling thread writes everything into the log in arrival order and
-closes a chunk every ``flush_interval_s``, so a killed recorder loses at most that much. A status
-snapshot (rates, drops, CRC errors, what is safely on disk) goes to ``on_status`` every
-``status_interval_s``. The recording ends on :meth:`Recorder.stop` (Ctrl-C), after
-``duration_s``, when a replayed camera file ends, or when a device disconnects; in every case the
-log is finished properly before :meth:`Recorder.run` returns.
+One thread per device reads and timestamps; the camera thread also serialises frames (raw
+pixels by default, or PNG, during which OpenCV releases the GIL), with at most ``frame_queue``
+frames waiting for the writer. The calling thread writes everything into the log in arrival
+order and closes a chunk every ``flush_interval_s``, so a killed recorder loses at most that
+much. A status snapshot (rates, drops, CRC errors, what is safely on disk) goes to ``on_status``
+every ``status_interval_s``. The recording ends on :meth:`Recorder.stop` (Ctrl-C), after
+``duration_s``, when the camera stream ends (plus ``after_camera_end_s`` of IMU), or when a
+device disconnects; in every case what the devices delivered is written and the log is finished
+properly before :meth:`Recorder.run` returns.
 """
 
 from __future__ import annotations
