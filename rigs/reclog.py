@@ -62,7 +62,10 @@ class RecLogWriter:
             raise RecorderLogError(f"{self.path} already exists; choose another log path") from None
         except OSError as exc:
             raise RecorderLogError(f"cannot create log {self.path}: {exc.strerror}") from None
-        # frames are PNG already and IMU batches are small: compression would only cost CPU
+        if not hasattr(Writer, "flush"):  # added in mcap 1.6; the crash-loss bound needs it
+            self._file.close()
+            raise RecorderLogError("the recorder needs mcap >= 1.6 (Writer.flush)")
+        # frames are raw or PNG and IMU batches are small: compression would only cost CPU
         self._w = Writer(self._file, chunk_size=4 << 20, compression=CompressionType.NONE)
         self._w.start(profile="", library="blurtrack-rigs")
         self._channels: dict[str, int] = {}
