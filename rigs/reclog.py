@@ -55,6 +55,8 @@ class RecLogWriter:
 
     def __init__(self, path: str | Path, metadata: dict[str, str]) -> None:
         self.path = Path(path)
+        if not hasattr(Writer, "flush"):  # added in mcap 1.6; the crash-loss bound needs it
+            raise RecorderLogError("the recorder needs mcap >= 1.6 (Writer.flush)")
         try:
             # held open for the whole recording; closed in finish(). "x": never overwrite
             self._file = open(self.path, "xb")  # noqa: SIM115
@@ -62,9 +64,6 @@ class RecLogWriter:
             raise RecorderLogError(f"{self.path} already exists; choose another log path") from None
         except OSError as exc:
             raise RecorderLogError(f"cannot create log {self.path}: {exc.strerror}") from None
-        if not hasattr(Writer, "flush"):  # added in mcap 1.6; the crash-loss bound needs it
-            self._file.close()
-            raise RecorderLogError("the recorder needs mcap >= 1.6 (Writer.flush)")
         # frames are raw or PNG and IMU batches are small: compression would only cost CPU
         self._w = Writer(self._file, chunk_size=4 << 20, compression=CompressionType.NONE)
         self._w.start(profile="", library="blurtrack-rigs")
