@@ -67,7 +67,7 @@ def read_heat(path: Path, shape_hw: tuple[int, int]) -> np.ndarray:
         raise GamdDataError(f"cannot read heat map {path}: {exc}") from exc
     if heat.shape != (6, *shape_hw):
         raise GamdDataError(f"{path}: heat map shape {heat.shape}, expected {(6, *shape_hw)}")
-    heat = np.asarray(heat, dtype=np.float32)
+    heat = np.array(heat, dtype=np.float32)  # a writable copy
     if not np.isfinite(heat).all():
         raise GamdDataError(f"{path}: heat map contains NaN or inf")
     return heat

@@ -42,6 +42,7 @@ class TrainResult:
     losses: list[float] = field(default_factory=list)
     checkpoint: Path | None = None
     seconds: float = 0.0
+    model: torch.nn.Module | None = field(default=None, repr=False)
 
 
 def _setup_distributed(device_kind: str) -> tuple[int, int]:
@@ -196,7 +197,8 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     if world > 1:
         dist.barrier()
     return TrainResult(out_dir=out_dir, start_step=start, end_step=tc.steps, losses=losses,
-                       checkpoint=last_ckpt, seconds=time.perf_counter() - t0)
+                       checkpoint=last_ckpt, seconds=time.perf_counter() - t0,
+                       model=model)
 
 
 def mean_loss(losses: list[float]) -> float:
