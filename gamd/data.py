@@ -73,8 +73,10 @@ def read_heat(path: Path, shape_hw: tuple[int, int]) -> np.ndarray:
     return heat
 
 
-def find_triplets(root: Path, split: str, need_sharp: bool = True) -> list[Triplet]:
-    """All triplets of ``root/split`` in sorted order."""
+def find_triplets(root: Path, split: str, need_sharp: bool = True,
+                  heat_root: Path | None = None) -> list[Triplet]:
+    """All triplets of ``root/split`` in sorted order; heat maps from ``heat_root`` (same
+    layout) instead of ``root`` when given (e.g. heat maps of a perturbed calibration)."""
     base = Path(root) / split
     if not base.is_dir():
         raise GamdDataError(f"dataset split folder not found: {base}")
@@ -82,7 +84,8 @@ def find_triplets(root: Path, split: str, need_sharp: bool = True) -> list[Tripl
     for blur in sorted(base.glob("*/blur/*.png")):
         group = blur.parent.parent
         sharp = group / "sharp" / blur.name
-        heat = group / "heat" / (blur.stem + ".npy")
+        heat_group = group if heat_root is None else Path(heat_root) / split / group.name
+        heat = heat_group / "heat" / (blur.stem + ".npy")
         if need_sharp and not sharp.is_file():
             raise GamdDataError(f"missing sharp image for {blur}")
         triplets.append(Triplet(name=f"{group.name}/{blur.stem}", blur=blur,
@@ -109,12 +112,13 @@ class DeblurDataset(Dataset):
 
     def __init__(self, root: str | Path, split: str = "train", crop: int | None = 128,
                  augment: bool = True, heat_scale_px: float = DEFAULT_HEAT_SCALE_PX,
-                 require_heat: bool = True) -> None:
+                 require_heat: bool = True, heat_root: str | Path | None = None) -> None:
         if crop is not None and (not isinstance(crop, int) or crop < 8 or crop % 4):
             raise GamdDataError(f"crop must be a multiple of 4 >= 8, got {crop!r}")
         self.root, self.split, self.crop = Path(root), split, crop
         self.augment, self.heat_scale_px, self.require_heat = augment, heat_scale_px, require_heat
-        self.triplets = find_triplets(self.root, split)
+        self.triplets = find_triplets(self.root, split,
+                                      heat_root=None if heat_root is None else Path(heat_root))
         missing = [t.name for t in self.triplets if t.heat is None]
         if require_heat and missing:
             raise GamdDataError(f"{len(missing)} examples of {self.root / split} have no heat "
