@@ -1,1 +1,7 @@
-from blurtrack.cli import main; import sys; sys.exit(main())
+"""``python -m blurtrack``: the blurtrack CLI."""
+
+import sys
+
+from blurtrack.cli import main
+
+sys.exit(main())

@@ -1,0 +1,147 @@
+"""Calibration files: Kalibr ``camchain-imucam.yaml`` keys plus BlurTrack's extra keys.
+
+See DESIGN.md ("Calibration file"). ``T_cam_imu`` maps IMU-frame vectors into the camera frame;
+only its rotation matters to the pure-rotation blur model, its translation is carried through.
+``timeshift_cam_imu`` follows Kalibr's sign: ``t_imu = t_cam + shift``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from blurtrack.camera import Camera
+from blurtrack.errors import BlurTrackError, ConfigError
+from blurtrack.rotation import is_rotation
+from blurtrack.yamlio import read_yaml, write_yaml
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything the blur model needs besides the gyro samples."""
+
+    camera: Camera
+    R_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(3))
+    timeshift_cam_imu_s: float = 0.0
+    gyro_bias_radps: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t_cam_imu_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sigma: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        R = np.array(self.R_cam_imu, dtype=float)
+        if not is_rotation(R, tol=1e-5):
+            raise ConfigError("T_cam_imu's rotation block is not a rotation matrix")
+        # Re-orthonormalise what passed the tolerance so downstream maths is exact.
+        u, _, vt = np.linalg.svd(R)
+        R = u @ vt
+        R.setflags(write=False)
+        bias = np.array(self.gyro_bias_radps, dtype=float).reshape(-1)
+        t = np.array(self.t_cam_imu_m, dtype=float).reshape(-1)
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+            raise ConfigError(f"gyro_bias_radps must be 3 finite numbers, got {bias.tolist()}")
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ConfigError("T_cam_imu's translation must be 3 finite numbers")
+        shift = float(self.timeshift_cam_imu_s)
+        if not math.isfinite(shift) or abs(shift) > 10.0:
+            raise ConfigError(f"timeshift_cam_imu must be finite and under 10 s, got {shift}")
+        bias.setflags(write=False)
+        t.setflags(write=False)
+        object.__setattr__(self, "R_cam_imu", R)
+        object.__setattr__(self, "gyro_bias_radps", bias)
+        object.__setattr__(self, "t_cam_imu_m", t)
+        object.__setattr__(self, "timeshift_cam_imu_s", shift)
+        object.__setattr__(self, "sigma", dict(self.sigma))
+
+    @property
+    def T_cam_imu(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.R_cam_imu
+        T[:3, 3] = self.t_cam_imu_m
+        return T
+
+    def with_(self, **changes: Any) -> Calibration:
+        """A copy with some fields replaced (``camera`` fields may be given by name too)."""
+        cam_keys = {"intrinsics", "resolution", "distortion_model", "distortion_coeffs",
+                    "readout_s"}
+        cam_changes = {k: changes.pop(k) for k in list(changes) if k in cam_keys}
+        cam = replace(self.camera, **cam_changes) if cam_changes else self.camera
+        return replace(self, camera=cam, **changes)
+
+    # ----------------------------------------------------------------- YAML
+    def to_dict(self) -> dict[str, Any]:
+        cam = self.camera
+        entry: dict[str, Any] = {
+            "camera_model": "pinhole",
+            "intrinsics": [float(v) for v in cam.intrinsics],
+            "distortion_model": cam.distortion_model,
+            "distortion_coeffs": [float(v) for v in cam.distortion_coeffs],
+            "resolution": [int(v) for v in cam.resolution],
+            "T_cam_imu": [[float(v) for v in row] for row in self.T_cam_imu],
+            "timeshift_cam_imu": float(self.timeshift_cam_imu_s),
+            "readout_s": float(cam.readout_s),
+            "gyro_bias_radps": [float(v) for v in self.gyro_bias_radps],
+        }
+        if self.sigma:
+            entry["sigma"] = _plain(self.sigma)
+        return {"cam0": entry}
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "calibration") -> Calibration:
+        if not isinstance(data, dict) or not isinstance(data.get("cam0"), dict):
+            raise ConfigError(f"{source}: expected a mapping with a 'cam0' entry (Kalibr layout)")
+        c = data["cam0"]
+        try:
+            model = c.get("camera_model", "pinhole")
+            if model != "pinhole":
+                raise ConfigError(f"{source}: camera_model {model!r} is not supported "
+                                  f"(only pinhole)")
+            camera = Camera(
+                resolution=tuple(c["resolution"]),
+                intrinsics=tuple(c["intrinsics"]),
+                distortion_model=c.get("distortion_model", "none"),
+                distortion_coeffs=tuple(c.get("distortion_coeffs") or ()),
+                readout_s=c.get("readout_s", 0.0),
+            )
+            T = np.array(c.get("T_cam_imu", np.eye(4).tolist()), dtype=float)
+            if T.shape != (4, 4):
+                raise ConfigError(f"{source}: T_cam_imu must be 4x4, got shape {T.shape}")
+            return cls(
+                camera=camera,
+                R_cam_imu=T[:3, :3],
+                t_cam_imu_m=T[:3, 3],
+                timeshift_cam_imu_s=float(c.get("timeshift_cam_imu", 0.0)),
+                gyro_bias_radps=np.array(c.get("gyro_bias_radps", [0.0, 0.0, 0.0]), float),
+                sigma=dict(c.get("sigma") or {}),
+            )
+        except ConfigError:
+            raise
+        except BlurTrackError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+        except KeyError as exc:
+            raise ConfigError(f"{source}: cam0 lacks the key {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{source}: malformed value ({exc})") from None
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Calibration:
+        return cls.from_dict(read_yaml(path, "calibration file"), source=str(path))
+
+    def to_yaml(self, path: str | Path) -> None:
+        write_yaml(path, self.to_dict())
+
+
+def _plain(obj: Any) -> Any:
+    """numpy scalars and arrays to plain Python for YAML."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj

@@ -1,0 +1,94 @@
+"""Gyroscope traces: samples on the IMU clock and their interpolation.
+
+Between samples ω is interpolated piecewise linearly (DESIGN: state how ω is interpolated). The
+trace refuses to answer for times it does not cover: outside its first and last sample, or
+inside a gap longer than ``max_gap_s``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from blurtrack.errors import CoverageError, GeometryError
+
+
+@dataclass(frozen=True)
+class GyroTrace:
+    """Angular-velocity samples ``omega_radps (N, 3)`` at IMU-clock times ``t_s (N,)``.
+
+    ``max_gap_s`` (default: 5 median sample intervals) is the longest interval between samples
+    that still counts as covered.
+
+    >>> tr = GyroTrace(np.array([0.0, 1.0]), np.array([[0.0, 0, 0], [2.0, 0, 0]]))
+    >>> tr.omega_at(np.array([0.25]))[0].tolist()
+    [0.5, 0.0, 0.0]
+    """
+
+    t_s: np.ndarray
+    omega_radps: np.ndarray
+    max_gap_s: float | None = None
+    _gap_starts: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        t = np.ascontiguousarray(self.t_s, dtype=float)
+        w = np.ascontiguousarray(self.omega_radps, dtype=float)
+        if t.ndim != 1 or w.shape != (t.size, 3):
+            raise GeometryError(f"gyro trace needs t (N,) and omega (N, 3), got {t.shape} and "
+                                f"{w.shape}")
+        if t.size < 2:
+            raise CoverageError(f"gyro trace has {t.size} sample(s); at least 2 are needed")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(w))):
+            raise GeometryError("gyro trace contains NaN or infinite values")
+        if np.any(np.diff(t) <= 0):
+            raise GeometryError("gyro timestamps must be strictly increasing")
+        dt = np.diff(t)
+        gap = float(self.max_gap_s) if self.max_gap_s is not None else 5.0 * float(np.median(dt))
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "omega_radps", w)
+        object.__setattr__(self, "max_gap_s", gap)
+        object.__setattr__(self, "_gap_starts", np.flatnonzero(dt > gap))
+
+    @property
+    def rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.t_s)))
+
+    def omega_at(self, t_s: np.ndarray) -> np.ndarray:
+        """ω (rad/s, IMU frame) at IMU-clock times ``t_s (M,)`` -> ``(M, 3)``, no coverage check."""
+        t = np.asarray(t_s, dtype=float)
+        return np.stack([np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3)],
+                        axis=-1)
+
+    def omega_components(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Like :meth:`omega_at` but as the ``(wx, wy, wz)`` tuple the model functions take."""
+        t = np.asarray(t_s, dtype=float)
+        return tuple(np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3))  # type: ignore[return-value]
+
+    def covers(self, t0_s: float, t1_s: float) -> bool:
+        try:
+            self.check_coverage(t0_s, t1_s)
+        except CoverageError:
+            return False
+        return True
+
+    def check_coverage(self, t0_s: float, t1_s: float) -> None:
+        """Raise :class:`CoverageError` unless samples cover ``[t0_s, t1_s]`` (IMU clock)."""
+        lo, hi = min(t0_s, t1_s), max(t0_s, t1_s)
+        if lo < self.t_s[0] or hi > self.t_s[-1]:
+            raise CoverageError(
+                f"gyro covers [{self.t_s[0]:.6f}, {self.t_s[-1]:.6f}] s but "
+                f"[{lo:.6f}, {hi:.6f}] s is needed")
+        i = self._gap_starts
+        bad = i[(self.t_s[i + 1] > lo) & (self.t_s[i] < hi)]
+        if bad.size:
+            k = int(bad[0])
+            raise CoverageError(
+                f"gyro gap of {1e3 * (self.t_s[k + 1] - self.t_s[k]):.1f} ms at "
+                f"{self.t_s[k]:.6f} s inside the needed interval [{lo:.6f}, {hi:.6f}] s")
+
+    def segment(self, t0_s: float, t1_s: float) -> GyroTrace:
+        """Samples within ``[t0_s, t1_s]`` plus one on each side where available."""
+        i0 = max(int(np.searchsorted(self.t_s, t0_s, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(self.t_s, t1_s, side="left")) + 1, self.t_s.size)
+        return GyroTrace(self.t_s[i0:i1], self.omega_radps[i0:i1], self.max_gap_s)

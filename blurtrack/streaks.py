@@ -1,0 +1,115 @@
+"""The streak table: measured (or true) blur trajectories of laser dots, one row per streak.
+
+Written by ``blurtrack detect`` (Parquet), read by calibration and reports. Columns:
+
+=====================  ==========  ==========================================================
+column                 type        meaning
+=====================  ==========  ==========================================================
+frame                  int64       index of the frame in the session's cam0/data.csv
+timestamp_ns           int64       the frame's timestamp (camera clock)
+streak_id              int64       streak number within the frame
+start_x, start_y       float64     start of exposure endpoint (px, DESIGN pixel convention)
+end_x, end_y           float64     end of exposure endpoint (px)
+length_px              float64     arc length of the centre line (px)
+centerline             list        ordered ``[[x, y], ...]`` from start to end, ~1 px apart
+profile                list        brightness along the centre line (same length)
+orientation_confidence float64     0..1: how sure the start/end assignment is
+orientation_source     string      ``gyro``, ``continuity``, ``profile``, ``truth`` or ``none``
+clipped                bool        touches the image border
+saturated              bool        has saturated pixels
+merged                 bool        merged with or crossing another streak
+faint                  bool        low contrast
+=====================  ==========  ==========================================================
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from blurtrack.errors import BlurTrackError
+
+COLUMNS: dict[str, str] = {
+    "frame": "int64", "timestamp_ns": "int64", "streak_id": "int64",
+    "start_x": "float64", "start_y": "float64", "end_x": "float64", "end_y": "float64",
+    "length_px": "float64", "centerline": "object", "profile": "object",
+    "orientation_confidence": "float64", "orientation_source": "object",
+    "clipped": "bool", "saturated": "bool", "merged": "bool", "faint": "bool",
+}
+FLAG_COLUMNS = ("clipped", "saturated", "merged", "faint")
+
+
+class StreakTableError(BlurTrackError):
+    """A streak table is missing columns or holds invalid values."""
+
+
+def validate(df: pd.DataFrame) -> pd.DataFrame:
+    """Check columns and values; returns the frame with canonical dtypes."""
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise StreakTableError(f"streak table lacks columns {missing}")
+    out = df.copy()
+    for c, dt in COLUMNS.items():
+        if dt != "object":
+            try:
+                out[c] = out[c].astype(dt)
+            except (TypeError, ValueError) as exc:
+                raise StreakTableError(f"streak table column {c!r}: {exc}") from None
+    xy = out[["start_x", "start_y", "end_x", "end_y"]].to_numpy(float)
+    if not np.all(np.isfinite(xy)):
+        raise StreakTableError("streak table has NaN or infinite endpoints")
+    return out
+
+
+def write(df: pd.DataFrame, path: str | Path) -> None:
+    """Write a validated table as Parquet (atomically)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.tmp")
+    validate(df).to_parquet(tmp, index=False)
+    tmp.replace(p)
+
+
+def read(path: str | Path) -> pd.DataFrame:
+    p = Path(path)
+    if not p.is_file():
+        raise StreakTableError(f"streak table not found: {p}")
+    try:
+        df = pd.read_parquet(p)
+    except Exception as exc:  # pyarrow raises several unrelated types on corrupt files
+        raise StreakTableError(f"streak table {p} is not readable Parquet: "
+                               f"{str(exc).splitlines()[0]}") from None
+    return validate(df)
+
+
+def empty() -> pd.DataFrame:
+    return pd.DataFrame({c: pd.Series(dtype=dt) for c, dt in COLUMNS.items()})
+
+
+def from_truth(truth: dict[str, Any], inside_only: bool = True) -> pd.DataFrame:
+    """The simulator's true streaks (``truth.yaml`` ``frames``) as a streak table."""
+    try:
+        rows = []
+        for fr in truth["frames"]:
+            for k, s in enumerate(fr["streaks"]):
+                if inside_only and not s.get("inside", True):
+                    continue
+                cl = [[float(x), float(y)] for x, y in s["centerline"]]
+                seg = np.diff(np.asarray(cl, float), axis=0) if len(cl) > 1 else np.zeros((0, 2))
+                rows.append({
+                    "frame": int(fr["index"]), "timestamp_ns": int(fr["timestamp_ns"]),
+                    "streak_id": int(s.get("dot", k)),
+                    "start_x": float(s["start"][0]), "start_y": float(s["start"][1]),
+                    "end_x": float(s["end"][0]), "end_y": float(s["end"][1]),
+                    "length_px": float(np.linalg.norm(seg, axis=1).sum()),
+                    "centerline": cl, "profile": [1.0] * len(cl),
+                    "orientation_confidence": 1.0, "orientation_source": "truth",
+                    "clipped": not s.get("inside", True), "saturated": False,
+                    "merged": False, "faint": False,
+                })
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise StreakTableError(f"truth.yaml has no usable streak truth ({exc!r})") from None
+    return validate(pd.DataFrame(rows, columns=list(COLUMNS))) if rows else empty()

@@ -1,0 +1,57 @@
+"""Safe YAML reading and atomic writing for untrusted parameter files."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from blurtrack.errors import ConfigError
+
+#: Largest YAML file read (bytes); parameter files are tiny, truth files of long simulations
+#: are a few MB.
+MAX_YAML_BYTES = 256 * 1024 * 1024
+
+
+def read_yaml(path: str | Path, what: str = "YAML file") -> Any:
+    """``yaml.safe_load`` of ``path`` with one-line errors for missing, huge or invalid files."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{what} not found: {p}")
+    size = p.stat().st_size
+    if size > MAX_YAML_BYTES:
+        raise ConfigError(f"{what} {p} is {size} bytes, over the {MAX_YAML_BYTES}-byte limit")
+    try:
+        with p.open("r", encoding="utf-8") as f:
+            return yaml.load(f, Loader=_LOADER)
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"{what} {p} is not valid YAML: {first}") from None
+
+
+def write_yaml(path: str | Path, data: Any) -> None:
+    """Write ``data`` as YAML atomically (temporary file, then rename)."""
+    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    write_text_atomic(path, text)
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# The C loader is faster for big truth files; both are the safe loader.
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
