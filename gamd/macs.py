@@ -48,3 +48,17 @@ def count_macs(model: nn.Module, *inputs: torch.Tensor | None) -> int:
         for h in handles:
             h.remove()
     return total
+
+
+def macs_for_size(model: nn.Module, height: int, width: int) -> int:
+    """MACs of one ``(1, 3, H, W)`` forward pass (with 6-channel heat maps if used).
+
+    Runs a copy of the network on PyTorch's ``meta`` device: shapes propagate, nothing is
+    computed, so even 1280 × 720 with the paper's sizes costs milliseconds.
+    """
+    import copy
+
+    meta = copy.deepcopy(model).to("meta")
+    blur = torch.empty(1, 3, height, width, device="meta")
+    heat = torch.empty(1, 6, height, width, device="meta")
+    return count_macs(meta, blur, heat)

@@ -92,3 +92,16 @@ def test_mac_counter_known_values() -> None:
     small = count_macs(net, torch.rand(1, 3, 32, 32), torch.rand(1, 6, 32, 32))
     big = count_macs(net, torch.rand(1, 3, 64, 64), torch.rand(1, 6, 64, 64))
     assert big == 4 * small
+
+
+def test_meta_device_macs_and_profile_with_injected_clock() -> None:
+    from gamd.macs import macs_for_size
+    from gamd.profile import forward_ms, profile
+
+    net = build_model("mimo_unet", "tiny")
+    assert macs_for_size(net, 32, 48) == count_macs(net, torch.rand(1, 3, 32, 48))
+    ticks = iter(range(100))
+    times = forward_ms(net, 8, 8, repeats=2, clock=lambda: float(next(ticks)))
+    assert times == [1000.0, 1000.0]
+    prof = profile(net, [(16, 24)], time_it=False)
+    assert prof["params"] == count_parameters(net) and "24x16" in prof["macs"]
