@@ -75,3 +75,14 @@ def test_frame_to_rgb_conventions() -> None:
     rgb = frame_to_rgb(bgr)
     assert rgb[0, 0].tolist() == [0.0, 0.0, 1.0]
     assert frame_to_rgb(np.full((2, 2), 255, np.uint8)).shape == (2, 2, 3)
+
+
+def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
+    from gamd.demo import run_demo
+
+    s = run_demo(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2,
+                 progress=False)
+    img = cv2.imread(s["picture"])
+    assert img.shape == (40, 3 * 48 + 8, 3)
+    assert json.loads((tmp_path / "demo/summary.json").read_text())["steps"] == 3
+    assert np.isfinite(s["restored_psnr_db"])

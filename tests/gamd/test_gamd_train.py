@@ -158,3 +158,12 @@ def test_ddp_two_gloo_processes_agree(tiny_dataset, tmp_path) -> None:
         assert torch.allclose(v, r0["model"][k], atol=0.1 * 3 * 2e-3), k
     assert r0["losses"] == pytest.approx(single.losses, rel=1e-4)
     assert yaml.safe_load((tmp_path / "ddp/config.yaml").read_text())["train"]["steps"] == 3
+
+
+def test_shipped_configs_parse() -> None:
+    paths = sorted((REPO / "configs" / "gamd").glob("*.yaml"))
+    assert len(paths) == 8
+    for path in paths:
+        cfg = RunConfig.from_yaml(path)
+        net = build_model(cfg.model.name, cfg.model.preset, **cfg.model.kwargs)
+        assert net.uses_heat == (cfg.model.name in ("gamd", "mimo_pro"))
