@@ -30,7 +30,13 @@ def _train(args: argparse.Namespace) -> int:
         overrides["progress"] = False
     if overrides:
         config = replace(config, train=replace(config.train, **overrides))
-    res = train(config, resume=args.resume)
+    try:
+        res = train(config, resume=args.resume)
+    finally:
+        import torch.distributed as dist
+
+        if dist.is_initialized():  # joined under torchrun: leave the group cleanly
+            dist.destroy_process_group()
     if res.checkpoint is not None:
         tail = res.losses[-10:]
         mean = sum(tail) / len(tail) if tail else float("nan")
