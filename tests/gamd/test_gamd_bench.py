@@ -36,7 +36,7 @@ def test_link_groups_builds_a_readable_dataset(bench, tiny_dataset, tmp_path) ->
     blur = next(copy.glob("*/*/blur/*.png"))
     blur.write_bytes(blur.read_bytes() + b"x")
     assert not bench.same_blur(tiny_dataset, copy)
-    bench.link_groups(copy, tmp_path / "heat" / "test", "a", what="heat")
+    bench.link_groups(copy, tmp_path / "heat" / "train", "a", what="heat")
     swapped = DeblurDataset(tmp_path / "data", "train", crop=None, augment=False,
                             heat_scale_px=1.0, heat_root=tmp_path / "heat")
     assert swapped.triplets[0].heat.parent.parent.parent.parent == tmp_path / "heat"
