@@ -45,6 +45,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-upscale", action="store_true", help="refuse photos smaller than --size")
     p.add_argument("--extras", action="store_true",
                    help="also write mask/<stem>.png (validity) and fit/<stem>.npy (fit error)")
+    p.add_argument("--png-compression", type=int, default=0, metavar="LEVEL",
+                   help="PNG deflate level 0-9 of sharp/blur (0: fastest, default)")
     p.add_argument("--group", type=int, default=100, help="triplets per <name> folder")
     p.set_defaults(func=run)
 
@@ -122,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         bars[0].update(done - bars[0].n)
 
     try:
-        result = build(spec, args.out, shard, args.workers, progress)
+        result = build(spec, args.out, shard, args.workers, progress, args.png_compression)
     finally:
         for b in bars:
             b.close()

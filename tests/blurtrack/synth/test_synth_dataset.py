@@ -136,7 +136,7 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "cli"
     args = ["synth", "--calib", str(cal), "--gyro", "synthetic", "--images", str(images),
             "--out", str(out), "--count", "2", "--size", "48x32", "--noise", "0.001,0.002",
-            "--jpeg", "90", "--extras", "--saturation", "3"]
+            "--jpeg", "90", "--extras", "--png-compression", "6", "--saturation", "3"]
     assert main(args) == 0
     rec = next(iter(read_manifest(out / "manifest.jsonl").values()))
     mask = cv2.imread(str(out / rec["files"]["mask"]), cv2.IMREAD_UNCHANGED)
@@ -145,7 +145,7 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     assert fit.shape == (32, 48) and fit.max() < 0.5
     summary = json.loads((out / "summary.json").read_text())
     assert summary["made"] == 2 and summary["size"] == [48, 32]
-    assert main([*args[:-7], "--size", "48by32"]) == 2
+    assert main([*args[:-9], "--size", "48by32"]) == 2
     assert "--size must be WxH" in capsys.readouterr().err
     assert main(["synth-merge", str(tmp_path / "nothing")]) == 2
 
