@@ -56,6 +56,11 @@ class TripletParams:
                                  f"{self.exposure_ms}")
         if self.mode not in MODES:
             raise SynthesisError(f"mode must be one of {MODES}, got {self.mode!r}")
+        ph_ = self.photometry
+        if self.mode == "paper" and (ph_.noise_shot or ph_.noise_read or ph_.jpeg_quality
+                                     or ph_.saturation_gain > 1):
+            raise SynthesisError("paper mode reproduces the source paper's synthesis: no noise, "
+                                 "saturation or JPEG options")
         if not 1 <= int(self.heat_stride) <= 64 or not 3 <= int(self.heat_n_t) <= 256:
             raise SynthesisError("heat_stride must be in [1, 64] and heat_n_t in [3, 256]")
         object.__setattr__(self, "size", size)

@@ -128,6 +128,10 @@ def test_paper_mode_and_robust_heat_maps(images: Path) -> None:
     assert np.abs(robust.heat - exact.heat).max() > 0.01
     assert robust.info["perturbation"]["timeshift_s"] != 0
     assert exact.info["bezier_fit"]["within_0.5px"] > 0.99
+    from blurtrack.synth.photometry import Photometry
+
+    with pytest.raises(SynthesisError, match="paper mode"):
+        TripletParams(mode="paper", photometry=Photometry(noise_read=0.01))
 
 
 def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
