@@ -208,7 +208,7 @@ class NodeGrid:
 def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_s: float,
                 t_ref_s: float | None = None,
                 settings: RenderSettings | None = None) -> RenderResult:
-    """Blur ``sharp`` (float32 ``(H, W)`` or ``(H, W, C)``, the scene at ``t_ref``; linear
+    """Blur ``sharp`` (float32 ``(H, W)`` or ``(H, W, C)``, C <= 4, the scene at ``t_ref``; linear
     light for physically right averaging) over the frame exposed from ``frame_t_s`` (top row,
     camera clock) for ``exposure_s``. ``t_ref`` defaults to the model's mid-exposure time."""
     st = settings or RenderSettings()
