@@ -27,6 +27,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--workers", type=int, default=1, help="worker processes")
     p.add_argument("--mode", choices=("exact", "paper"), default="exact")
     p.add_argument("--exposure-ms", default="10:30", help="exposure, LO:HI range or a value")
+    p.add_argument("--readout-ms", type=float, default=None,
+                   help="rolling-shutter readout (default: the calibration's)")
     p.add_argument("--noise", default="0,0", help="Poisson scale and read-noise sigma (linear)")
     p.add_argument("--saturation", default="1,0.9",
                    help="largest highlight gain and its linear threshold (gain 1: off)")
@@ -97,7 +99,8 @@ def spec_from_args(args: argparse.Namespace):
         perturbation=Perturbation.parse(args.robust),
         render=RenderSettings(max_step_px=args.max_step_px, grid_px=args.grid_px,
                               border=args.border),
-        heat_stride=args.heat_stride, heat_n_t=args.heat_samples, upscale=not args.no_upscale)
+        heat_stride=args.heat_stride, heat_n_t=args.heat_samples, upscale=not args.no_upscale,
+        readout_ms=args.readout_ms)
     calib = Calibration.from_yaml(args.calib)
     gyro = args.gyro if args.gyro.startswith("synthetic") else str(Path(args.gyro).resolve())
     return DatasetSpec(calib=calib.to_dict(), gyro=gyro, images=str(Path(args.images).resolve()),

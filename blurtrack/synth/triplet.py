@@ -33,7 +33,10 @@ FIT_TOL_PX = 0.5
 
 @dataclass(frozen=True)
 class TripletParams:
-    """Everything that shapes a triplet besides its inputs (stored in ``dataset.yaml``)."""
+    """Everything that shapes a triplet besides its inputs (stored in ``dataset.yaml``).
+
+    ``readout_ms`` overrides the calibration's rolling-shutter readout (``None``: keep it).
+    """
 
     size: tuple[int, int] = (1280, 720)
     exposure_ms: tuple[float, float] = (10.0, 30.0)
@@ -44,6 +47,7 @@ class TripletParams:
     heat_stride: int = 16
     heat_n_t: int = 16
     upscale: bool = True
+    readout_ms: float | None = None
 
     def __post_init__(self) -> None:
         size = tuple(int(v) for v in self.size)
@@ -63,6 +67,9 @@ class TripletParams:
                                  "saturation or JPEG options")
         if not 1 <= int(self.heat_stride) <= 64 or not 3 <= int(self.heat_n_t) <= 256:
             raise SynthesisError("heat_stride must be in [1, 64] and heat_n_t in [3, 256]")
+        if self.readout_ms is not None and not (math.isfinite(self.readout_ms)
+                                                and 0 <= self.readout_ms < 1000):
+            raise SynthesisError(f"readout_ms must be in [0, 1000), got {self.readout_ms}")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "exposure_ms", exp)
 
@@ -105,6 +112,8 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
     """Synthesise one triplet from an 8-bit BGR photograph (any size)."""
     W, H = params.size
     cam = camera_for_size(calib.camera, W, H)
+    if params.readout_ms is not None:
+        cam = replace(cam, readout_s=params.readout_ms * 1e-3)
     calib_out = replace(calib, camera=cam)
     if not source.own_imu:  # a foreign trace: the calibrated IMU's shift and bias do not apply
         calib_out = replace(calib_out, timeshift_cam_imu_s=0.0, gyro_bias_radps=np.zeros(3))

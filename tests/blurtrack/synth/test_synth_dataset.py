@@ -149,6 +149,10 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     assert fit.shape == (32, 48) and fit.max() < 0.5
     summary = json.loads((out / "summary.json").read_text())
     assert summary["made"] == 2 and summary["size"] == [48, 32]
+    gs = tmp_path / "gs"
+    assert main([*args[:8], str(gs), "--count", "1", "--size", "48x32", "--readout-ms", "0"]) == 0
+    rec = next(iter(read_manifest(gs / "manifest.jsonl").values()))
+    assert rec["params"]["readout_s"] == 0 and rec["params"]["render_path"] == "homography"
     assert main([*args[:-9], "--size", "48by32"]) == 2
     assert "--size must be WxH" in capsys.readouterr().err
     assert main(["synth-merge", str(tmp_path / "nothing")]) == 2
