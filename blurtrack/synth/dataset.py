@@ -273,10 +273,10 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
     if root.resolve().is_relative_to(Path(spec.images).resolve()):
         raise SynthesisError(f"the dataset folder {root} must not lie inside the image folder "
                              f"{spec.images} (its images would become inputs)")
+    images = list_images(spec.images)  # inputs first: a bad one leaves no folder behind
+    source = open_source(spec.gyro)
     root.mkdir(parents=True, exist_ok=True)
     _check_spec(root, spec)
-    images = list_images(spec.images)
-    source = open_source(spec.gyro)
     k, n = shard
     mine = [j for j in plan(spec, images, source.tag) if j.index % n == k]
     manifest = root / ("manifest.jsonl" if n == 1 else f"manifest-shard{k}.jsonl")

@@ -156,6 +156,9 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     assert main([*args[:-9], "--size", "48by32"]) == 2
     assert "--size must be WxH" in capsys.readouterr().err
     assert main(["synth-merge", str(tmp_path / "nothing")]) == 2
+    bad = tmp_path / "bad"
+    assert main([*args[:4], str(tmp_path / "missing.txt"), *args[5:7], "--out", str(bad)]) == 2
+    assert "not found" in capsys.readouterr().err and not bad.exists()
 
 
 def test_demo_dataset_from_shared_backgrounds(tmp_path: Path, shared_data: Path) -> None:
