@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import tempfile
 import time
@@ -149,6 +150,12 @@ def main() -> None:
         wall = time.perf_counter() - t0
     result["build_1280x720"] = {"workers": args.workers, "triplets": res.made,
                                 "wall_s": wall, "triplets_per_s": res.made / wall}
+    big = result["sizes"][0]
+    result["targets"] = {
+        "exact_within_3x_of_floor_1280x720": big["exact_over_floor_median"] <= 3.0,
+        "build_5_triplets_per_s_1280x720": res.made / wall >= 5.0,
+        "load_average_1min": os.getloadavg()[0],
+    }
     print(json.dumps(result, indent=2))
 
 
