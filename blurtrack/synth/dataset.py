@@ -20,13 +20,14 @@ machines are combined with :func:`merge`.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import multiprocessing
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -307,12 +308,32 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
         else:
             ctx = multiprocessing.get_context("spawn")
             init = (spec.to_dict(), str(root), tag, png_level)
-            with ctx.Pool(workers, _init_worker, init) as pool:
+            with _single_threaded_children(), ctx.Pool(workers, _init_worker, init) as pool:
                 for rec in pool.imap_unordered(_work, todo):
                     record(rec)
     return BuildResult(made, len(mine) - len(todo), len(mine), time.perf_counter() - t0,
                        manifest, min(fits) if fits else None,
                        float(np.mean(fits)) if fits else None)
+
+
+#: Thread-pool variables of numpy's BLAS back ends; each worker is one process on one core.
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Spawned workers start with one BLAS thread each (they read the variables at start-up);
+    the parent's environment is restored afterwards."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+    os.environ.update({k: "1" for k in _THREAD_VARS})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _move(src: Path, dst: Path) -> None:
