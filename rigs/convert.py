@@ -21,7 +21,11 @@ from blurtrack.session import CameraConfig, ImuConfig, SessionMeta, SessionWrite
 from rigs.errors import RecorderLogError
 from rigs.reclog import LogScan, iter_frames, scan_log
 from rigs.recorder import rate_of
-from rigs.timesync import fit_clock_map
+from rigs.timesync import fit_clock_map_windowed
+
+#: Device time per clock-map window: long enough for a tight envelope, short enough to follow
+#: a drift that changes with temperature.
+CLOCK_WINDOW_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -81,7 +85,8 @@ def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, n
     if n < 2:
         raise RecorderLogError("the log holds a single IMU sample; cannot map device time")
     min_latency = float(scan.metadata.get("imu_min_latency_s", "0") or 0.0)
-    cmap = fit_clock_map(dev_ns[keep], scan.imu_host_ns[keep], min_latency)
+    cmap = fit_clock_map_windowed(dev_ns[keep], scan.imu_host_ns[keep], min_latency,
+                                  CLOCK_WINDOW_S)
     result.clock_map = cmap.as_dict()
     result.skipped_imu = int(n - np.count_nonzero(keep))
     return cmap.to_host_ns(dev_ns[keep]), keep

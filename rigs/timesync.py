@@ -16,6 +16,7 @@ relative clock drift.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,3 +137,80 @@ def fit_clock_map(
         delay_above_envelope_median_s=float(np.median(above)),
         delay_above_envelope_p99_s=float(np.percentile(above, 99)),
     )
+
+
+@dataclass(frozen=True)
+class PiecewiseClockMap:
+    """Device-to-host map for long recordings whose drift changes (temperature): one
+    lower-envelope line per window, joined by linear interpolation of the host-minus-device
+    delay between window centres; outside the first and last centres, the end windows' lines.
+    """
+
+    windows: tuple[ClockMap, ...]
+    centres_dev_ns: np.ndarray  # (K,) int64, increasing
+
+    @property
+    def drift_ppm(self) -> float:
+        """Mean drift over the recording (ppm)."""
+        return float(np.mean([w.drift_ppm for w in self.windows]))
+
+    def to_host_ns(self, dev_ns: np.ndarray) -> np.ndarray:
+        """Host times (int64 ns) of device times ``dev_ns`` (N,) int64 ns."""
+        dev_ns = np.asarray(dev_ns, dtype=np.int64)
+        if len(self.windows) == 1:
+            return self.windows[0].to_host_ns(dev_ns)
+        c = self.centres_dev_ns
+        delay_c = np.array([int(w.to_host_ns(c[k:k + 1])[0] - c[k])
+                            for k, w in enumerate(self.windows)], dtype=np.int64)
+        # interpolate relative to the first centre's delay, so float64 keeps ns resolution
+        rel = np.interp((dev_ns - c[0]).astype(np.float64), (c - c[0]).astype(np.float64),
+                        (delay_c - delay_c[0]).astype(np.float64))
+        out = dev_ns + delay_c[0] + np.rint(rel).astype(np.int64)
+        lo, hi = dev_ns < c[0], dev_ns > c[-1]
+        out[lo] = self.windows[0].to_host_ns(dev_ns[lo])
+        out[hi] = self.windows[-1].to_host_ns(dev_ns[hi])
+        return out
+
+    def as_dict(self) -> dict[str, float | int]:
+        drifts = [w.drift_ppm for w in self.windows]
+        return {
+            "windows": len(self.windows),
+            "drift_ppm": self.drift_ppm,
+            "drift_ppm_min": float(min(drifts)),
+            "drift_ppm_max": float(max(drifts)),
+            "min_latency_s": self.windows[0].min_latency_s,
+            "n_points": int(sum(w.n_points for w in self.windows)),
+            "delay_above_envelope_median_s": float(
+                np.median([w.delay_above_envelope_median_s for w in self.windows])),
+            "delay_above_envelope_p99_s": float(
+                max(w.delay_above_envelope_p99_s for w in self.windows)),
+        }
+
+
+def fit_clock_map_windowed(
+    dev_ns: np.ndarray, host_ns: np.ndarray, min_latency_s: float = 0.0,
+    window_s: float = 60.0,
+) -> PiecewiseClockMap:
+    """:func:`fit_clock_map` per ``window_s`` of device time (one window for short recordings;
+    a last window shorter than half a window joins the previous one)."""
+    if not window_s > 0:
+        raise TimeSyncError("window_s must be positive")
+    dev_ns = np.asarray(dev_ns, dtype=np.int64).ravel()
+    host_ns = np.asarray(host_ns, dtype=np.int64).ravel()
+    if dev_ns.shape != host_ns.shape:
+        raise TimeSyncError("device and host time arrays differ in length")
+    if dev_ns.size < 2:
+        raise TimeSyncError(f"{dev_ns.size} samples are too few to fit a clock map")
+    order = np.argsort(dev_ns, kind="stable")
+    dev_ns, host_ns = dev_ns[order], host_ns[order]
+    width = round(window_s * 1e9)
+    span = int(dev_ns[-1] - dev_ns[0])
+    n_win = max(1, round(span / width))
+    edges = dev_ns[0] + np.round(np.linspace(0, span, n_win + 1)).astype(np.int64)
+    idx = np.searchsorted(dev_ns, edges[1:-1], side="left")
+    bounds = [0, *idx.tolist(), dev_ns.size]
+    windows, centres = [], []
+    for a, b in itertools.pairwise(bounds):
+        windows.append(fit_clock_map(dev_ns[a:b], host_ns[a:b], min_latency_s))
+        centres.append((int(dev_ns[a]) + int(dev_ns[b - 1])) // 2)
+    return PiecewiseClockMap(tuple(windows), np.asarray(centres, dtype=np.int64))

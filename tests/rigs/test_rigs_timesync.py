@@ -98,3 +98,34 @@ def test_conversion_maps_drifting_jittery_imu_onto_host_time(tmp_path) -> None:
     s = load_session(tmp_path / "s")
     assert np.max(np.abs(s.imu_t_ns - truth_ns)) < 200_000  # 0.2 ms
     assert res.clock_map["drift_ppm"] == pytest.approx(-100.0, abs=5.0)
+
+
+def test_windowed_map_follows_a_changing_drift() -> None:
+    """20 min at 200 Hz, drift sweeping 50 -> 150 ppm (a warming crystal), 2 ms jitter."""
+    from rigs.timesync import fit_clock_map_windowed
+
+    rng = np.random.default_rng(12)
+    n = 240_000
+    t_s = np.arange(n) / 200.0
+    T = t_s[-1]
+    dev_ns = np.rint((t_s + 50e-6 * t_s + 50e-6 * t_s**2 / T) * 1e9).astype(np.int64)
+    truth_ns = 3_000_000_000 + np.rint(t_s * 1e9).astype(np.int64)
+    host_ns = truth_ns + np.rint(rng.uniform(0, 2e-3, n) * 1e9).astype(np.int64)
+    single = fit_clock_map(dev_ns, host_ns)
+    assert np.max(np.abs(single.to_host_ns(dev_ns) - truth_ns)) > 1_000_000  # > 1 ms off
+    win = fit_clock_map_windowed(dev_ns, host_ns, window_s=60.0)
+    assert len(win.windows) == 20
+    assert np.max(np.abs(win.to_host_ns(dev_ns) - truth_ns)) < 200_000  # < 0.2 ms
+    d = win.as_dict()
+    # host relative to device: -52.5 ppm in the first window, -147.5 ppm in the last
+    assert d["drift_ppm_min"] < -140 and d["drift_ppm_max"] > -60
+
+
+def test_windowed_map_of_a_short_recording_is_the_single_fit() -> None:
+    from rigs.timesync import fit_clock_map_windowed
+
+    dev_ns, host_ns, _ = _scenario("uniform", seed=2)
+    a = fit_clock_map_windowed(dev_ns, host_ns, window_s=60.0)
+    b = fit_clock_map(dev_ns, host_ns)
+    assert len(a.windows) == 1
+    np.testing.assert_array_equal(a.to_host_ns(dev_ns), b.to_host_ns(dev_ns))
