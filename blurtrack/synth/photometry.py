@@ -110,6 +110,9 @@ class Photometry:
             raise SynthesisError(f"jpeg_quality must be 0 (off) or 1..100, got {q}")
         object.__setattr__(self, "jpeg_quality", q)
         object.__setattr__(self, "linear", bool(self.linear))
+        if not self.linear and (self.noise_shot or self.noise_read or self.saturation_gain > 1):
+            raise SynthesisError("noise and saturation re-expansion act on linear light; they "
+                                 "cannot be combined with sRGB averaging")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -50,7 +50,7 @@ def test_saturation_expansion_and_photometry_validation() -> None:
     np.testing.assert_allclose(out[0, 0], lin[0, 0])
     np.testing.assert_allclose(out[0, 1], 4.0 * lin[0, 1])
     for bad in ({"saturation_gain": 0.5}, {"noise_shot": -1}, {"jpeg_quality": 101},
-                {"saturation_threshold": 1.0}):
+                {"saturation_threshold": 1.0}, {"linear": False, "noise_read": 0.01}):
         with pytest.raises(SynthesisError):
             ph.Photometry(**bad)
     img = (np.random.default_rng(1).random((32, 48, 3)) * 255).astype(np.uint8)
