@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from blurtrack.calibration import Calibration
 from blurtrack.camera import Camera
@@ -189,3 +191,16 @@ def test_paper_mode_follows_small_angle_four_corner_model() -> None:
     exact = render_blur(ramp(m), m, 0.3, 0.03)
     # The paper ignores the rolling shutter: rows away from the centre differ clearly.
     assert np.abs(exact.blur[5, 80, :2] - res.blur[5, 80, :2]).max() > 0.2
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(W=st.integers(2, 300), H=st.integers(2, 200), g=st.integers(2, 40),
+       a=st.floats(-3, 3), b=st.floats(-3, 3))
+def test_node_grid_property(W: int, H: int, g: int, a: float, b: float) -> None:
+    grid = NodeGrid.build(W, H, g)
+    assert grid.u[0] <= 0 and grid.u[-1] >= W - 1 and grid.v[0] <= 0 and grid.v[-1] >= H - 1
+    assert np.all(np.diff(grid.u) <= g + 1e-9) and np.all(np.diff(grid.v) <= g + 1e-9)
+    nodes = (a * grid.u[None, :] + b * grid.v[:, None]).astype(np.float32)
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    want = a * u + b * v
+    np.testing.assert_allclose(grid.upsample(nodes), want, atol=1e-3 + 2e-6 * np.abs(want).max())
