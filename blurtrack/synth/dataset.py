@@ -302,9 +302,14 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
         if progress:
             progress(0, len(todo))
         if workers <= 1 or len(todo) <= 1:
-            _init_worker(spec.to_dict(), str(root), tag, png_level)
-            for job in todo:
-                record(_work(job))
+            threads = cv2.getNumThreads()  # in process: leave the caller's OpenCV as it was
+            try:
+                _init_worker(spec.to_dict(), str(root), tag, png_level)
+                for job in todo:
+                    record(_work(job))
+            finally:
+                cv2.setNumThreads(threads)
+                _STATE.clear()
         else:
             ctx = multiprocessing.get_context("spawn")
             init = (spec.to_dict(), str(root), tag, png_level)
