@@ -2,7 +2,9 @@
 
 Order of operations for triplet ``(seed, index)`` (all randomness from one generator seeded by
 ``SeedSequence([seed, index])``, so a triplet never depends on which worker made it):
-exposure -> gyro segment -> image crop -> saturation gain -> perturbation -> noise.
+perturbation seed -> exposure -> gyro segment -> image crop -> saturation gain -> noise. The
+perturbation draws from its own generator, seeded first whether or not it is used, so a
+robustness dataset has exactly the sharp and blurred images of the clean one with that seed.
 """
 
 from __future__ import annotations
@@ -117,6 +119,7 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
     calib_out = replace(calib, camera=cam)
     if not source.own_imu:  # a foreign trace: the calibrated IMU's shift and bias do not apply
         calib_out = replace(calib_out, timeshift_cam_imu_s=0.0, gyro_bias_radps=np.zeros(3))
+    perturb_rng = np.random.default_rng(int(rng.integers(2**63)))
     exposure = float(rng.uniform(*params.exposure_ms)) * 1e-3
     margin = max(SEGMENT_MARGIN_S, params.perturbation.margin_s + 0.01)
     seg = source.segment(rng, cam.readout_s + exposure, margin,
@@ -143,7 +146,8 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
     drawn: dict[str, Any] = {}
     heat_trace = seg.trace
     if params.perturbation.active:
-        heat_calib, heat_trace, drawn = params.perturbation.apply(heat_calib, seg.trace, rng)
+        heat_calib, heat_trace, drawn = params.perturbation.apply(heat_calib, seg.trace,
+                                                                        perturb_rng)
     heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
     heat, err = heat_model.heat_maps(heat_frame_t, exposure, params.heat_n_t, t_ref,
                                      params.heat_stride)
