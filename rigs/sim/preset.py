@@ -218,11 +218,11 @@ PRESETS: dict[str, SimPreset] = {
         ambient_eps=4.0e4, read_noise_e=8.0, shot_noise=True),
     "hard": SimPreset(
         name="hard", focal_spread=0.04, aspect_spread=0.005, principal_spread_px=20.0,
-        exposure_s=0.03, readout_s=0.028, readout_spread=0.1, imu_rate_hz=200.0,
+        fps=20.0, exposure_s=0.04, readout_s=0.03, readout_spread=0.1, imu_rate_hz=200.0,
         gyro_noise_radps=0.01, gyro_bias_radps=0.05, gyro_scale_error=0.01,
         misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
-        motion_scale=(2.5, 3.5), motion_band_hz=(1.0, 20.0), dot_cols=21, dot_rows=15,
-        dot_fill=1.15, dot_sigma_px=1.8, dot_flux_eps=6.0e7, ambient_eps=1.0e5,
+        motion_scale=(2.0, 3.0), motion_band_hz=(1.0, 20.0), dot_cols=23, dot_rows=15,
+        dot_fill=1.15, dot_sigma_px=1.5, dot_flux_eps=4.0e7, ambient_eps=6.0e4,
         read_noise_e=12.0, shot_noise=True),
 }
 

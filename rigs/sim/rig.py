@@ -175,14 +175,19 @@ class SimRig:
         """The frame (uint8 or uint16, ``(H, W)``) whose top row starts at ``t_start_s``."""
         return self._expose(self.render_electrons(t_start_s), t_start_s, noise)
 
-    def render_sharp(self, t_ref_s: float, noise: bool = False) -> np.ndarray:
-        """The scene without motion blur at ``t_ref_s``: each dot's whole exposure at one spot."""
+    def sharp_electrons(self, t_ref_s: float) -> np.ndarray:
+        """Mean photo-electrons ``(H, W)`` of the dots without motion, as seen at ``t_ref_s``
+        (each dot's whole exposure at one spot)."""
         p = self.preset
         J = self.dots_world.shape[0]
         px = dot_pixels(self.motion, self.camera, self.dots_world, np.full(J, t_ref_s),
                         np.arange(J))
-        e = render_points((p.height, p.width), px, p.dot_flux_eps * p.exposure_s, p.dot_sigma_px)
-        return self._expose(e, t_ref_s, noise)
+        return render_points((p.height, p.width), px, p.dot_flux_eps * p.exposure_s,
+                             p.dot_sigma_px)
+
+    def render_sharp(self, t_ref_s: float, noise: bool = False) -> np.ndarray:
+        """The sharp frame (uint8/uint16): the scene without motion blur at ``t_ref_s``."""
+        return self._expose(self.sharp_electrons(t_ref_s), t_ref_s, noise)
 
     def _expose(self, signal: np.ndarray, t_s: float, noise: bool) -> np.ndarray:
         p = self.preset

@@ -1,0 +1,143 @@
+"""The renderer: energy, centroids, rolling shutter, streak shape and the sensor model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigs.sim.dots import dot_pixels
+from rigs.sim.preset import get_preset
+from rigs.sim.render import expose, render_points, splat
+from rigs.sim.rig import SimRig
+
+SMALL = dict(width=200, height=150, focal_px=160.0, dot_cols=5, dot_rows=4, motion="synthetic")
+
+
+def test_splat_conserves_energy_and_centroid() -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        u, v = rng.uniform(20, 60, 2)
+        out = np.zeros((80, 90))
+        splat(out, np.array([u]), np.array([v]), 1.4, lambda r, s: np.full(r.shape, 7.0))
+        assert out.sum() == pytest.approx(7.0, rel=5e-4)   # tails beyond 3.5 sigma cut
+        ys, xs = np.mgrid[:80, :90]
+        assert (out * xs).sum() / out.sum() == pytest.approx(u, abs=1e-3)
+        assert (out * ys).sum() / out.sum() == pytest.approx(v, abs=1e-3)
+
+
+def test_splat_clips_at_borders_without_wrapping() -> None:
+    out = np.zeros((40, 50))
+    splat(out, np.array([-1.0, 49.4]), np.array([20.0, 38.8]), 1.5,
+          lambda r, s: np.ones(r.shape))
+    assert 0.1 < out.sum() < 1.0          # parts of both patches fall outside
+    assert out[:, 10:40].sum() == 0.0 and out[:10].sum() == 0.0
+
+
+def brute_force(rig: SimRig, t_f: float, steps: int = 20000) -> np.ndarray:
+    """Reference: equal 1-µs-class time steps, each gated by its midpoint per pixel row."""
+    p, cam = rig.preset, rig.camera
+    J = rig.dots_world.shape[0]
+    t = t_f + (np.arange(steps) + 0.5) * (cam.readout_s + p.exposure_s) / steps
+    dt = (cam.readout_s + p.exposure_s) / steps
+    pos = dot_pixels(rig.motion, cam, rig.dots_world, np.repeat(t, J), np.tile(np.arange(J),
+                                                                               steps))
+    ts = np.repeat(t, J)
+    out = np.zeros((cam.height, cam.width))
+
+    def gate(rows, sel):
+        r0 = t_f + cam.readout_s * rows / cam.height
+        tt = ts[sel][:, None]
+        return p.dot_flux_eps * dt * ((tt >= r0) & (tt < r0 + p.exposure_s))
+
+    splat(out, pos[:, 0], pos[:, 1], p.dot_sigma_px, gate)
+    return out
+
+
+def test_rolling_shutter_render_matches_brute_force() -> None:
+    preset = get_preset("realistic").replace(**SMALL, synthetic_rms_radps=(1.5, 1.5, 1.0))
+    rig = SimRig(preset, 3, 2)
+    t_f = rig.frame_times_ns[1] * 1e-9
+    fast = rig.render_electrons(t_f)
+    ref = brute_force(rig, t_f)
+    assert rig.streaks(t_f).length_px.max() > 8   # real streaks, not dots
+    assert np.abs(fast - ref).max() < 0.01 * ref.max()
+    assert fast.sum() == pytest.approx(ref.sum(), rel=2e-3)
+
+
+def test_streak_energy_lies_along_truth_centerline() -> None:
+    preset = get_preset("realistic").replace(motion="synthetic")
+    rig = SimRig(preset, 9, 2)
+    t_f = rig.frame_times_ns[1] * 1e-9
+    e = rig.render_electrons(t_f)
+    s = rig.streaks(t_f)
+    H, W = e.shape
+    sigma = preset.dot_sigma_px
+    near_any = np.zeros((H, W), bool)
+    ys, xs = np.mgrid[:H, :W]
+    checked = 0
+    for j in np.flatnonzero(s.visible):
+        path = s.path[j]
+        x0, y0 = np.floor(path.min(0) - 4 * sigma).astype(int)
+        x1, y1 = np.ceil(path.max(0) + 4 * sigma).astype(int)
+        win = (slice(max(y0, 0), y1 + 1), slice(max(x0, 0), x1 + 1))
+        px = np.stack([xs[win].ravel(), ys[win].ravel()], 1).astype(float)
+        d = np.min(np.linalg.norm(px[:, None, :] - path[None, ::2, :], axis=2), axis=1)
+        mask = (d <= 3.5 * sigma).reshape(xs[win].shape)
+        near_any[win] |= mask
+        if not s.inside[j]:
+            continue
+        # A dot's light is collected while its row exposes: t_end - t_start (the rolling
+        # shutter stretches or shrinks it by the vertical speed over the readout rate).
+        per_dot = preset.dot_flux_eps * (s.t_end_s[j] - s.t_start_s[j])
+        assert e[win][mask].sum() == pytest.approx(per_dot, rel=0.005)
+        checked += 1
+    assert checked > 100
+    # Almost nothing lands away from the centre lines.
+    assert e[~near_any].sum() < 0.01 * e.sum()
+
+
+def test_sharp_frame_peaks_at_reference_positions() -> None:
+    preset = get_preset("clean").replace(**SMALL)
+    rig = SimRig(preset, 2, 2)
+    t_ref = rig.reference_time(rig.frame_times_ns[0] * 1e-9)
+    e = rig.sharp_electrons(t_ref)
+    ref = rig.streaks(rig.frame_times_ns[0] * 1e-9).ref
+    ys, xs = np.mgrid[:15, :15]
+    checked = 0
+    for u, v in ref:
+        if 8 < u < preset.width - 9 and 8 < v < preset.height - 9:
+            iu, iv = round(u), round(v)
+            patch = e[iv - 7:iv + 8, iu - 7:iu + 8]
+            assert (patch * xs).sum() / patch.sum() + iu - 7 == pytest.approx(u, abs=1e-3)
+            assert (patch * ys).sum() / patch.sum() + iv - 7 == pytest.approx(v, abs=1e-3)
+            checked += 1
+    assert checked >= 6
+    img = rig.render_sharp(t_ref)
+    assert img.dtype == np.uint8 and img.max() == 255   # a whole exposure in one spot
+
+
+def test_render_points_energy() -> None:
+    e = render_points((60, 80), np.array([[30.2, 20.7], [50.5, 40.1]]), 100.0, 1.2)
+    assert e.sum() == pytest.approx(200.0, rel=5e-4)
+
+
+def test_expose_noise_statistics_and_saturation() -> None:
+    rng = np.random.default_rng(0)
+    sig = np.full((400, 400), 3000.0)
+    img = expose(sig, 1000.0, 10000.0, 20.0, True, 16, rng).astype(float)
+    gain = 65535 / 10000.0
+    assert img.mean() / gain == pytest.approx(4000.0, rel=2e-3)
+    assert img.var() / gain**2 == pytest.approx(4000.0 + 400.0, rel=0.03)
+    low = expose(np.full((300, 300), 3.0), 0.0, 10000.0, 0.0, True, 16, rng).astype(float)
+    assert low.mean() / gain == pytest.approx(3.0, rel=0.02)   # exact Poisson branch
+    assert low.var() / gain**2 == pytest.approx(3.0, rel=0.05)
+    sat = expose(np.full((4, 4), 5e4), 0.0, 10000.0, 5.0, True, 8, rng)
+    assert sat.dtype == np.uint8 and np.all(sat == 255)
+    clean = expose(np.array([[0.0, 5000.0]]), 0.0, 10000.0, 0.0, False, 8, None)
+    assert clean.tolist() == [[0, 128]]
+
+
+def test_sixteen_bit_frames() -> None:
+    rig = SimRig(get_preset("clean").replace(bit_depth=16, **SMALL), 1, 1)
+    img = rig.render_frame(rig.frame_times_ns[0] * 1e-9)
+    assert img.dtype == np.uint16 and img.max() > 255
