@@ -32,11 +32,13 @@ INSIDE_MARGIN_PX = 3.0
 
 
 def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
-                   focal_px: float) -> np.ndarray:
+                   focal_px: float, jitter: float = 0.0,
+                   rng: np.random.Generator | None = None) -> np.ndarray:
     """Unit world directions ``(rows * cols, 3)`` of a regular angular dot grid.
 
     Dot ``j = row * cols + col``; the grid spans ``fill`` of a ``width x height`` view at
-    ``focal_px`` when the camera looks along the world z axis.
+    ``focal_px`` when the camera looks along the world z axis. ``jitter > 0`` moves each dot by
+    up to that fraction of the grid spacing in each angle (uniformly, from ``rng``).
 
     >>> d = dot_directions(3, 1, 1.0, 200, 100, 100.0)
     >>> np.round(np.degrees(np.arctan2(d[:, 0], d[:, 2])), 6).tolist()
@@ -46,7 +48,15 @@ def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
     ay = math.atan(fill * (height / 2) / focal_px)
     alpha_x = np.linspace(-ax, ax, cols) if cols > 1 else np.zeros(1)
     alpha_y = np.linspace(-ay, ay, rows) if rows > 1 else np.zeros(1)
-    X, Y = np.meshgrid(np.tan(alpha_x), np.tan(alpha_y))
+    AX, AY = np.meshgrid(alpha_x, alpha_y)
+    if jitter > 0:
+        if rng is None:
+            raise SimError("dot jitter needs a random generator")
+        sx = 2 * ax / max(cols - 1, 1)
+        sy = 2 * ay / max(rows - 1, 1)
+        AX = AX + rng.uniform(-jitter, jitter, AX.shape) * sx
+        AY = AY + rng.uniform(-jitter, jitter, AY.shape) * sy
+    X, Y = np.tan(AX), np.tan(AY)
     d = np.stack([X.ravel(), Y.ravel(), np.ones(X.size)], axis=1)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 

@@ -11,7 +11,7 @@ the small API that virtual devices and tests plug into:
 
 Random streams (``np.random.SeedSequence([seed, stream, ...])``): 0 true parameters, 1 motion,
 2 gyro noise, 3 image noise (per frame, keyed by its timestamp in ns, so any frame renders the
-same whatever the order).
+same whatever the order), 4 dot jitter.
 """
 
 from __future__ import annotations
@@ -107,7 +107,8 @@ class SimRig:
             t, w, self.motion_info = shake_omega(trace, mrng, t_hi - t_lo, p.motion_scale,
                                                  p.motion_band_hz)
         self.motion = TrueMotion(t + t_lo, w)
-        self.dots_world = dot_directions(p.dot_cols, p.dot_rows, p.dot_fill, W, H, p.focal_px)
+        self.dots_world = dot_directions(p.dot_cols, p.dot_rows, p.dot_fill, W, H, p.focal_px,
+                                         p.dot_jitter, _rng(self.seed, 4))
         self._gyro_rng = _rng(self.seed, 2)
         self._cache: tuple[float, FrameStreaks] | None = None
 
