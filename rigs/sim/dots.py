@@ -26,7 +26,7 @@ DENSE_SAMPLES = 129
 #: Most centre-line points written per streak.
 MAX_CENTERLINE_POINTS = 32
 #: Target spacing of centre-line points (px); keeps truth.yaml small enough to load fast.
-CENTERLINE_SPACING_PX = 2.0
+CENTERLINE_SPACING_PX = 4.0
 #: A streak is ``inside`` when all of it lies this many pixels inside the image.
 INSIDE_MARGIN_PX = 3.0
 
