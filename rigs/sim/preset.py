@@ -70,6 +70,7 @@ class SimPreset:
     dot_flux_eps: float = 2.0e7        # photo-electrons per second from one dot
     # --- radiometry
     ambient_eps: float = 2.0e4         # ambient light, photo-electrons per second per pixel
+    vignetting: float = 0.0            # ambient falls by this fraction from centre to corner
     full_well_e: float = 10000.0
     read_noise_e: float = 0.0
     shot_noise: bool = False
@@ -120,6 +121,7 @@ class SimPreset:
         _check(0.0 <= self.dot_jitter <= 0.5, "dot_jitter must be in [0, 0.5]")
         _check(0.3 <= self.dot_sigma_px <= 5.0, "dot_sigma_px must be in [0.3, 5]")
         _check(self.dot_flux_eps >= 0 and self.ambient_eps >= 0, "fluxes must be >= 0")
+        _check(0.0 <= self.vignetting < 1.0, "vignetting must be in [0, 1)")
         _check(self.full_well_e > 0 and self.read_noise_e >= 0, "full_well_e > 0, noise >= 0")
         _check(self.bit_depth in (8, 16), "bit_depth must be 8 or 16")
         _check(0.01 <= self.substep_px <= 2.0, "substep_px must be in [0.01, 2]")
@@ -217,7 +219,7 @@ PRESETS: dict[str, SimPreset] = {
         gyro_noise_radps=0.005, gyro_bias_radps=0.02, gyro_scale_error=0.003,
         misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
         motion_scale=(0.7, 1.3), motion_band_hz=(1.0, 15.0), dot_fill=0.88, dot_flux_eps=1.2e7,
-        ambient_eps=4.0e4, read_noise_e=8.0, shot_noise=True),
+        ambient_eps=4.0e4, vignetting=0.3, read_noise_e=8.0, shot_noise=True),
     "hard": SimPreset(
         name="hard", focal_spread=0.04, aspect_spread=0.005, principal_spread_px=20.0,
         fps=20.0, exposure_s=0.04, readout_s=0.03, readout_spread=0.1, imu_rate_hz=200.0,

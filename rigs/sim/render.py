@@ -178,7 +178,17 @@ def render_points(shape: tuple[int, int], pixels: np.ndarray, energy_e: float,
     return out
 
 
-def expose(signal_e: np.ndarray, ambient_e: float, full_well_e: float, read_noise_e: float,
+def ambient_map(width: int, height: int, level_e: float, vignetting: float) -> np.ndarray:
+    """Ambient electrons ``(H, W)`` (float32): ``level (1 - vignetting r² / r_corner²)``, ``r``
+    the distance from the image centre."""
+    x = (np.arange(width) - (width - 1) / 2) / ((width - 1) / 2 or 1)
+    y = (np.arange(height) - (height - 1) / 2) / ((height - 1) / 2 or 1)
+    r2 = (x[None, :] ** 2 * width**2 + y[:, None] ** 2 * height**2) / (width**2 + height**2)
+    return (level_e * (1.0 - vignetting * r2)).astype(np.float32)
+
+
+def expose(signal_e: np.ndarray, ambient_e: float | np.ndarray, full_well_e: float,
+           read_noise_e: float,
            shot_noise: bool, bit_depth: int, rng: np.random.Generator | None) -> np.ndarray:
     """Sensor model: mean electrons ``(H, W)`` -> ``uint8``/``uint16`` image.
 
@@ -188,7 +198,7 @@ def expose(signal_e: np.ndarray, ambient_e: float, full_well_e: float, read_nois
     ``N(λ, λ)`` above (skewness < 0.1 there, far below one digital step; it is ~5x faster and
     lets shot and read noise share one normal draw). ``rng = None`` gives the noise-free image.
     """
-    e = (np.asarray(signal_e, dtype=np.float32) + np.float32(ambient_e))
+    e = np.asarray(signal_e, dtype=np.float32) + np.asarray(ambient_e, dtype=np.float32)
     if rng is not None and (shot_noise or read_noise_e > 0):
         var = e + np.float32(read_noise_e ** 2) if shot_noise else \
             np.full(e.shape, read_noise_e ** 2, np.float32)

@@ -31,7 +31,7 @@ from rigs.sim.errors import SimError
 from rigs.sim.imu import GyroModel
 from rigs.sim.motion import TrueMotion, shake_omega, synthetic_omega
 from rigs.sim.preset import NOMINAL_R_CAM_IMU, SimPreset
-from rigs.sim.render import expose, render_points, render_streaks
+from rigs.sim.render import ambient_map, expose, render_points, render_streaks
 from rigs.sim.shake import ShakeTrace, default_shake_path, read_shake_trace
 
 #: Camera clock of the first frame (ns); far from 0 so stamps look like a real clock's.
@@ -111,6 +111,7 @@ class SimRig:
                                          p.dot_jitter, _rng(self.seed, 4))
         self._gyro_rng = _rng(self.seed, 2)
         self._cache: tuple[float, FrameStreaks] | None = None
+        self._ambient = ambient_map(W, H, p.ambient_eps * p.exposure_s, p.vignetting)
 
     # ------------------------------------------------------------- guesses
     def nominal_meta(self) -> SessionMeta:
@@ -158,8 +159,9 @@ class SimRig:
 
     def streaks(self, t_start_s: float) -> FrameStreaks:
         """True streaks of the frame starting at ``t_start_s`` (cached for the last frame)."""
-        if self._cache is not None and self._cache[0] == t_start_s:
-            return self._cache[1]
+        cached = self._cache  # one read: virtual devices may call from several threads
+        if cached is not None and cached[0] == t_start_s:
+            return cached[1]
         s = frame_streaks(self.motion, self.camera, self.dots_world, t_start_s,
                           self.preset.exposure_s, self.reference_time(t_start_s))
         self._cache = (t_start_s, s)
@@ -193,8 +195,8 @@ class SimRig:
     def _expose(self, signal: np.ndarray, t_s: float, noise: bool) -> np.ndarray:
         p = self.preset
         rng = _rng(self.seed, 3, round(t_s * 1e9)) if noise else None
-        return expose(signal, p.ambient_eps * p.exposure_s, p.full_well_e, p.read_noise_e,
-                      p.shot_noise, p.bit_depth, rng)
+        return expose(signal, self._ambient, p.full_well_e, p.read_noise_e, p.shot_noise,
+                      p.bit_depth, rng)
 
     # --------------------------------------------------------------- truth
     def frame_truth(self, index: int) -> dict[str, Any]:

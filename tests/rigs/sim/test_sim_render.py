@@ -141,3 +141,12 @@ def test_sixteen_bit_frames() -> None:
     rig = SimRig(get_preset("clean").replace(bit_depth=16, **SMALL), 1, 1)
     img = rig.render_frame(rig.frame_times_ns[0] * 1e-9)
     assert img.dtype == np.uint16 and img.max() > 255
+
+
+def test_ambient_vignetting() -> None:
+    from rigs.sim.render import ambient_map
+
+    a = ambient_map(101, 51, 1000.0, 0.3)
+    assert a[25, 50] == pytest.approx(1000.0)
+    assert a[0, 0] == pytest.approx(700.0) and a[50, 100] == pytest.approx(700.0)
+    assert a[25, 0] > a[0, 0] and a[25, 0] < a[25, 50]
