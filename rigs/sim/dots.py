@@ -19,7 +19,8 @@ from blurtrack.model import project_c
 from rigs.sim.errors import SimError
 from rigs.sim.motion import TrueMotion
 
-#: Fixed-point iterations (at most) for the rolling-shutter row time; stops at 1e-13 s.
+#: Fixed-point iterations (at most) for the rolling-shutter row time; stops at 1e-13 s (or the
+#: float64 resolution of the clock value).
 ROW_TIME_MAX_ITER = 60
 #: Dense samples per streak used for visibility, length and the centre line.
 DENSE_SAMPLES = 129
@@ -92,7 +93,8 @@ def row_time(motion: TrueMotion, camera: Camera, directions: np.ndarray, frame_t
         t_new = frame_t_s + offset_s + camera.readout_s * v / camera.height
         if not np.all(np.isfinite(t_new)):
             raise SimError("a dot went behind the camera; reduce the motion or dot_fill")
-        done = np.max(np.abs(t_new - t)) < 1e-13
+        # 1e-13 s, or a few float64 steps at large clock values
+        done = np.max(np.abs(t_new - t)) <= max(1e-13, 8 * float(np.spacing(np.max(np.abs(t)))))
         t = t_new
         if done:
             break

@@ -21,8 +21,9 @@ from blurtrack.rotation import so3_exp
 from rigs.sim.errors import SimError
 from rigs.sim.shake import ShakeTrace, band_pass
 
-#: Orientation table step (s).
+#: Orientation table step (s), and most table entries (longer motions get longer steps).
 TABLE_STEP_S = 1e-4
+MAX_TABLE_STEPS = 2_000_000
 #: Sample rate of the smooth ω before splining (Hz).
 OMEGA_RATE_HZ = 1000.0
 
@@ -66,7 +67,7 @@ class TrueMotion:
         self._spline = CubicSpline(t, w, axis=0)
         self.t_begin_s = float(t[0])
         self.t_end_s = float(t[-1])
-        n = max(1, math.ceil((self.t_end_s - self.t_begin_s) / step_s))
+        n = min(max(1, math.ceil((self.t_end_s - self.t_begin_s) / step_s)), MAX_TABLE_STEPS)
         self._h = (self.t_end_s - self.t_begin_s) / n
         self._grid = self.t_begin_s + self._h * np.arange(n + 1)
         steps = so3_exp(self._magnus(self._grid[:-1], np.full(n, self._h)))

@@ -40,6 +40,8 @@ FIRST_FRAME_NS = 1_000_000_000
 MOTION_MARGIN_S = 0.5
 GYRO_MARGIN_S = 0.1
 MAX_FRAMES = 100_000
+#: Longest simulated recording (s): keeps the motion table under ~150 MB and its error tiny.
+MAX_DURATION_S = 600.0
 
 
 def _rng(seed: int, *stream: int) -> np.random.Generator:
@@ -60,6 +62,9 @@ class SimRig:
             raise SimError(f"frames must be in [1, {MAX_FRAMES}], got {n_frames}")
         if int(seed) < 0:
             raise SimError(f"seed must be >= 0, got {seed}")
+        if int(n_frames) / preset.fps > MAX_DURATION_S:
+            raise SimError(f"{n_frames} frames at {preset.fps:g} fps exceed the simulator's "
+                           f"{MAX_DURATION_S:g} s limit")
         self.preset = p = preset
         self.seed = int(seed)
         self.n_frames = int(n_frames)

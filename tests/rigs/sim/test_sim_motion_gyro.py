@@ -119,3 +119,5 @@ def test_bad_requests_fail_with_sim_error() -> None:
         SimRig(get_preset("clean"), 0, 0)
     with pytest.raises(SimError, match="seed"):
         SimRig(get_preset("clean"), -1, 2)
+    with pytest.raises(SimError, match="600 s limit"):
+        SimRig(get_preset("clean"), 0, 30 * 601)
