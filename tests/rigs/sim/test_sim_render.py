@@ -53,8 +53,10 @@ def brute_force(rig: SimRig, t_f: float, steps: int = 20000) -> np.ndarray:
     return out
 
 
-def test_rolling_shutter_render_matches_brute_force() -> None:
-    preset = get_preset("realistic").replace(**SMALL, synthetic_rms_radps=(1.5, 1.5, 1.0))
+@pytest.mark.parametrize("readout_s", [0.0, 0.025])
+def test_render_matches_brute_force(readout_s: float) -> None:
+    preset = get_preset("realistic").replace(**SMALL, synthetic_rms_radps=(1.5, 1.5, 1.0),
+                                             readout_s=readout_s)
     rig = SimRig(preset, 3, 2)
     t_f = rig.frame_times_ns[1] * 1e-9
     fast = rig.render_electrons(t_f)
