@@ -61,7 +61,7 @@ def test_render_matches_brute_force(readout_s: float) -> None:
     t_f = rig.frame_times_ns[1] * 1e-9
     fast = rig.render_electrons(t_f)
     ref = brute_force(rig, t_f)
-    assert rig.streaks(t_f).length_px.max() > 8   # real streaks, not dots
+    assert rig.streaks(t_f).length_px.max() > 5   # real streaks (f = 160 px), not dots
     assert np.abs(fast - ref).max() < 0.01 * ref.max()
     assert fast.sum() == pytest.approx(ref.sum(), rel=2e-3)
 
