@@ -152,3 +152,42 @@ def test_ambient_vignetting() -> None:
     assert a[25, 50] == pytest.approx(1000.0)
     assert a[0, 0] == pytest.approx(700.0) and a[50, 100] == pytest.approx(700.0)
     assert a[25, 0] > a[0, 0] and a[25, 0] < a[25, 50]
+
+
+def test_blurred_frame_is_the_sharp_frame_averaged_along_the_model_trajectories() -> None:
+    # DESIGN's heat-map definition: B(x) = mean over the row's exposure of S(warp(x, t, t_ref)).
+    import cv2
+
+    from blurtrack.gyro import GyroTrace
+    from blurtrack.trajectory import BlurModel
+
+    preset = get_preset("realistic").replace(
+        width=160, height=120, focal_px=400.0, dot_cols=4, dot_rows=3, motion="synthetic",
+        dot_sigma_px=2.0, gyro_noise_radps=0.0, gyro_bias_radps=0.0, gyro_scale_error=0.0,
+        imu_rate_hz=1000.0, synthetic_rms_radps=(0.6, 0.6, 0.6))
+    rig = SimRig(preset, 6, 2)
+    t_f = rig.frame_times_ns[1] * 1e-9
+    t_ref = rig.reference_time(t_f)
+    sharp = rig.sharp_electrons(t_ref).astype(np.float32)
+    blurred = rig.render_electrons(t_f)
+    t_imu = rig.gyro_times_ns() * 1e-9
+    model = BlurModel(rig.calibration, GyroTrace(t_imu, rig.sample_gyro(t_imu)))
+    H, W = blurred.shape
+    ys, xs = np.mgrid[:H, :W].astype(float)
+    px = np.stack([xs.ravel(), ys.ravel()], 1)
+    row_t0 = rig.camera.row_start_s(t_f, ys.ravel())
+    n = 60
+    synth = np.zeros(H * W)
+    for k in range(n):
+        t = row_t0 + (k + 0.5) / n * preset.exposure_s
+        q = model.warp(px, t, np.full(px.shape[0], t_ref)).astype(np.float32)
+        synth += cv2.remap(sharp, q[:, 0].reshape(H, W), q[:, 1].reshape(H, W),
+                           cv2.INTER_LINEAR, borderValue=0.0).ravel() / n
+    # Away from the borders (the sharp frame lacks light from beyond them; bilinear sampling
+    # of the sharp frame smooths by a few % of the peak):
+    inner = (slice(15, H - 15), slice(15, W - 15))
+    synth = synth.reshape(H, W)[inner]
+    ref = blurred[inner]
+    assert rig.streaks(t_f).length_px.max() > 4
+    assert np.abs(synth - ref).max() < 0.05 * ref.max()
+    assert synth.sum() == pytest.approx(ref.sum(), rel=0.005)
