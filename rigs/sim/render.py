@@ -3,12 +3,11 @@
 Rendering (linear photo-electrons): each dot's light is integrated over its own active time,
 split into slots of equal arc length so that consecutive positions are at most ``substep_px``
 apart (fast stretches get more slots than slow ones; equal-time slots would waste most samples
-on the slow parts). Every sample splats a
-small Gaussian patch whose per-pixel weights are the Gaussian's integral over the pixel (erf
-differences, separable in x and y) times, per patch row, the overlap of the sample's time slot
-with that row's exposure window ``[t + readout · r / H, + exposure]``: a rolling shutter is
-resolved row by row. Patches are accumulated with ``np.bincount`` (vectorised; OpenCV has no
-sub-pixel weighted splat).
+on the slow parts). Every slot splats a small Gaussian patch whose per-pixel weights are the
+Gaussian's integral over the pixel (erf differences, separable in x and y) times, per patch row,
+the overlap of the slot with that row's exposure window ``[t + readout · r / H, + exposure]``:
+a rolling shutter is resolved row by row. Patches are accumulated with ``np.bincount``
+(vectorised; OpenCV has no sub-pixel weighted splat).
 
 Radiometry (:func:`expose`): ambient light, Poisson shot noise, Gaussian read noise, full-well
 saturation, then quantisation to 8 or 16 bits.
@@ -43,7 +42,7 @@ def patch_radius(sigma_px: float) -> int:
 
 
 def splat(out: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_px: float,
-          row_weight: Callable[[np.ndarray, slice], np.ndarray]) -> None:
+          row_weight: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
     """Add Gaussian patches centred at ``(u, v) (S,)`` into ``out (H, W)`` in place.
 
     ``row_weight(rows (s, P), sel) -> (s, P)`` gives each sample's weight per patch row (energy
