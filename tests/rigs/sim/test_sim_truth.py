@@ -148,3 +148,14 @@ def test_core_model_reproduces_truth_on_real_shake(name: str) -> None:
         worst = max(worst, float(np.abs(start - [x["start"] for x in st]).max()),
                     float(np.abs(end - [x["end"] for x in st]).max()))
     assert worst <= 0.02
+
+
+def test_core_model_reproduces_truth_with_lens_distortion(tmp_path: Path) -> None:
+    p = ideal_gyro("realistic", distortion_coeffs=(-0.12, 0.03, 0.001, -0.0015),
+                   width=640, height=360, focal_px=500.0)
+    write_session(SimRig(p, 8, 2), tmp_path / "s")
+    s = load_session(tmp_path / "s")
+    assert s.truth["calibration"]["cam0"]["distortion_model"] == "radtan"
+    assert s.meta.camera.distortion_model == "none"    # the rig's guess
+    px, _ = endpoint_errors(tmp_path / "s")
+    assert px <= 0.02
