@@ -191,3 +191,35 @@ def test_blurred_frame_is_the_sharp_frame_averaged_along_the_model_trajectories(
     assert rig.streaks(t_f).length_px.max() > 4
     assert np.abs(synth - ref).max() < 0.05 * ref.max()
     assert synth.sum() == pytest.approx(ref.sum(), rel=0.005)
+
+
+def test_arc_length_slots_tile_each_window_with_short_moves() -> None:
+    from rigs.sim.render import arc_length_slots
+
+    rng = np.random.default_rng(3)
+    J, M = 7, 64
+    t = np.sort(rng.uniform(0, 1, (J, 1)), axis=0) + np.linspace(0, 0.02, M + 1)[None, :]
+    # wiggly paths, one standing still
+    speed = rng.uniform(0, 3000, (J, 1)) * np.sin(np.linspace(0, 9, M + 1))[None, :] ** 2
+    speed[2] = 0.0
+    step = np.diff(t, axis=1) * speed[:, 1:]
+    ang = rng.uniform(0, 6.3, (J, M))
+    p = np.concatenate([np.zeros((J, 1, 2)), np.cumsum(
+        np.stack([step * np.cos(ang), step * np.sin(ang)], -1), axis=1)], axis=1) + 100
+    dot, lo, hi = arc_length_slots(t, p, 0.25)
+    for j in range(J):
+        sel = dot == j
+        assert sel.sum() >= 4
+        a, b = lo[sel], hi[sel]
+        assert a[0] == pytest.approx(t[j, 0], abs=1e-12)
+        assert b[-1] == pytest.approx(t[j, -1], abs=1e-12)
+        np.testing.assert_allclose(a[1:], b[:-1], atol=0)
+        assert np.all(b > a)
+        # positions along the piecewise-linear path move <= 0.25 px within any slot
+        fine = np.linspace(t[j, 0], t[j, -1], 20001)
+        xy = np.stack([np.interp(fine, t[j], p[j, :, k]) for k in (0, 1)], 1)
+        which = np.clip(np.searchsorted(b, fine, side="left"), 0, a.size - 1)
+        for k in np.unique(which)[::7]:
+            seg = xy[which == k]
+            if len(seg) > 1:
+                assert np.linalg.norm(seg - seg[0], axis=1).max() <= 0.25 * 1.02
