@@ -19,24 +19,27 @@ from blurtrack.model import project_c
 from rigs.sim.errors import SimError
 from rigs.sim.motion import TrueMotion
 
-#: Fixed-point iterations (at most) for the rolling-shutter row time; stops at 1e-13 s.
+#: Fixed-point iterations (at most) for the rolling-shutter row time; stops at 1e-13 s (or the
+#: float64 resolution of the clock value).
 ROW_TIME_MAX_ITER = 60
 #: Dense samples per streak used for visibility, length and the centre line.
 DENSE_SAMPLES = 129
 #: Most centre-line points written per streak.
 MAX_CENTERLINE_POINTS = 32
 #: Target spacing of centre-line points (px); keeps truth.yaml small enough to load fast.
-CENTERLINE_SPACING_PX = 2.0
+CENTERLINE_SPACING_PX = 4.0
 #: A streak is ``inside`` when all of it lies this many pixels inside the image.
 INSIDE_MARGIN_PX = 3.0
 
 
 def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
-                   focal_px: float) -> np.ndarray:
+                   focal_px: float, jitter: float = 0.0,
+                   rng: np.random.Generator | None = None) -> np.ndarray:
     """Unit world directions ``(rows * cols, 3)`` of a regular angular dot grid.
 
     Dot ``j = row * cols + col``; the grid spans ``fill`` of a ``width x height`` view at
-    ``focal_px`` when the camera looks along the world z axis.
+    ``focal_px`` when the camera looks along the world z axis. ``jitter > 0`` moves each dot by
+    up to that fraction of the grid spacing in each angle (uniformly, from ``rng``).
 
     >>> d = dot_directions(3, 1, 1.0, 200, 100, 100.0)
     >>> np.round(np.degrees(np.arctan2(d[:, 0], d[:, 2])), 6).tolist()
@@ -46,7 +49,15 @@ def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
     ay = math.atan(fill * (height / 2) / focal_px)
     alpha_x = np.linspace(-ax, ax, cols) if cols > 1 else np.zeros(1)
     alpha_y = np.linspace(-ay, ay, rows) if rows > 1 else np.zeros(1)
-    X, Y = np.meshgrid(np.tan(alpha_x), np.tan(alpha_y))
+    AX, AY = np.meshgrid(alpha_x, alpha_y)
+    if jitter > 0:
+        if rng is None:
+            raise SimError("dot jitter needs a random generator")
+        sx = 2 * ax / max(cols - 1, 1)
+        sy = 2 * ay / max(rows - 1, 1)
+        AX = AX + rng.uniform(-jitter, jitter, AX.shape) * sx
+        AY = AY + rng.uniform(-jitter, jitter, AY.shape) * sy
+    X, Y = np.tan(AX), np.tan(AY)
     d = np.stack([X.ravel(), Y.ravel(), np.ones(X.size)], axis=1)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
@@ -82,7 +93,8 @@ def row_time(motion: TrueMotion, camera: Camera, directions: np.ndarray, frame_t
         t_new = frame_t_s + offset_s + camera.readout_s * v / camera.height
         if not np.all(np.isfinite(t_new)):
             raise SimError("a dot went behind the camera; reduce the motion or dot_fill")
-        done = np.max(np.abs(t_new - t)) < 1e-13
+        # 1e-13 s, or a few float64 steps at large clock values
+        done = np.max(np.abs(t_new - t)) <= max(1e-13, 8 * float(np.spacing(np.max(np.abs(t)))))
         t = t_new
         if done:
             break

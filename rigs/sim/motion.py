@@ -3,9 +3,10 @@
 ``ω_cam(t)`` is a C² cubic spline (rad/s, camera frame, camera clock) through a smooth,
 uniformly sampled angular velocity: a band-passed stretch of a real shake trace or band-limited
 random noise. The orientation ``R_c(t)`` (camera to world) is its exact integral, tabulated on a
-0.1 ms grid by composing midpoint exponential-map steps and refined between grid points by one
-more exact step; the world frame is the mean orientation over the recording, so the dot grid
-stays centred in view. Dot positions always come from this motion, never from sampled gyro data.
+0.1 ms grid by composing fourth-order Magnus exponential-map steps and refined between grid
+points by one more such step; the world frame is the mean orientation over the recording, so
+the dot grid stays centred in view. Dot positions always come from this motion, never from
+sampled gyro data.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from blurtrack.rotation import so3_exp
 from rigs.sim.errors import SimError
 from rigs.sim.shake import ShakeTrace, band_pass
 
-#: Orientation table step (s). Midpoint composition error per second of hand shake is ~1e-7 rad.
+#: Orientation table step (s), and most table entries (longer motions get longer steps).
 TABLE_STEP_S = 1e-4
+MAX_TABLE_STEPS = 2_000_000
 #: Sample rate of the smooth ω before splining (Hz).
 OMEGA_RATE_HZ = 1000.0
 
@@ -65,10 +67,10 @@ class TrueMotion:
         self._spline = CubicSpline(t, w, axis=0)
         self.t_begin_s = float(t[0])
         self.t_end_s = float(t[-1])
-        n = max(1, math.ceil((self.t_end_s - self.t_begin_s) / step_s))
+        n = min(max(1, math.ceil((self.t_end_s - self.t_begin_s) / step_s)), MAX_TABLE_STEPS)
         self._h = (self.t_end_s - self.t_begin_s) / n
         self._grid = self.t_begin_s + self._h * np.arange(n + 1)
-        steps = so3_exp(self._spline(self._grid[:-1] + self._h / 2) * self._h)
+        steps = so3_exp(self._magnus(self._grid[:-1], np.full(n, self._h)))
         raw = np.concatenate([np.eye(3)[None], cumulative_product(steps)], axis=0)
         # World frame = chordal mean orientation, so the dots sit centred in the average view.
         u, _, vt = np.linalg.svd(raw.mean(axis=0))
@@ -87,9 +89,20 @@ class TrueMotion:
         self._check(t)
         k = np.clip(np.floor((t - self.t_begin_s) / self._h).astype(np.int64), 0,
                     self._grid.size - 2)
-        dt = t - self._grid[k]
-        step = so3_exp(self._spline(self._grid[k] + dt / 2) * dt[:, None])
+        step = so3_exp(self._magnus(self._grid[k], t - self._grid[k]))
         return self._table[k] @ step
+
+    def _magnus(self, t0: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Rotation vectors ``(M, 3)`` of ``R_c(t0)ᵀ R_c(t0 + h)``: fourth-order Magnus step.
+
+        With ω at the two Gauss points ``ω1, ω2``: ``h/2 (ω1 + ω2) + √3/12 h² (ω1 × ω2)``
+        (``dR/dt = R [ω]×``); its error is O(h⁵) per step, 1e-12 rad per second of hand shake.
+        """
+        c = math.sqrt(3.0) / 6
+        hh = h[:, None]
+        w1 = self._spline(t0 + (0.5 - c) * h)
+        w2 = self._spline(t0 + (0.5 + c) * h)
+        return hh / 2 * (w1 + w2) + (math.sqrt(3.0) / 12) * hh * hh * np.cross(w1, w2)
 
     def _check(self, t: np.ndarray) -> None:
         if t.size and (t.min() < self.t_begin_s - 1e-9 or t.max() > self.t_end_s + 1e-9):

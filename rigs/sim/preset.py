@@ -65,10 +65,12 @@ class SimPreset:
     dot_cols: int = 15
     dot_rows: int = 11
     dot_fill: float = 0.9              # the grid spans this fraction of the nominal view
+    dot_jitter: float = 0.0            # random angular offset per dot, fraction of the spacing
     dot_sigma_px: float = 1.3          # Gaussian spread of a dot (px)
     dot_flux_eps: float = 2.0e7        # photo-electrons per second from one dot
     # --- radiometry
     ambient_eps: float = 2.0e4         # ambient light, photo-electrons per second per pixel
+    vignetting: float = 0.0            # ambient falls by this fraction from centre to corner
     full_well_e: float = 10000.0
     read_noise_e: float = 0.0
     shot_noise: bool = False
@@ -81,6 +83,11 @@ class SimPreset:
             v = getattr(self, f.name)
             if isinstance(v, list):
                 object.__setattr__(self, f.name, tuple(v))
+        for f in fields(self):
+            v = getattr(self, f.name)
+            vals = v if isinstance(v, tuple) else (v,)
+            _check(all(not isinstance(x, float) or math.isfinite(x) for x in vals),
+                   f"{f.name} must be finite")
         _check(isinstance(self.name, str) and self.name != "", "name must be a non-empty string")
         _check(self.width >= 16 and self.height >= 16, "width and height must be >= 16 px")
         _check(self.width * self.height <= 50_000_000, "image larger than 50 Mpx")
@@ -111,16 +118,13 @@ class SimPreset:
                "synthetic_rms_radps must be 3 values in [0, 50]")
         _check(1 <= self.dot_cols <= 200 and 1 <= self.dot_rows <= 200, "dot grid 1..200")
         _check(0.0 < self.dot_fill <= 3.0, "dot_fill must be in (0, 3]")
+        _check(0.0 <= self.dot_jitter <= 0.5, "dot_jitter must be in [0, 0.5]")
         _check(0.3 <= self.dot_sigma_px <= 5.0, "dot_sigma_px must be in [0.3, 5]")
         _check(self.dot_flux_eps >= 0 and self.ambient_eps >= 0, "fluxes must be >= 0")
+        _check(0.0 <= self.vignetting < 1.0, "vignetting must be in [0, 1)")
         _check(self.full_well_e > 0 and self.read_noise_e >= 0, "full_well_e > 0, noise >= 0")
         _check(self.bit_depth in (8, 16), "bit_depth must be 8 or 16")
         _check(0.01 <= self.substep_px <= 2.0, "substep_px must be in [0.01, 2]")
-        for f in fields(self):
-            v = getattr(self, f.name)
-            vals = v if isinstance(v, tuple) else (v,)
-            _check(all(not isinstance(x, float) or math.isfinite(x) for x in vals),
-                   f"{f.name} must be finite")
 
     # ----------------------------------------------------------------- YAML
     def to_dict(self) -> dict[str, Any]:
@@ -205,8 +209,8 @@ def _coerce(value: Any, default: Any, where: str) -> Any:
 #: Built-in presets. ``clean``: no noise or bias, global shutter, short exposure, moderate
 #: smooth motion, guesses equal truth. ``realistic``: real hand shake, rolling shutter, 20 ms
 #: exposure, MEMS gyro noise and bias, 5-30 ms offset, guesses a few % off. ``hard``: fast shake,
-#: long exposure, saturation, a dense grid larger than the view (crossing streaks, dots leaving
-#: the frame).
+#: long exposure, saturation, a dense jittered grid larger than the view (crossing streaks, dots
+#: leaving the frame).
 PRESETS: dict[str, SimPreset] = {
     "clean": SimPreset(name="clean", dot_fill=0.85),
     "realistic": SimPreset(
@@ -215,14 +219,14 @@ PRESETS: dict[str, SimPreset] = {
         gyro_noise_radps=0.005, gyro_bias_radps=0.02, gyro_scale_error=0.003,
         misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
         motion_scale=(0.7, 1.3), motion_band_hz=(1.0, 15.0), dot_fill=0.88, dot_flux_eps=1.2e7,
-        ambient_eps=4.0e4, read_noise_e=8.0, shot_noise=True),
+        ambient_eps=4.0e4, vignetting=0.3, read_noise_e=8.0, shot_noise=True),
     "hard": SimPreset(
         name="hard", focal_spread=0.04, aspect_spread=0.005, principal_spread_px=20.0,
-        exposure_s=0.03, readout_s=0.028, readout_spread=0.1, imu_rate_hz=200.0,
+        fps=20.0, exposure_s=0.04, readout_s=0.03, readout_spread=0.1, imu_rate_hz=200.0,
         gyro_noise_radps=0.01, gyro_bias_radps=0.05, gyro_scale_error=0.01,
         misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
-        motion_scale=(2.5, 3.5), motion_band_hz=(1.0, 20.0), dot_cols=21, dot_rows=15,
-        dot_fill=1.15, dot_sigma_px=1.8, dot_flux_eps=6.0e7, ambient_eps=1.0e5,
+        motion_scale=(2.0, 3.0), motion_band_hz=(1.0, 20.0), dot_cols=23, dot_rows=15,
+        dot_fill=1.15, dot_jitter=0.3, dot_sigma_px=1.5, dot_flux_eps=4.0e7, ambient_eps=6.0e4,
         read_noise_e=12.0, shot_noise=True),
 }
 

@@ -11,7 +11,7 @@ the small API that virtual devices and tests plug into:
 
 Random streams (``np.random.SeedSequence([seed, stream, ...])``): 0 true parameters, 1 motion,
 2 gyro noise, 3 image noise (per frame, keyed by its timestamp in ns, so any frame renders the
-same whatever the order).
+same whatever the order), 4 dot jitter.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from rigs.sim.errors import SimError
 from rigs.sim.imu import GyroModel
 from rigs.sim.motion import TrueMotion, shake_omega, synthetic_omega
 from rigs.sim.preset import NOMINAL_R_CAM_IMU, SimPreset
-from rigs.sim.render import expose, render_points, render_streaks
+from rigs.sim.render import ambient_map, expose, render_points, render_streaks
 from rigs.sim.shake import ShakeTrace, default_shake_path, read_shake_trace
 
 #: Camera clock of the first frame (ns); far from 0 so stamps look like a real clock's.
@@ -40,6 +40,8 @@ FIRST_FRAME_NS = 1_000_000_000
 MOTION_MARGIN_S = 0.5
 GYRO_MARGIN_S = 0.1
 MAX_FRAMES = 100_000
+#: Longest simulated recording (s): keeps the motion table under ~150 MB and its error tiny.
+MAX_DURATION_S = 600.0
 
 
 def _rng(seed: int, *stream: int) -> np.random.Generator:
@@ -60,6 +62,9 @@ class SimRig:
             raise SimError(f"frames must be in [1, {MAX_FRAMES}], got {n_frames}")
         if int(seed) < 0:
             raise SimError(f"seed must be >= 0, got {seed}")
+        if int(n_frames) / preset.fps > MAX_DURATION_S:
+            raise SimError(f"{n_frames} frames at {preset.fps:g} fps exceed the simulator's "
+                           f"{MAX_DURATION_S:g} s limit")
         self.preset = p = preset
         self.seed = int(seed)
         self.n_frames = int(n_frames)
@@ -107,9 +112,11 @@ class SimRig:
             t, w, self.motion_info = shake_omega(trace, mrng, t_hi - t_lo, p.motion_scale,
                                                  p.motion_band_hz)
         self.motion = TrueMotion(t + t_lo, w)
-        self.dots_world = dot_directions(p.dot_cols, p.dot_rows, p.dot_fill, W, H, p.focal_px)
+        self.dots_world = dot_directions(p.dot_cols, p.dot_rows, p.dot_fill, W, H, p.focal_px,
+                                         p.dot_jitter, _rng(self.seed, 4))
         self._gyro_rng = _rng(self.seed, 2)
         self._cache: tuple[float, FrameStreaks] | None = None
+        self._ambient = ambient_map(W, H, p.ambient_eps * p.exposure_s, p.vignetting)
 
     # ------------------------------------------------------------- guesses
     def nominal_meta(self) -> SessionMeta:
@@ -157,8 +164,9 @@ class SimRig:
 
     def streaks(self, t_start_s: float) -> FrameStreaks:
         """True streaks of the frame starting at ``t_start_s`` (cached for the last frame)."""
-        if self._cache is not None and self._cache[0] == t_start_s:
-            return self._cache[1]
+        cached = self._cache  # one read: virtual devices may call from several threads
+        if cached is not None and cached[0] == t_start_s:
+            return cached[1]
         s = frame_streaks(self.motion, self.camera, self.dots_world, t_start_s,
                           self.preset.exposure_s, self.reference_time(t_start_s))
         self._cache = (t_start_s, s)
@@ -175,20 +183,25 @@ class SimRig:
         """The frame (uint8 or uint16, ``(H, W)``) whose top row starts at ``t_start_s``."""
         return self._expose(self.render_electrons(t_start_s), t_start_s, noise)
 
-    def render_sharp(self, t_ref_s: float, noise: bool = False) -> np.ndarray:
-        """The scene without motion blur at ``t_ref_s``: each dot's whole exposure at one spot."""
+    def sharp_electrons(self, t_ref_s: float) -> np.ndarray:
+        """Mean photo-electrons ``(H, W)`` of the dots without motion, as seen at ``t_ref_s``
+        (each dot's whole exposure at one spot)."""
         p = self.preset
         J = self.dots_world.shape[0]
         px = dot_pixels(self.motion, self.camera, self.dots_world, np.full(J, t_ref_s),
                         np.arange(J))
-        e = render_points((p.height, p.width), px, p.dot_flux_eps * p.exposure_s, p.dot_sigma_px)
-        return self._expose(e, t_ref_s, noise)
+        return render_points((p.height, p.width), px, p.dot_flux_eps * p.exposure_s,
+                             p.dot_sigma_px)
+
+    def render_sharp(self, t_ref_s: float, noise: bool = False) -> np.ndarray:
+        """The sharp frame (uint8/uint16): the scene without motion blur at ``t_ref_s``."""
+        return self._expose(self.sharp_electrons(t_ref_s), t_ref_s, noise)
 
     def _expose(self, signal: np.ndarray, t_s: float, noise: bool) -> np.ndarray:
         p = self.preset
         rng = _rng(self.seed, 3, round(t_s * 1e9)) if noise else None
-        return expose(signal, p.ambient_eps * p.exposure_s, p.full_well_e, p.read_noise_e,
-                      p.shot_noise, p.bit_depth, rng)
+        return expose(signal, self._ambient, p.full_well_e, p.read_noise_e, p.shot_noise,
+                      p.bit_depth, rng)
 
     # --------------------------------------------------------------- truth
     def frame_truth(self, index: int) -> dict[str, Any]:

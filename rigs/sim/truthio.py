@@ -28,11 +28,11 @@ def flow(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
-        return str(value)
+        return int.__repr__(value)
     if isinstance(value, float):
         if not math.isfinite(value):
             raise SimError(f"truth holds a non-finite number ({value})")
-        r = repr(value)
+        r = float.__repr__(value)  # plain digits also for np.float64 (a float subclass)
         # PyYAML (YAML 1.1) reads 1e-07 as a string; it needs the dot, as its own dumper writes.
         return r.replace("e", ".0e") if "e" in r and "." not in r else r
     if isinstance(value, (list, tuple)):

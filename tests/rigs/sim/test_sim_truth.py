@@ -121,3 +121,41 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path) -> None:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
     assert (tmp_path / "a" / "truth.yaml").read_bytes() != \
         (tmp_path / "c" / "truth.yaml").read_bytes()
+
+
+SHAKE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / \
+    "gyrodeblurnet-shake" / "gyro_train.txt"
+
+
+@pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
+@pytest.mark.parametrize("name", ["realistic", "hard"])
+def test_core_model_reproduces_truth_on_real_shake(name: str) -> None:
+    # Without rendering: the rig's truth against BlurModel on its ideal 1 kHz gyro.
+    from blurtrack.gyro import GyroTrace
+
+    p = get_preset(name).replace(gyro_noise_radps=0.0, gyro_bias_radps=0.0,
+                                 gyro_scale_error=0.0, imu_rate_hz=1000.0)
+    rig = SimRig(p, 21, 6)
+    t_ns = rig.gyro_times_ns()
+    model = BlurModel(rig.calibration, GyroTrace(t_ns * 1e-9, rig.sample_gyro(t_ns * 1e-9)))
+    worst = 0.0
+    for i in range(rig.n_frames):
+        fr = rig.frame_truth(i)
+        st = fr["streaks"]
+        start, end, _, _ = model.streak_endpoints(
+            np.array([x["ref"] for x in st]), fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9,
+            fr["exposure_ns"] * 1e-9)
+        worst = max(worst, float(np.abs(start - [x["start"] for x in st]).max()),
+                    float(np.abs(end - [x["end"] for x in st]).max()))
+    assert worst <= 0.02
+
+
+def test_core_model_reproduces_truth_with_lens_distortion(tmp_path: Path) -> None:
+    p = ideal_gyro("realistic", distortion_coeffs=(-0.12, 0.03, 0.001, -0.0015),
+                   width=640, height=360, focal_px=500.0)
+    write_session(SimRig(p, 8, 2), tmp_path / "s")
+    s = load_session(tmp_path / "s")
+    assert s.truth["calibration"]["cam0"]["distortion_model"] == "radtan"
+    assert s.meta.camera.distortion_model == "none"    # the rig's guess
+    px, _ = endpoint_errors(tmp_path / "s")
+    assert px <= 0.02
