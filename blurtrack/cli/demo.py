@@ -74,8 +74,9 @@ def _print_calibration(calib_path: Path, session: Path) -> None:
     if truth is not None:
         from blurtrack.rotation import rotation_angle_deg
 
-        print(f"   rotation error: guess {float(rotation_angle_deg(guess.R_cam_imu, truth.R_cam_imu)):.3f}°,"
-              f" fitted {float(rotation_angle_deg(fit.R_cam_imu, truth.R_cam_imu)):.4f}°")
+        err_guess = float(rotation_angle_deg(guess.R_cam_imu, truth.R_cam_imu))
+        err_fit = float(rotation_angle_deg(fit.R_cam_imu, truth.R_cam_imu))
+        print(f"   camera-IMU rotation error: guess {err_guess:.3f} deg, fitted {err_fit:.4f} deg")
 
 
 def run(args: argparse.Namespace) -> int:
