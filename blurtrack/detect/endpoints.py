@@ -245,7 +245,9 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
         plateau_a=np.where(short, level, Pa),
         plateau_b=np.where(short, level, Pb),
         short=short,
-        valid=valid & np.isfinite(pos_a) & np.isfinite(pos_b) & (N > 0),
+        # An endpoint must lie on the sampled (extended) line; anything else is a failed fit.
+        valid=valid & np.isfinite(pos_a) & np.isfinite(pos_b) & (N > 0)
+        & (pos_a >= 0) & (pos_b <= lens - 1) & (pos_b >= pos_a),
     )
 
 

@@ -67,7 +67,9 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
     Returns ``a``, ``L`` (>= 0) and the mean line density ``c0`` (per sample).
     """
     s = np.arange(y.shape[1], dtype=np.float64)[None, :]
-    a, L = a0.astype(np.float64).copy(), np.maximum(L0, 0.05).astype(np.float64)
+    top = y.shape[1] - 1.0
+    a = np.clip(np.nan_to_num(a0.astype(np.float64), nan=0.0), 0.0, top)
+    L = np.clip(np.nan_to_num(L0.astype(np.float64), nan=0.05), 0.05, np.maximum(top - a, 0.05))
     h = 1e-3
     for _ in range(iterations):
         r, _, _ = _residual(y, w, s, a, L, sigma)
@@ -89,7 +91,8 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
         moved = np.zeros(a.shape, bool)
         a_next, L_next = a.copy(), L.copy()
         for scale in (1.0, 0.5, 0.25, 0.1):  # backtracking: keep the first step that helps
-            a_new, L_new = a + scale * da, np.maximum(L + scale * dl, 0.05)
+            a_new = np.clip(a + scale * da, 0.0, y.shape[1] - 1.0)
+            L_new = np.clip(L + scale * dl, 0.05, y.shape[1] - 1.0 - a_new)
             r_new, _, _ = _residual(y, w, s, a_new, L_new, sigma)
             take = ~moved & ((r_new * r_new).sum(axis=1) < cost_old)
             a_next = np.where(take, a_new, a_next)
