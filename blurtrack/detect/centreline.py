@@ -153,22 +153,23 @@ def trim_lines(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray) -> Trimm
     cuts = np.cumsum(n)[:-1]
     ends_b = np.cumsum(n) - 1
     ends_a = ends_b - n + 1
-    # Time midpoint: where the cumulative light between the endpoints reaches half.
+    # Time midpoint: where the cumulative light between the endpoints reaches half, each
+    # sample's light being centred on its point (midpoint rule), interpolated between points.
     w = np.maximum(prof, 0.0)
     cum = np.cumsum(w)
-    base = np.repeat(cum[ends_a] - w[ends_a], n)
-    local = cum - base
-    total = local[ends_b]
-    reached = local >= 0.5 * np.repeat(total, n)
-    # first point of each line that reached half of its light
-    idx = np.where(reached, np.arange(line.size), line.size)
-    k = np.minimum.reduceat(idx, ends_a)
-    k = np.minimum(k, ends_b)
+    local = cum - np.repeat(cum[ends_a] - w[ends_a], n) - 0.5 * w
+    half = 0.5 * np.repeat(local[ends_b] + 0.5 * w[ends_b], n)
+    idx = np.where(local >= half, np.arange(line.size), line.size)
+    k = np.clip(np.minimum.reduceat(idx, ends_a), ends_a + 1, ends_b)
+    km1 = k - 1
+    gap = local[k] - local[km1]
+    f = np.clip((half[k] - local[km1]) / np.where(gap > 0, gap, 1.0), 0.0, 1.0)[:, None]
+    mid = pts[km1] * (1 - f) + pts[k] * f
     return TrimmedLines(
         points=np.split(pts, cuts),
         profile=np.split(prof, cuts),
         end_a=pts[ends_a],
         end_b=pts[ends_b],
-        time_mid=pts[k],
+        time_mid=mid,
         length_px=length,
     )

