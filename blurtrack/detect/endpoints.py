@@ -228,10 +228,15 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     sel = np.flatnonzero(short & (sw > 1e-9))
     level = np.zeros(N)
     if sel.size:
-        a_fit, L_fit, c0 = fit_short(np.where(inside[sel], A[sel] - base[sel, None], 0.0),
-                                     inside[sel].astype(np.float64), sigma[sel], s_lo[sel],
+        # Each row's window, gathered into a compact matrix (windows are short, rows long).
+        first = np.floor(lo[sel]).astype(np.int64)
+        width = int(np.max(np.ceil(hi[sel]).astype(np.int64) - first)) + 1
+        cols_c = np.minimum(first[:, None] + np.arange(width)[None, :], A.shape[1] - 1)
+        y = np.take_along_axis(A[sel] - base[sel, None], cols_c, axis=1)
+        w_c = np.take_along_axis(inside[sel], cols_c, axis=1).astype(np.float64)
+        a_fit, L_fit, c0 = fit_short(y * w_c, w_c, sigma[sel], s_lo[sel] - first,
                                      s_hi[sel] - s_lo[sel])
-        s_lo[sel], s_hi[sel], level[sel] = a_fit, a_fit + L_fit, c0
+        s_lo[sel], s_hi[sel], level[sel] = a_fit + first, a_fit + first + L_fit, c0
     pos_a = np.where(short, s_lo, pa)
     pos_b = np.where(short, s_hi, pb)
     swap = pos_b < pos_a

@@ -45,26 +45,31 @@ def _neighbours(skel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.stack([ys, xs], axis=1), nb, crossings
 
 
-def _walk(start: int, first: int, nb: np.ndarray, is_node: np.ndarray, visited: np.ndarray,
-          yx: np.ndarray) -> list[int]:
-    """Follow the skeleton from node pixel ``start`` through ``first`` to the next node pixel."""
+def _walk(start: int, first: int, nb: list[list[int]], is_node: list[bool],
+          visited: list[bool], yx: list[tuple[int, int]]) -> list[int]:
+    """Follow the skeleton from node pixel ``start`` through ``first`` to the next node pixel.
+
+    Plain Python lists and ints on purpose: per-pixel numpy calls would cost far more."""
     path = [start, first]
     prev, cur = start, first
     while not is_node[cur]:
         visited[cur] = True
-        cand = [int(c) for c in nb[cur] if c >= 0 and c != prev and (is_node[c] or not visited[c])]
+        cand = [c for c in nb[cur] if c != prev and (is_node[c] or not visited[c])]
         if not cand:
             break  # dead end without an end node (should not happen on a thinned skeleton)
         nodes = [c for c in cand if is_node[c] and (c != start or len(path) > 3)]
         if nodes:
             path.append(nodes[0])
             break
-        # Staircases give two candidates; take the one farthest from prev, consume both.
-        d = [float(np.sum((yx[c] - yx[prev]) ** 2)) for c in cand]
-        nxt = cand[int(np.argmax(d))]
-        for c in cand:
-            if not is_node[c]:
-                visited[c] = True
+        if len(cand) > 1:
+            # Staircases give two candidates; take the one farthest from prev, consume both.
+            py, px = yx[prev]
+            nxt = max(cand, key=lambda c: (yx[c][0] - py) ** 2 + (yx[c][1] - px) ** 2)
+            for c in cand:
+                if not is_node[c]:
+                    visited[c] = True
+        else:
+            nxt = cand[0]
         prev, cur = cur, nxt
         path.append(cur)
     return path
@@ -87,34 +92,39 @@ def trace_paths(mask: np.ndarray, spur_px: float, merge_px: float) -> list[Trace
         return []
     degree = np.sum(nb >= 0, axis=1)
     is_node = (crossings >= 3) | (degree <= 1) | (crossings == 1) & (degree <= 2)
+    nbl = [[c for c in row if c >= 0] for row in nb.tolist()]
+    node = is_node.tolist()
+    yxl = [tuple(p) for p in yx.tolist()]
     # Group adjacent node pixels (junction clusters) into nodes.
-    node_of = np.full(K, -1, dtype=np.int64)
+    node_of_l = [-1] * K
     n_nodes = 0
-    for k in np.flatnonzero(is_node):
-        if node_of[k] >= 0:
+    node_idx = [k for k in range(K) if node[k]]
+    for k in node_idx:
+        if node_of_l[k] >= 0:
             continue
-        stack = [int(k)]
-        node_of[k] = n_nodes
+        stack = [k]
+        node_of_l[k] = n_nodes
         while stack:
             c = stack.pop()
-            for m in nb[c]:
-                if m >= 0 and is_node[m] and node_of[m] < 0:
-                    node_of[m] = n_nodes
-                    stack.append(int(m))
+            for m in nbl[c]:
+                if node[m] and node_of_l[m] < 0:
+                    node_of_l[m] = n_nodes
+                    stack.append(m)
         n_nodes += 1
-    visited = np.zeros(K, bool)
+    visited = [False] * K
     edges: list[list[int]] = []
-    for k in np.flatnonzero(is_node):
-        for m in nb[k]:
-            if m < 0 or visited[m] or (is_node[m] and node_of[m] == node_of[k]):
+    for k in node_idx:
+        for m in nbl[k]:
+            if visited[m] or (node[m] and node_of_l[m] == node_of_l[k]):
                 continue
-            if is_node[m]:  # two different nodes touching: a one-step edge
-                if int(k) < int(m):
-                    edges.append([int(k), int(m)])
+            if node[m]:  # two different nodes touching: a one-step edge
+                if k < m:
+                    edges.append([k, m])
                 continue
-            edges.append(_walk(int(k), int(m), nb, is_node, visited, yx))
+            edges.append(_walk(k, m, nbl, node, visited, yxl))
+    node_of = np.asarray(node_of_l, dtype=np.int64)
     if not edges:  # a closed ring without any node: cut it anywhere
-        order = _walk(0, int(nb[0][nb[0] >= 0][0]), nb, np.zeros(K, bool), visited, yx)
+        order = _walk(0, nbl[0][0], nbl, [False] * K, visited, yxl)
         return [TracedPath(yx[order][:, ::-1].astype(np.float64), False, False)]
     return _chain(edges, node_of, yx, spur_px, merge_px)
 
