@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 
 from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
+from blurtrack.detect.gaps import split_at_gaps
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import to_matrix
@@ -126,6 +127,10 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             crossing.append(path.shares_junction or len(paths) > 1)
             looped.append(path.self_crossing)
     ref = refine_lines(prep.smooth, lines, sigma_c)
+    ref, parent = split_at_gaps(ref)
+    owner = [owner[k] for k in parent]
+    crossing = [crossing[k] for k in parent]
+    looped = [looped[k] for k in parent]
     finite = ref.width[np.isfinite(ref.width)]
     if p.psf_sigma_px is None and finite.size:
         sigma_c = float(np.median(finite))
