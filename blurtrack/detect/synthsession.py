@@ -45,8 +45,13 @@ def write_synthetic_session(
     sigma_px: float = 1.5,
     noise: float = 0.004,
     with_imu: bool = True,
+    timeshift_s: float = 0.0,
 ) -> dict[str, Any]:
-    """Write a session folder and return its truth (``truth.yaml`` ``frames`` layout)."""
+    """Write a session folder and return its truth (``truth.yaml`` ``frames`` layout).
+
+    ``timeshift_s``: true camera-IMU time shift (``t_imu = t_cam + shift``) of the written
+    gyro samples; session.yaml still guesses 0, like a rig that does not know its offset.
+    """
     W, H = resolution
     f = 0.9 * W
     camera = CameraConfig(resolution=(W, H), intrinsics=(f, f, (W - 1) / 2, (H - 1) / 2))
@@ -64,7 +69,7 @@ def write_synthetic_session(
     frames: list[dict[str, Any]] = []
     with SessionWriter(folder, meta) as w:
         if with_imu:
-            w.add_imu(np.rint(t_imu * 1e9).astype(np.int64), omega)
+            w.add_imu(np.rint((t_imu + timeshift_s) * 1e9).astype(np.int64), omega)
         for k in range(n_frames):
             t0 = (k + 1) / fps
             times = np.linspace(t0, t0 + exposure_s, 600)

@@ -71,11 +71,13 @@ def estimate_timeshift(
     from blurtrack.trajectory import BlurModel
 
     initial = float(calib.timeshift_cam_imu_s)  # type: ignore[attr-defined]
+    # Frames whose whole exposure (plus a readout's worth) stays covered for every shift.
     t_lo = float(gyro.t_s[0]) + search_s  # type: ignore[attr-defined]
     t_hi = float(gyro.t_s[-1]) - search_s  # type: ignore[attr-defined]
+    readout = float(calib.camera.readout_s)  # type: ignore[attr-defined]
     usable = [k for k, (fs, tm) in enumerate(zip(frames, timings, strict=True))
               if len(fs) and t_lo <= tm.t_s + initial
-              and tm.t_s + initial + 2 * tm.exposure_s + 0.05 <= t_hi]
+              and tm.t_s + initial + tm.exposure_s + readout <= t_hi]
     if not usable:
         return None
     pick = np.unique(np.linspace(0, len(usable) - 1, min(MAX_FRAMES, len(usable))).round())

@@ -187,3 +187,16 @@ def test_too_many_components_is_an_error() -> None:
             img[y : y + 3, x : x + 3] = 200  # 168 bright squares
     with pytest.raises(DetectionError, match="components"):
         detect_frame(img, DetectParams(max_streaks=20))
+
+
+def test_streaks_touching_end_to_end_are_split() -> None:
+    # Two collinear 30 px streaks 5 px apart (their masks join), among ordinary 30 px ones.
+    a = line((10, 50), (40, 50))
+    b = line((45, 50), (75, 50))
+    others = [line((10, 15), (40, 18)), line((70, 15), (100, 18)), line((10, 85), (40, 88)),
+              line((70, 85), (100, 88))]
+    fs = detect_frame(_frame([a, b, *others]))
+    assert len(fs) == 6
+    for c in (a, b):
+        _, ea, eb = _match(fs, c[0], c[-1])
+        assert ea < 0.8 and eb < 0.8

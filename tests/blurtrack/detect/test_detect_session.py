@@ -170,3 +170,21 @@ def test_detection_demo_writes_table_picture_summary(synthetic: tuple[Path, dict
     pic = cv2.imread(summary["overlay"])
     assert pic.shape == (480, 640, 3)
     assert (pic[..., 2] > 200).sum() > 10  # red start markers drawn
+
+
+def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
+    from blurtrack.detect.orientation import FrameTiming
+    from blurtrack.detect.timeshift import estimate_timeshift
+
+    folder = tmp_path / "shifted"
+    write_synthetic_session(folder, n_frames=5, seed=7, timeshift_s=0.018)
+    session = load_session(folder)
+    frames = detect_session(session, gyro="off").frames
+    timings = [FrameTiming(float(t), float(e))
+               for t, e in zip(session.frame_times_s, session.exposures_s, strict=True)]
+    est = estimate_timeshift(frames, timings, session.initial_calibration(), session.gyro(),
+                             search_s=0.03)
+    assert est is not None and est.initial_s == 0.0
+    assert est.timeshift_s == pytest.approx(0.018, abs=0.0015)
+    res = detect_session(session, gyro="auto")
+    assert res.summary["gyro_timeshift_s"] == pytest.approx(0.018, abs=0.0015)
