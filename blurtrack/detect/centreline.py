@@ -21,6 +21,9 @@ from blurtrack.detect import ragged
 from blurtrack.detect.ragged import Ragged
 from blurtrack.detect.sampling import sample_image
 
+#: Sampling passes over the normals: all but the last move the line to the centroids.
+REFINE_PASSES = 3
+
 
 @dataclass(frozen=True)
 class RefinedLines:
@@ -83,12 +86,13 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
     half = int(np.ceil(3.0 * sigma_c)) + 1
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3
     r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
-    for it in range(3):
+    for it in range(REFINE_PASSES):
         # Extensions always start from refined points, along the refined end tangents.
         r = ragged.extend(r, n_ext)
-        nrm, v = _cross_samples(smooth, r, half, cubic=it == 2)
+        final = it == REFINE_PASSES - 1
+        nrm, v = _cross_samples(smooth, r, half, cubic=final)
         prof = v.sum(axis=1)
-        if it == 2:
+        if final:
             break
         vp = np.maximum(v, 0.0)
         off = np.arange(-half, half + 1, dtype=np.float64)
