@@ -1,9 +1,16 @@
-"""Laser-dot streak detection: from frames to measured blur trajectories.
+"""Laser-dot streak detection: from frames to measured blur trajectories (docs/detection.md).
 
-Modules: :mod:`~blurtrack.detect.image` (frame preparation), :mod:`~blurtrack.detect.segment`
-(components, coarse centre lines), :mod:`~blurtrack.detect.skeleton` (folded streaks),
-:mod:`~blurtrack.detect.centreline` and :mod:`~blurtrack.detect.endpoints` (sub-pixel
-measurement), :mod:`~blurtrack.detect.frame` (one frame).
+Modules: :mod:`~blurtrack.detect.image` (frame preparation, background, hot pixels),
+:mod:`~blurtrack.detect.segment` (components, coarse centre lines),
+:mod:`~blurtrack.detect.skeleton` (folded, crossing and looped streaks),
+:mod:`~blurtrack.detect.centreline` and :mod:`~blurtrack.detect.ragged` (batched sub-pixel
+centre lines and profiles), :mod:`~blurtrack.detect.gaps` (streaks touching end to end),
+:mod:`~blurtrack.detect.endpoints` and :mod:`~blurtrack.detect.shortfit` (endpoints),
+:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.detect.orientation` and
+:mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
+(a whole session), :mod:`~blurtrack.detect.table` (the streak table),
+:mod:`~blurtrack.detect.overlay` and :mod:`~blurtrack.detect.demo` (pictures, demo step),
+:mod:`~blurtrack.detect.synthetic` and :mod:`~blurtrack.detect.synthsession` (exact test data).
 """
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks, detect_frame
