@@ -75,14 +75,35 @@ def raw_profiles(signal: np.ndarray, r: Ragged, sigma_c: float) -> np.ndarray:
     return _cross_samples(signal, r, half)[1].sum(axis=1)
 
 
+def tail_sigma(v: np.ndarray, half: int, top: float) -> np.ndarray:
+    """Gaussian sigma of centred cross-sections ``(M, 2 half + 1)`` whose top is clipped:
+    least-squares fit of ``ln v = c - o**2 / (2 sigma**2)`` to the samples between 5 % and
+    100 % of ``top`` (the unclipped flanks); nan where fewer than 4 such samples."""
+    off2 = np.arange(-half, half + 1, dtype=np.float64) ** 2
+    use = (v > 0.05 * top) & (v < top)
+    n = use.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lv = np.where(use, np.log(np.where(v > 0, v, 1.0)), 0.0)
+        mx = (use * off2).sum(axis=1) / n
+        my = lv.sum(axis=1) / n
+        sxx = (use * (off2 - mx[:, None]) ** 2).sum(axis=1)
+        sxy = (use * (off2 - mx[:, None]) * (lv - my[:, None])).sum(axis=1)
+        slope = sxy / sxx
+        sig = np.sqrt(-0.5 / slope)
+    return np.where((n >= 4) & (slope < 0), sig, np.nan)
+
+
 def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     """Per-point maximum of ``values`` over the point's line, ``(M,)``."""
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)
 
 
-def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
-                 ) -> RefinedLines:
-    """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image."""
+def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float,
+                 ceiling: float | None = None) -> RefinedLines:
+    """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image.
+
+    ``ceiling``: the saturation level (signal units); cross-sections reaching half of it
+    get their width from the tails (:func:`tail_sigma`), their top being clipped."""
     half = int(np.ceil(3.0 * sigma_c)) + 1
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3
     r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
@@ -103,6 +124,10 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
         r = Ragged(r.points + np.where(lit, shift, 0.0)[:, None] * nrm, r.sizes)
         r = ragged.resample(ragged.smooth(ragged.cut(r, lit)))
     sig = cross_section_sigma(v, half)
+    if ceiling is not None:
+        high = v.max(axis=1) >= 0.5 * ceiling
+        if np.any(high):
+            sig[high] = tail_sigma(v[high], half, 0.5 * ceiling)
     good = (prof > 0.5 * _line_max(prof, r)) & np.isfinite(sig)
     line_of = r.line_of
     width = np.full(r.sizes.size, np.nan)

@@ -126,7 +126,8 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             lines.append(path.points + np.array([x - 1.0, y - 1.0]))
             crossing.append(path.shares_junction or len(paths) > 1)
             looped.append(path.self_crossing)
-    ref = refine_lines(prep.smooth, lines, sigma_c)
+    ref = refine_lines(prep.smooth, lines, sigma_c,
+                       prep.saturation if prep.saturated.any() else None)
     ref, parent = split_at_gaps(ref)
     owner = [owner[k] for k in parent]
     crossing = [crossing[k] for k in parent]
@@ -142,7 +143,10 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         line_sat = sat_comp[np.asarray(owner)]
         clean = ref.width[~line_sat]
         clean = clean[np.isfinite(clean)]
-        # Saturated streaks look wider than they are: their width comes from the others.
+        # Saturated streaks: width from the unsaturated ones if there are enough of them,
+        # else from everyone's flanks (refine_lines measured clipped sections there).
+        if clean.size < 8:
+            clean = ref.width[np.isfinite(ref.width)]
         sig_c = float(np.median(clean)) if clean.size else sigma_guess
         sigma_raw = float(np.sqrt(max(sig_c**2 - p.smooth_sigma_px**2, 0.25)))
         if p.psf_sigma_px is None:
