@@ -19,8 +19,8 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import GYRO_SIGMA_PX, FrameTiming
 
 #: Streaks used per frame and frames used (spread over the session).
-MAX_STREAKS_PER_FRAME = 40
-MAX_FRAMES = 8
+MAX_STREAKS_PER_FRAME = 30
+MAX_FRAMES = 6
 MIN_LENGTH_PX = 5.0
 
 
@@ -36,22 +36,28 @@ class TimeshiftEstimate:
     n_streaks: int
 
 
-def _cost(model: object, batches: list[tuple[FrameStreaks, np.ndarray, FrameTiming]]
-          ) -> float:
-    total = 0.0
-    for fs, sel, tm in batches:
-        cam = model.camera  # type: ignore[attr-defined]
-        mid = fs.time_mid[sel]
-        t_ref = tm.t_s + cam.readout_s * np.clip(mid[:, 1], 0, cam.height - 1) / cam.height \
-            + 0.5 * tm.exposure_s
-        start, end, _, _ = model.streak_endpoints(  # type: ignore[attr-defined]
-            mid, t_ref, tm.t_s, tm.exposure_s)
-        A, B = fs.end_a[sel], fs.end_b[sel]
-        ca = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
-        cb = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
-        sig2 = (GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2
-        total += float(np.sum(np.minimum(np.minimum(ca, cb) / sig2, 25.0)))
-    return total
+@dataclass(frozen=True)
+class _Batch:
+    """The streaks used by the scan, all frames concatenated (one model call per shift)."""
+
+    mid: np.ndarray
+    end_a: np.ndarray
+    end_b: np.ndarray
+    sig2: np.ndarray
+    frame_t_s: np.ndarray
+    exposure_s: np.ndarray
+
+
+def _cost(model: object, b: _Batch) -> float:
+    """Orientation-free endpoint mismatch (robust: each streak capped at 25)."""
+    cam = model.camera  # type: ignore[attr-defined]
+    t_ref = b.frame_t_s + cam.readout_s * np.clip(b.mid[:, 1], 0, cam.height - 1) / cam.height \
+        + 0.5 * b.exposure_s
+    start, end, _, _ = model.streak_endpoints(  # type: ignore[attr-defined]
+        b.mid, t_ref, b.frame_t_s, b.exposure_s)
+    ca = np.sum((b.end_a - start) ** 2, axis=1) + np.sum((b.end_b - end) ** 2, axis=1)
+    cb = np.sum((b.end_b - start) ** 2, axis=1) + np.sum((b.end_a - end) ** 2, axis=1)
+    return float(np.sum(np.minimum(np.minimum(ca, cb) / b.sig2, 25.0)))
 
 
 def estimate_timeshift(
@@ -60,7 +66,7 @@ def estimate_timeshift(
     calib: object,
     gyro: object,
     search_s: float = 0.05,
-    step_s: float = 0.002,
+    step_s: float = 0.003,
 ) -> TimeshiftEstimate | None:
     """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage.
 
@@ -81,22 +87,33 @@ def estimate_timeshift(
     if not usable:
         return None
     pick = np.unique(np.linspace(0, len(usable) - 1, min(MAX_FRAMES, len(usable))).round())
-    batches = []
+    parts = []
     for k in (usable[int(i)] for i in pick):
-        long = np.flatnonzero((frames[k].length_px > MIN_LENGTH_PX)
-                              & ~frames[k].flags["clipped"] & ~frames[k].flags["merged"])
+        fs = frames[k]
+        long = np.flatnonzero((fs.length_px > MIN_LENGTH_PX) & ~fs.flags["clipped"]
+                              & ~fs.flags["merged"])
         if long.size:
-            sel = long[np.linspace(0, long.size - 1, min(MAX_STREAKS_PER_FRAME, long.size))
-                       .round().astype(int)]
-            batches.append((frames[k], np.unique(sel), timings[k]))
-    n = sum(len(b[1]) for b in batches)
+            sel = np.unique(long[np.linspace(0, long.size - 1,
+                                             min(MAX_STREAKS_PER_FRAME, long.size))
+                                 .round().astype(int)])
+            parts.append((fs, sel, timings[k]))
+    n = sum(len(p[1]) for p in parts)
     if n < 5:
         return None
+    batch = _Batch(
+        mid=np.concatenate([fs.time_mid[sel] for fs, sel, _ in parts]),
+        end_a=np.concatenate([fs.end_a[sel] for fs, sel, _ in parts]),
+        end_b=np.concatenate([fs.end_b[sel] for fs, sel, _ in parts]),
+        sig2=np.concatenate([(GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2
+                             for fs, sel, _ in parts]),
+        frame_t_s=np.concatenate([np.full(len(sel), tm.t_s) for _, sel, tm in parts]),
+        exposure_s=np.concatenate([np.full(len(sel), tm.exposure_s) for _, sel, tm in parts]),
+    )
 
     def cost_at(shift: float) -> float:
         model = BlurModel(calib.with_(timeshift_cam_imu_s=shift), gyro)  # type: ignore[attr-defined]
         try:
-            return _cost(model, batches)
+            return _cost(model, batch)
         except CoverageError:
             return float("inf")
 
