@@ -98,6 +98,8 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
         "recall_inside": n_found / max(n_inside, 1),
         "precision_unclipped": n_det_real / max(n_det_unclipped, 1),
         "true_inside_streaks": n_inside,
+        "_errors": errors,
+        "_counts": (n_oriented, n_long, n_found, n_inside, n_det_real, n_det_unclipped),
     }
 
 
@@ -152,8 +154,10 @@ def main() -> int:
     args = ap.parse_args()
     results: dict[str, Any] = {"runs": []}
     if args.session is not None:
-        results["runs"].append({"session": str(args.session),
-                                **run_one(args.session, args.gyro, args.repeat)})
+        one = run_one(args.session, args.gyro, args.repeat)
+        one.pop("_errors", None)
+        one.pop("_counts", None)
+        results["runs"].append({"session": str(args.session), **one})
     else:
         args.work.mkdir(parents=True, exist_ok=True)
         for preset in args.presets:
@@ -175,6 +179,20 @@ def main() -> int:
             summary[preset] = {k: float(np.median([r[k] for r in rs])) for k in keys}
             summary[preset]["worst_orientation_correct"] = min(r["orientation_correct"]
                                                                for r in rs)
+            # Pooled over the seeds: every matched endpoint and every streak counts once.
+            err = np.concatenate([r["_errors"] for r in rs])
+            c = np.sum([r["_counts"] for r in rs], axis=0)
+            summary[preset]["pooled"] = {
+                "endpoint_error_median_px": float(np.median(err)),
+                "endpoint_error_p95_px": float(np.percentile(err, 95)),
+                "orientation_correct": float(c[0] / max(c[1], 1)),
+                "recall_inside": float(c[2] / max(c[3], 1)),
+                "precision_unclipped": float(c[4] / max(c[5], 1)),
+                "endpoints": int(err.size),
+            }
+        for r in results["runs"]:
+            r.pop("_errors", None)
+            r.pop("_counts", None)
         results["median_over_seeds"] = summary
     print(json.dumps(results, indent=2))
     return 0
