@@ -60,7 +60,7 @@ def _residual(y: np.ndarray, w: np.ndarray, s: np.ndarray, a: np.ndarray, L: np.
 
 
 def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
-              L0: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              L0: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``(a, L)`` to profiles ``y (N, S)`` sampled at indices ``0..S-1`` with 0/1 weights
     ``w`` (the fit window), known ``sigma (N,)``, from the start ``a0``, ``L0``.
 
@@ -71,8 +71,8 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
     a = np.clip(np.nan_to_num(a0.astype(np.float64), nan=0.0), 0.0, top)
     L = np.clip(np.nan_to_num(L0.astype(np.float64), nan=0.05), 0.05, np.maximum(top - a, 0.05))
     h = 1e-3
+    r, _, _ = _residual(y, w, s, a, L, sigma)
     for _ in range(iterations):
-        r, _, _ = _residual(y, w, s, a, L, sigma)
         ra, _, _ = _residual(y, w, s, a + h, L, sigma)
         rl, _, _ = _residual(y, w, s, a, L + h, sigma)
         ja, jl = (ra - r) / h, (rl - r) / h
@@ -83,23 +83,24 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
         ba = -(ja * r).sum(axis=1)
         bl = -(jl * r).sum(axis=1)
         det = gaa * gll - gal * gal
-        da = (gll * ba - gal * bl) / det
-        dl = (gaa * bl - gal * ba) / det
-        da = np.clip(da, -1.0, 1.0)
-        dl = np.clip(dl, -1.0, 1.0)
+        da = np.clip((gll * ba - gal * bl) / det, -1.0, 1.0)
+        dl = np.clip((gaa * bl - gal * ba) / det, -1.0, 1.0)
         cost_old = (r * r).sum(axis=1)
         moved = np.zeros(a.shape, bool)
-        a_next, L_next = a.copy(), L.copy()
-        for scale in (1.0, 0.5, 0.25, 0.1):  # backtracking: keep the first step that helps
-            a_new = np.clip(a + scale * da, 0.0, y.shape[1] - 1.0)
-            L_new = np.clip(L + scale * dl, 0.05, y.shape[1] - 1.0 - a_new)
+        a_next, L_next, r_next = a.copy(), L.copy(), r.copy()
+        for scale in (1.0, 0.3):  # backtracking: keep the first step that helps
+            a_new = np.clip(a + scale * da, 0.0, top)
+            L_new = np.clip(L + scale * dl, 0.05, np.maximum(top - a_new, 0.05))
             r_new, _, _ = _residual(y, w, s, a_new, L_new, sigma)
             take = ~moved & ((r_new * r_new).sum(axis=1) < cost_old)
             a_next = np.where(take, a_new, a_next)
             L_next = np.where(take, L_new, L_next)
+            r_next = np.where(take[:, None], r_new, r_next)
             moved |= take
             if moved.all():
                 break
-        a, L = a_next, L_next
+        a, L, r = a_next, L_next, r_next
+        if not moved.any():
+            break
     _, c0, _ = _residual(y, w, s, a, L, sigma)
     return a, L, c0
