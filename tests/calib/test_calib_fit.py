@@ -1,0 +1,107 @@
+"""Known-value calibration on synthetic streaks from the core model, and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib.data import StreakSet
+from calib.errors import CalibError
+from calib.fit import FitOptions, calibrate
+from calib.params import rotation_error_rad, theta_from
+from calib.synthetic import make_problem
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    p = make_problem(seed=11, n_frames=24, dots_per_frame=40, endpoint_noise_px=0.1,
+                     shift_error_s=-0.045, focal_error=0.09)
+    return p, calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.25))
+
+
+def test_recovers_truth_from_far_guess(fitted) -> None:
+    p, res = fitted
+    assert res.status in ("ok", "warning"), res.warnings
+    assert res.converged
+    truth = theta_from(p.truth)
+    v = res.values
+    assert abs(v["timeshift_s"] - truth[0]) < 1e-4
+    assert abs(v["fx"] / truth[1] - 1) < 1e-3 and abs(v["fy"] / truth[2] - 1) < 1e-3
+    assert abs(v["cx"] - truth[3]) < 2.0 and abs(v["cy"] - truth[4]) < 2.0
+    assert abs(v["readout_s"] - truth[5]) < 2e-4
+    assert np.all(np.abs(np.array([v["bias_x"], v["bias_y"], v["bias_z"]]) - truth[6:9]) < 1e-3)
+    rot = rotation_error_rad(res.calibration.R_cam_imu, p.truth.R_cam_imu)
+    assert np.degrees(np.linalg.norm(rot)) < 0.1
+    assert res.holdout.n > 0 and res.holdout.mean_px < 0.3
+
+
+def test_sigma_covers_the_true_error(fitted) -> None:
+    p, res = fitted
+    truth = dict(zip(("timeshift_s", "fx", "fy", "cx", "cy", "readout_s"),
+                     theta_from(p.truth)[:6], strict=True))
+    for name, t in truth.items():
+        assert res.sigma[name] > 0
+        assert abs(res.values[name] - t) < 4 * res.sigma[name], name
+    sig = res.calibration.sigma
+    assert set(sig) >= {"timeshift_cam_imu", "intrinsics", "readout_s", "gyro_bias_radps"}
+
+
+def test_flipped_and_gross_outliers_are_rejected() -> None:
+    p = make_problem(seed=5, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
+                     shift_error_s=0.02, focal_error=0.03)
+    s = p.streaks
+    rng = np.random.default_rng(0)
+    long = np.flatnonzero(s.length_px > 8)
+    flip = rng.choice(long, 25, replace=False)
+    start, end = s.start.copy(), s.end.copy()
+    start[flip], end[flip] = s.end[flip], s.start[flip]
+    rest = np.setdiff1d(np.arange(len(s)), flip)
+    gross = rng.choice(rest, 15, replace=False)
+    end[gross] += rng.normal(0, 30, (15, 2))
+    bad = StreakSet(start, end, s.frame_t_s, s.exposure_s, s.frame, s.streak_id, s.t0_s)
+    res = calibrate(bad, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
+    assert res.n_outliers >= 35
+    assert res.n_flipped >= 20
+    assert abs(res.values["timeshift_s"] - p.truth.timeshift_cam_imu_s) < 2e-4
+    assert res.train.mean_px < 0.3
+
+
+def test_too_few_streaks() -> None:
+    p = make_problem(seed=1, n_frames=3, dots_per_frame=5)
+    with pytest.raises(CalibError, match="too few streaks"):
+        calibrate(p.streaks, p.gyro, p.initial)
+
+
+def test_no_motion() -> None:
+    p = make_problem(seed=2, n_frames=8, dots_per_frame=20, amp_radps=1e-4)
+    with pytest.raises(CalibError, match="no motion"):
+        calibrate(p.streaks, p.gyro, p.initial)
+
+
+def test_gyro_not_covering_the_exposures() -> None:
+    from blurtrack.gyro import GyroTrace
+
+    p = make_problem(seed=4, n_frames=8, dots_per_frame=20)
+    g = p.gyro
+    short = GyroTrace(g.t_s[: g.t_s.size // 8], g.omega_radps[: g.t_s.size // 8])
+    with pytest.raises(CalibError, match="does not cover"):
+        calibrate(p.streaks, short, p.initial)
+
+
+def test_contradictory_gyro_fails_loudly() -> None:
+    p = make_problem(seed=6, n_frames=6, dots_per_frame=20)
+    other = make_problem(seed=7, n_frames=6, dots_per_frame=20)
+    try:
+        res = calibrate(p.streaks, other.gyro, p.initial, FitOptions(holdout_fraction=0.0))
+    except CalibError as exc:
+        assert "contradict" in str(exc)
+    else:
+        assert res.status == "failed"
+        assert any("contradict" in w for w in res.warnings)
+
+
+def test_no_roll_warns_about_readout_and_principal_point() -> None:
+    p = make_problem(seed=8, n_frames=8, dots_per_frame=25, roll=0.0)
+    res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
+    assert any("roll" in w for w in res.warnings)
+    assert res.status == "warning"
