@@ -1,4 +1,4 @@
-"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (registered by blurtrack.cli)."""
+"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (module calib.cli, listed in blurtrack.cli.COMMAND_MODULES)."""
 
 from __future__ import annotations
 
