@@ -1,4 +1,4 @@
-"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (module calib.cli, listed in blurtrack.cli.COMMAND_MODULES)."""
+"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (listed in blurtrack.cli)."""
 
 from __future__ import annotations
 

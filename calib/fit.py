@@ -132,9 +132,9 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     stage1 = tuple(i for i in free if i in (0, 1, 2))
     delta = max(2.0 * ini.median_error_px, 0.5)
     if stage1:
-        lm = levenberg_marquardt(ev, sub, theta, stage1, delta, max_iter=15, step_tol=1e-3)
+        lm = levenberg_marquardt(ev, sub, theta, stage1, delta, max_iter=15, step_tol=0.05)
         theta, iters = lm.theta, iters + lm.iterations
-    lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=1e-3)
+    lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
     theta, iters = lm.theta, iters + lm.iterations
     dropped = uncertainty.unobservable(uncertainty.information(lm.jacobian, lm.weights, free),
                                        free)
@@ -144,25 +144,28 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
                         f"{', '.join(names)}")
         theta[dropped] = theta0[dropped]
         free = tuple(i for i in free if i not in dropped)
-        lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=1e-3)
+        lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
         theta, iters = lm.theta, iters + lm.iterations
     timings["coarse"] = clock() - t_start - timings["init"]
 
-    inl = np.ones(len(train), dtype=bool)
     ev_fine = JacobianEvaluator(model)
+    inl = np.ones(len(train), dtype=bool)
     converged = False
-    for round_ in range(2):
-        rho, out, flip = classify(model, theta, train, np.inf)
+    for round_ in range(3):
+        rho, _, _ = classify(model, theta, train, np.inf)
         sig = _rayleigh_sigma(rho[inl])
         thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
-        rho, out, flip = classify(model, theta, train, thr)
-        inl = ~out
+        new_inl = rho <= thr
+        if round_ and np.count_nonzero(new_inl != inl) <= 0.002 * len(train):
+            break  # the inlier set has settled
+        inl = new_inl
         if np.count_nonzero(inl) < MIN_STREAKS:
             raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
                              f"the data contradict it")
-        lm = levenberg_marquardt(ev_fine if round_ else ev, train.subset(inl), theta, free,
-                                 max(3.0 * _rayleigh_sigma(rho[inl]), 1e-3),
-                                 max_iter=options.max_iter, step_tol=1e-3)
+        sig = _rayleigh_sigma(rho[inl])
+        lm = levenberg_marquardt(ev_fine, train.subset(inl), theta, free, max(3.0 * sig, 1e-3),
+                                 max_iter=options.max_iter, step_tol=max(0.1 * sig, 1e-5),
+                                 lam0=1e-6)
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         timings[f"fine{round_}_iterations"] = lm.iterations
     timings["fine"] = clock() - t_start - timings["init"] - timings["coarse"]

@@ -88,19 +88,22 @@ class LMResult:
 
 def levenberg_marquardt(
     ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray, free: tuple[int, ...],
-    delta_px: float, max_iter: int = 30, step_tol: float = 1e-6,
+    delta_px: float, max_iter: int = 30, step_tol: float = 1e-6, rel_tol: float = 1e-8,
+    lam0: float = 1e-3,
 ) -> LMResult:
     """Minimise the pseudo-Huber endpoint cost over the ``free`` entries of theta.
 
-    Convergence: every parameter step below ``step_tol`` of its current 1-sigma scale
-    (``1/sqrt`` of the Gauss–Newton information), or no further cost decrease.
+    Convergence: every parameter step, scaled by ``sqrt`` of its Gauss–Newton information,
+    below ``step_tol`` (pixels of residual; a step below a few percent of the residual sigma
+    is far below the parameter's own 1-sigma), a relative cost decrease below ``rel_tol``,
+    or no further cost decrease.
     """
     if not free:
         raise CalibError("no parameter left to fit")
     model = ev.model
     theta = np.asarray(theta0, float).copy()
     fr = np.asarray(free)
-    lam = 1e-3
+    lam = lam0
     r, J = ev.evaluate(theta, streaks)
     cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
     converged = False
@@ -139,10 +142,13 @@ def levenberg_marquardt(
         if not improved:
             converged = True
             break
-        r, J = ev.evaluate(theta, streaks)
-        if small or rel < 1e-10:
+        if small or rel < rel_tol:
+            # A negligible last step: keep the Jacobian of the previous point (it differs by
+            # far less than its own uncertainty) and the exact residual of the new one.
+            r = r_try
             converged = True
             break
+        r, J = ev.evaluate(theta, streaks)
     w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
     if not np.all(np.isfinite(theta)):
         raise CalibError("fit diverged to non-finite parameters: "
