@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import itertools
+
 import numpy as np
 
 from blurtrack.errors import CoverageError, GeometryError
@@ -92,3 +94,40 @@ class GyroTrace:
         i0 = max(int(np.searchsorted(self.t_s, t0_s, side="right")) - 1, 0)
         i1 = min(int(np.searchsorted(self.t_s, t1_s, side="left")) + 1, self.t_s.size)
         return GyroTrace(self.t_s[i0:i1], self.omega_radps[i0:i1], self.max_gap_s)
+
+    def upsampled(self, factor: int) -> GyroTrace:
+        """The trace resampled ``factor`` times more densely through cubic splines.
+
+        Linear interpolation of point samples under-reports fast motion: between samples it
+        cuts the curvature of ω, so the integrated angle of a component at frequency ``F`` is
+        low by about ``(2π F Δt)² / 12`` (1.9 % at 15 Hz for a 200 Hz gyro). A cubic spline
+        through the samples (scipy's not-a-knot ``CubicSpline``) is accurate to ``O(Δt⁴)``;
+        linear interpolation of its dense resampling then stays within ``(2π F Δt / factor)² / 12``.
+        The original samples are kept; gaps longer than ``max_gap_s`` are not bridged (each
+        covered segment is splined on its own, segments under 4 samples stay linear).
+
+        >>> tr = GyroTrace(np.arange(6.0), np.stack([np.arange(6.0) ** 2] * 3, axis=1))
+        >>> round(float(tr.upsampled(2).omega_at(np.array([2.5]))[0, 0]), 9)
+        6.25
+        """
+        from scipy.interpolate import CubicSpline
+
+        k = int(factor)
+        if k < 1:
+            raise GeometryError(f"upsampling factor must be >= 1, got {factor}")
+        if k == 1:
+            return self
+        bounds = np.concatenate([[0], self._gap_starts + 1, [self.t_s.size]])
+        ts, ws = [], []
+        for a, b in itertools.pairwise(bounds):
+            t, w = self.t_s[a:b], self.omega_radps[a:b]
+            if t.size < 4:
+                ts.append(t)
+                ws.append(w)
+                continue
+            frac = np.arange(k) / k
+            tt = (t[:-1, None] + np.diff(t)[:, None] * frac[None, :]).reshape(-1)
+            tt = np.append(tt, t[-1])
+            ts.append(tt)
+            ws.append(CubicSpline(t, w, axis=0)(tt))
+        return GyroTrace(np.concatenate(ts), np.concatenate(ws), self.max_gap_s)

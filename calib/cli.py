@@ -27,6 +27,7 @@ def register(subparsers: Any) -> None:
                    help="fraction of frames held out for evaluation (default 0.2)")
     p.add_argument("--shift-window-ms", type=float, default=60.0,
                    help="half-width of the initial time-shift search (default 60 ms)")
+    _upsample_arg(p)
     p.set_defaults(func=run_calibrate)
 
     r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
@@ -37,8 +38,15 @@ def register(subparsers: Any) -> None:
     r.add_argument("--fit-summary", help="summary JSON of the fit (default: the one written "
                                          "next to --calib by calibrate, if present)")
     r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
+    _upsample_arg(r)
     _streak_args(r)
     r.set_defaults(func=run_report)
+
+
+def _upsample_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--gyro-upsample", type=int, default=8,
+                   help="cubic-spline upsampling of the gyro before linear interpolation "
+                        "(default 8; 1 = plain linear interpolation of the samples)")
 
 
 def _streak_args(p: argparse.ArgumentParser) -> None:
@@ -102,7 +110,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     initial = session.initial_calibration()
     res = calibrate(streaks, session.gyro(), initial,
                     FitOptions(fit=args.fit, holdout_fraction=args.holdout,
-                               shift_window_s=args.shift_window_ms * 1e-3))
+                               shift_window_s=args.shift_window_ms * 1e-3,
+                               gyro_upsample=args.gyro_upsample))
     summary = res.to_dict()
     summary["initial"] = named(theta_from(initial))
     truth = truth_values(session, initial)
@@ -166,7 +175,7 @@ def run_report(args: argparse.Namespace) -> int:
     elif args.fit_summary:
         raise CalibError(f"fit summary not found: {fs_path}")
     summary = build_report(session, table, before, after, args.out, fit_summary=fit,
-                           n_overlays=args.overlays)
+                           n_overlays=args.overlays, gyro_upsample=args.gyro_upsample)
     for k in ("before", "after"):
         s = summary["overall"][k]
         print(f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "

@@ -54,6 +54,9 @@ class FitOptions:
     shift_window_s: float = 0.06
     max_iter: int = 30
     seed: int = 0
+    #: Cubic-spline upsampling of the gyro before linear interpolation (1 = plain linear);
+    #: see :meth:`blurtrack.gyro.GyroTrace.upsampled`.
+    gyro_upsample: int = 8
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -91,7 +94,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
         raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
                          f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames")
-    g = relative_gyro(gyro, streaks.t0_s)
+    g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
     cov = covered_mask(streaks, g, cam, initial.timeshift_cam_imu_s, options.shift_window_s)
     if not np.all(cov):
         bad = np.unique(streaks.frame[~cov])

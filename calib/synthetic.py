@@ -1,12 +1,13 @@
 """Synthetic calibration problems from the core blur model (known truth, no images).
 
-A smooth hand-shake gyro trace, random laser-dot directions per frame, true streak endpoints
-from :meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise.
+A smooth hand-shake motion (sampled densely for the truth, at the gyro rate for the
+measurement), random laser-dot directions per frame, true streak endpoints from :meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise.
 Used by tests and benchmarks to check the solver independently of the simulator and detector.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +19,9 @@ from blurtrack.rotation import so3_exp
 from blurtrack.trajectory import BlurModel
 from calib.data import StreakSet
 
+#: Sampling rate of the "continuous" true motion behind the truth endpoints.
+TRUTH_RATE_HZ = 4000.0
+
 
 @dataclass(frozen=True)
 class SyntheticProblem:
@@ -27,17 +31,18 @@ class SyntheticProblem:
     initial: Calibration
 
 
-def shake_trace(t_s: np.ndarray, rng: np.random.Generator, amp_radps: float = 1.0,
-                roll: float = 1.0) -> np.ndarray:
-    """Smooth angular velocity ``(N, 3)``: sums of random 1–8 Hz sinusoids per axis."""
-    w = np.zeros((t_s.size, 3))
-    for k in range(3):
-        for _ in range(5):
-            f = rng.uniform(1.0, 8.0)
-            w[:, k] += rng.normal(0, amp_radps / 2) * np.sin(2 * np.pi * f * t_s
-                                                              + rng.uniform(0, 2 * np.pi))
-    w[:, 2] *= roll
-    return w
+def shake_function(rng: np.random.Generator, amp_radps: float = 1.0,
+                   roll: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
+    """Smooth angular velocity ``t (N,) -> (N, 3)``: sums of random 1–8 Hz sinusoids per axis."""
+    freq = rng.uniform(1.0, 8.0, (3, 5))
+    amp = rng.normal(0, amp_radps / 2, (3, 5)) * np.array([[1.0], [1.0], [roll]])
+    phase = rng.uniform(0, 2 * np.pi, (3, 5))
+
+    def omega(t_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_s, float)[:, None, None]
+        return np.sum(amp * np.sin(2 * np.pi * freq * t + phase), axis=2)
+
+    return omega
 
 
 def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
@@ -54,10 +59,12 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
                         gyro_bias_radps=np.array([0.004, -0.006, 0.002]))
     period, exposure = 0.05, 0.02
     frame_t = 100.0 + period * np.arange(n_frames)
-    t_imu = np.arange(frame_t[0] - 0.3, frame_t[-1] + 0.3, 1.0 / rate_hz)
-    w_true = shake_trace(t_imu, rng, amp_radps, roll)
-    gyro_clean = GyroTrace(t_imu, w_true + truth.gyro_bias_radps)
-    model = BlurModel(truth, gyro_clean)
+    omega = shake_function(rng, amp_radps, roll)
+    # Truth from the continuous motion (densely sampled); the gyro samples it at rate_hz.
+    t_dense = np.arange(frame_t[0] - 0.3, frame_t[-1] + 0.3, 1.0 / TRUTH_RATE_HZ)
+    model = BlurModel(truth, GyroTrace(t_dense, omega(t_dense) + truth.gyro_bias_radps))
+    t_imu = np.arange(frame_t[0] - 0.25, frame_t[-1] + 0.25, 1.0 / rate_hz)
+    w_true = omega(t_imu)
     starts, ends, fts, frames, ids = [], [], [], [], []
     for i, ft in enumerate(frame_t):
         px = np.stack([rng.uniform(40, 1240, dots_per_frame),

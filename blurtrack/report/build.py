@@ -18,6 +18,7 @@ import pandas as pd
 
 from blurtrack.calibration import Calibration
 from blurtrack.errors import BlurTrackError
+from blurtrack.gyro import GyroTrace
 from blurtrack.report import figures
 from blurtrack.report.html import render
 from blurtrack.report.metrics import (
@@ -51,14 +52,11 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def _track_fn(session: Session, calib: Calibration):
+def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     """``df -> (N, 12, 2)`` predicted positions over each streak's exposure."""
     ts = session.frames["timestamp_ns"].to_numpy(np.int64)
     exp_ns = session.frames["exposure_ns"].to_numpy(np.int64)
-    g = session.gyro()
     t0 = int(ts[0])
-    from blurtrack.gyro import GyroTrace
-
     model = BlurModel(calib, GyroTrace(g.t_s - t0 * 1e-9, g.omega_radps, g.max_gap_s),
                       check_coverage=False)
     cam = calib.camera
@@ -82,13 +80,17 @@ def _track_fn(session: Session, calib: Calibration):
 def build_report(session: Session, table: pd.DataFrame, before: Calibration,
                  after: Calibration, out_dir: str | Path,
                  fit_summary: dict[str, Any] | None = None,
-                 n_overlays: int = N_OVERLAYS) -> dict[str, Any]:
-    """Write the report into ``out_dir``; returns the summary written to ``summary.json``."""
+                 n_overlays: int = N_OVERLAYS, gyro_upsample: int = 8) -> dict[str, Any]:
+    """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
+
+    ``gyro_upsample``: cubic-spline upsampling of the gyro (:meth:`GyroTrace.upsampled`), the
+    same as the calibration used.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if len(table) == 0:
         raise ReportError("no streaks to report on")
-    gyro = session.gyro()
+    gyro = session.gyro().upsampled(gyro_upsample)
     frames = session.frames
     errs = {"before": endpoint_errors(gyro, table, frames, before),
             "after": endpoint_errors(gyro, table, frames, after)}
@@ -135,7 +137,7 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
                                "motion models")),
     ]
     covered = errs["after"][errs["after"]["covered"]]
-    track = _track_fn(session, after)
+    track = _track_fn(session, after, gyro)
     per = covered.groupby("frame")["error_px"].size().sort_values(ascending=False)
     for f in sorted(per.index[:n_overlays].tolist()):
         try:
@@ -153,7 +155,7 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
         "n_uncovered": n_unc, "overall": overall, "motion_models": model_stats,
         "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
         "calibration_before": before.to_dict(), "calibration_after": after.to_dict(),
-        "fit": fit_summary or {}, "warnings": warnings,
+        "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": gyro_upsample,
         "files": ["report.html", "streak_errors.csv", "frame_errors.csv", "overall_errors.csv",
                   "summary.json"],
     })
