@@ -7,9 +7,8 @@ inside a gap longer than ``max_gap_s``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import itertools
+from dataclasses import dataclass, field
 
 import numpy as np
 

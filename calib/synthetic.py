@@ -1,8 +1,9 @@
 """Synthetic calibration problems from the core blur model (known truth, no images).
 
 A smooth hand-shake motion (sampled densely for the truth, at the gyro rate for the
-measurement), random laser-dot directions per frame, true streak endpoints from :meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise.
-Used by tests and benchmarks to check the solver independently of the simulator and detector.
+measurement), random laser-dot directions per frame, true streak endpoints from
+:meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise. Used by
+tests and benchmarks to check the solver independently of the simulator and detector.
 """
 
 from __future__ import annotations
