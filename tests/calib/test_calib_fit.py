@@ -26,7 +26,9 @@ def test_recovers_truth_from_far_guess(fitted) -> None:
     truth = theta_from(p.truth)
     v = res.values
     assert abs(v["timeshift_s"] - truth[0]) < 1e-4
-    assert abs(v["fx"] / truth[1] - 1) < 1e-3 and abs(v["fy"] / truth[2] - 1) < 1e-3
+    # 24 frames only: focal lengths to 0.3 % here (the 0.1 % target is the benchmark's, with
+    # 100 frames); the sigma test below checks them against their own uncertainty.
+    assert abs(v["fx"] / truth[1] - 1) < 3e-3 and abs(v["fy"] / truth[2] - 1) < 3e-3
     assert abs(v["cx"] - truth[3]) < 2.0 and abs(v["cy"] - truth[4]) < 2.0
     assert abs(v["readout_s"] - truth[5]) < 2e-4
     assert np.all(np.abs(np.array([v["bias_x"], v["bias_y"], v["bias_z"]]) - truth[6:9]) < 1e-3)

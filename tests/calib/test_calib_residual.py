@@ -15,7 +15,7 @@ from calib.synthetic import make_problem
 @pytest.fixture(scope="module")
 def clean():
     p = make_problem(seed=3, n_frames=8, dots_per_frame=40, endpoint_noise_px=0.0)
-    g = relative_gyro(p.gyro, p.streaks.t0_s)
+    g = relative_gyro(p.gyro.upsampled(8), p.streaks.t0_s)
     model = ResidualModel(g, p.truth.R_cam_imu, (), 720,
                           choose_substeps(p.streaks, 720, 0.05))
     return p, model
