@@ -13,7 +13,8 @@ from calib.params import DEFAULT_FIT
 _SHOW = {"timeshift_s": (1e3, "ms"), "readout_s": (1e3, "ms"), "fx": (1, "px"), "fy": (1, "px"),
          "cx": (1, "px"), "cy": (1, "px"), "bias_x": (1e3, "mrad/s"), "bias_y": (1e3, "mrad/s"),
          "bias_z": (1e3, "mrad/s"), "rot_x": (57.29577951308232, "deg"),
-         "rot_y": (57.29577951308232, "deg"), "rot_z": (57.29577951308232, "deg")}
+         "rot_y": (57.29577951308232, "deg"), "rot_z": (57.29577951308232, "deg"),
+         **{f"scale_{a}": (1e3, "1e-3") for a in ("xx", "yy", "zz", "xy", "xz", "yz")}}
 
 
 def register(subparsers: Any) -> None:
@@ -79,6 +80,8 @@ def summary_path(calib_path: str | Path) -> Path:
 
 def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     """The simulator's true parameters in theta terms (rotation relative to the initial one)."""
+    import numpy as np
+
     from blurtrack.calibration import Calibration
     from blurtrack.errors import BlurTrackError
     from calib.params import rotation_error_rad, theta_from
@@ -93,6 +96,13 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
         return None
     th = theta_from(cal)
     th[9:12] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
+    gyro = (truth.get("simulator") or {}).get("gyro") or {}
+    try:
+        M = np.array(gyro.get("scale_matrix", np.eye(3)), dtype=float).reshape(3, 3)
+    except (TypeError, ValueError):
+        M = np.eye(3)
+    S = (M + M.T) / 2 - np.eye(3)
+    th[12:18] = [S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]]
     return named(th)
 
 
@@ -124,11 +134,24 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if res.status == "failed":
         raise CalibError("calibration failed: " + "; ".join(res.warnings)
                          + f" (details in {summary_path(out)}; no calibration written)")
-    res.calibration.to_yaml(out)
+    write_calibration(res, out)
     write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
     write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
     print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
     return 0
+
+
+def write_calibration(res: Any, path: Path) -> None:
+    """The calibration YAML; with a fitted gyro scale, an extra ``gyro_scale_matrix`` key."""
+    from blurtrack.yamlio import write_yaml
+    from calib.params import scale_matrix, theta_from
+
+    data = res.calibration.to_dict()
+    if any(k.startswith("scale") for k in res.fitted):
+        th = theta_from(res.calibration)
+        th[12:18] = [res.values[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")]
+        data["cam0"]["gyro_scale_matrix"] = scale_matrix(th).tolist()
+    write_yaml(path, data)
 
 
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
@@ -138,6 +161,8 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
     head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>10}"
     print(head + (f"{'truth':>12}{'error':>10}" if truth else ""))
     for k, v in res.values.items():
+        if k.startswith("scale") and k not in res.fitted:
+            continue
         s, unit = _SHOW[k]
         sig = res.sigma.get(k)
         line = (f"{k:<12}{unit:>8}{initial.get(k, float('nan')) * s:>12.4f}{v * s:>12.4f}"
@@ -155,6 +180,25 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
         print(f"warning: {w}")
 
 
+def _scale_of(calib_path: str) -> Any:
+    """The optional ``gyro_scale_matrix`` (3, 3) of a calibration file, or None."""
+    import numpy as np
+
+    from blurtrack.yamlio import read_yaml
+    from calib.errors import CalibError
+
+    cam = (read_yaml(calib_path, "calibration file") or {}).get("cam0") or {}
+    if "gyro_scale_matrix" not in cam:
+        return None
+    try:
+        M = np.array(cam["gyro_scale_matrix"], dtype=float)
+    except (TypeError, ValueError):
+        M = np.zeros(0)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M) - 1) > 0.5:
+        raise CalibError(f"{calib_path}: gyro_scale_matrix must be a finite 3x3 matrix near I")
+    return M
+
+
 def run_report(args: argparse.Namespace) -> int:
     from blurtrack.calibration import Calibration
     from blurtrack.report.build import build_report
@@ -162,6 +206,7 @@ def run_report(args: argparse.Namespace) -> int:
 
     session, table = _load(args)
     after = Calibration.from_yaml(args.calib)
+    scale = _scale_of(args.calib)
     before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
     fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
     fit = None
@@ -175,7 +220,8 @@ def run_report(args: argparse.Namespace) -> int:
     elif args.fit_summary:
         raise CalibError(f"fit summary not found: {fs_path}")
     summary = build_report(session, table, before, after, args.out, fit_summary=fit,
-                           n_overlays=args.overlays, gyro_upsample=args.gyro_upsample)
+                           n_overlays=args.overlays, gyro_upsample=args.gyro_upsample,
+                           gyro_scale_matrix=scale)
     for k in ("before", "after"):
         s = summary["overall"][k]
         print(f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "

@@ -1,10 +1,13 @@
 """The calibration parameter vector and its mapping to and from :class:`Calibration`.
 
-``theta`` (12,) = ``[timeshift_s, fx, fy, cx, cy, readout_s, bias_x, bias_y, bias_z,
-rot_x, rot_y, rot_z]``: Kalibr time shift (s, ``t_imu = t_cam + shift``), intrinsics (px),
-rolling-shutter readout (s), gyro bias (rad/s, IMU frame) and a rotation vector (rad) that
-perturbs the initial camera–IMU rotation on the camera side:
-``R_cam_imu = exp([rot]_x) · R_cam_imu_0``.
+``theta`` (18,) = ``[timeshift_s, fx, fy, cx, cy, readout_s, bias_x, bias_y, bias_z,
+rot_x, rot_y, rot_z, scale_xx, scale_yy, scale_zz, scale_xy, scale_xz, scale_yz]``: Kalibr time
+shift (s, ``t_imu = t_cam + shift``), intrinsics (px), rolling-shutter readout (s), gyro bias
+(rad/s, IMU frame), a rotation vector (rad) that perturbs the initial camera–IMU rotation on the
+camera side, ``R_cam_imu = exp([rot]_x) · R_cam_imu_0``, and the symmetric gyro scale /
+cross-axis error ``S`` of the measurement model ``ω_meas = (I + S) R_cam_imuᵀ ω_cam + bias``
+(DESIGN: "scale and misalignment optional"; its antisymmetric part is a rotation, already
+covered by ``rot``). ``S`` is optional (``--fit ...,scale``) and zero by default.
 """
 
 from __future__ import annotations
@@ -21,13 +24,14 @@ from calib.errors import CalibError
 THETA_NAMES: tuple[str, ...] = (
     "timeshift_s", "fx", "fy", "cx", "cy", "readout_s",
     "bias_x", "bias_y", "bias_z", "rot_x", "rot_y", "rot_z",
+    "scale_xx", "scale_yy", "scale_zz", "scale_xy", "scale_xz", "scale_yz",
 )
 N_THETA = len(THETA_NAMES)
 
 #: ``--fit`` groups and the theta entries each selects.
 GROUPS: dict[str, tuple[int, ...]] = {
     "timeshift": (0,), "fx": (1,), "fy": (2,), "cx": (3,), "cy": (4,), "readout": (5,),
-    "bias": (6, 7, 8), "rotation": (9, 10, 11),
+    "bias": (6, 7, 8), "rotation": (9, 10, 11), "scale": (12, 13, 14, 15, 16, 17),
 }
 DEFAULT_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
 
@@ -36,6 +40,7 @@ THETA_UNITS: dict[str, str] = {
     "timeshift_s": "s", "fx": "px", "fy": "px", "cx": "px", "cy": "px", "readout_s": "s",
     "bias_x": "rad/s", "bias_y": "rad/s", "bias_z": "rad/s",
     "rot_x": "rad", "rot_y": "rad", "rot_z": "rad",
+    **{f"scale_{a}": "1" for a in ("xx", "yy", "zz", "xy", "xz", "yz")},
 }
 
 
@@ -59,11 +64,20 @@ def theta_from(calib: Calibration) -> np.ndarray:
     """The theta of a calibration, with a zero rotation perturbation."""
     cam = calib.camera
     return np.array([calib.timeshift_cam_imu_s, *cam.intrinsics, cam.readout_s,
-                     *calib.gyro_bias_radps, 0.0, 0.0, 0.0], dtype=float)
+                     *calib.gyro_bias_radps, *([0.0] * 9)], dtype=float)
+
+
+def scale_matrix(theta: np.ndarray) -> np.ndarray:
+    """``I + S`` (3, 3) of a theta (gyro scale and cross-axis error, IMU frame)."""
+    sxx, syy, szz, sxy, sxz, syz = np.asarray(theta, float)[12:18]
+    return np.eye(3) + np.array([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]])
 
 
 def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
-    """``base`` with the values of ``theta`` (rotation perturbation applied to its rotation)."""
+    """``base`` with the values of ``theta`` (rotation perturbation applied to its rotation).
+
+    The gyro scale entries have no place in a :class:`Calibration`; see :func:`scale_matrix`.
+    """
     th = np.asarray(theta, dtype=float)
     if th.shape != (N_THETA,) or not np.all(np.isfinite(th)):
         raise CalibError(f"parameter vector must be {N_THETA} finite numbers")

@@ -48,7 +48,7 @@ def endpoint_residual(
     """Residual ``(r_x, r_y)`` of a batch of streaks (see the module docstring).
 
     Args:
-        theta: the 12 parameters of :mod:`calib.params` (numbers or CasADi scalars).
+        theta: the 18 parameters of :mod:`calib.params` (numbers or CasADi scalars).
         cols: ``(start_x, start_y, end_x, end_y, frame_t_s, exposure_s)``, arrays ``(N,)``
             or CasADi columns; times on the camera clock, seconds.
         omega_imu_at: IMU-clock time -> ``(wx, wy, wz)`` measured rate, rad/s.
@@ -60,7 +60,12 @@ def endpoint_residual(
     shift, fx, fy, cx, cy, readout = theta[0:6]
     bias = (theta[6], theta[7], theta[8])
     dR = so3_exp_c(theta[9], theta[10], theta[11], ops)
-    R = matmul3(dR, constant_mat3(R0_cam_imu))
+    sxx, syy, szz, sxy, sxz, syz = theta[12:18]
+    S = (sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz)
+    S2 = matmul3(S, S)
+    # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
+    inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
+    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
     sx, sy, ex, ey, ft, exp = cols
     t_s = row_start_c(ft, sy, readout, height)
     t_e = row_start_c(ft, ey, readout, height) + exp
@@ -102,7 +107,7 @@ class ResidualModel:
         return np.stack([rx, ry], axis=1)
 
     def casadi_functions(self, n: int) -> tuple[ca.Function, ca.Function]:
-        """``res(theta, D) -> r (2N,)`` and ``jac(theta, D) -> (r, dr/dtheta (2N, 12))``.
+        """``res(theta, D) -> r (2N,)`` and ``jac(theta, D) -> (r, dr/dtheta (2N, N_THETA))``.
 
         ``D`` is the ``(N, 6)`` data matrix of :meth:`data_matrix`. The gyro enters through
         linear ``ca.interpolant`` look-ups, differentiable in the time shift.

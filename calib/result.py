@@ -102,6 +102,8 @@ def sigma_block(sigma: dict[str, float]) -> dict[str, Any]:
         out["gyro_bias_radps"] = [get(k) for k in ("bias_x", "bias_y", "bias_z")]
     if any(k.startswith("rot") for k in sigma):
         out["R_cam_imu_rotvec_rad"] = [get(k) for k in ("rot_x", "rot_y", "rot_z")]
+    if any(k.startswith("scale") for k in sigma):
+        out["gyro_scale"] = [get(f"scale_{a}") for a in ("xx", "yy", "zz", "xy", "xz", "yz")]
     return out
 
 

@@ -2,7 +2,8 @@
 
 The residual graph is built once for a chunk of :data:`CHUNK` streaks and mapped over the
 chunks (``Function.map``), so the graph stays small however many streaks there are. The
-Jacobian comes from 12 forward directional derivatives (``ca.jtimes``) of that graph.
+Jacobian comes from forward directional derivatives (``ca.jtimes``) of that graph, one per
+free parameter.
 The robust loss is pseudo-Huber on each streak's endpoint error ``ρ = |r|``:
 ``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted Gauss–Newton with weights
 ``1 / sqrt(1 + (ρ/δ)²)``.
@@ -25,28 +26,39 @@ CHUNK = 200
 
 
 class JacobianEvaluator:
-    """Residuals ``(N, 2)`` and Jacobians ``(N, 2, 12)`` of streak sets under one model.
+    """Residuals ``(N, 2)`` and Jacobians ``(N, 2, N_THETA)`` of streak sets under one model.
 
-    The chunk graph is built once per model; evaluating another streak set only maps it over
-    a different number of chunks.
+    The chunk graph is built once per model; the forward-mode Jacobian once per set of free
+    parameters (only those columns are computed, the others are zero); evaluating another
+    streak set only maps it over a different number of chunks.
     """
 
     def __init__(self, model: ResidualModel) -> None:
         self.model = model
-        theta = ca.MX.sym("theta", N_THETA)
-        Dsym = ca.MX.sym("D", CHUNK, 6)
+        self._theta = ca.MX.sym("theta", N_THETA)
+        self._D = ca.MX.sym("D", CHUNK, 6)
         interp = [ca.interpolant(f"omega_{k}", "linear", [model.gyro.t_s],
                                  model.gyro.omega_radps[:, k]) for k in range(3)]
-        rx, ry = endpoint_residual([theta[i] for i in range(N_THETA)],
-                                   [Dsym[:, j] for j in range(6)],
+        rx, ry = endpoint_residual([self._theta[i] for i in range(N_THETA)],
+                                   [self._D[:, j] for j in range(6)],
                                    lambda t: tuple(f(t) for f in interp), model.R0_cam_imu,
                                    model.dist, model.height, model.n_sub, CA_OPS)
-        r = ca.vertcat(rx, ry)
-        self._f = ca.Function("calib_jac", [theta, Dsym],
-                              [r, ca.jtimes(r, theta, ca.DM.eye(N_THETA))])
-        self._maps: dict[int, ca.Function] = {}
+        self._r = ca.vertcat(rx, ry)
+        self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
+        self._funcs: dict[tuple[int, ...], ca.Function] = {}
 
-    def evaluate(self, theta: np.ndarray, streaks: StreakSet) -> tuple[np.ndarray, np.ndarray]:
+    def _map(self, free: tuple[int, ...], n_chunks: int) -> ca.Function:
+        if free not in self._funcs:
+            seeds = ca.DM(np.eye(N_THETA)[:, list(free)])
+            self._funcs[free] = ca.Function("calib_jac", [self._theta, self._D],
+                                            [self._r, ca.jtimes(self._r, self._theta, seeds)])
+        key = (free, n_chunks)
+        if key not in self._maps:
+            self._maps[key] = self._funcs[free].map(n_chunks, "serial")
+        return self._maps[key]
+
+    def evaluate(self, theta: np.ndarray, streaks: StreakSet,
+                 free: tuple[int, ...] = tuple(range(N_THETA))) -> tuple[np.ndarray, np.ndarray]:
         n = len(streaks)
         n_chunks = max(1, -(-n // CHUNK))
         D = self.model.data_matrix(streaks)
@@ -54,16 +66,17 @@ class JacobianEvaluator:
         if pad:
             D = np.vstack([D, np.repeat(D[-1:], pad, axis=0)])
         D = np.hstack([D[i * CHUNK:(i + 1) * CHUNK] for i in range(n_chunks)])
-        if n_chunks not in self._maps:
-            self._maps[n_chunks] = self._f.map(n_chunks, "serial")
         th = np.tile(np.asarray(theta, float)[:, None], (1, n_chunks))
-        r_out, j_out = self._maps[n_chunks](th, D)
+        r_out, j_out = self._map(tuple(free), n_chunks)(th, D)
+        p = len(free)
         r = np.asarray(r_out)  # (2*CHUNK, n_chunks)
-        J = np.asarray(j_out).reshape(2 * CHUNK, n_chunks, N_THETA)
+        J = np.asarray(j_out).reshape(2 * CHUNK, n_chunks, p)
         r = np.stack([r[:CHUNK].T.reshape(-1), r[CHUNK:].T.reshape(-1)], axis=1)
-        Jx = J[:CHUNK].transpose(1, 0, 2).reshape(-1, N_THETA)
-        Jy = J[CHUNK:].transpose(1, 0, 2).reshape(-1, N_THETA)
-        return r[:n], np.stack([Jx, Jy], axis=1)[:n]
+        Jx = J[:CHUNK].transpose(1, 0, 2).reshape(-1, p)
+        Jy = J[CHUNK:].transpose(1, 0, 2).reshape(-1, p)
+        full = np.zeros((n, 2, N_THETA))
+        full[:, :, list(free)] = np.stack([Jx, Jy], axis=1)[:n]
+        return r[:n], full
 
 
 def pseudo_huber(rho: np.ndarray, delta: float) -> np.ndarray:
@@ -82,7 +95,7 @@ class LMResult:
     converged: bool
     cost: float
     residual: np.ndarray  # (N, 2)
-    jacobian: np.ndarray  # (N, 2, 12)
+    jacobian: np.ndarray  # (N, 2, N_THETA), zero in the columns of fixed parameters
     weights: np.ndarray  # (N,)
 
 
@@ -104,7 +117,7 @@ def levenberg_marquardt(
     theta = np.asarray(theta0, float).copy()
     fr = np.asarray(free)
     lam = lam0
-    r, J = ev.evaluate(theta, streaks)
+    r, J = ev.evaluate(theta, streaks, tuple(free))
     cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
     converged = False
     it = 0
@@ -148,7 +161,7 @@ def levenberg_marquardt(
             r = r_try
             converged = True
             break
-        r, J = ev.evaluate(theta, streaks)
+        r, J = ev.evaluate(theta, streaks, tuple(free))
     w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
     if not np.all(np.isfinite(theta)):
         raise CalibError("fit diverged to non-finite parameters: "

@@ -25,7 +25,8 @@ HIGH_CORRELATION = 0.98
 #: 1-sigma above which a parameter is reported as weakly determined (theta units).
 WEAK_SIGMA = {"timeshift_s": 1e-3, "fx": 5.0, "fy": 5.0, "cx": 5.0, "cy": 5.0,
               "readout_s": 2e-3, "bias_x": 2e-3, "bias_y": 2e-3, "bias_z": 2e-3,
-              "rot_x": 0.0087, "rot_y": 0.0087, "rot_z": 0.0087}
+              "rot_x": 0.0087, "rot_y": 0.0087, "rot_z": 0.0087,
+              **{f"scale_{a}": 5e-3 for a in ("xx", "yy", "zz", "xy", "xz", "yz")}}
 
 
 @dataclass(frozen=True)

@@ -77,22 +77,33 @@ def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     return track
 
 
+def corrected_gyro(gyro: GyroTrace, calib: Calibration, scale: np.ndarray) -> GyroTrace:
+    """Samples with the scale error removed: ``(I + S)⁻¹ (ω - b) + b`` (IMU frame, rad/s)."""
+    b = calib.gyro_bias_radps
+    w = np.linalg.solve(np.asarray(scale, float), (gyro.omega_radps - b).T).T + b
+    return GyroTrace(gyro.t_s, w, gyro.max_gap_s)
+
+
 def build_report(session: Session, table: pd.DataFrame, before: Calibration,
                  after: Calibration, out_dir: str | Path,
                  fit_summary: dict[str, Any] | None = None,
-                 n_overlays: int = N_OVERLAYS, gyro_upsample: int = 8) -> dict[str, Any]:
+                 n_overlays: int = N_OVERLAYS, gyro_upsample: int = 8,
+                 gyro_scale_matrix: np.ndarray | None = None) -> dict[str, Any]:
     """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
 
     ``gyro_upsample``: cubic-spline upsampling of the gyro (:meth:`GyroTrace.upsampled`), the
-    same as the calibration used.
+    same as the calibration used. ``gyro_scale_matrix``: the ``I + S`` of the measurement
+    model ``ω_meas = (I + S) R_cam_imuᵀ ω_cam + bias`` where the calibration estimated it; the
+    ``after`` calibration then sees gyro samples corrected by ``(I + S)⁻¹``.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if len(table) == 0:
         raise ReportError("no streaks to report on")
-    gyro = session.gyro().upsampled(gyro_upsample)
+    raw = session.gyro().upsampled(gyro_upsample)
+    gyro = raw if gyro_scale_matrix is None else corrected_gyro(raw, after, gyro_scale_matrix)
     frames = session.frames
-    errs = {"before": endpoint_errors(gyro, table, frames, before),
+    errs = {"before": endpoint_errors(raw, table, frames, before),
             "after": endpoint_errors(gyro, table, frames, after)}
     models = {v.name: endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
               for v in MOTION_VARIANTS}
@@ -156,6 +167,7 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
         "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
         "calibration_before": before.to_dict(), "calibration_after": after.to_dict(),
         "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": gyro_upsample,
+        "gyro_scale_matrix": None if gyro_scale_matrix is None else gyro_scale_matrix,
         "files": ["report.html", "streak_errors.csv", "frame_errors.csv", "overall_errors.csv",
                   "summary.json"],
     })
