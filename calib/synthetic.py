@@ -49,8 +49,12 @@ def shake_function(rng: np.random.Generator, amp_radps: float = 1.0,
 def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
                  endpoint_noise_px: float = 0.1, gyro_noise_radps: float = 0.0,
                  roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
-                 shift_error_s: float = 0.03, focal_error: float = 0.05) -> SyntheticProblem:
-    """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``."""
+                 shift_error_s: float = 0.03, focal_error: float = 0.05,
+                 gyro_scale: np.ndarray | None = None) -> SyntheticProblem:
+    """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
+
+    ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
+    """
     rng = np.random.default_rng(seed)
     cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
                  readout_s=0.025)
@@ -83,7 +87,9 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     ft_all = np.concatenate(fts)
     streaks = StreakSet(start, end, ft_all - frame_t[0], np.full(ft_all.size, exposure),
                         np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]))
-    w_meas = w_true + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps, w_true.shape)
+    M = np.eye(3) if gyro_scale is None else np.asarray(gyro_scale, float)
+    w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps,
+                                                                 w_true.shape)
     gyro = GyroTrace(t_imu, w_meas)
     fx, fy = cam.intrinsics[:2]
     initial = Calibration(

@@ -107,3 +107,19 @@ def test_no_roll_warns_about_readout_and_principal_point() -> None:
     res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
     assert any("roll" in w for w in res.warnings)
     assert res.status == "warning"
+
+
+def test_gyro_scale_fit_removes_the_focal_bias() -> None:
+    M = np.eye(3) + np.array([[4e-3, 1e-3, 0.0], [1e-3, -3e-3, 5e-4], [0.0, 5e-4, 2e-3]])
+    p = make_problem(seed=9, n_frames=12, dots_per_frame=40, endpoint_noise_px=0.05,
+                     gyro_scale=M, shift_error_s=0.01, focal_error=0.02)
+    res = calibrate(p.streaks, p.gyro, p.initial,
+                    FitOptions(fit="timeshift,fx,fy,cx,cy,readout,bias,rotation,scale",
+                               holdout_fraction=0.0))
+    # The samples are rotated from the camera frame by R_cam_imu: compare in the IMU frame.
+    got = np.array([res.values[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")])
+    want = np.array([M[0, 0] - 1, M[1, 1] - 1, M[2, 2] - 1, M[0, 1], M[0, 2], M[1, 2]])
+    sig = np.array([res.sigma[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")])
+    assert np.all(np.abs(got - want) < np.maximum(4 * sig, 3e-4)), (got - want) / sig
+    assert abs(res.values["fx"] / p.truth.camera.intrinsics[0] - 1) < 1.5e-3
+    assert res.calibration.sigma["gyro_scale"][0] > 0
