@@ -105,27 +105,42 @@ def per_frame_plot(frame_stats: pd.DataFrame, title: str) -> bytes:
     return _png(fig)
 
 
+def _stretch(img: np.ndarray) -> np.ndarray:
+    """Gray image scaled to [0, 1] between its 1st and 99.9th percentiles (dots visible)."""
+    g = img.mean(axis=2) if img.ndim == 3 else img.astype(float)
+    lo, hi = np.percentile(g, [1.0, 99.9])
+    return np.clip((g - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+
+
 def overlay(image: np.ndarray, df: pd.DataFrame,
             track: Callable[[pd.DataFrame], np.ndarray], title: str) -> bytes:
-    """A frame with measured streaks (green, start marked) and predicted tracks (red).
+    """A frame with measured streaks (green, start marked) and predicted tracks (red dashed),
+    and a zoom on the longest streak.
 
     ``track(df) -> (N, T, 2)`` gives the predicted positions of each streak over its exposure.
     """
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = img[..., ::-1]  # BGR to RGB
+    img = _stretch(np.asarray(image))
     h, w = img.shape[:2]
-    fig, ax = plt.subplots(figsize=(9, 9 * h / w))
-    ax.imshow(img, cmap="gray" if img.ndim == 2 else None)
-    for _, r in df.iterrows():
-        ax.plot([r.start_x, r.end_x], [r.start_y, r.end_y], color="#00ff00", lw=1.2)
-        ax.plot([r.start_x], [r.start_y], "o", color="#00ff00", ms=2)
+    fig, (ax, zx) = plt.subplots(1, 2, figsize=(13, 13 * h / w / 1.6),
+                                 gridspec_kw={"width_ratios": [1.6, 1]})
     pts = track(df)
-    for p in pts:
-        ax.plot(p[:, 0], p[:, 1], color="#ff2020", lw=0.8, ls="--")
+    for a in (ax, zx):
+        a.imshow(img, cmap="gray", vmin=0, vmax=1)
+        for (_, r), p in zip(df.iterrows(), pts, strict=True):
+            a.plot([r.start_x, r.end_x], [r.start_y, r.end_y], color="#00ff00", lw=1.0)
+            a.plot([r.start_x], [r.start_y], "o", color="#00ff00", ms=2)
+            a.plot(p[:, 0], p[:, 1], color="#ff2020", lw=0.9, ls="--")
+        a.set_axis_off()
     ax.set_xlim(0, w)
     ax.set_ylim(h, 0)
-    ax.set_axis_off()
+    if len(df):
+        k = int(np.argmax(np.hypot(df["end_x"] - df["start_x"], df["end_y"] - df["start_y"])))
+        r = df.iloc[k]
+        cx, cy = (r.start_x + r.end_x) / 2, (r.start_y + r.end_y) / 2
+        half = max(12.0, 0.8 * float(np.hypot(r.end_x - r.start_x, r.end_y - r.start_y)))
+        zx.set_xlim(cx - half, cx + half)
+        zx.set_ylim(cy + half, cy - half)
+        zx.set_title(f"zoom: streak {int(r.streak_id)}, error {r.error_px:.3f} px", fontsize=9)
     ax.set_title(title + "  (green: measured, red dashed: predicted)", fontsize=9)
     return _png(fig)
 
