@@ -232,3 +232,19 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"warning: {w}")
     print(f"wrote {Path(args.out) / 'report.html'}")
     return 0
+
+
+def demo_argv(session: str | Path, out: str | Path, from_truth: bool = True) -> list[list[str]]:
+    """The ``blurtrack`` argument lists that ``make demo`` runs for calibration and report.
+
+    ``calibrate`` prints the recovered parameters beside the initial guess and, for simulated
+    sessions, beside the truth; ``report`` writes ``OUT/report/report.html``.
+
+    >>> demo_argv("s", "o")[0][:4]
+    ['calibrate', 's', '--out', 'o/calib.yaml']
+    """
+    src = ["--from-truth"] if from_truth else []
+    calib = str(Path(out) / "calib.yaml")
+    return [["calibrate", str(session), "--out", calib, *src],
+            ["report", str(session), "--calib", calib, "--out", str(Path(out) / "report"),
+             *src]]

@@ -7,7 +7,10 @@ Two covariance estimates are formed from the Gaussâ€“Newton information ``A = Já
   each frame's streaks: gyro noise moves every streak of a frame together, so residuals are
   correlated within a frame and the first estimate alone would be over-confident.
 
-The reported sigma is the larger of the two, per parameter.
+The reported sigma is the larger of the two, per parameter. The residual sigma in the first has
+a floor of :data:`MODEL_FLOOR_PX`: the numerical model itself (1 ms integration sub-steps, gyro
+interpolation) differs from continuous motion by about a hundredth of a pixel, an error that
+noise-free data would otherwise report with an impossibly small sigma.
 """
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ import numpy as np
 
 from calib.params import THETA_NAMES
 
+#: Floor of the per-coordinate residual sigma (px): the numerical model's own accuracy.
+MODEL_FLOOR_PX = 0.01
 #: Normalised information eigenvalue below which a direction counts as unobservable.
 UNOBSERVABLE_EIG = 1e-9
 #: Correlation above which a pair of parameters is reported as hard to separate.
@@ -68,7 +73,7 @@ def estimate(J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray,
     Jf = J[:, :, fr]
     p = len(fr)
     m = 2 * r.shape[0]
-    s2 = float(np.sum(w[:, None] * r**2) / max(m - p, 1))
+    s2 = max(float(np.sum(w[:, None] * r**2) / max(m - p, 1)), MODEL_FLOOR_PX**2)
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     Ainv = np.linalg.pinv(A / np.outer(d, d)) / np.outer(d, d)
     cov_plain = s2 * Ainv
