@@ -102,3 +102,14 @@ def test_html_is_self_contained_and_escaped() -> None:
     assert "<script>" not in page and "&lt;script&gt;" in page
     assert "data:image/png;base64,iVBORw==" in page
     assert "exact + RS" in page
+
+
+def test_corrected_gyro_removes_a_known_scale() -> None:
+    from blurtrack.report.build import corrected_gyro
+
+    calib, gyro, _, _ = _scene()
+    M = np.diag([1.02, 0.99, 1.0])
+    meas = GyroTrace(gyro.t_s, (gyro.omega_radps - calib.gyro_bias_radps) @ M.T
+                     + calib.gyro_bias_radps)
+    back = corrected_gyro(meas, calib, M)
+    np.testing.assert_allclose(back.omega_radps, gyro.omega_radps, atol=1e-12)
