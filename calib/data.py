@@ -77,6 +77,12 @@ class StreakSet:
         """The same streaks with start and end swapped."""
         return replace(self, start=self.end, end=self.start)
 
+    def reoriented(self, mask: np.ndarray) -> StreakSet:
+        """Start and end swapped where ``mask`` (N,) is true."""
+        m = np.asarray(mask, dtype=bool)[:, None]
+        return replace(self, start=np.where(m, self.end, self.start),
+                       end=np.where(m, self.start, self.end))
+
 
 def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
                        drop_flagged: bool = True) -> StreakSet:

@@ -8,8 +8,8 @@ Stages (each warm-starts the next):
    parameter that the motion makes observable (near-null directions of the information matrix
    are fixed at their initial value, with a warning);
 4. robust LM on every training streak, with outlier rejection in between: streaks whose
-   endpoint error exceeds ``OUTLIER_SIGMAS`` robust sigmas are dropped; those that fit once
-   start and end are swapped are counted as wrongly oriented;
+   endpoint error exceeds ``OUTLIER_SIGMAS`` robust sigmas are dropped, except those that fit
+   once start and end are swapped: they are counted as wrongly oriented, swapped and kept;
 5. uncertainty, warnings and hold-out statistics.
 """
 
@@ -74,6 +74,17 @@ def classify(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
         rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
         flipped[np.flatnonzero(out)] = rf <= threshold_px
     return rho, out, flipped
+
+
+def _reorient(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
+              threshold_px: float) -> tuple[StreakSet, np.ndarray, np.ndarray]:
+    """Swap start and end of the streaks that only fit reversed (orientation resolved wrongly
+    by detection). Returns the corrected set, its endpoint errors and the swapped mask."""
+    _, _, flip = classify(model, theta, streaks, threshold_px)
+    if np.any(flip):
+        streaks = streaks.reoriented(flip)
+    rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    return streaks, rho, flip
 
 
 def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
@@ -153,11 +164,14 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
 
     ev_fine = JacobianEvaluator(model)
     inl = np.ones(len(train), dtype=bool)
+    reoriented = np.zeros(len(train), dtype=bool)
     converged = False
     for round_ in range(3):
         rho, _, _ = classify(model, theta, train, np.inf)
         sig = _rayleigh_sigma(rho[inl])
         thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
+        train, rho, flip = _reorient(model, theta, train, thr)
+        reoriented ^= flip
         new_inl = rho <= thr
         if round_ and np.count_nonzero(new_inl != inl) <= 0.002 * len(train):
             break  # the inlier set has settled
@@ -173,10 +187,10 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         timings[f"fine{round_}_iterations"] = lm.iterations
     timings["fine"] = clock() - t_start - timings["init"] - timings["coarse"]
 
-    rho, out, flip = classify(model, theta, train, np.inf)
+    rho, _, _ = classify(model, theta, train, np.inf)
     sig = _rayleigh_sigma(rho[inl])
     thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
-    rho, out, flip = classify(model, theta, train, thr)
+    out = rho > thr
     unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
                                free)
     warnings.extend(unc.warnings)
@@ -187,7 +201,8 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     warnings.extend(uncertainty.excitation_warnings(w_cam))
 
     if len(test):
-        rho_t, out_t, _ = classify(model, theta, test, thr)
+        test, rho_t, _ = _reorient(model, theta, test, thr)
+        out_t = rho_t > thr
         holdout, holdout_all = ErrorStats.of(rho_t[~out_t]), ErrorStats.of(rho_t)
     else:
         holdout = holdout_all = ErrorStats.of(np.zeros(0))
@@ -218,5 +233,5 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         fixed_unobservable=tuple(THETA_NAMES[i] for i in dropped), iterations=iters,
         converged=converged, train=ErrorStats.of(rho[~out]), train_all=ErrorStats.of(rho),
         holdout=holdout, holdout_all=holdout_all, n_outliers=int(np.count_nonzero(out)),
-        n_flipped=int(np.count_nonzero(flip)), residual_sigma_px=sig,
+        n_flipped=int(np.count_nonzero(reoriented)), residual_sigma_px=sig,
         init_shift_curve=ini.shift_curve, warnings=tuple(warnings), timings_s=timings)

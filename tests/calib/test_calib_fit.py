@@ -62,8 +62,8 @@ def test_flipped_and_gross_outliers_are_rejected() -> None:
     end[gross] += rng.normal(0, 30, (15, 2))
     bad = StreakSet(start, end, s.frame_t_s, s.exposure_s, s.frame, s.streak_id, s.t0_s)
     res = calibrate(bad, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
-    assert res.n_outliers >= 35
-    assert res.n_flipped >= 20
+    assert 15 <= res.n_outliers <= 25  # the gross ones (and a few of the flipped short ones)
+    assert res.n_flipped >= 20  # swapped back and used
     assert abs(res.values["timeshift_s"] - p.truth.timeshift_cam_imu_s) < 2e-4
     assert res.train.mean_px < 0.3
 
