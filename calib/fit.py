@@ -45,6 +45,10 @@ COARSE_SUBSTEP_S = 3e-3
 #: Robust endpoint sigma (px) above which the data are called contradictory.
 MAX_RESIDUAL_SIGMA_PX = 3.0
 MIN_INLIER_FRACTION = 0.5
+#: Pseudo-Huber scale of the final stage, in robust sigmas: outliers are gone by then, and a
+#: scale near the rejection threshold keeps the IRLS weights of inliers nearly constant, so
+#: Gauss–Newton converges in two or three Jacobians.
+FINE_DELTA_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -180,7 +184,8 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
             raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
                              f"the data contradict it")
         sig = _rayleigh_sigma(rho[inl])
-        lm = levenberg_marquardt(ev_fine, train.subset(inl), theta, free, max(3.0 * sig, 1e-3),
+        lm = levenberg_marquardt(ev_fine, train.subset(inl), theta, free,
+                                 max(FINE_DELTA_SIGMAS * sig, 1e-3),
                                  max_iter=options.max_iter, step_tol=max(0.1 * sig, 1e-5),
                                  lam0=1e-6)
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged

@@ -1,10 +1,8 @@
 """Robust Levenberg–Marquardt on CasADi's exact Jacobian (Gauss–Newton Hessian ``JᵀWJ``).
 
-The residual graph is built once for a chunk of :data:`CHUNK` streaks and mapped over the
-chunks (``Function.map``), so the graph stays small however many streaks there are. The
-Jacobian comes from forward directional derivatives (``ca.jtimes``) of that graph, one per
-free parameter.
-The robust loss is pseudo-Huber on each streak's endpoint error ``ρ = |r|``:
+Jacobians come from :class:`calib.jacobian.JacobianEvaluator` (one SX function per streak,
+mapped over the streaks). The robust loss is pseudo-Huber on each streak's endpoint error
+``ρ = |r|``:
 ``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted Gauss–Newton with weights
 ``1 / sqrt(1 + (ρ/δ)²)``.
 """
@@ -13,70 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.params import N_THETA, THETA_NAMES
-from calib.problem import CA_OPS, ResidualModel, endpoint_residual
-
-#: Streaks per CasADi graph chunk.
-CHUNK = 200
-
-
-class JacobianEvaluator:
-    """Residuals ``(N, 2)`` and Jacobians ``(N, 2, N_THETA)`` of streak sets under one model.
-
-    The chunk graph is built once per model; the forward-mode Jacobian once per set of free
-    parameters (only those columns are computed, the others are zero); evaluating another
-    streak set only maps it over a different number of chunks.
-    """
-
-    def __init__(self, model: ResidualModel) -> None:
-        self.model = model
-        self._theta = ca.MX.sym("theta", N_THETA)
-        self._D = ca.MX.sym("D", CHUNK, 6)
-        interp = [ca.interpolant(f"omega_{k}", "linear", [model.gyro.t_s],
-                                 model.gyro.omega_radps[:, k]) for k in range(3)]
-        rx, ry = endpoint_residual([self._theta[i] for i in range(N_THETA)],
-                                   [self._D[:, j] for j in range(6)],
-                                   lambda t: tuple(f(t) for f in interp), model.R0_cam_imu,
-                                   model.dist, model.height, model.n_sub, CA_OPS)
-        self._r = ca.vertcat(rx, ry)
-        self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
-        self._funcs: dict[tuple[int, ...], ca.Function] = {}
-
-    def _map(self, free: tuple[int, ...], n_chunks: int) -> ca.Function:
-        if free not in self._funcs:
-            seeds = ca.DM(np.eye(N_THETA)[:, list(free)])
-            self._funcs[free] = ca.Function("calib_jac", [self._theta, self._D],
-                                            [self._r, ca.jtimes(self._r, self._theta, seeds)])
-        key = (free, n_chunks)
-        if key not in self._maps:
-            self._maps[key] = self._funcs[free].map(n_chunks, "serial")
-        return self._maps[key]
-
-    def evaluate(self, theta: np.ndarray, streaks: StreakSet,
-                 free: tuple[int, ...] = tuple(range(N_THETA))) -> tuple[np.ndarray, np.ndarray]:
-        n = len(streaks)
-        n_chunks = max(1, -(-n // CHUNK))
-        D = self.model.data_matrix(streaks)
-        pad = n_chunks * CHUNK - n
-        if pad:
-            D = np.vstack([D, np.repeat(D[-1:], pad, axis=0)])
-        D = np.hstack([D[i * CHUNK:(i + 1) * CHUNK] for i in range(n_chunks)])
-        th = np.tile(np.asarray(theta, float)[:, None], (1, n_chunks))
-        r_out, j_out = self._map(tuple(free), n_chunks)(th, D)
-        p = len(free)
-        r = np.asarray(r_out)  # (2*CHUNK, n_chunks)
-        J = np.asarray(j_out).reshape(2 * CHUNK, n_chunks, p)
-        r = np.stack([r[:CHUNK].T.reshape(-1), r[CHUNK:].T.reshape(-1)], axis=1)
-        Jx = J[:CHUNK].transpose(1, 0, 2).reshape(-1, p)
-        Jy = J[CHUNK:].transpose(1, 0, 2).reshape(-1, p)
-        full = np.zeros((n, 2, N_THETA))
-        full[:, :, list(free)] = np.stack([Jx, Jy], axis=1)[:n]
-        return r[:n], full
+from calib.jacobian import JacobianEvaluator
+from calib.params import THETA_NAMES
 
 
 def pseudo_huber(rho: np.ndarray, delta: float) -> np.ndarray:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from calib.data import relative_gyro
+from calib.jacobian import JacobianEvaluator
 from calib.params import apply_theta, theta_from
 from calib.problem import ResidualModel, choose_substeps
-from calib.solve import JacobianEvaluator
 from calib.synthetic import make_problem
 
 
@@ -58,6 +58,22 @@ def test_casadi_residual_and_jacobian_match_numpy(clean) -> None:
         # Linear gyro interpolation has kinks at samples: compare away from them robustly.
         close = np.abs(J[:, :, i] - fd) <= 1e-4 * scale + 1e-6
         assert np.mean(close) > 0.9, f"parameter {i}"
+
+
+def test_fast_jacobian_equals_the_interpolant_graph(clean) -> None:
+    """The SX evaluator's local gyro linearisation gives the ca.interpolant graph's Jacobian."""
+    p, model = clean
+    sub = p.streaks.subset(np.arange(40))
+    th = theta_from(p.truth) + 1e-3
+    _, jac = model.casadi_functions(len(sub))
+    r_ref, J_ref = jac(th, model.data_matrix(sub))
+    r, J = JacobianEvaluator(model).evaluate(th, sub)
+    n = len(sub)
+    np.testing.assert_allclose(r[:, 0], np.asarray(r_ref).ravel()[:n], atol=1e-9)
+    J_ref = np.asarray(J_ref)
+    scale = np.abs(J_ref).max(axis=0) + 1e-12
+    np.testing.assert_allclose(J[:, 0, :] / scale, J_ref[:n] / scale, atol=1e-9)
+    np.testing.assert_allclose(J[:, 1, :] / scale, J_ref[n:] / scale, atol=1e-9)
 
 
 def test_apply_theta_round_trip(clean) -> None:
