@@ -78,6 +78,7 @@ def test_calibrate_and_report(session_dir, tmp_path: Path, capsys) -> None:
     assert html.count("data:image/png;base64,") >= 7 and "src='http" not in html
     errs = pd.read_csv(rep / "streak_errors.csv")
     assert set(errs["variant"]) == {"before", "after", "paper_small_angle", "exact_global",
+                                    "small_angle_rolling",
                                     "exact_rolling"}
     frames = pd.read_csv(rep / "frame_errors.csv")
     assert frames["frame"].nunique() == 10
