@@ -239,7 +239,25 @@ class Session:
     imu_t_ns: np.ndarray
     omega_radps: np.ndarray
     accel_mps2: np.ndarray | None
-    truth: dict[str, Any] | None
+    _truth_cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def truth(self) -> dict[str, Any] | None:
+        """``truth.yaml`` (simulated sessions), parsed on first use: it can be megabytes."""
+        if "truth" not in self._truth_cache:
+            path = self.folder / "truth.yaml"
+            if not path.exists():
+                self._truth_cache["truth"] = None
+            else:
+                try:
+                    self._truth_cache["truth"] = read_yaml(path, "truth.yaml")
+                except ConfigError as exc:
+                    raise SessionError(str(exc)) from None
+        return self._truth_cache["truth"]
+
+    @property
+    def has_truth(self) -> bool:
+        return (self.folder / "truth.yaml").exists()
 
     @property
     def frame_times_s(self) -> np.ndarray:
@@ -367,13 +385,7 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
         accel = np.stack([_numeric(idf, k, imu_csv, False) for k in (4, 5, 6)], axis=1) \
             if len(idf) else np.zeros((0, 3))
     _strictly_increasing(t_imu, imu_csv)
-    truth = None
-    if (root / "truth.yaml").exists():
-        try:
-            truth = read_yaml(root / "truth.yaml", "truth.yaml")
-        except ConfigError as exc:
-            raise SessionError(str(exc)) from None
-    session = Session(root, meta, frames, t_imu, omega, accel, truth)
+    session = Session(root, meta, frames, t_imu, omega, accel)
     if max_gyro_gap_s is not None and len(frames) and t_imu.size:
         shift = meta.imu.timeshift_cam_imu
         lo = session.frame_times_s[0] + shift

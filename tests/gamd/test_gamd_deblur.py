@@ -1,0 +1,88 @@
+"""`gamd deblur` on a recorded session with heat maps in `blurtrack predict`'s layout."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from blurtrack.camera import Camera
+from blurtrack.session import SessionMeta, SessionWriter
+from gamd.cli import main
+from gamd.infer import frame_to_rgb
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tiny_dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("gamd_ckpt")
+    cfg = {"model": {"name": "gamd", "preset": "tiny"},
+           "data": {"root": str(tiny_dataset), "crop": 16, "heat_scale_px": 8.0},
+           "train": {"out_dir": str(out), "steps": 1, "batch_size": 1, "progress": False,
+                     "tensorboard": False}}
+    (out / "cfg.yaml").write_text(yaml.safe_dump(cfg))
+    assert main(["train", "--config", str(out / "cfg.yaml")]) == 0
+    return out / "checkpoints/last.pt"
+
+
+def _session(tmp_path, gray: bool):
+    folder = tmp_path / "session"
+    meta = SessionMeta(Camera((30, 22), (30.0, 30.0, 15.0, 11.0)), target_kind="natural")
+    rng = np.random.default_rng(0)
+    stamps = [1_000_000, 34_000_000]
+    with SessionWriter(folder, meta) as w:
+        for ts in stamps:
+            img = rng.integers(0, 255, (22, 30) if gray else (22, 30, 3), dtype=np.uint8)
+            w.add_frame(ts, img, 10_000_000)
+        w.add_imu(np.array([0, 50_000_000]), np.zeros((2, 3)))
+    pred = tmp_path / "pred"
+    (pred / "heat").mkdir(parents=True)
+    for ts in stamps:
+        np.save(pred / "heat" / f"{ts}.npy", rng.normal(0, 3, (6, 22, 30)).astype(np.float32))
+    return folder, pred, stamps
+
+
+@pytest.mark.parametrize("gray", [False, True])
+def test_deblur_session_writes_frames(checkpoint, tmp_path, gray, capsys) -> None:
+    session, pred, stamps = _session(tmp_path, gray)
+    out = tmp_path / "out"
+    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
+                 "--out", str(out)]) == 0
+    assert "2 frames" in capsys.readouterr().out
+    for ts in stamps:
+        img = cv2.imread(str(out / f"{ts}.png"))
+        assert img.shape == (22, 30, 3)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == stamps and summary["heat_scale_px"] == 8.0
+
+
+def test_deblur_refuses_missing_heat(checkpoint, tmp_path, capsys) -> None:
+    session, pred, stamps = _session(tmp_path, False)
+    (pred / "heat" / f"{stamps[1]}.npy").unlink()
+    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
+                 "--out", str(tmp_path / "o")]) == 2
+    assert f"no heat map for frame {stamps[1]}" in capsys.readouterr().err
+    assert main(["deblur", str(session), "--checkpoint", str(checkpoint),
+                 "--out", str(tmp_path / "o2")]) == 2
+    assert "needs heat maps" in capsys.readouterr().err
+
+
+def test_frame_to_rgb_conventions() -> None:
+    bgr = np.zeros((2, 2, 3), np.uint16)
+    bgr[..., 0] = 65535  # blue
+    rgb = frame_to_rgb(bgr)
+    assert rgb[0, 0].tolist() == [0.0, 0.0, 1.0]
+    assert frame_to_rgb(np.full((2, 2), 255, np.uint8)).shape == (2, 2, 3)
+
+
+def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
+    from gamd.demo import run_demo
+
+    s = run_demo(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2,
+                 progress=False)
+    img = cv2.imread(s["picture"])
+    assert img.shape == (40, 3 * 48 + 8, 3)
+    assert json.loads((tmp_path / "demo/summary.json").read_text())["steps"] == 3
+    assert np.isfinite(s["restored_psnr_db"])
