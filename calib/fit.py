@@ -28,7 +28,7 @@ from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
-from calib.params import THETA_NAMES, apply_theta, parse_fit, theta_from
+from calib.params import GROUPS, THETA_NAMES, apply_theta, parse_fit, theta_from
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import JacobianEvaluator, levenberg_marquardt
@@ -45,6 +45,8 @@ COARSE_SUBSTEP_S = 3e-3
 #: Robust endpoint sigma (px) above which the data are called contradictory.
 MAX_RESIDUAL_SIGMA_PX = 3.0
 MIN_INLIER_FRACTION = 0.5
+#: Score-test threshold (sigmas) of :func:`scale_check`.
+SCALE_Z = 3.0
 #: Pseudo-Huber scale of the final stage, in robust sigmas: outliers are gone by then, and a
 #: scale near the rejection threshold keeps the IRLS weights of inliers nearly constant, so
 #: Gauss–Newton converges in two or three Jacobians.
@@ -89,6 +91,39 @@ def _reorient(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
         streaks = streaks.reoriented(flip)
     rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
     return streaks, rho, flip
+
+
+def scale_check(ev: JacobianEvaluator, theta: np.ndarray, streaks: StreakSet,
+                weights: np.ndarray, free: tuple[int, ...]) -> list[str]:
+    """Warn when the data ask for a gyro scale / cross-axis error that is not being fitted.
+
+    One Gauss–Newton step from the optimum with the scale entries freed (the score test):
+    an entry that would move by more than :data:`SCALE_Z` of its own (cluster-robust) sigma
+    means the fixed scale is wrong and the focal lengths' sigma are optimistic.
+    """
+    extra = tuple(i for i in GROUPS["scale"] if i not in free)
+    if not extra:
+        return []
+    full = tuple(sorted(free + extra))
+    r, J = ev.evaluate(theta, streaks, full)
+    A = uncertainty.information(J, weights, full)
+    g = np.einsum("n,nki,nk->i", weights, J[:, :, list(full)], r)
+    try:
+        step = -np.linalg.solve(A, g)
+    except np.linalg.LinAlgError:
+        return []
+    # Sigma under the alternative: residuals after the (linearised) step.
+    r_alt = r + np.einsum("nki,i->nk", J[:, :, list(full)], step)
+    unc = uncertainty.estimate(J, r_alt, weights, streaks.frame, full)
+    z = {THETA_NAMES[i]: step[k] / unc.sigma[k] for k, i in enumerate(full) if i in extra}
+    big = {k: v for k, v in z.items() if abs(v) > SCALE_Z}
+    if not big:
+        return []
+    worst = max(big, key=lambda k: abs(big[k]))
+    return [f"the gyro shows a scale/cross-axis error that is not fitted ({worst} "
+            f"{step[full.index(THETA_NAMES.index(worst))]:+.2e}, {abs(big[worst]):.0f} sigma): "
+            f"focal lengths and rotation absorb it and their sigma are optimistic; "
+            f"refit with --fit ...,scale"]
 
 
 def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
@@ -199,6 +234,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
                                free)
     warnings.extend(unc.warnings)
+    warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
     R = apply_theta(initial, theta).R_cam_imu
     w_cam = np.stack(omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]),

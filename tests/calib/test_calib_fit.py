@@ -123,3 +123,24 @@ def test_gyro_scale_fit_removes_the_focal_bias() -> None:
     assert np.all(np.abs(got - want) < np.maximum(4 * sig, 3e-4)), (got - want) / sig
     assert abs(res.values["fx"] / p.truth.camera.intrinsics[0] - 1) < 1.5e-3
     assert res.calibration.sigma["gyro_scale"][0] > 0
+
+
+
+def test_scale_check_flags_a_large_unfitted_scale() -> None:
+    from calib.data import relative_gyro
+    from calib.fit import scale_check
+    from calib.jacobian import JacobianEvaluator
+    from calib.params import theta_from as th_of
+    from calib.problem import ResidualModel, choose_substeps
+
+    M = np.diag([1.0, 1.0, 1.05])  # roll-axis scale: no intrinsic can absorb it
+    p = make_problem(seed=12, n_frames=10, dots_per_frame=40, endpoint_noise_px=0.02,
+                     gyro_scale=M)
+    s = p.streaks
+    model = ResidualModel(relative_gyro(p.gyro.upsampled(8), s.t0_s), p.truth.R_cam_imu, (),
+                          720, choose_substeps(s, 720, 0.05))
+    ev = JacobianEvaluator(model)
+    free = tuple(range(12))
+    w = np.ones(len(s))
+    assert any("scale" in m for m in scale_check(ev, th_of(p.truth), s, w, free))
+    assert scale_check(ev, th_of(p.truth), s, w, tuple(range(18))) == []
