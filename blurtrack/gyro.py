@@ -1,6 +1,8 @@
 """Gyroscope traces: samples on the IMU clock and their interpolation.
 
-Between samples ω is interpolated piecewise linearly (DESIGN: state how ω is interpolated). The
+:class:`GyroTrace` interpolates ω piecewise linearly between its samples; the blur model first
+resamples the measured trace through a cubic spline (:data:`GYRO_UPSAMPLE`, DESIGN: state how ω
+is interpolated), so that fast shake is not under-reported between 200 Hz samples. The
 trace refuses to answer for times it does not cover: outside its first and last sample, or
 inside a gap longer than ``max_gap_s``.
 """
@@ -13,6 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from blurtrack.errors import CoverageError, GeometryError
+
+#: How the blur model interpolates ω between gyro samples: a not-a-knot cubic spline through
+#: the samples, evaluated as linear interpolation of its ``GYRO_UPSAMPLE``-times denser
+#: resampling (:meth:`GyroTrace.upsampled`). Prediction, synthesis, reports and the CasADi
+#: calibration all use this one value.
+GYRO_UPSAMPLE = 8
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,6 @@ def register(subparsers: Any) -> None:
                    help="fraction of frames held out for evaluation (default 0.2)")
     p.add_argument("--shift-window-ms", type=float, default=60.0,
                    help="half-width of the initial time-shift search (default 60 ms)")
-    _upsample_arg(p)
     p.set_defaults(func=run_calibrate)
 
     r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
@@ -39,15 +38,8 @@ def register(subparsers: Any) -> None:
     r.add_argument("--fit-summary", help="summary JSON of the fit (default: the one written "
                                          "next to --calib by calibrate, if present)")
     r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
-    _upsample_arg(r)
     _streak_args(r)
     r.set_defaults(func=run_report)
-
-
-def _upsample_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gyro-upsample", type=int, default=8,
-                   help="cubic-spline upsampling of the gyro before linear interpolation "
-                        "(default 8; 1 = plain linear interpolation of the samples)")
 
 
 def _streak_args(p: argparse.ArgumentParser) -> None:
@@ -120,8 +112,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     initial = session.initial_calibration()
     res = calibrate(streaks, session.gyro(), initial,
                     FitOptions(fit=args.fit, holdout_fraction=args.holdout,
-                               shift_window_s=args.shift_window_ms * 1e-3,
-                               gyro_upsample=args.gyro_upsample))
+                               shift_window_s=args.shift_window_ms * 1e-3))
     summary = res.to_dict()
     summary["initial"] = named(theta_from(initial))
     truth = truth_values(session, initial)
@@ -142,16 +133,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
 
 def write_calibration(res: Any, path: Path) -> None:
-    """The calibration YAML; with a fitted gyro scale, an extra ``gyro_scale_matrix`` key."""
-    from blurtrack.yamlio import write_yaml
+    """The calibration YAML; a fitted gyro scale goes into ``gyro_scale_matrix``."""
     from calib.params import scale_matrix, theta_from
 
-    data = res.calibration.to_dict()
+    cal = res.calibration
     if any(k.startswith("scale") for k in res.fitted):
-        th = theta_from(res.calibration)
+        th = theta_from(cal)
         th[12:18] = [res.values[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")]
-        data["cam0"]["gyro_scale_matrix"] = scale_matrix(th).tolist()
-    write_yaml(path, data)
+        cal = cal.with_(gyro_scale_matrix=scale_matrix(th))
+    cal.to_yaml(path)
 
 
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
@@ -180,25 +170,6 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
         print(f"warning: {w}")
 
 
-def _scale_of(calib_path: str) -> Any:
-    """The optional ``gyro_scale_matrix`` (3, 3) of a calibration file, or None."""
-    import numpy as np
-
-    from blurtrack.yamlio import read_yaml
-    from calib.errors import CalibError
-
-    cam = (read_yaml(calib_path, "calibration file") or {}).get("cam0") or {}
-    if "gyro_scale_matrix" not in cam:
-        return None
-    try:
-        M = np.array(cam["gyro_scale_matrix"], dtype=float)
-    except (TypeError, ValueError):
-        M = np.zeros(0)
-    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M) - 1) > 0.5:
-        raise CalibError(f"{calib_path}: gyro_scale_matrix must be a finite 3x3 matrix near I")
-    return M
-
-
 def run_report(args: argparse.Namespace) -> int:
     from blurtrack.calibration import Calibration
     from blurtrack.report.build import build_report
@@ -206,7 +177,6 @@ def run_report(args: argparse.Namespace) -> int:
 
     session, table = _load(args)
     after = Calibration.from_yaml(args.calib)
-    scale = _scale_of(args.calib)
     before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
     fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
     fit = None
@@ -220,8 +190,7 @@ def run_report(args: argparse.Namespace) -> int:
     elif args.fit_summary:
         raise CalibError(f"fit summary not found: {fs_path}")
     summary = build_report(session, table, before, after, args.out, fit_summary=fit,
-                           n_overlays=args.overlays, gyro_upsample=args.gyro_upsample,
-                           gyro_scale_matrix=scale)
+                           n_overlays=args.overlays)
     for k in ("before", "after"):
         s = summary["overall"][k]
         print(f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.calibration import Calibration
-from blurtrack.gyro import GyroTrace
+from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.model import constant_mat3, omega_cam_fn
 from calib import init as init_mod
 from calib import uncertainty
@@ -60,9 +60,10 @@ class FitOptions:
     shift_window_s: float = 0.06
     max_iter: int = 30
     seed: int = 0
-    #: Cubic-spline upsampling of the gyro before linear interpolation (1 = plain linear);
-    #: see :meth:`blurtrack.gyro.GyroTrace.upsampled`.
-    gyro_upsample: int = 8
+    #: Cubic-spline upsampling of the gyro before linear interpolation: the blur model's
+    #: (:data:`blurtrack.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction and
+    #: synthesis do not use, so it is for experiments only.
+    gyro_upsample: int = GYRO_UPSAMPLE
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:

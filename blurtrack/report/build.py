@@ -18,7 +18,7 @@ import pandas as pd
 
 from blurtrack.calibration import Calibration
 from blurtrack.errors import BlurTrackError
-from blurtrack.gyro import GyroTrace
+from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.report import figures
 from blurtrack.report.html import render
 from blurtrack.report.metrics import (
@@ -77,31 +77,20 @@ def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     return track
 
 
-def corrected_gyro(gyro: GyroTrace, calib: Calibration, scale: np.ndarray) -> GyroTrace:
-    """Samples with the scale error removed: ``(I + S)⁻¹ (ω - b) + b`` (IMU frame, rad/s)."""
-    b = calib.gyro_bias_radps
-    w = np.linalg.solve(np.asarray(scale, float), (gyro.omega_radps - b).T).T + b
-    return GyroTrace(gyro.t_s, w, gyro.max_gap_s)
-
-
 def build_report(session: Session, table: pd.DataFrame, before: Calibration,
                  after: Calibration, out_dir: str | Path,
                  fit_summary: dict[str, Any] | None = None,
-                 n_overlays: int = N_OVERLAYS, gyro_upsample: int = 8,
-                 gyro_scale_matrix: np.ndarray | None = None) -> dict[str, Any]:
+                 n_overlays: int = N_OVERLAYS) -> dict[str, Any]:
     """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
 
-    ``gyro_upsample``: cubic-spline upsampling of the gyro (:meth:`GyroTrace.upsampled`), the
-    same as the calibration used. ``gyro_scale_matrix``: the ``I + S`` of the measurement
-    model ``ω_meas = (I + S) R_cam_imuᵀ ω_cam + bias`` where the calibration estimated it; the
-    ``after`` calibration then sees gyro samples corrected by ``(I + S)⁻¹``.
+    The gyro is resampled as the blur model does (:data:`~blurtrack.gyro.GYRO_UPSAMPLE`, the
+    calibration's too), and a fitted gyro scale matrix in ``after`` is applied by the model.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if len(table) == 0:
         raise ReportError("no streaks to report on")
-    raw = session.gyro().upsampled(gyro_upsample)
-    gyro = raw if gyro_scale_matrix is None else corrected_gyro(raw, after, gyro_scale_matrix)
+    raw = gyro = session.gyro()
     frames = session.frames
     errs = {"before": endpoint_errors(raw, table, frames, before),
             "after": endpoint_errors(gyro, table, frames, after)}
@@ -166,8 +155,8 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
         "n_uncovered": n_unc, "overall": overall, "motion_models": model_stats,
         "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
         "calibration_before": before.to_dict(), "calibration_after": after.to_dict(),
-        "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": gyro_upsample,
-        "gyro_scale_matrix": None if gyro_scale_matrix is None else gyro_scale_matrix,
+        "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": GYRO_UPSAMPLE,
+        "gyro_scale_matrix": after.gyro_scale_matrix,
         "files": ["report.html", "streak_errors.csv", "frame_errors.csv", "overall_errors.csv",
                   "summary.json"],
     })

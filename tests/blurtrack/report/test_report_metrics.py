@@ -104,12 +104,16 @@ def test_html_is_self_contained_and_escaped() -> None:
     assert "exact + RS" in page
 
 
-def test_corrected_gyro_removes_a_known_scale() -> None:
-    from blurtrack.report.build import corrected_gyro
+def test_blur_model_applies_a_calibrated_gyro_scale() -> None:
+    from blurtrack.trajectory import BlurModel
 
     calib, gyro, _, _ = _scene()
-    M = np.diag([1.02, 0.99, 1.0])
+    M = np.array([[1.02, 0.004, 0.0], [0.004, 0.99, 0.0], [0.0, 0.0, 1.0]])
     meas = GyroTrace(gyro.t_s, (gyro.omega_radps - calib.gyro_bias_radps) @ M.T
                      + calib.gyro_bias_radps)
-    back = corrected_gyro(meas, calib, M)
-    np.testing.assert_allclose(back.omega_radps, gyro.omega_radps, atol=1e-12)
+    t = np.linspace(gyro.t_s[5], gyro.t_s[-5], 50) - calib.timeshift_cam_imu_s
+    want = np.stack(BlurModel(calib, gyro).omega_cam_at(t), axis=1)
+    got = np.stack(BlurModel(calib.with_(gyro_scale_matrix=M), meas).omega_cam_at(t), axis=1)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    naive = np.stack(BlurModel(calib, meas).omega_cam_at(t), axis=1)
+    assert np.abs(naive - want).max() > 1e-3
