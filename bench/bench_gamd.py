@@ -44,7 +44,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--milestones", default="", help="comma list; default: 2/3 of steps")
     p.add_argument("--crop", type=int, default=64)
     p.add_argument("--batch", type=int, default=4)
-    p.add_argument("--lr", type=float, default=5e-4)
+    p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--heat-scale-px", type=float, default=16.0)
