@@ -150,3 +150,21 @@ def test_calibration_yaml_round_trip_and_errors(tmp_path: Path) -> None:
     (tmp_path / "evil.yaml").write_text("!!python/object/apply:os.system ['true']\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         Calibration.from_yaml(tmp_path / "evil.yaml")
+
+
+def test_validate_reports_undecodable_frames_and_uncovered_exposures(tmp_path: Path) -> None:
+    from blurtrack.cli import main
+    from blurtrack.validate import validate_session
+
+    folder = make_session(tmp_path)
+    rep = validate_session(folder)
+    assert rep.ok and rep.frames_covered == 3
+    (folder / "cam0" / "data" / "67000000.png").write_bytes(b"broken")
+    rep = validate_session(folder)
+    assert not rep.ok and "does not decode" in rep.errors[0]
+    assert main(["validate", str(folder)]) == 1
+    csv = folder / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:8]) + "\n")  # gyro ends after 30 ms
+    rep = validate_session(folder)
+    assert any("gyro covers" in w for w in rep.warnings)

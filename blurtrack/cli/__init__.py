@@ -1,6 +1,7 @@
 """The ``blurtrack`` command line.
 
-Subcommands live in modules that expose ``register(subparsers) -> None``; each registered parser
+Subcommands live in modules (``blurtrack/cli/<name>.py``, ``calib/cli.py``, ``rigs/cli.py``) that
+expose ``register(subparsers) -> None``; each registered parser
 sets ``func`` to a callable ``(argparse.Namespace) -> int``. The modules of the other packages
 (rigs, calib) are imported only when the parser is built, and they import their heavy
 dependencies inside their command functions, so ``blurtrack --help`` stays fast.
@@ -21,13 +22,14 @@ from blurtrack.errors import BlurTrackError
 #: Modules that contribute subcommands, in help order. A module that is missing from an
 #: installation (an optional package) is skipped, not fatal.
 COMMAND_MODULES: tuple[str, ...] = (
-    "blurtrack.commands.simulate",
-    "blurtrack.commands.importers",
-    "blurtrack.commands.detect",
-    "calib.commands",
-    "blurtrack.commands.predict",
-    "blurtrack.commands.synth",
-    "rigs.commands",
+    "blurtrack.cli.simulate",
+    "blurtrack.cli.importers",
+    "blurtrack.cli.validate",
+    "blurtrack.cli.detect",
+    "calib.cli",
+    "blurtrack.cli.predict",
+    "blurtrack.cli.synth",
+    "rigs.cli",
 )
 
 

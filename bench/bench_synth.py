@@ -1,0 +1,179 @@
+"""Benchmark of blur synthesis: triplets per second and the cost over a warp floor.
+
+For each output size (1280x720 and 640x360) the same seeded triplets are made, interleaved, by
+(a) the exact renderer (``mode=exact``), (b) the source paper's approximation (``mode=paper``)
+and (c) the floor: as many ``cv2.warpPerspective`` calls on a float32 RGB image as the exact
+renderer used samples. All single-process, in memory (no file writing). Then the 1280x720
+dataset build with 2 worker processes (PNG + npy writing included) gives the end-to-end rate.
+Also reported: the heat maps' Bezier fit share within 0.5 px, and the error that heat-map
+``stride`` adds against ``stride=1``. Prints one JSON object; ratios and medians, since the
+machine is shared and noisy.
+
+    PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blurtrack.calibration import Calibration
+from blurtrack.camera import Camera
+from blurtrack.synth.dataset import DatasetSpec, build
+from blurtrack.synth.images import camera_for_size, list_images, load_image
+from blurtrack.synth.motion import open_source
+from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
+from blurtrack.trajectory import BlurModel
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CALIB = Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))
+
+
+def floor_time(n: int, size: tuple[int, int], rng: np.random.Generator) -> float:
+    W, H = size
+    img = rng.random((H, W, 3), dtype=np.float32)
+    M = np.array([[1.0, 0.002, 1.3], [-0.002, 1.0, 0.7], [1e-6, -1e-6, 1.0]])
+    t0 = time.perf_counter()
+    for _ in range(n):
+        cv2.warpPerspective(img, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                            borderMode=cv2.BORDER_REFLECT_101)
+    return time.perf_counter() - t0
+
+
+def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
+    src = open_source(gyro)
+    names = list_images(images)
+    rng = np.random.default_rng(0)
+    exact_t, paper_t, floor_t, samples, fits = [], [], [], [], []
+    img_diff, heat_diff = [], []
+    for i in range(n):
+        img = load_image(images, names[i % len(names)])
+        t0 = time.perf_counter()
+        tr = make_triplet(img, CALIB, src, TripletParams(size=size), triplet_rng(1, i))
+        exact_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        pp = make_triplet(img, CALIB, src, TripletParams(size=size, mode="paper"),
+                          triplet_rng(1, i))
+        paper_t.append(time.perf_counter() - t0)
+        both = tr.valid & pp.valid
+        img_diff.append(float(np.mean(np.abs(tr.blur.astype(float) - pp.blur)[both])))
+        heat_diff.append(float(np.percentile(np.abs(tr.heat - pp.heat), 99)))
+        floor_t.append(floor_time(tr.info["samples"], size, rng))
+        samples.append(tr.info["samples"])
+        fits.append(tr.info["bezier_fit"]["within_0.5px"])
+    ratio = [e / f for e, f in zip(exact_t, floor_t, strict=True)]
+    return {
+        "size": list(size), "triplets": n, "median_samples": statistics.median(samples),
+        "exact_triplets_per_s": 1 / statistics.median(exact_t),
+        "paper_triplets_per_s": 1 / statistics.median(paper_t),
+        "floor_triplets_per_s": 1 / statistics.median(floor_t),
+        "exact_over_floor_median": statistics.median(ratio),
+        "paper_over_floor_median": statistics.median(
+            [p / f for p, f in zip(paper_t, floor_t, strict=True)]),
+        "paper_vs_exact_blur_mean_abs_8bit": statistics.median(img_diff),
+        "paper_vs_exact_heat_p99_px": statistics.median(heat_diff),
+        "bezier_fit_within_0.5px_mean": float(np.mean(fits)),
+        "bezier_fit_within_0.5px_min": float(np.min(fits)),
+    }
+
+
+def stride_error(gyro: str, size: tuple[int, int]) -> dict:
+    src = open_source(gyro)
+    cam = camera_for_size(CALIB.camera, *size)
+    out = {}
+    for i in range(3):
+        rng = triplet_rng(5, i)
+        seg = src.segment(rng, 0.045, 0.05)
+        m = BlurModel(Calibration(cam), seg.trace)
+        full, _ = m.heat_maps(seg.frame_t_s, 0.025, 16, None, 1)
+        for s in (4, 8, 16):
+            approx, _ = m.heat_maps(seg.frame_t_s, 0.025, 16, None, s)
+            e = np.abs(approx - full)
+            d = out.setdefault(f"stride_{s}", {"max_px": 0.0, "p99_px": 0.0})
+            d["max_px"] = max(d["max_px"], float(e.max()))
+            d["p99_px"] = max(d["p99_px"], float(np.percentile(e, 99)))
+    return out
+
+
+def fit_share(gyro: str, n: int) -> dict:
+    """Share of 1280x720 pixels whose trajectory the quadratic Bezier fits within 0.5 px, over
+    ``n`` random shake segments per exposure (the paper claims 99.9 %)."""
+    src = open_source(gyro)
+    cam = camera_for_size(CALIB.camera, 1280, 720)
+    out = {}
+    for exp_ms in (10.0, 20.0, 30.0, 60.0):
+        shares = []
+        for i in range(n):
+            seg = src.segment(triplet_rng(9, i), cam.readout_s + exp_ms * 1e-3, 0.05)
+            _, err = BlurModel(Calibration(cam), seg.trace).heat_maps(
+                seg.frame_t_s, exp_ms * 1e-3, 16, None, 8)
+            shares.append(float(np.mean(err <= 0.5)))
+        out[f"exposure_{exp_ms:g}ms"] = {"mean": float(np.mean(shares)),
+                                         "p05": float(np.percentile(shares, 5)),
+                                         "min": float(np.min(shares))}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=8, help="triplets per size")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--build-count", type=int, default=16)
+    ap.add_argument("--fit-segments", type=int, default=50)
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    shake = DATA / "real" / "gyrodeblurnet-shake"
+    gyro = str(shake) if shake.is_dir() else "synthetic:0.7"
+    images = DATA / "backgrounds" / "bsds500"
+    if not images.is_dir():
+        raise SystemExit(f"backgrounds not found at {images}")
+    result = {"gyro": Path(gyro).name, "calibration": "1280x720 f=1000 px readout 20 ms",
+              "exposure_ms": [10, 30]}
+    result["sizes"] = [bench_size((1280, 720), args.n, gyro, images),
+                       bench_size((640, 360), 2 * args.n, gyro, images)]
+    result["heat_stride_error_vs_stride_1"] = {
+        f"{w}x{h}": stride_error(gyro, (w, h)) for w, h in ((1280, 720), (640, 360))}
+    result["bezier_fit_within_0.5px_1280x720"] = fit_share(gyro, args.fit_segments)
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images),
+                           count=args.build_count, seed=3, params=TripletParams())
+        t0 = time.perf_counter()
+        res = build(spec, Path(tmp) / "ds", workers=args.workers)
+        wall = time.perf_counter() - t0
+    result["build_1280x720"] = {"workers": args.workers, "triplets": res.made,
+                                "wall_s": wall, "triplets_per_s": res.made / wall}
+    with tempfile.TemporaryDirectory() as tmp:
+        # CPU time per triplet of an in-process build (files written): the machine is shared,
+        # so CPU seconds say more than wall seconds about an idle 2-core machine.
+        def mk(count: int, seed: int) -> DatasetSpec:
+            return DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images),
+                               count=count, seed=seed, params=TripletParams())
+
+        build(mk(1, 5), Path(tmp) / "warm", workers=1)  # imports, shake file, caches
+        spec1 = mk(max(4, args.build_count // 2), 4)
+        c0 = time.process_time()
+        res1 = build(spec1, Path(tmp) / "cpu", workers=1)
+        cpu = (time.process_time() - c0) / res1.made
+    result["build_1280x720"].update({
+        "cpu_s_per_triplet_in_process": cpu,
+        "estimated_idle_2core_triplets_per_s": 2.0 / cpu})
+    big = result["sizes"][0]
+    result["targets"] = {
+        "exact_within_3x_of_floor_1280x720": big["exact_over_floor_median"] <= 3.0,
+        "build_5_triplets_per_s_1280x720": res.made / wall >= 5.0,
+        "estimated_idle_2core_5_triplets_per_s": 2.0 / cpu >= 5.0,
+        "load_average_1min": os.getloadavg()[0],
+    }
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,1 +1,0 @@
-"""Subcommands of the blurtrack CLI (one module each, see blurtrack.cli)."""

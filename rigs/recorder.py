@@ -1,0 +1,307 @@
+"""The recorder: IMU and camera threads feeding one writer that flushes small chunks.
+
+One thread per device reads and timestamps; the camera thread also serialises frames (raw
+pixels by default, or PNG, during which OpenCV releases the GIL), with at most ``frame_queue``
+frames waiting for the writer. The calling thread writes everything into the log in arrival
+order and closes a chunk every ``flush_interval_s``, so a killed recorder loses at most that
+much. A status snapshot (rates, drops, CRC errors, what is safely on disk) goes to ``on_status``
+every ``status_interval_s``. The recording ends on :meth:`Recorder.stop` (Ctrl-C), after
+``duration_s``, when the camera stream ends (plus ``after_camera_end_s`` of IMU), or when a
+device disconnects; in every case what the devices delivered is written and the log is finished
+properly before :meth:`Recorder.run` returns.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rigs.camera_types import CameraFrame, CameraSource, image_info
+from rigs.clock import Clock, MonotonicClock
+from rigs.errors import DeviceDisconnectedError, RigConfigError, RigError
+from rigs.imu import ImuBatch, ImuDriver
+from rigs.reclog import RecLogWriter
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """Timing of flushes and status lines, optional duration, how frames are stored (``raw``
+    pixels, the default, or ``png``: ~60 ms per noisy 1280 x 720 frame, too slow for 30 fps on
+    one core), PNG effort, frame queue depth, and whether the end of a camera stream (a
+    replayed file) ends the recording."""
+
+    flush_interval_s: float = 0.25
+    status_interval_s: float = 0.5
+    duration_s: float | None = None
+    frame_encoding: str = "raw"
+    png_compression: int = 1
+    frame_queue: int = 8
+    stop_when_camera_ends: bool = True
+    after_camera_end_s: float = 0.3  # IMU keeps recording this long after the last frame
+    # (a virtual board with a sample limit is instead recorded to its last sample)
+
+    def __post_init__(self) -> None:
+        if not 0.01 <= self.flush_interval_s <= 1.0:
+            raise RigConfigError("flush_interval_s must be in [0.01, 1] (crash loss bound)")
+        if self.after_camera_end_s < 0:
+            raise RigConfigError("after_camera_end_s must be non-negative")
+        if self.status_interval_s <= 0 or (self.duration_s is not None and self.duration_s <= 0):
+            raise RigConfigError("status_interval_s and duration_s must be positive")
+        if self.frame_encoding not in ("raw", "png"):
+            raise RigConfigError("frame_encoding must be raw or png")
+        if not 0 <= self.png_compression <= 9 or self.frame_queue < 1:
+            raise RigConfigError("png_compression must be 0..9 and frame_queue >= 1")
+
+
+@dataclass
+class RecorderStatus:
+    """A live snapshot; ``flushed_*`` counts are on disk (survive SIGKILL)."""
+
+    elapsed_s: float = 0.0
+    imu_samples: int = 0
+    imu_rate_hz: float = 0.0
+    frames: int = 0
+    fps: float = 0.0
+    imu_crc_errors: int = 0
+    imu_dropped: int = 0
+    imu_resyncs: int = 0
+    camera_dropped: int = 0
+    flushed_imu_samples: int = 0
+    flushed_frames: int = 0
+    log_bytes: int = 0
+
+    def line(self) -> str:
+        return (f"{self.elapsed_s:7.1f} s  imu {self.imu_samples} ({self.imu_rate_hz:.0f} Hz, "
+                f"dropped {self.imu_dropped}, crc {self.imu_crc_errors}, resync "
+                f"{self.imu_resyncs})  cam {self.frames} ({self.fps:.1f} fps, dropped "
+                f"{self.camera_dropped})  flushed imu {self.flushed_imu_samples} frames "
+                f"{self.flushed_frames}  {self.log_bytes / 1e6:.1f} MB")
+
+
+@dataclass
+class RecordResult:
+    """How a recording ended."""
+
+    log_path: Path
+    status: RecorderStatus
+    imu_stats: dict[str, int] = field(default_factory=dict)
+    stopped_by: str = ""  # "stop", "duration", "camera-ended", "error"
+    error: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"log": str(self.log_path), "status": asdict(self.status),
+                "imu_stats": self.imu_stats, "stopped_by": self.stopped_by, "error": self.error}
+
+
+class Recorder:
+    """Record ``imu`` and/or ``camera`` into ``log_path`` (see module docstring)."""
+
+    def __init__(
+        self,
+        log_path: str | Path,
+        imu: ImuDriver | None,
+        camera: CameraSource | None,
+        metadata: dict[str, str] | None = None,
+        config: RecorderConfig | None = None,
+        clock: Clock | None = None,
+        on_status: Callable[[RecorderStatus], None] | None = None,
+    ) -> None:
+        if imu is None and camera is None:
+            raise RigError("nothing to record: give an IMU, a camera or both")
+        self.log_path = Path(log_path)
+        self.imu, self.camera = imu, camera
+        self.metadata = dict(metadata or {})
+        self.config = config or RecorderConfig()
+        self.clock = clock or MonotonicClock()
+        self.on_status = on_status
+        self._stop = threading.Event()
+        self._q: queue.Queue[tuple[str, Any]] = queue.Queue()
+        self._frame_slots = threading.Semaphore(self.config.frame_queue)
+        self.status = RecorderStatus()
+
+    def stop(self) -> None:
+        """Ask for a clean stop (thread- and signal-safe)."""
+        self._stop.set()
+
+    # ----------------------------------------------------------------- device threads
+    def _imu_loop(self) -> None:
+        assert self.imu is not None
+        try:
+            while not self._stop.is_set():
+                batch = self.imu.read()
+                if len(batch):
+                    self._q.put(("imu", batch))
+        except DeviceDisconnectedError as exc:
+            self._q.put(("error", str(exc)))
+        except RigError as exc:
+            self._q.put(("error", f"IMU failed: {exc}"))
+
+    def _camera_loop(self) -> None:
+        import cv2
+
+        assert self.camera is not None
+        params = [cv2.IMWRITE_PNG_COMPRESSION, self.config.png_compression]
+        try:
+            while not self._stop.is_set():
+                frame = self.camera.read()
+                if frame is None:
+                    self._q.put(("camera-ended", None))
+                    return
+                image_info(frame.image)
+                if self.config.frame_encoding == "png":
+                    ok, buf = cv2.imencode(".png", frame.image, params)
+                    if not ok:
+                        self._q.put(("error", f"cannot PNG-encode frame {frame.index}"))
+                        return
+                    data = buf.tobytes()
+                else:
+                    data = np.ascontiguousarray(frame.image).tobytes()
+                while not self._frame_slots.acquire(timeout=0.1):  # writer is behind
+                    if self._stop.is_set():
+                        return
+                self._q.put(("frame", (frame, data)))
+        except DeviceDisconnectedError as exc:
+            self._q.put(("error", str(exc)))
+        except RigError as exc:
+            self._q.put(("error", f"camera failed: {exc}"))
+
+    # ----------------------------------------------------------------- writer
+    def _write(self, log: RecLogWriter, kind: str, payload: Any, counts: dict[str, int]) -> None:
+        if kind == "imu":
+            b: ImuBatch = payload
+            log.write_imu(int(b.host_ns[-1]), b.index, b.t_dev_us, b.host_ns, b.gyro_radps,
+                          b.accel_mps2)
+            counts["imu"] += len(b)
+        elif kind == "frame":
+            frame, data = payload
+            f: CameraFrame = frame
+            log.write_frame(f, data, self.config.frame_encoding)
+            self._frame_slots.release()
+            counts["frames"] += 1
+
+    def _snapshot(self, t_ns: int, start_ns: int, counts: dict[str, int],
+                  flushed: dict[str, int], log: RecLogWriter) -> RecorderStatus:
+        s = self.status
+        elapsed = (t_ns - start_ns) * 1e-9
+        s.elapsed_s = elapsed
+        s.imu_samples, s.frames = counts["imu"], counts["frames"]
+        s.imu_rate_hz = counts["imu"] / elapsed if elapsed > 0 else 0.0
+        s.fps = counts["frames"] / elapsed if elapsed > 0 else 0.0
+        if self.imu is not None:
+            st = self.imu.stats
+            s.imu_crc_errors, s.imu_dropped, s.imu_resyncs = (
+                st["crc_errors"], st["dropped"], st["resyncs"])
+        if self.camera is not None:
+            s.camera_dropped = int(self.camera.frames_dropped)
+        s.flushed_imu_samples, s.flushed_frames = flushed["imu"], flushed["frames"]
+        s.log_bytes = log.bytes_written
+        return s
+
+    def run(self) -> RecordResult:
+        """Record until stopped; always leaves a finished log. Ctrl-C stops cleanly."""
+        cfg = self.config
+        log = RecLogWriter(self.log_path, self.metadata)
+        threads = []
+        if self.imu is not None:
+            threads.append(threading.Thread(target=self._imu_loop, name="rec-imu", daemon=True))
+        if self.camera is not None:
+            threads.append(threading.Thread(target=self._camera_loop, name="rec-cam",
+                                            daemon=True))
+        start_ns = self.clock.now_ns()
+        log.write_event(start_ns, "info", "recording started")
+        for t in threads:
+            t.start()
+        counts = {"imu": 0, "frames": 0}
+        flushed = dict(counts)
+        next_flush = start_ns + round(cfg.flush_interval_s * 1e9)
+        next_status = start_ns + round(cfg.status_interval_s * 1e9)
+        stopped_by, error = "stop", None
+        camera_end_ns: int | None = None
+        try:
+            while True:
+                try:
+                    kind, payload = self._q.get(timeout=0.02)
+                except queue.Empty:
+                    kind, payload = "", None
+                if kind == "error":
+                    error, stopped_by = payload, "error"
+                    log.write_event(self.clock.now_ns(), "error", payload)
+                    break
+                if kind == "camera-ended" and cfg.stop_when_camera_ends:
+                    stopped_by = "camera-ended"
+                    camera_end_ns = self.clock.now_ns()
+                self._write(log, kind, payload, counts)
+                if camera_end_ns is not None and self._imu_done(camera_end_ns):
+                    break
+                now = self.clock.now_ns()
+                if now >= next_flush:
+                    self._flush(log, now, start_ns, counts, flushed)
+                    next_flush = now + round(cfg.flush_interval_s * 1e9)
+                if now >= next_status:
+                    next_status = now + round(cfg.status_interval_s * 1e9)
+                    if self.on_status is not None:
+                        self.on_status(self._snapshot(now, start_ns, counts, flushed, log))
+                if self._stop.is_set():
+                    break
+                if cfg.duration_s is not None and now - start_ns >= cfg.duration_s * 1e9:
+                    stopped_by = "duration"
+                    break
+        except KeyboardInterrupt:
+            stopped_by = "stop"
+        finally:
+            self._stop.set()
+            for t in threads:
+                t.join(timeout=5.0)
+            while True:  # what the devices delivered before they stopped is kept
+                try:
+                    kind, payload = self._q.get_nowait()
+                except queue.Empty:
+                    break
+                if kind == "error" and error is None:
+                    error, stopped_by = payload, "error"
+                    log.write_event(self.clock.now_ns(), "error", payload)
+                self._write(log, kind, payload, counts)
+            end_ns = self.clock.now_ns()
+            self._flush(log, end_ns, start_ns, counts, flushed)
+            log.write_event(end_ns, "info", f"recording stopped ({stopped_by})")
+            log.finish()
+        status = self._snapshot(end_ns, start_ns, counts, flushed, log)
+        if self.on_status is not None:
+            self.on_status(status)
+        imu_stats = self.imu.stats if self.imu is not None else {}
+        return RecordResult(self.log_path, status, imu_stats, stopped_by, error)
+
+    def _imu_done(self, camera_end_ns: int) -> bool:
+        """After the camera ended: has the IMU delivered what belongs to the recording?"""
+        imu = self.imu
+        if imu is None or imu.exhausted:
+            return True
+        dev = imu.device
+        if dev is not None and dev.config.n_samples is not None:
+            return False  # a finite virtual board: wait for its last sample
+        return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
+
+    def _flush(self, log: RecLogWriter, now: int, start_ns: int, counts: dict[str, int],
+               flushed: dict[str, int]) -> None:
+        stats: dict[str, Any] = {"imu_samples": counts["imu"], "frames": counts["frames"]}
+        if self.imu is not None:
+            stats["imu"] = self.imu.stats
+        if self.camera is not None:
+            stats["camera_dropped"] = int(self.camera.frames_dropped)
+        log.write_stats(now, stats)
+        log.flush()
+        flushed.update(counts)
+
+
+def rate_of(t_ns: np.ndarray) -> float:
+    """Median rate (Hz) of increasing timestamps (ns); 0 for fewer than two."""
+    if t_ns.size < 2:
+        return 0.0
+    dt = np.median(np.diff(t_ns))
+    return float(1e9 / dt) if dt > 0 else 0.0
