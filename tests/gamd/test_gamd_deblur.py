@@ -67,6 +67,11 @@ def test_deblur_refuses_missing_heat(checkpoint, tmp_path, capsys) -> None:
     assert main(["deblur", str(session), "--checkpoint", str(checkpoint),
                  "--out", str(tmp_path / "o2")]) == 2
     assert "needs heat maps" in capsys.readouterr().err
+    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
+                 "--out", str(tmp_path / "o3"), "--skip-missing"]) == 0
+    assert "1 skipped" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "o3/summary.json").read_text())
+    assert summary["frames"] == stamps[:1] and summary["skipped"] == stamps[1:]
 
 
 def test_frame_to_rgb_conventions() -> None:
