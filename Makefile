@@ -21,7 +21,8 @@ lint: venv
 	$(BIN)/ruff check .
 
 demo: venv
-	$(BIN)/python -m blurtrack.demo --out $(DEMO_OUT)
+	rm -rf $(DEMO_OUT)
+	$(BIN)/blurtrack demo --out $(DEMO_OUT)
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build *.egg-info

@@ -2,7 +2,9 @@
 
 See DESIGN.md ("Calibration file"). ``T_cam_imu`` maps IMU-frame vectors into the camera frame;
 only its rotation matters to the pure-rotation blur model, its translation is carried through.
-``timeshift_cam_imu`` follows Kalibr's sign: ``t_imu = t_cam + shift``.
+``timeshift_cam_imu`` follows Kalibr's sign: ``t_imu = t_cam + shift``. The optional extra key
+``gyro_scale_matrix`` is the ``M`` of ``ω_meas = M R_cam_imuᵀ ω_cam + bias`` (gyro scale and
+cross-axis error, IMU frame); it is written only when it differs from the identity.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ class Calibration:
     gyro_bias_radps: np.ndarray = field(default_factory=lambda: np.zeros(3))
     t_cam_imu_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sigma: dict[str, Any] = field(default_factory=dict)
+    gyro_scale_matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     def __post_init__(self) -> None:
         R = np.array(self.R_cam_imu, dtype=float)
@@ -48,6 +51,11 @@ class Calibration:
         shift = float(self.timeshift_cam_imu_s)
         if not math.isfinite(shift) or abs(shift) > 10.0:
             raise ConfigError(f"timeshift_cam_imu must be finite and under 10 s, got {shift}")
+        M = np.array(self.gyro_scale_matrix, dtype=float)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or not 0.5 < np.linalg.det(M) < 1.5:
+            raise ConfigError("gyro_scale_matrix must be a finite 3x3 matrix near the identity")
+        M.setflags(write=False)
+        object.__setattr__(self, "gyro_scale_matrix", M)
         bias.setflags(write=False)
         t.setflags(write=False)
         object.__setattr__(self, "R_cam_imu", R)
@@ -85,6 +93,8 @@ class Calibration:
             "readout_s": float(cam.readout_s),
             "gyro_bias_radps": [float(v) for v in self.gyro_bias_radps],
         }
+        if not np.array_equal(self.gyro_scale_matrix, np.eye(3)):
+            entry["gyro_scale_matrix"] = self.gyro_scale_matrix.tolist()
         if self.sigma:
             entry["sigma"] = _plain(self.sigma)
         return {"cam0": entry}
@@ -116,6 +126,8 @@ class Calibration:
                 timeshift_cam_imu_s=float(c.get("timeshift_cam_imu", 0.0)),
                 gyro_bias_radps=np.array(c.get("gyro_bias_radps", [0.0, 0.0, 0.0]), float),
                 sigma=dict(c.get("sigma") or {}),
+                gyro_scale_matrix=np.array(c.get("gyro_scale_matrix", np.eye(3).tolist()),
+                                           dtype=float),
             )
         except ConfigError:
             raise

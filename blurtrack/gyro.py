@@ -1,17 +1,26 @@
 """Gyroscope traces: samples on the IMU clock and their interpolation.
 
-Between samples ω is interpolated piecewise linearly (DESIGN: state how ω is interpolated). The
+:class:`GyroTrace` interpolates ω piecewise linearly between its samples; the blur model first
+resamples the measured trace through a cubic spline (:data:`GYRO_UPSAMPLE`, DESIGN: state how ω
+is interpolated), so that fast shake is not under-reported between 200 Hz samples. The
 trace refuses to answer for times it does not cover: outside its first and last sample, or
 inside a gap longer than ``max_gap_s``.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from blurtrack.errors import CoverageError, GeometryError
+
+#: How the blur model interpolates ω between gyro samples: a not-a-knot cubic spline through
+#: the samples, evaluated as linear interpolation of its ``GYRO_UPSAMPLE``-times denser
+#: resampling (:meth:`GyroTrace.upsampled`). Prediction, synthesis, reports and the CasADi
+#: calibration all use this one value.
+GYRO_UPSAMPLE = 8
 
 
 @dataclass(frozen=True)
@@ -92,3 +101,40 @@ class GyroTrace:
         i0 = max(int(np.searchsorted(self.t_s, t0_s, side="right")) - 1, 0)
         i1 = min(int(np.searchsorted(self.t_s, t1_s, side="left")) + 1, self.t_s.size)
         return GyroTrace(self.t_s[i0:i1], self.omega_radps[i0:i1], self.max_gap_s)
+
+    def upsampled(self, factor: int) -> GyroTrace:
+        """The trace resampled ``factor`` times more densely through cubic splines.
+
+        Linear interpolation of point samples under-reports fast motion: between samples it
+        cuts the curvature of ω, so the integrated angle of a component at frequency ``F`` is
+        low by about ``(2π F Δt)² / 12`` (1.9 % at 15 Hz for a 200 Hz gyro). A cubic spline
+        through the samples (scipy's not-a-knot ``CubicSpline``) is accurate to ``O(Δt⁴)``;
+        linear interpolation of its dense resampling then stays within ``(2π F Δt / factor)² / 12``.
+        The original samples are kept; gaps longer than ``max_gap_s`` are not bridged (each
+        covered segment is splined on its own, segments under 4 samples stay linear).
+
+        >>> tr = GyroTrace(np.arange(6.0), np.stack([np.arange(6.0) ** 2] * 3, axis=1))
+        >>> round(float(tr.upsampled(2).omega_at(np.array([2.5]))[0, 0]), 9)
+        6.25
+        """
+        from scipy.interpolate import CubicSpline
+
+        k = int(factor)
+        if k < 1:
+            raise GeometryError(f"upsampling factor must be >= 1, got {factor}")
+        if k == 1:
+            return self
+        bounds = np.concatenate([[0], self._gap_starts + 1, [self.t_s.size]])
+        ts, ws = [], []
+        for a, b in itertools.pairwise(bounds):
+            t, w = self.t_s[a:b], self.omega_radps[a:b]
+            if t.size < 4:
+                ts.append(t)
+                ws.append(w)
+                continue
+            frac = np.arange(k) / k
+            tt = (t[:-1, None] + np.diff(t)[:, None] * frac[None, :]).reshape(-1)
+            tt = np.append(tt, t[-1])
+            ts.append(tt)
+            ws.append(CubicSpline(t, w, axis=0)(tt))
+        return GyroTrace(np.concatenate(ts), np.concatenate(ws), self.max_gap_s)

@@ -8,7 +8,9 @@ of rotation matrices is a row-major 9-tuple of arrays. Conventions are those of 
 
 - ``R_c(t)`` is the camera orientation (camera to world) at camera time ``t``; the body-frame
   angular velocity ``omega_cam`` drives ``dR/dt = R [omega_cam]_x``.
-- ``omega_cam = R_cam_imu (omega_imu_meas(t + timeshift_cam_imu) - bias)``.
+- ``omega_cam = R_cam_imu M^-1 (omega_imu_meas(t + timeshift_cam_imu) - bias)`` with ``M`` the
+  gyro's scale / cross-axis matrix (identity unless calibrated): the measurement model is
+  ``omega_meas = M R_cam_imu^T omega_cam + bias + noise``.
 - A static direction seen at pixel ``x`` at ``t0`` is seen at ``t1`` at
   ``pi(K R_c(t1)^T R_c(t0) K^-1 x)``.
 
@@ -261,6 +263,7 @@ def rolling_endpoint_c(
     dist: Sequence[Any],
     n_sub: int,
     ops: Any = NUMPY_OPS,
+    rotation: Callable[..., Mat3] = relative_rotation,
 ) -> tuple[Any, Any, Any]:
     """Where, and when, a moving point crosses its row's start (+ ``offset_s``) of exposure.
 
@@ -273,7 +276,8 @@ def rolling_endpoint_c(
     t = row_start_c(frame_t_s, v_ref, readout_s, height) + offset_s
     u, v = u_ref, v_ref
     for _ in range(ROW_TIME_ITERATIONS):
-        u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops)
+        u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops,
+                      rotation)
         t = row_start_c(frame_t_s, v, readout_s, height) + offset_s
-    u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops)
+    u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops, rotation)
     return u, v, t

@@ -16,7 +16,7 @@ import numpy as np
 from blurtrack import heatmap
 from blurtrack.calibration import Calibration
 from blurtrack.errors import GeometryError
-from blurtrack.gyro import GyroTrace
+from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.model import (
     DEFAULT_MAX_SUBSTEP_S,
     NUMPY_OPS,
@@ -52,6 +52,9 @@ class BlurModel:
         rotation_model: ``"exact"`` or ``"small_angle"`` (the paper's approximation).
         check_coverage: refuse times the gyro does not cover (default) instead of
             extrapolating with the end samples.
+        gyro_upsample: cubic-spline resampling factor of the measured gyro
+            (:data:`~blurtrack.gyro.GYRO_UPSAMPLE`, the calibration's; 1 = plain linear
+            interpolation of the samples). ``model.gyro`` is the resampled trace.
     """
 
     calib: Calibration
@@ -59,8 +62,17 @@ class BlurModel:
     max_substep_s: float = DEFAULT_MAX_SUBSTEP_S
     rotation_model: str = "exact"
     check_coverage: bool = True
+    gyro_upsample: int = GYRO_UPSAMPLE
 
     def __post_init__(self) -> None:
+        if self.gyro_upsample > 1:
+            object.__setattr__(self, "gyro", self.gyro.upsampled(self.gyro_upsample))
+        M = self.calib.gyro_scale_matrix
+        A = self.calib.R_cam_imu if np.allclose(M, np.eye(3), atol=0, rtol=0) \
+            else self.calib.R_cam_imu @ np.linalg.inv(M)
+        object.__setattr__(self, "_omega_fn", omega_cam_fn(
+            self.gyro.omega_components, constant_mat3(A), tuple(self.calib.gyro_bias_radps),
+            self.calib.timeshift_cam_imu_s))
         if self.rotation_model not in ROTATION_MODELS:
             raise GeometryError(f"rotation_model must be one of {sorted(ROTATION_MODELS)}")
         if not self.max_substep_s > 0:
@@ -73,9 +85,7 @@ class BlurModel:
 
     def omega_cam_at(self, t_cam_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Camera-frame ω (rad/s) at camera times, as a component tuple."""
-        fn = omega_cam_fn(self.gyro.omega_components, constant_mat3(self.calib.R_cam_imu),
-                          tuple(self.calib.gyro_bias_radps), self.calib.timeshift_cam_imu_s)
-        return fn(np.asarray(t_cam_s, dtype=float))
+        return self._omega_fn(np.asarray(t_cam_s, dtype=float))  # type: ignore[attr-defined]
 
     def _check(self, *times: np.ndarray) -> None:
         if not self.check_coverage:
@@ -153,7 +163,7 @@ class BlurModel:
         for offset in (0.0 * exp, exp):
             u, v, t = rolling_endpoint_c(px[:, 0], px[:, 1], tref, ft, offset, cam.readout_s,
                                          cam.height, self.omega_cam_at, cam.intrinsics, cam.dist,
-                                         nsub, NUMPY_OPS)
+                                         nsub, NUMPY_OPS, ROTATION_MODELS[self.rotation_model])
             out.append((np.stack([u, v], axis=1), t))
         (start, t_s), (end, t_e) = out
         return start, end, t_s, t_e

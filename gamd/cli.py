@@ -70,9 +70,11 @@ def _eval(args: argparse.Namespace) -> int:
 def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
-    s = deblur_session(args.checkpoint, args.session, args.heat, args.out, limit=args.limit)
+    s = deblur_session(args.checkpoint, args.session, args.heat, args.out, limit=args.limit,
+                       skip_missing=args.skip_missing)
+    skipped = f", {len(s.skipped)} skipped (no heat map)" if s.skipped else ""
     print(f"gamd deblur: {len(s.frames)} frames of {args.session} restored by {s.model} "
-          f"into {s.out_dir}")
+          f"into {s.out_dir}{skipped}")
     return 0
 
 
@@ -105,6 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heat", default=None, help="output folder of blurtrack predict")
     p.add_argument("--out", required=True)
     p.add_argument("--limit", type=int, default=None)
+    p.add_argument("--skip-missing", action="store_true",
+                   help="skip frames without a heat map (predict --skip-uncovered)")
     p.set_defaults(func=_deblur)
     return parser
 

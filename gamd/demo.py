@@ -1,6 +1,6 @@
 """The deblurring end of ``make demo``: a short GAMD training run and a before/after picture.
 
-:func:`run_demo` trains the tiny GAMD for a few steps on a dataset in ``blurtrack synth``'s
+:func:`demo_train` trains the tiny GAMD for a few steps on a dataset in ``blurtrack synth``'s
 layout (the demo synthesises one first), restores the first test image and writes
 ``OUT/before_after.png`` (blurred | restored | sharp) plus ``OUT/summary.json``.
 """
@@ -17,7 +17,7 @@ from gamd.infer import side_by_side, write_rgb
 from gamd.train import train
 
 
-def run_demo(dataset: str | Path, out_dir: str | Path, steps: int = 100, crop: int = 64,
+def demo_train(dataset: str | Path, out_dir: str | Path, steps: int = 100, crop: int = 64,
              batch_size: int = 4, seed: int = 0, threads: int | None = None,
              progress: bool = True) -> dict:
     """Train tiny GAMD for ``steps`` steps and write the before/after picture; returns the
@@ -31,7 +31,8 @@ def run_demo(dataset: str | Path, out_dir: str | Path, steps: int = 100, crop: i
                   "threads": threads, "checkpoint_every": steps, "progress": progress,
                   "tensorboard": False}})
     res = train(config, resume="auto")
-    test = DeblurDataset(dataset, "test", crop=None, augment=False,
+    split = "test" if (Path(dataset) / "test").is_dir() else "train"  # tiny demo sets
+    test = DeblurDataset(dataset, split, crop=None, augment=False,
                          heat_scale_px=config.data.heat_scale_px)
     item = test.full(0)
     restored = restore(res.model, item["blur"], item["heat"]).permute(1, 2, 0).numpy()
@@ -40,7 +41,7 @@ def run_demo(dataset: str | Path, out_dir: str | Path, steps: int = 100, crop: i
     picture = out / "before_after.png"
     write_rgb(picture, side_by_side(blur, restored, sharp))
     (bp, bs), (rp, rs) = psnr_ssim(blur, sharp), psnr_ssim(restored, sharp)
-    summary = {"image": test.triplets[0].name, "steps": steps, "picture": str(picture),
+    summary = {"image": f"{split}/{test.triplets[0].name}", "steps": steps, "picture": str(picture),
                "blurred_psnr_db": bp, "blurred_ssim": bs, "restored_psnr_db": rp,
                "restored_ssim": rs, "checkpoint": str(res.checkpoint)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

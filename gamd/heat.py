@@ -74,7 +74,8 @@ def rot90(image: torch.Tensor, heat: torch.Tensor | None = None, k: int = 1
 def augment(images: list[torch.Tensor], heat: torch.Tensor | None, flip_h: bool, flip_v: bool,
             quarter_turns: int) -> tuple[list[torch.Tensor], torch.Tensor | None]:
     """Apply the same flips and rotation to every image and, consistently, to the heat maps."""
-    out_heat = heat
+    if not images:
+        raise GamdConfigError("augment needs at least one image")
     outs = []
     for i, im in enumerate(images):
         h = heat if i == 0 else None
@@ -85,8 +86,6 @@ def augment(images: list[torch.Tensor], heat: torch.Tensor | None, flip_h: bool,
         if quarter_turns:
             im, h = rot90(im, h, quarter_turns)
         if i == 0:
-            out_heat = h
+            heat = h
         outs.append(im)
-    if not images and heat is not None:
-        raise GamdConfigError("augment needs at least one image")
-    return outs, out_heat
+    return outs, heat

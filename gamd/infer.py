@@ -63,6 +63,7 @@ class DeblurSummary:
     checkpoint: str
     model: str
     frames: list[int] = field(default_factory=list)
+    skipped: list[int] = field(default_factory=list)
     heat_scale_px: float = 0.0
 
     def to_json(self) -> str:
@@ -70,7 +71,8 @@ class DeblurSummary:
 
 
 def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | Path | None,
-                   out_dir: str | Path, limit: int | None = None) -> DeblurSummary:
+                   out_dir: str | Path, limit: int | None = None,
+                   skip_missing: bool = False) -> DeblurSummary:
     """Deblur the frames of ``session`` into ``out_dir/<timestamp_ns>.png``.
 
     ``heat_dir`` is ``blurtrack predict``'s output folder (or its ``heat`` subfolder); every
@@ -93,6 +95,7 @@ def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done: list[int] = []
+    skipped: list[int] = []
     n = len(sess.frames) if limit is None else min(limit, len(sess.frames))
     for i in range(n):
         ts = int(sess.frames["timestamp_ns"].iloc[i])
@@ -101,12 +104,16 @@ def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | 
         if model.uses_heat:
             path = heat_root / f"{ts}.npy"
             if not path.is_file():
-                raise GamdDataError(f"no heat map for frame {ts} in {heat_root}")
+                if skip_missing:
+                    skipped.append(ts)
+                    continue
+                raise GamdDataError(f"no heat map for frame {ts} in {heat_root} "
+                                    "(--skip-missing skips such frames)")
             heat = read_heat(path, rgb.shape[:2])
         write_rgb(out / f"{ts}.png", deblur_array(model, rgb, heat, config.data.heat_scale_px))
         done.append(ts)
     summary = DeblurSummary(out_dir=str(out), checkpoint=str(checkpoint),
-                            model=config.model.name, frames=done,
+                            model=config.model.name, frames=done, skipped=skipped,
                             heat_scale_px=config.data.heat_scale_px)
     (out / "summary.json").write_text(summary.to_json())
     return summary

@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "blurtrack.cli.predict",
     "blurtrack.cli.synth",
     "rigs.cli",
+    "blurtrack.cli.demo",
 )
 
 

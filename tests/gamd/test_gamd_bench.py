@@ -56,3 +56,5 @@ def test_gains_and_ratios(bench) -> None:
     assert s["gamd"]["clean_gain_db"] == 4.0
     assert s["gamd"]["timeshift_ms=2"] == {"gain_db": 3.0, "fraction": 0.75}
     assert "mimo_pro" not in s
+    nets["gamd_only"]["psnr_db"] = 29.99  # a gain within the noise has no surviving share
+    assert bench.surviving_gain(nets)["gamd"]["timeshift_ms=2"]["fraction"] is None

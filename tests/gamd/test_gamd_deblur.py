@@ -67,6 +67,11 @@ def test_deblur_refuses_missing_heat(checkpoint, tmp_path, capsys) -> None:
     assert main(["deblur", str(session), "--checkpoint", str(checkpoint),
                  "--out", str(tmp_path / "o2")]) == 2
     assert "needs heat maps" in capsys.readouterr().err
+    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
+                 "--out", str(tmp_path / "o3"), "--skip-missing"]) == 0
+    assert "1 skipped" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "o3/summary.json").read_text())
+    assert summary["frames"] == stamps[:1] and summary["skipped"] == stamps[1:]
 
 
 def test_frame_to_rgb_conventions() -> None:
@@ -78,11 +83,12 @@ def test_frame_to_rgb_conventions() -> None:
 
 
 def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
-    from gamd.demo import run_demo
+    from gamd.demo import demo_train
 
-    s = run_demo(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2,
+    s = demo_train(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2,
                  progress=False)
     img = cv2.imread(s["picture"])
     assert img.shape == (40, 3 * 48 + 8, 3)
     assert json.loads((tmp_path / "demo/summary.json").read_text())["steps"] == 3
-    assert np.isfinite(s["restored_psnr_db"])
+    assert np.isfinite(s["restored_psnr_db"]) and s["image"].startswith("test/")
+    json.dumps(s)  # the demo prints it

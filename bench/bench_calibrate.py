@@ -1,0 +1,173 @@
+"""Calibration accuracy and speed over simulator presets and seeds (truth known).
+
+For each preset and seed: simulate a session (``blurtrack simulate``), calibrate from the true
+streaks (``from_truth``: isolates calibration error from detection error) or from a streak table
+given with ``--streaks-name``, and compare every estimate with the truth and its 1-sigma.
+Baselines measured in the same run: the initial guess's errors and hold-out endpoint error, and
+the time of one numpy evaluation of the residual over all streaks (speed ratio).
+Speed against the number of streaks: the first session calibrated on 25, 50 and 100 % of its
+frames. Prints one JSON document.
+
+    PYTHONPATH=. python bench/bench_calibrate.py --presets clean,realistic --seeds 0,1,2 \\
+        --frames 100 --work /tmp/bench_calib [--fit ...,scale]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from blurtrack import streaks as streak_table
+from blurtrack.calibration import Calibration
+from blurtrack.rotation import rotation_angle_deg
+from blurtrack.session import load_session
+from calib.data import relative_gyro, streaks_from_table
+from calib.fit import FitOptions, calibrate
+from calib.params import DEFAULT_FIT, theta_from
+from calib.problem import ResidualModel, choose_substeps
+
+REPO = Path(__file__).resolve().parents[1]
+SHAKE = REPO.parent / "shared" / "data" / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
+TARGETS = {"timeshift_s": 1e-4, "fx_rel": 1e-3, "fy_rel": 1e-3, "cx": 0.5, "cy": 0.5,
+           "readout_s": 2e-4, "bias_radps": 2e-4, "rotation_deg": 0.1}
+
+
+def simulate(out: Path, preset: str, seed: int, frames: int) -> Path:
+    if (out / "truth.yaml").is_file():
+        return out
+    cmd = [sys.executable, "-m", "blurtrack", "simulate", str(out), "--preset", preset,
+           "--frames", str(frames), "--seed", str(seed)]
+    if SHAKE.is_file():
+        cmd += ["--shake", str(SHAKE)]
+    subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
+    return out
+
+
+def effective_rotation(truth: dict, R_true: np.ndarray) -> np.ndarray:
+    """The camera–IMU rotation the gyro data define: ``R_true Qᵀ`` with ``M = P Q`` the polar
+    decomposition of the simulator's gyro scale/cross-axis matrix (``ω_meas = M R_trueᵀ ω``).
+    A rotation of the gyro's own axes cannot be told apart from the mounting rotation."""
+    M = np.array(((truth.get("simulator") or {}).get("gyro") or {}).get("scale_matrix",
+                                                                         np.eye(3)), float)
+    U, _, Vt = np.linalg.svd(M)
+    return R_true @ (U @ Vt).T
+
+
+def _errors(cal: Calibration, truth: Calibration,
+            R_eff: np.ndarray | None = None) -> dict[str, float]:
+    t, e = theta_from(truth), theta_from(cal)
+    R_ref = truth.R_cam_imu if R_eff is None else R_eff
+    return {"timeshift_s": e[0] - t[0], "fx_rel": e[1] / t[1] - 1, "fy_rel": e[2] / t[2] - 1,
+            "cx": e[3] - t[3], "cy": e[4] - t[4], "readout_s": e[5] - t[5],
+            "bias_radps": float(np.max(np.abs(e[6:9] - t[6:9]))),
+            "rotation_deg": float(rotation_angle_deg(cal.R_cam_imu, R_ref)),
+            "rotation_vs_stated_truth_deg": float(rotation_angle_deg(cal.R_cam_imu,
+                                                                     truth.R_cam_imu))}
+
+
+def _z_scores(res, truth: Calibration, initial: Calibration) -> dict[str, float]:
+    """|error| / sigma of every estimated scalar with a known truth (not rotation or scale)."""
+    t = theta_from(truth)
+    names = ("timeshift_s", "fx", "fy", "cx", "cy", "readout_s", "bias_x", "bias_y", "bias_z")
+    return {n: abs(res.values[n] - t[i]) / res.sigma[n] for i, n in enumerate(names)
+            if n in res.sigma and res.sigma[n] > 0}
+
+
+def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0) -> dict:
+    session = load_session(session_dir)
+    table = streak_table.from_truth(session.truth)
+    if frame_fraction < 1.0:
+        nf = round(len(session.frames) * frame_fraction)
+        table = table[table["frame"] < nf]
+    streaks = streaks_from_table(table, session.frames)
+    truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
+    initial = session.initial_calibration()
+    gyro = session.gyro()
+    # Baseline: one numpy residual evaluation over all streaks (the fit's unit of work).
+    g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
+    model = ResidualModel(g, initial.R_cam_imu, (), initial.camera.height,
+                          choose_substeps(streaks, initial.camera.height, 0.05))
+    t0 = time.process_time()
+    r0 = model.residual_np(theta_from(initial), streaks)
+    base_cpu = time.process_time() - t0
+    c0, w0 = time.process_time(), time.perf_counter()
+    res = calibrate(streaks, gyro, initial, options)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    err = _errors(res.calibration, truth, effective_rotation(session.truth, truth.R_cam_imu))
+    ok = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}
+    z = _z_scores(res, truth, initial)
+    return {
+        "session": session_dir.name, "n_streaks": len(streaks), "n_frames": streaks.n_frames,
+        "status": res.status, "iterations": res.iterations, "cpu_s": cpu, "wall_s": wall,
+        "baseline_residual_cpu_s": base_cpu, "cpu_over_baseline": cpu / max(base_cpu, 1e-9),
+        "error": err, "within_target": ok, "all_within_target": all(ok.values()),
+        "initial_error": _errors(initial, truth),
+        "initial_mean_endpoint_error_px": float(np.mean(np.linalg.norm(r0, axis=1))),
+        "holdout_mean_px": res.holdout.mean_px, "holdout_median_px": res.holdout.median_px,
+        "holdout_p95_px": res.holdout.p95_px, "train_mean_px": res.train.mean_px,
+        "z_scores": z, "max_z": max(z.values()) if z else None,
+        "within_3sigma": all(v <= 3 for v in z.values()),
+        "n_outliers": res.n_outliers, "warnings": list(res.warnings),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", default="clean,realistic")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--fit", default=DEFAULT_FIT)
+    ap.add_argument("--work", type=Path, default=Path("/tmp/bench_calib"))
+    ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
+    args = ap.parse_args()
+    opts = FitOptions(fit=args.fit)
+    runs = []
+    for preset in args.presets.split(","):
+        for seed in (int(s) for s in args.seeds.split(",")):
+            d = simulate(args.work / f"{preset}_s{seed}_f{args.frames}", preset, seed,
+                         args.frames)
+            run = run_one(d, opts)
+            run.update(preset=preset, seed=seed)
+            runs.append(run)
+            print(f"# {preset} seed {seed}: {run['status']}, {run['cpu_s']:.1f} s cpu, "
+                  f"hold-out {run['holdout_mean_px']:.3f} px, max z {run['max_z']:.2f}",
+                  file=sys.stderr)
+    scaling = []
+    if not args.no_scaling and runs:
+        first = args.work / runs[0]["session"]
+        for frac in (0.25, 0.5, 1.0):
+            r = run_one(first, opts, frac)
+            scaling.append({"frames": r["n_frames"], "n_streaks": r["n_streaks"],
+                            "cpu_s": r["cpu_s"], "wall_s": r["wall_s"],
+                            "cpu_over_baseline": r["cpu_over_baseline"]})
+    by_preset = {}
+    for preset in {r["preset"] for r in runs}:
+        rs = [r for r in runs if r["preset"] == preset]
+        by_preset[preset] = {
+            "runs": len(rs),
+            "all_within_target": sum(r["all_within_target"] for r in rs),
+            "within_3sigma": sum(r["within_3sigma"] for r in rs),
+            "median_holdout_mean_px": float(np.median([r["holdout_mean_px"] for r in rs])),
+            "median_cpu_s": float(np.median([r["cpu_s"] for r in rs])),
+            "max_abs_error": {k: float(max(abs(r["error"][k]) for r in rs)) for k in TARGETS},
+            "median_initial_endpoint_error_px": float(np.median(
+                [r["initial_mean_endpoint_error_px"] for r in rs])),
+        }
+    z_all = [v for r in runs for v in r["z_scores"].values()]
+    print(json.dumps({"fit": args.fit, "targets": TARGETS, "by_preset": by_preset,
+                      "fraction_of_estimates_within_3sigma":
+                          float(np.mean(np.array(z_all) <= 3)) if z_all else None,
+                      "fraction_of_runs_all_within_3sigma":
+                          float(np.mean([r["within_3sigma"] for r in runs])) if runs else None,
+                      "scaling": scaling, "runs": runs}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

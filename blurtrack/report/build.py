@@ -1,0 +1,165 @@
+"""Assemble the endpoint-error report: CSV tables, summary.json and report.html.
+
+Labels: ``before`` and ``after`` are the two calibrations (exact rotation, rolling shutter);
+the motion-model comparison evaluates the ``after`` calibration with the source paper's per-axis
+small-angle model (global shutter), exact rotation with a global shutter, and exact rotation
+with rolling shutter, on the same streaks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from blurtrack.calibration import Calibration
+from blurtrack.errors import BlurTrackError
+from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.report import figures
+from blurtrack.report.html import render
+from blurtrack.report.metrics import (
+    MOTION_VARIANTS,
+    ReportError,
+    endpoint_errors,
+    per_frame,
+    stats,
+)
+from blurtrack.session import Session
+from blurtrack.trajectory import BlurModel
+from blurtrack.yamlio import write_text_atomic
+
+#: Frames drawn with their predicted and measured streaks.
+N_OVERLAYS = 3
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: NaN and infinities become ``null``."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    return obj
+
+
+def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
+    """``df -> (N, 12, 2)`` predicted positions over each streak's exposure."""
+    ts = session.frames["timestamp_ns"].to_numpy(np.int64)
+    exp_ns = session.frames["exposure_ns"].to_numpy(np.int64)
+    t0 = int(ts[0])
+    model = BlurModel(calib, GyroTrace(g.t_s - t0 * 1e-9, g.omega_radps, g.max_gap_s),
+                      check_coverage=False)
+    cam = calib.camera
+
+    def track(df: pd.DataFrame) -> np.ndarray:
+        if len(df) == 0:
+            return np.zeros((0, 12, 2))
+        idx = df["frame"].to_numpy(np.int64)
+        ft = (ts[idx] - t0) * 1e-9
+        exp = exp_ns[idx] * 1e-9
+        start = df[["start_x", "start_y"]].to_numpy(float)
+        t_ref = cam.row_start_s(ft, start[:, 1])
+        t_end = cam.row_start_s(ft, df["pred_end_y"].to_numpy(float)) + exp
+        tau = np.linspace(0.0, 1.0, 12)
+        times = t_ref[:, None] + (t_end - t_ref)[:, None] * tau[None, :]
+        return model.point_track(start, t_ref, times)
+
+    return track
+
+
+def build_report(session: Session, table: pd.DataFrame, before: Calibration,
+                 after: Calibration, out_dir: str | Path,
+                 fit_summary: dict[str, Any] | None = None,
+                 n_overlays: int = N_OVERLAYS) -> dict[str, Any]:
+    """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
+
+    The gyro is resampled as the blur model does (:data:`~blurtrack.gyro.GYRO_UPSAMPLE`, the
+    calibration's too), and a fitted gyro scale matrix in ``after`` is applied by the model.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if len(table) == 0:
+        raise ReportError("no streaks to report on")
+    raw = gyro = session.gyro()
+    frames = session.frames
+    errs = {"before": endpoint_errors(raw, table, frames, before),
+            "after": endpoint_errors(gyro, table, frames, after)}
+    models = {v.name: endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
+              for v in MOTION_VARIANTS}
+    warnings: list[str] = []
+    n_unc = int(np.count_nonzero(~errs["after"]["covered"]))
+    if n_unc:
+        warnings.append(f"{n_unc} streak(s) lie in exposures the gyro does not cover; they are "
+                        f"left out of the statistics")
+    if n_unc == len(table):
+        raise ReportError("the gyro covers none of the exposures of the streak table")
+    overall = {k: stats(v["error_px"].to_numpy()) for k, v in errs.items()}
+    model_stats = {v.name: stats(models[v.name]["error_px"].to_numpy()) for v in MOTION_VARIANTS}
+    if overall["after"]["mean_px"] > overall["before"]["mean_px"]:
+        warnings.append("the calibration under test predicts worse than the initial one")
+    if fit_summary:
+        warnings.extend(f"fit: {w}" for w in fit_summary.get("warnings", []))
+
+    long = pd.concat([df.assign(variant=k) for k, df in {**errs, **models}.items()],
+                     ignore_index=True)
+    long.to_csv(out / "streak_errors.csv", index=False, float_format="%.6g")
+    fstats = per_frame({**errs, **models})
+    fstats.to_csv(out / "frame_errors.csv", index=False, float_format="%.6g")
+    pd.DataFrame([{"variant": k, **v} for k, v in {**overall, **model_stats}.items()]).to_csv(
+        out / "overall_errors.csv", index=False, float_format="%.6g")
+
+    w, h = after.camera.resolution
+    figs: list[tuple[str, bytes]] = [
+        ("Endpoint error before and after calibration",
+         figures.histogram_cdf(errs, "before vs after calibration")),
+        ("Per-frame mean endpoint error",
+         figures.per_frame_plot(fstats[fstats["variant"].isin(["before", "after"])],
+                                "per frame")),
+        ("Endpoint error against image position (after)",
+         figures.error_vs_position(errs["after"], w, h, "after calibration")),
+        ("Endpoint error against angular speed",
+         figures.error_vs_speed(errs, "before vs after")),
+        ("Motion models on the same streaks (after calibration)",
+         figures.model_bars({v.label: model_stats[v.name] for v in MOTION_VARIANTS},
+                            "motion models")),
+        ("Motion models: error distributions",
+         figures.histogram_cdf({v.label: models[v.name] for v in MOTION_VARIANTS},
+                               "motion models")),
+    ]
+    covered = errs["after"][errs["after"]["covered"]]
+    track = _track_fn(session, after, gyro)
+    per = covered.groupby("frame")["error_px"].size().sort_values(ascending=False)
+    for f in sorted(per.index[:n_overlays].tolist()):
+        try:
+            img = session.read_image(int(f))
+        except BlurTrackError as exc:  # a missing or broken image only drops its figure
+            warnings.append(f"frame {f}: image not drawn ({str(exc).splitlines()[0]})")
+            continue
+        sel = covered[covered["frame"] == f]
+        figs.append((f"Frame {f}: measured and predicted streaks",
+                     figures.overlay(img, sel, track, f"frame {f}, after calibration, mean "
+                                     f"error {sel['error_px'].mean():.3f} px")))
+
+    summary = _clean({
+        "n_streaks": len(table), "n_frames": int(table["frame"].nunique()),
+        "n_uncovered": n_unc, "overall": overall, "motion_models": model_stats,
+        "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
+        "calibration_before": before.to_dict(), "calibration_after": after.to_dict(),
+        "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": GYRO_UPSAMPLE,
+        "gyro_scale_matrix": after.gyro_scale_matrix,
+        "files": ["report.html", "streak_errors.csv", "frame_errors.csv", "overall_errors.csv",
+                  "summary.json"],
+    })
+    write_text_atomic(out / "report.html", render(summary, figs, fstats))
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    return summary

@@ -1,0 +1,219 @@
+"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (listed in blurtrack.cli)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from calib.params import DEFAULT_FIT
+
+#: Display scale and unit of each parameter in the printed table.
+_SHOW = {"timeshift_s": (1e3, "ms"), "readout_s": (1e3, "ms"), "fx": (1, "px"), "fy": (1, "px"),
+         "cx": (1, "px"), "cy": (1, "px"), "bias_x": (1e3, "mrad/s"), "bias_y": (1e3, "mrad/s"),
+         "bias_z": (1e3, "mrad/s"), "rot_x": (57.29577951308232, "deg"),
+         "rot_y": (57.29577951308232, "deg"), "rot_z": (57.29577951308232, "deg"),
+         **{f"scale_{a}": (1e3, "1e-3") for a in ("xx", "yy", "zz", "xy", "xz", "yz")}}
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("calibrate", help="fit the gyro blur model to a session's streaks")
+    p.add_argument("session", help="session folder")
+    p.add_argument("--out", required=True, help="calibration YAML to write (Kalibr keys)")
+    p.add_argument("--fit", default=DEFAULT_FIT,
+                   help=f"comma-separated parameters to estimate (default: {DEFAULT_FIT})")
+    _streak_args(p)
+    p.add_argument("--holdout", type=float, default=0.2,
+                   help="fraction of frames held out for evaluation (default 0.2)")
+    p.add_argument("--shift-window-ms", type=float, default=60.0,
+                   help="half-width of the initial time-shift search (default 60 ms)")
+    p.set_defaults(func=run_calibrate)
+
+    r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
+    r.add_argument("session", help="session folder")
+    r.add_argument("--calib", required=True, help="calibration YAML to evaluate")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--before", help="calibration to compare with (default: session.yaml)")
+    r.add_argument("--fit-summary", help="summary JSON of the fit (default: the one written "
+                                         "next to --calib by calibrate, if present)")
+    r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
+    _streak_args(r)
+    r.set_defaults(func=run_report)
+
+
+def _streak_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--streaks", help="streak table (default: SESSION/streaks.parquet)")
+    g.add_argument("--from-truth", action="store_true",
+                   help="use the simulator's true streaks (truth.yaml) instead of detections")
+
+
+def _load(args: argparse.Namespace):
+    from blurtrack import streaks as streak_table
+    from blurtrack.session import load_session
+    from calib.errors import CalibError
+
+    session = load_session(args.session)
+    if args.from_truth:
+        if session.truth is None:
+            raise CalibError(f"--from-truth: {args.session} has no truth.yaml")
+        table = streak_table.from_truth(session.truth)
+    else:
+        path = Path(args.streaks) if args.streaks else Path(args.session) / "streaks.parquet"
+        table = streak_table.read(path)
+    return session, table
+
+
+def summary_path(calib_path: str | Path) -> Path:
+    p = Path(calib_path)
+    return p.with_name(p.stem + ".summary.json")
+
+
+def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
+    """The simulator's true parameters in theta terms (rotation relative to the initial one)."""
+    import numpy as np
+
+    from blurtrack.calibration import Calibration
+    from blurtrack.errors import BlurTrackError
+    from calib.params import rotation_error_rad, theta_from
+    from calib.result import named
+
+    truth = session.truth
+    if not truth or "calibration" not in truth:
+        return None
+    try:
+        cal = Calibration.from_dict(truth["calibration"], source="truth.yaml")
+    except BlurTrackError:
+        return None
+    th = theta_from(cal)
+    th[9:12] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
+    gyro = (truth.get("simulator") or {}).get("gyro") or {}
+    try:
+        M = np.array(gyro.get("scale_matrix", np.eye(3)), dtype=float).reshape(3, 3)
+    except (TypeError, ValueError):
+        M = np.eye(3)
+    S = (M + M.T) / 2 - np.eye(3)
+    th[12:18] = [S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]]
+    return named(th)
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    from blurtrack.yamlio import write_text_atomic
+    from calib.data import streaks_from_table
+    from calib.errors import CalibError
+    from calib.export import write_camera_info, write_openvins
+    from calib.fit import FitOptions, calibrate
+    from calib.params import theta_from
+    from calib.result import named
+
+    session, table = _load(args)
+    streaks = streaks_from_table(table, session.frames)
+    initial = session.initial_calibration()
+    res = calibrate(streaks, session.gyro(), initial,
+                    FitOptions(fit=args.fit, holdout_fraction=args.holdout,
+                               shift_window_s=args.shift_window_ms * 1e-3))
+    summary = res.to_dict()
+    summary["initial"] = named(theta_from(initial))
+    truth = truth_values(session, initial)
+    if truth is not None:
+        summary["truth"] = truth
+        summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
+    out = Path(args.out)
+    write_text_atomic(summary_path(out), json.dumps(summary, indent=2, default=float))
+    _print_table(res, summary.get("initial", {}), truth)
+    if res.status == "failed":
+        raise CalibError("calibration failed: " + "; ".join(res.warnings)
+                         + f" (details in {summary_path(out)}; no calibration written)")
+    write_calibration(res, out)
+    write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
+    write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
+    print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
+    return 0
+
+
+def write_calibration(res: Any, path: Path) -> None:
+    """The calibration YAML; a fitted gyro scale goes into ``gyro_scale_matrix``."""
+    from calib.params import scale_matrix, theta_from
+
+    cal = res.calibration
+    if any(k.startswith("scale") for k in res.fitted):
+        th = theta_from(cal)
+        th[12:18] = [res.values[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")]
+        cal = cal.with_(gyro_scale_matrix=scale_matrix(th))
+    cal.to_yaml(path)
+
+
+def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
+    print(f"calibration {res.status}: {res.iterations} iterations, "
+          f"{res.train.n} inlier streaks, {res.n_outliers} outliers "
+          f"({res.n_flipped} wrongly oriented), {res.timings_s.get('total', 0):.1f} s")
+    head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>10}"
+    print(head + (f"{'truth':>12}{'error':>10}" if truth else ""))
+    for k, v in res.values.items():
+        if k.startswith("scale") and k not in res.fitted:
+            continue
+        s, unit = _SHOW[k]
+        sig = res.sigma.get(k)
+        line = (f"{k:<12}{unit:>8}{initial.get(k, float('nan')) * s:>12.4f}{v * s:>12.4f}"
+                f"{(sig * s if sig is not None else float('nan')):>10.4f}")
+        if truth:
+            line += f"{truth[k] * s:>12.4f}{(v - truth[k]) * s:>10.4f}"
+        print(line)
+    print(f"train endpoint error: mean {res.train.mean_px:.3f} px, median "
+          f"{res.train.median_px:.3f}, p95 {res.train.p95_px:.3f}")
+    if res.holdout.n:
+        print(f"hold-out endpoint error: mean {res.holdout.mean_px:.3f} px, median "
+              f"{res.holdout.median_px:.3f}, p95 {res.holdout.p95_px:.3f} ({res.holdout.n} "
+              f"streaks)")
+    for w in res.warnings:
+        print(f"warning: {w}")
+
+
+def run_report(args: argparse.Namespace) -> int:
+    from blurtrack.calibration import Calibration
+    from blurtrack.report.build import build_report
+    from calib.errors import CalibError
+
+    session, table = _load(args)
+    after = Calibration.from_yaml(args.calib)
+    before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
+    fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
+    fit = None
+    if fs_path.is_file():
+        try:
+            fit = json.loads(fs_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CalibError(f"fit summary {fs_path} is not valid JSON ({exc})") from None
+        if not isinstance(fit, dict):
+            raise CalibError(f"fit summary {fs_path} is not a JSON object")
+    elif args.fit_summary:
+        raise CalibError(f"fit summary not found: {fs_path}")
+    summary = build_report(session, table, before, after, args.out, fit_summary=fit,
+                           n_overlays=args.overlays)
+    for k in ("before", "after"):
+        s = summary["overall"][k]
+        print(f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "
+              f"p95 {s['p95_px']:.3f} ({s['n']} streaks)")
+    for k, s in summary["motion_models"].items():
+        print(f"  {summary['motion_model_labels'][k]}: mean {s['mean_px']:.3f} px")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    print(f"wrote {Path(args.out) / 'report.html'}")
+    return 0
+
+
+def demo_argv(session: str | Path, out: str | Path, from_truth: bool = True) -> list[list[str]]:
+    """The ``blurtrack`` argument lists that ``make demo`` runs for calibration and report.
+
+    ``calibrate`` prints the recovered parameters beside the initial guess and, for simulated
+    sessions, beside the truth; ``report`` writes ``OUT/report/report.html``.
+
+    >>> demo_argv("s", "o")[0][:4]
+    ['calibrate', 's', '--out', 'o/calib.yaml']
+    """
+    src = ["--from-truth"] if from_truth else []
+    calib = str(Path(out) / "calib.yaml")
+    return [["calibrate", str(session), "--out", calib, *src],
+            ["report", str(session), "--calib", calib, "--out", str(Path(out) / "report"),
+             *src]]

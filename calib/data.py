@@ -1,0 +1,148 @@
+"""Calibration input: measured streak endpoints with their frame timing, and the gyro trace.
+
+Times are shifted by a common origin ``t0_s`` (the first frame's timestamp) so that the solver
+works with small numbers: camera times ``t - t0`` and IMU times ``t_imu - t0`` keep
+``t_imu = t_cam + shift`` unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+
+from blurtrack.camera import Camera
+from blurtrack.gyro import GyroTrace
+from calib.errors import CalibError
+
+
+@dataclass(frozen=True)
+class StreakSet:
+    """Streaks as flat arrays (one entry per streak).
+
+    Attributes:
+        start, end: ``(N, 2)`` measured endpoints, pixels.
+        frame_t_s: ``(N,)`` frame timestamp (camera clock, relative to ``t0_s``), s.
+        exposure_s: ``(N,)`` exposure time, s.
+        frame: ``(N,)`` frame index in the session.
+        streak_id: ``(N,)`` streak number (dot id for simulated sessions).
+        t0_s: absolute camera time of the origin, s.
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    frame_t_s: np.ndarray
+    exposure_s: np.ndarray
+    frame: np.ndarray
+    streak_id: np.ndarray
+    t0_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        n = len(self.frame)
+        for name in ("start", "end"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (n, 2) or not np.all(np.isfinite(a)):
+                raise CalibError(f"streak {name} points must be finite with shape ({n}, 2)")
+            object.__setattr__(self, name, a)
+        for name in ("frame_t_s", "exposure_s"):
+            a = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+            if a.shape != (n,) or not np.all(np.isfinite(a)):
+                raise CalibError(f"streak {name} must be {n} finite numbers")
+            object.__setattr__(self, name, a)
+        if np.any(self.exposure_s <= 0):
+            raise CalibError("streak exposures must be positive")
+        object.__setattr__(self, "frame", np.asarray(self.frame, dtype=np.int64).reshape(-1))
+        object.__setattr__(self, "streak_id",
+                           np.asarray(self.streak_id, dtype=np.int64).reshape(-1))
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+    @property
+    def n_frames(self) -> int:
+        return int(np.unique(self.frame).size)
+
+    @property
+    def length_px(self) -> np.ndarray:
+        return np.linalg.norm(self.end - self.start, axis=1)
+
+    def subset(self, mask: np.ndarray) -> StreakSet:
+        m = np.asarray(mask)
+        return replace(self, start=self.start[m], end=self.end[m], frame_t_s=self.frame_t_s[m],
+                       exposure_s=self.exposure_s[m], frame=self.frame[m],
+                       streak_id=self.streak_id[m])
+
+    def flipped(self) -> StreakSet:
+        """The same streaks with start and end swapped."""
+        return replace(self, start=self.end, end=self.start)
+
+    def reoriented(self, mask: np.ndarray) -> StreakSet:
+        """Start and end swapped where ``mask`` (N,) is true."""
+        m = np.asarray(mask, dtype=bool)[:, None]
+        return replace(self, start=np.where(m, self.end, self.start),
+                       end=np.where(m, self.start, self.end))
+
+
+def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
+                       drop_flagged: bool = True) -> StreakSet:
+    """A :class:`StreakSet` from a validated streak table and the session's frame table.
+
+    ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). Streaks
+    flagged clipped, saturated or merged are left out when ``drop_flagged``.
+    """
+    df = table
+    if drop_flagged and len(df):
+        df = df[~(df["clipped"] | df["saturated"] | df["merged"])]
+    if len(frames) == 0:
+        raise CalibError("the session has no frames")
+    ts = frames["timestamp_ns"].to_numpy(np.int64)
+    exp_ns = frames["exposure_ns"].to_numpy(np.int64)
+    idx = df["frame"].to_numpy(np.int64)
+    if np.any((idx < 0) | (idx >= ts.size)):
+        raise CalibError(f"streak table names frames outside 0..{ts.size - 1}")
+    if np.any(df["timestamp_ns"].to_numpy(np.int64) != ts[idx]):
+        raise CalibError("streak table timestamps do not match the session's cam0/data.csv")
+    t0_ns = int(ts[0])
+    return StreakSet(
+        start=df[["start_x", "start_y"]].to_numpy(float),
+        end=df[["end_x", "end_y"]].to_numpy(float),
+        frame_t_s=(ts[idx] - t0_ns) * 1e-9,
+        exposure_s=exp_ns[idx] * 1e-9,
+        frame=idx,
+        streak_id=df["streak_id"].to_numpy(np.int64),
+        t0_s=t0_ns * 1e-9,
+    )
+
+
+def relative_gyro(gyro: GyroTrace, t0_s: float) -> GyroTrace:
+    """The gyro trace with its times shifted by ``-t0_s`` (same origin as a StreakSet)."""
+    return GyroTrace(gyro.t_s - t0_s, gyro.omega_radps, gyro.max_gap_s)
+
+
+def covered_mask(streaks: StreakSet, gyro: GyroTrace, camera: Camera, shift_s: float,
+                 margin_s: float) -> np.ndarray:
+    """Streaks whose whole exposure (± ``margin_s`` of time-shift search) the gyro covers."""
+    lo = streaks.frame_t_s + shift_s - margin_s
+    hi = streaks.frame_t_s + camera.readout_s + streaks.exposure_s + shift_s + margin_s
+    ok = np.zeros(len(streaks), dtype=bool)
+    for f in np.unique(streaks.frame):
+        sel = streaks.frame == f
+        ok[sel] = gyro.covers(float(lo[sel].min()), float(hi[sel].max()))
+    return ok
+
+
+def holdout_mask(frames: np.ndarray, fraction: float) -> np.ndarray:
+    """Deterministic frame-wise hold-out: every k-th distinct frame, ``k ≈ 1 / fraction``.
+
+    >>> holdout_mask(np.array([0, 0, 1, 2, 3, 4]), 0.2).tolist()
+    [False, False, False, False, False, True]
+    """
+    if not 0.0 <= fraction < 0.9:
+        raise CalibError(f"hold-out fraction must be in [0, 0.9), got {fraction}")
+    if fraction == 0.0:
+        return np.zeros(frames.shape, dtype=bool)
+    uniq = np.unique(frames)
+    k = max(2, round(1.0 / fraction))
+    held = uniq[(np.arange(uniq.size) % k) == k - 1]
+    return np.isin(frames, held)

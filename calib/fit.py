@@ -1,0 +1,279 @@
+"""Calibration driver: checks, initialisation, coarse-to-fine robust fit, outliers, hold-out.
+
+Stages (each warm-starts the next):
+
+1. input checks (enough streaks and frames, gyro coverage, motion);
+2. shift/focal search (:mod:`calib.init`);
+3. robust LM on a subsample with the shift and focal lengths only, then with every requested
+   parameter that the motion makes observable (near-null directions of the information matrix
+   are fixed at their initial value, with a warning);
+4. robust LM on every training streak, with outlier rejection in between: streaks whose
+   endpoint error exceeds ``OUTLIER_SIGMAS`` robust sigmas are dropped, except those that fit
+   once start and end are swapped: they are counted as wrongly oriented, swapped and kept;
+5. uncertainty, warnings and hold-out statistics.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.calibration import Calibration
+from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.model import constant_mat3, omega_cam_fn
+from calib import init as init_mod
+from calib import uncertainty
+from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
+from calib.errors import CalibError
+from calib.params import GROUPS, THETA_NAMES, apply_theta, parse_fit, theta_from
+from calib.problem import ResidualModel, choose_substeps
+from calib.result import CalibResult, ErrorStats, named, sigma_block
+from calib.solve import JacobianEvaluator, levenberg_marquardt
+
+MIN_STREAKS = 30
+MIN_FRAMES = 3
+OUTLIER_SIGMAS = 5.0
+#: Floor of the outlier threshold (px): detection noise never justifies rejecting less.
+MIN_OUTLIER_PX = 0.5
+SUBSAMPLE = 2000
+#: Integration sub-step of the initialisation and subsample stages (the final stage uses
+#: blurtrack.model's default 1 ms).
+COARSE_SUBSTEP_S = 3e-3
+#: Robust endpoint sigma (px) above which the data are called contradictory.
+MAX_RESIDUAL_SIGMA_PX = 3.0
+MIN_INLIER_FRACTION = 0.5
+#: Score-test threshold (sigmas) of :func:`scale_check`.
+SCALE_Z = 3.0
+#: Pseudo-Huber scale of the final stage, in robust sigmas: outliers are gone by then, and a
+#: scale near the rejection threshold keeps the IRLS weights of inliers nearly constant, so
+#: Gauss–Newton converges in two or three Jacobians.
+FINE_DELTA_SIGMAS = 5.0
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    fit: str = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
+    holdout_fraction: float = 0.2
+    shift_window_s: float = 0.06
+    max_iter: int = 30
+    seed: int = 0
+    #: Cubic-spline upsampling of the gyro before linear interpolation: the blur model's
+    #: (:data:`blurtrack.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction and
+    #: synthesis do not use, so it is for experiments only.
+    gyro_upsample: int = GYRO_UPSAMPLE
+
+
+def _rayleigh_sigma(rho: np.ndarray) -> float:
+    """Per-coordinate sigma from the median 2-D error (Rayleigh median = 1.1774 sigma)."""
+    return float(np.median(rho) / 1.1774) if rho.size else 0.0
+
+
+def classify(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
+             threshold_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Endpoint errors ``(N,)``, outlier mask and wrongly-oriented mask at ``theta``."""
+    rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    out = rho > threshold_px
+    flipped = np.zeros_like(out)
+    if np.any(out):
+        rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
+        flipped[np.flatnonzero(out)] = rf <= threshold_px
+    return rho, out, flipped
+
+
+def _reorient(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
+              threshold_px: float) -> tuple[StreakSet, np.ndarray, np.ndarray]:
+    """Swap start and end of the streaks that only fit reversed (orientation resolved wrongly
+    by detection). Returns the corrected set, its endpoint errors and the swapped mask."""
+    _, _, flip = classify(model, theta, streaks, threshold_px)
+    if np.any(flip):
+        streaks = streaks.reoriented(flip)
+    rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    return streaks, rho, flip
+
+
+def scale_check(ev: JacobianEvaluator, theta: np.ndarray, streaks: StreakSet,
+                weights: np.ndarray, free: tuple[int, ...]) -> list[str]:
+    """Warn when the data ask for a gyro scale / cross-axis error that is not being fitted.
+
+    One Gauss–Newton step from the optimum with the scale entries freed (the score test):
+    an entry that would move by more than :data:`SCALE_Z` of its own (cluster-robust) sigma
+    means the fixed scale is wrong and the focal lengths' sigma are optimistic.
+    """
+    extra = tuple(i for i in GROUPS["scale"] if i not in free)
+    if not extra:
+        return []
+    full = tuple(sorted(free + extra))
+    r, J = ev.evaluate(theta, streaks, full)
+    A = uncertainty.information(J, weights, full)
+    g = np.einsum("n,nki,nk->i", weights, J[:, :, list(full)], r)
+    try:
+        step = -np.linalg.solve(A, g)
+    except np.linalg.LinAlgError:
+        return []
+    # Sigma under the alternative: residuals after the (linearised) step.
+    r_alt = r + np.einsum("nki,i->nk", J[:, :, list(full)], step)
+    unc = uncertainty.estimate(J, r_alt, weights, streaks.frame, full)
+    z = {THETA_NAMES[i]: step[k] / unc.sigma[k] for k, i in enumerate(full) if i in extra}
+    big = {k: v for k, v in z.items() if abs(v) > SCALE_Z}
+    if not big:
+        return []
+    worst = max(big, key=lambda k: abs(big[k]))
+    return [f"the gyro shows a scale/cross-axis error that is not fitted ({worst} "
+            f"{step[full.index(THETA_NAMES.index(worst))]:+.2e}, {abs(big[worst]):.0f} sigma): "
+            f"focal lengths and rotation absorb it and their sigma are optimistic; "
+            f"refit with --fit ...,scale"]
+
+
+def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
+              options: FitOptions = FitOptions(),
+              clock: Callable[[], float] = time.perf_counter) -> CalibResult:
+    """Fit the blur model to measured streak endpoints (see the module docstring).
+
+    Args:
+        streaks: measured streaks, times relative to ``streaks.t0_s``.
+        gyro: the session's gyro trace on the absolute IMU clock.
+        initial: initial guess (the rig's ``session.yaml``); distortion is kept fixed.
+    """
+    t_start = clock()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    free = parse_fit(options.fit)
+    cam = initial.camera
+    if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
+        raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
+                         f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames")
+    g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
+    cov = covered_mask(streaks, g, cam, initial.timeshift_cam_imu_s, options.shift_window_s)
+    if not np.all(cov):
+        bad = np.unique(streaks.frame[~cov])
+        if np.count_nonzero(cov) < MIN_STREAKS or np.unique(streaks.frame[cov]).size < MIN_FRAMES:
+            raise CalibError(f"the gyro does not cover the exposures (± the "
+                             f"{options.shift_window_s * 1e3:.0f} ms shift search) of "
+                             f"{bad.size} of {streaks.n_frames} frames; too few remain")
+        warnings.append(f"{bad.size} frame(s) not covered by the gyro were left out "
+                        f"(first: {int(bad[0])})")
+        streaks = streaks.subset(cov)
+    med_len = float(np.median(streaks.length_px))
+    if med_len < 1.0:
+        raise CalibError(f"no motion: the median streak is {med_len:.2f} px long; the blur "
+                         f"model cannot be calibrated from static frames")
+    held = holdout_mask(streaks.frame, options.holdout_fraction)
+    train, test = streaks.subset(~held), streaks.subset(held)
+    if len(train) < MIN_STREAKS:
+        raise CalibError(f"too few training streaks after the hold-out split ({len(train)})")
+
+    theta0 = theta_from(initial)
+    readout_bound = max(2 * cam.readout_s, 0.05)
+    model = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
+                          choose_substeps(train, cam.height, readout_bound))
+    coarse = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
+                           choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S))
+    ini = init_mod.initialise(coarse, train, theta0, 0 in free, 1 in free or 2 in free,
+                              options.shift_window_s)
+    theta = ini.theta
+    timings["init"] = clock() - t_start
+
+    rng = np.random.default_rng(options.seed)
+    sub_idx = np.arange(len(train))
+    if sub_idx.size > SUBSAMPLE:
+        sub_idx = np.sort(rng.choice(sub_idx, SUBSAMPLE, replace=False))
+    sub = train.subset(sub_idx)
+    iters = 0
+    ev = JacobianEvaluator(coarse)
+    stage1 = tuple(i for i in free if i in (0, 1, 2))
+    delta = max(2.0 * ini.median_error_px, 0.5)
+    if stage1:
+        lm = levenberg_marquardt(ev, sub, theta, stage1, delta, max_iter=15, step_tol=0.05)
+        theta, iters = lm.theta, iters + lm.iterations
+    lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
+    theta, iters = lm.theta, iters + lm.iterations
+    dropped = uncertainty.unobservable(uncertainty.information(lm.jacobian, lm.weights, free),
+                                       free)
+    if dropped:
+        names = [THETA_NAMES[i] for i in dropped]
+        warnings.append(f"not observable from this motion, kept at the initial value: "
+                        f"{', '.join(names)}")
+        theta[dropped] = theta0[dropped]
+        free = tuple(i for i in free if i not in dropped)
+        lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
+        theta, iters = lm.theta, iters + lm.iterations
+    timings["coarse"] = clock() - t_start - timings["init"]
+
+    ev_fine = JacobianEvaluator(model)
+    inl = np.ones(len(train), dtype=bool)
+    reoriented = np.zeros(len(train), dtype=bool)
+    converged = False
+    for round_ in range(3):
+        rho, _, _ = classify(model, theta, train, np.inf)
+        sig = _rayleigh_sigma(rho[inl])
+        thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
+        train, rho, flip = _reorient(model, theta, train, thr)
+        reoriented ^= flip
+        new_inl = rho <= thr
+        if round_ and np.count_nonzero(new_inl != inl) <= 0.002 * len(train):
+            break  # the inlier set has settled
+        inl = new_inl
+        if np.count_nonzero(inl) < MIN_STREAKS:
+            raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
+                             f"the data contradict it")
+        sig = _rayleigh_sigma(rho[inl])
+        lm = levenberg_marquardt(ev_fine, train.subset(inl), theta, free,
+                                 max(FINE_DELTA_SIGMAS * sig, 1e-3),
+                                 max_iter=options.max_iter, step_tol=max(0.1 * sig, 1e-5),
+                                 lam0=1e-6)
+        theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
+        timings[f"fine{round_}_iterations"] = lm.iterations
+    timings["fine"] = clock() - t_start - timings["init"] - timings["coarse"]
+
+    rho, _, _ = classify(model, theta, train, np.inf)
+    sig = _rayleigh_sigma(rho[inl])
+    thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
+    out = rho > thr
+    unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
+                               free)
+    warnings.extend(unc.warnings)
+    warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
+    t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
+    R = apply_theta(initial, theta).R_cam_imu
+    w_cam = np.stack(omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]),
+                                  theta[0])(t_mid), axis=1)
+    warnings.extend(uncertainty.excitation_warnings(w_cam))
+
+    if len(test):
+        test, rho_t, _ = _reorient(model, theta, test, thr)
+        out_t = rho_t > thr
+        holdout, holdout_all = ErrorStats.of(rho_t[~out_t]), ErrorStats.of(rho_t)
+    else:
+        holdout = holdout_all = ErrorStats.of(np.zeros(0))
+    n_in = int(np.count_nonzero(~out))
+    status = "ok"
+    if n_in < MIN_INLIER_FRACTION * len(train):
+        warnings.append(f"only {n_in} of {len(train)} streaks agree with the model: the data "
+                        f"contradict it (wrong session, gyro or initial rotation?)")
+        status = "failed"
+    if sig > MAX_RESIDUAL_SIGMA_PX:
+        warnings.append(f"endpoint residuals are large (robust sigma {sig:.2f} px): the data "
+                        f"contradict the model")
+        status = "failed"
+    if not converged:
+        warnings.append("the solver did not converge within its iteration limit")
+        status = "failed"
+    if status == "ok" and warnings:
+        status = "warning"
+    sigma = named(unc.sigma, free)
+    calib = apply_theta(initial, theta)
+    calib = calib.with_(sigma=sigma_block(sigma))
+    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(unc.correlation[i, j])
+                             for j, b in enumerate(free)} for i, a in enumerate(free)}
+    timings["total"] = clock() - t_start
+    return CalibResult(
+        status=status, calibration=calib, initial=initial, values=named(theta), sigma=sigma,
+        correlation=corr, fitted=tuple(THETA_NAMES[i] for i in free),
+        fixed_unobservable=tuple(THETA_NAMES[i] for i in dropped), iterations=iters,
+        converged=converged, train=ErrorStats.of(rho[~out]), train_all=ErrorStats.of(rho),
+        holdout=holdout, holdout_all=holdout_all, n_outliers=int(np.count_nonzero(out)),
+        n_flipped=int(np.count_nonzero(reoriented)), residual_sigma_px=sig,
+        init_shift_curve=ini.shift_curve, warnings=tuple(warnings), timings_s=timings)

@@ -1,0 +1,134 @@
+"""The calibration residual, built once from :mod:`blurtrack.model` for numpy and CasADi.
+
+Residual of one streak (DESIGN's pure-rotation model, rolling shutter included): the measured
+start ``s`` was seen when its row started exposing, ``t_s = frame_t + readout · s_y / H``; the
+measured end ``e`` when its row stopped, ``t_e = frame_t + readout · e_y / H + exposure``.
+Warping ``s`` from ``t_s`` to ``t_e`` with the gyro-driven model must land on ``e``::
+
+    r = warp_c(s, t_s, t_e; theta) - e          (2 values per streak, pixels)
+
+At the true parameters and noise-free endpoints ``r = 0`` exactly: the end satisfies the same
+row-time equation that :func:`blurtrack.model.rolling_endpoint_c` solves by fixed-point
+iteration, and this form needs a single warp per streak instead of five (see
+docs/calibration.md). The same function :func:`endpoint_residual` is evaluated on numpy arrays
+(initialisation, outlier tests) and on CasADi ``MX`` columns (the solver's exact Jacobian).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from blurtrack.gyro import GyroTrace
+from blurtrack.model import (
+    NUMPY_OPS,
+    constant_mat3,
+    matmul3,
+    n_substeps,
+    omega_cam_fn,
+    row_start_c,
+    so3_exp_c,
+    warp_c,
+)
+from calib.data import StreakSet
+from calib.params import N_THETA
+
+CA_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, sqrt=ca.sqrt)
+
+
+def endpoint_residual(
+    theta: Sequence[Any], cols: Sequence[Any], omega_imu_at: Callable[[Any], tuple],
+    R0_cam_imu: np.ndarray, dist: Sequence[float], height: int, n_sub: int, ops: Any,
+) -> tuple[Any, Any]:
+    """Residual ``(r_x, r_y)`` of a batch of streaks (see the module docstring).
+
+    Args:
+        theta: the 18 parameters of :mod:`calib.params` (numbers or CasADi scalars).
+        cols: ``(start_x, start_y, end_x, end_y, frame_t_s, exposure_s)``, arrays ``(N,)``
+            or CasADi columns; times on the camera clock, seconds.
+        omega_imu_at: IMU-clock time -> ``(wx, wy, wz)`` measured rate, rad/s.
+        R0_cam_imu: ``(3, 3)`` initial camera–IMU rotation, perturbed by ``theta[9:12]``.
+        dist: fixed radtan coefficients (``()`` for none).
+        height: image height H in rows.
+        n_sub: integration sub-steps per warp (fixed for a CasADi graph).
+    """
+    shift, fx, fy, cx, cy, readout = theta[0:6]
+    bias = (theta[6], theta[7], theta[8])
+    dR = so3_exp_c(theta[9], theta[10], theta[11], ops)
+    sxx, syy, szz, sxy, sxz, syz = theta[12:18]
+    S = (sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz)
+    S2 = matmul3(S, S)
+    # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
+    inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
+    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
+    sx, sy, ex, ey, ft, exp = cols
+    t_s = row_start_c(ft, sy, readout, height)
+    t_e = row_start_c(ft, ey, readout, height) + exp
+    omega = omega_cam_fn(omega_imu_at, R, bias, shift)
+    u, v = warp_c(sx, sy, t_s, t_e, omega, (fx, fy, cx, cy), tuple(dist), n_sub, ops)
+    return u - ex, v - ey
+
+
+def choose_substeps(streaks: StreakSet, height: int, readout_bound_s: float,
+                    max_substep_s: float = 1e-3) -> int:
+    """Sub-steps so that no streak's warp interval exceeds ``max_substep_s`` per step."""
+    if len(streaks) == 0:
+        return 1
+    dv = np.abs(streaks.end[:, 1] - streaks.start[:, 1]) / height
+    span = float(np.max(streaks.exposure_s + readout_bound_s * dv))
+    return n_substeps(span, max_substep_s)
+
+
+def _columns(streaks: StreakSet) -> list[np.ndarray]:
+    return [streaks.start[:, 0], streaks.start[:, 1], streaks.end[:, 0], streaks.end[:, 1],
+            streaks.frame_t_s, streaks.exposure_s]
+
+
+@dataclass(frozen=True)
+class ResidualModel:
+    """Everything fixed while fitting: gyro, initial rotation, distortion, image height."""
+
+    gyro: GyroTrace
+    R0_cam_imu: np.ndarray
+    dist: tuple[float, ...]
+    height: int
+    n_sub: int
+
+    def residual_np(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
+        """Residuals ``(N, 2)`` in pixels, evaluated with numpy."""
+        rx, ry = endpoint_residual(list(np.asarray(theta, float)), _columns(streaks),
+                                   self.gyro.omega_components, self.R0_cam_imu, self.dist,
+                                   self.height, self.n_sub, NUMPY_OPS)
+        return np.stack([rx, ry], axis=1)
+
+    def casadi_functions(self, n: int) -> tuple[ca.Function, ca.Function]:
+        """``res(theta, D) -> r (2N,)`` and ``jac(theta, D) -> (r, dr/dtheta (2N, N_THETA))``.
+
+        ``D`` is the ``(N, 6)`` data matrix of :meth:`data_matrix`. The gyro enters through
+        linear ``ca.interpolant`` look-ups, differentiable in the time shift.
+        """
+        theta = ca.MX.sym("theta", N_THETA)
+        D = ca.MX.sym("D", n, 6)
+        interp = [ca.interpolant(f"omega_{k}", "linear", [self.gyro.t_s],
+                                 self.gyro.omega_radps[:, k]) for k in range(3)]
+
+        def omega_imu_at(t: Any) -> tuple:
+            return tuple(f(t) for f in interp)
+
+        cols = [D[:, j] for j in range(6)]
+        th = [theta[i] for i in range(N_THETA)]
+        rx, ry = endpoint_residual(th, cols, omega_imu_at, self.R0_cam_imu, self.dist,
+                                   self.height, self.n_sub, CA_OPS)
+        r = ca.vertcat(rx, ry)
+        res = ca.Function("calib_residual", [theta, D], [r])
+        jac = ca.Function("calib_jacobian", [theta, D], [r, ca.jacobian(r, theta)])
+        return res, jac
+
+    @staticmethod
+    def data_matrix(streaks: StreakSet) -> np.ndarray:
+        return np.stack(_columns(streaks), axis=1)

@@ -1,0 +1,99 @@
+"""Synthetic calibration problems from the core blur model (known truth, no images).
+
+A smooth hand-shake motion (sampled densely for the truth, at the gyro rate for the
+measurement), random laser-dot directions per frame, true streak endpoints from
+:meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise. Used by
+tests and benchmarks to check the solver independently of the simulator and detector.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.calibration import Calibration
+from blurtrack.camera import Camera
+from blurtrack.gyro import GyroTrace
+from blurtrack.rotation import so3_exp
+from blurtrack.trajectory import BlurModel
+from calib.data import StreakSet
+
+#: Sampling rate of the "continuous" true motion behind the truth endpoints.
+TRUTH_RATE_HZ = 4000.0
+
+
+@dataclass(frozen=True)
+class SyntheticProblem:
+    streaks: StreakSet
+    gyro: GyroTrace  # measured (bias and noise included), absolute IMU clock
+    truth: Calibration
+    initial: Calibration
+
+
+def shake_function(rng: np.random.Generator, amp_radps: float = 1.0,
+                   roll: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
+    """Smooth angular velocity ``t (N,) -> (N, 3)``: sums of random 1–8 Hz sinusoids per axis."""
+    freq = rng.uniform(1.0, 8.0, (3, 5))
+    amp = rng.normal(0, amp_radps / 2, (3, 5)) * np.array([[1.0], [1.0], [roll]])
+    phase = rng.uniform(0, 2 * np.pi, (3, 5))
+
+    def omega(t_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_s, float)[:, None, None]
+        return np.sum(amp * np.sin(2 * np.pi * freq * t + phase), axis=2)
+
+    return omega
+
+
+def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
+                 endpoint_noise_px: float = 0.1, gyro_noise_radps: float = 0.0,
+                 roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
+                 shift_error_s: float = 0.03, focal_error: float = 0.05,
+                 gyro_scale: np.ndarray | None = None) -> SyntheticProblem:
+    """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
+
+    ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
+    """
+    rng = np.random.default_rng(seed)
+    cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
+                 readout_s=0.025)
+    R0 = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    R_true = so3_exp(np.array([0.01, -0.015, 0.02])) @ R0
+    truth = Calibration(camera=cam, R_cam_imu=R_true, timeshift_cam_imu_s=0.0123,
+                        gyro_bias_radps=np.array([0.004, -0.006, 0.002]))
+    period, exposure = 0.05, 0.02
+    frame_t = 100.0 + period * np.arange(n_frames)
+    omega = shake_function(rng, amp_radps, roll)
+    # Truth from the continuous motion (densely sampled); the gyro samples it at rate_hz.
+    t_dense = np.arange(frame_t[0] - 0.3, frame_t[-1] + 0.3, 1.0 / TRUTH_RATE_HZ)
+    model = BlurModel(truth, GyroTrace(t_dense, omega(t_dense) + truth.gyro_bias_radps))
+    t_imu = np.arange(frame_t[0] - 0.25, frame_t[-1] + 0.25, 1.0 / rate_hz)
+    w_true = omega(t_imu)
+    starts, ends, fts, frames, ids = [], [], [], [], []
+    for i, ft in enumerate(frame_t):
+        px = np.stack([rng.uniform(40, 1240, dots_per_frame),
+                       rng.uniform(40, 680, dots_per_frame)], axis=1)
+        t_ref = model.default_reference_time(ft, exposure)
+        s, e, _, _ = model.streak_endpoints(px, t_ref, ft, exposure)
+        ok = np.all((s > 3) & (e > 3) & (s < [1276, 716]) & (e < [1276, 716]), axis=1)
+        starts.append(s[ok])
+        ends.append(e[ok])
+        fts.append(np.full(ok.sum(), ft))
+        frames.append(np.full(ok.sum(), i))
+        ids.append(np.flatnonzero(ok))
+    start = np.concatenate(starts) + rng.normal(0, endpoint_noise_px, (sum(map(len, ids)), 2))
+    end = np.concatenate(ends) + rng.normal(0, endpoint_noise_px, start.shape)
+    ft_all = np.concatenate(fts)
+    streaks = StreakSet(start, end, ft_all - frame_t[0], np.full(ft_all.size, exposure),
+                        np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]))
+    M = np.eye(3) if gyro_scale is None else np.asarray(gyro_scale, float)
+    w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps,
+                                                                 w_true.shape)
+    gyro = GyroTrace(t_imu, w_meas)
+    fx, fy = cam.intrinsics[:2]
+    initial = Calibration(
+        camera=Camera(cam.resolution, (fx * (1 + focal_error), fy * (1 + focal_error),
+                                       639.5, 359.5), readout_s=0.02),
+        R_cam_imu=R0, timeshift_cam_imu_s=truth.timeshift_cam_imu_s + shift_error_s)
+    return SyntheticProblem(streaks, gyro, truth, initial)

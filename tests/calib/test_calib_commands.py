@@ -1,0 +1,104 @@
+"""`blurtrack calibrate` and `blurtrack report` end to end on a small synthetic session."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blurtrack import streaks as streak_table
+from blurtrack.calibration import Calibration
+from blurtrack.cli import main
+from blurtrack.session import ImuConfig, SessionMeta, SessionWriter
+from calib.synthetic import make_problem
+
+
+def _write_session(folder: Path, seed: int = 21) -> tuple[Path, Calibration]:
+    p = make_problem(seed=seed, n_frames=10, dots_per_frame=30, endpoint_noise_px=0.05,
+                     shift_error_s=0.02, focal_error=0.04)
+    s = p.streaks
+    T = np.eye(4)
+    T[:3, :3] = p.initial.R_cam_imu
+    meta = SessionMeta(camera=p.initial.camera,
+                       imu=ImuConfig(200.0, T, p.initial.timeshift_cam_imu_s))
+    frame_t_ns = np.round((np.unique(s.frame_t_s) + s.t0_s) * 1e9).astype(np.int64)
+    with SessionWriter(folder, meta) as w:
+        for ts in frame_t_ns:
+            w.add_frame(int(ts), np.zeros((720, 1280), np.uint8), 20_000_000)
+        w.add_imu(np.round(p.gyro.t_s * 1e9).astype(np.int64), p.gyro.omega_radps)
+        frames = []
+        for i, ts in enumerate(frame_t_ns):
+            sel = s.frame == i
+            frames.append({"index": i, "timestamp_ns": int(ts), "exposure_ns": 20_000_000,
+                           "streaks": [{"dot": int(d), "start": a.tolist(), "end": b.tolist(),
+                                        "centerline": [a.tolist(), b.tolist()], "inside": True}
+                                       for d, a, b in zip(s.streak_id[sel], s.start[sel],
+                                                          s.end[sel], strict=True)]})
+        w.write_truth({"calibration": p.truth.to_dict(), "simulator": {"preset": "test"},
+                       "frames": frames})
+    from blurtrack.session import load_session
+
+    table = streak_table.from_truth(load_session(folder).truth)
+    streak_table.write(table, folder / "streaks.parquet")
+    return folder, p.truth
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Calibration]:
+    return _write_session(tmp_path_factory.mktemp("calib_cli") / "sess")
+
+
+def test_calibrate_and_report(session_dir, tmp_path: Path, capsys) -> None:
+    folder, truth = session_dir
+    out = tmp_path / "calib.yaml"
+    assert main(["calibrate", str(folder), "--out", str(out), "--holdout", "0.2"]) == 0
+    text = capsys.readouterr().out
+    assert "truth" in text and "timeshift_s" in text
+    cal = Calibration.from_yaml(out)
+    assert abs(cal.timeshift_cam_imu_s - truth.timeshift_cam_imu_s) < 2e-4
+    assert "timeshift_cam_imu" in cal.sigma and len(cal.sigma["intrinsics"]) == 4
+    summ = json.loads((tmp_path / "calib.summary.json").read_text())
+    assert summ["status"] in ("ok", "warning")
+    assert abs(summ["error_vs_truth"]["fx"]) < 2.0
+    assert (tmp_path / "calib.openvins.yaml").read_text().startswith("%YAML:1.0")
+    assert (tmp_path / "calib.camera_info.yaml").is_file()
+
+    rep = tmp_path / "report"
+    assert main(["report", str(folder), "--calib", str(out), "--out", str(rep),
+                 "--from-truth", "--overlays", "1"]) == 0
+    summary = json.loads((rep / "summary.json").read_text())
+    assert summary["overall"]["after"]["mean_px"] < 0.3
+    assert summary["overall"]["before"]["mean_px"] > summary["overall"]["after"]["mean_px"]
+    mm = summary["motion_models"]
+    assert mm["exact_rolling"]["mean_px"] < mm["exact_global"]["mean_px"]
+    html = (rep / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 7 and "src='http" not in html
+    errs = pd.read_csv(rep / "streak_errors.csv")
+    assert set(errs["variant"]) == {"before", "after", "paper_small_angle", "exact_global",
+                                    "small_angle_rolling",
+                                    "exact_rolling"}
+    frames = pd.read_csv(rep / "frame_errors.csv")
+    assert frames["frame"].nunique() == 10
+
+
+def test_bad_fit_list_and_missing_streaks(session_dir, tmp_path: Path, capsys) -> None:
+    folder, _ = session_dir
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
+                 "--fit", "fx,zoom"]) == 2
+    assert "zoom" in capsys.readouterr().err
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
+                 "--streaks", str(tmp_path / "nope.parquet")]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_report_rejects_garbled_calibration(session_dir, tmp_path: Path, capsys) -> None:
+    folder, _ = session_dir
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("cam0: [1, 2\n")
+    assert main(["report", str(folder), "--calib", str(bad), "--out",
+                 str(tmp_path / "r")]) == 2
+    assert "not valid YAML" in capsys.readouterr().err

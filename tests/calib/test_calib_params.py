@@ -1,0 +1,88 @@
+"""Parameter vector, --fit parsing and the hold-out split: round trips and properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from blurtrack.calibration import Calibration
+from blurtrack.camera import Camera
+from calib.data import holdout_mask
+from calib.errors import CalibError
+from calib.params import (
+    GROUPS,
+    N_THETA,
+    apply_theta,
+    parse_fit,
+    rotation_error_rad,
+    scale_matrix,
+    theta_from,
+)
+from calib.result import sigma_block
+
+BASE = Calibration(Camera((640, 480), (500.0, 500.0, 320.0, 240.0), readout_s=0.01))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=N_THETA, max_size=N_THETA))
+def test_apply_theta_round_trip(u: list[float]) -> None:
+    th = theta_from(BASE)
+    d = np.asarray(u)
+    th[0] += 0.05 * d[0]
+    th[1:5] += 20 * d[1:5]
+    th[5] = 0.02 + 0.01 * d[5]
+    th[6:9] = 0.05 * d[6:9]
+    th[9:12] = 0.3 * d[9:12]
+    cal = apply_theta(BASE, th)
+    back = theta_from(cal)
+    np.testing.assert_allclose(back[:9], th[:9], atol=1e-12)
+    np.testing.assert_allclose(rotation_error_rad(cal.R_cam_imu, BASE.R_cam_imu), th[9:12],
+                               atol=1e-9)
+
+
+@given(st.lists(st.sampled_from(sorted(GROUPS)), min_size=1, max_size=9))
+def test_parse_fit_selects_exactly_the_groups(names: list[str]) -> None:
+    idx = parse_fit(",".join(names))
+    assert idx == tuple(sorted({i for n in names for i in GROUPS[n]}))
+
+
+def test_parse_fit_rejects_unknown_and_empty() -> None:
+    with pytest.raises(CalibError, match="unknown"):
+        parse_fit("fx,zoom")
+    with pytest.raises(CalibError, match="no parameter"):
+        parse_fit(" , ")
+
+
+def test_apply_theta_rejects_divergence() -> None:
+    th = theta_from(BASE)
+    th[1] = -3.0
+    with pytest.raises(CalibError, match="diverged"):
+        apply_theta(BASE, th)
+    th = theta_from(BASE)
+    th[2] = np.nan
+    with pytest.raises(CalibError):
+        apply_theta(BASE, th)
+
+
+@given(st.lists(st.integers(0, 60), min_size=1, max_size=300), st.floats(0.05, 0.5))
+def test_holdout_is_framewise_and_near_the_fraction(frames: list[int], frac: float) -> None:
+    f = np.asarray(frames)
+    m = holdout_mask(f, frac)
+    for k in np.unique(f):  # whole frames are in or out
+        assert m[f == k].all() or not m[f == k].any()
+    n = np.unique(f).size
+    held = np.unique(f[m]).size
+    assert held <= n // max(2, round(1 / frac)) + 1
+
+
+def test_scale_matrix_and_sigma_block() -> None:
+    th = np.zeros(N_THETA)
+    th[12:18] = [1, 2, 3, 4, 5, 6]
+    M = scale_matrix(th)
+    np.testing.assert_allclose(M, M.T)
+    assert M[0, 1] == 4 and M[2, 2] == 4
+    blk = sigma_block({"fx": 0.5, "timeshift_s": 1e-5, "bias_y": 1e-4})
+    assert blk == {"timeshift_cam_imu": 1e-5, "intrinsics": [0.5, None, None, None],
+                   "gyro_bias_radps": [None, 1e-4, None]}
