@@ -104,20 +104,22 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
 
     ``ceiling``: the saturation level (signal units); cross-sections reaching half of it
     get their width from the tails (:func:`tail_sigma`), their top being clipped."""
-    half = int(np.ceil(3.0 * sigma_c)) + 1
+    half = int(np.ceil(3.0 * sigma_c)) + 1  # final pass: the whole cross-section integral
+    half_move = int(np.ceil(2.0 * sigma_c)) + 1  # earlier passes only need the centroid
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3
     r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
     for it in range(REFINE_PASSES):
         # Extensions always start from refined points, along the refined end tangents.
         r = ragged.extend(r, n_ext)
         final = it == REFINE_PASSES - 1
-        nrm, v = _cross_samples(smooth, r, half, cubic=final)
+        h = half if final else half_move
+        nrm, v = _cross_samples(smooth, r, h, cubic=final)
         prof = v.sum(axis=1)
         if final:
             break
         vp = np.maximum(v, 0.0)
-        off = np.arange(-half, half + 1, dtype=np.float64)
-        shift = np.clip((vp @ off) / np.maximum(vp.sum(axis=1), 1e-12), -half, half)
+        off = np.arange(-h, h + 1, dtype=np.float64)
+        shift = np.clip((vp @ off) / np.maximum(vp.sum(axis=1), 1e-12), -h, h)
         # Only points that carry signal (a quarter of their line's peak profile) are moved
         # and kept; the unlit rest of the extensions is rebuilt on the next pass.
         lit = prof > 0.25 * _line_max(prof, r)

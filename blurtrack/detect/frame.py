@@ -60,11 +60,11 @@ class FrameStreaks:
 
 
 def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
-    """Whether a ~1 px sampled centre line comes back within 1 px of itself after more than
+    """Whether a ~1 px sampled centre line comes back within 1.5 px of itself after more than
     ``min_arc_px`` of arc (a loop)."""
     if len(points) < 3:
         return False
-    pairs = cKDTree(points).query_pairs(1.0, output_type="ndarray")
+    pairs = cKDTree(points).query_pairs(1.5, output_type="ndarray")
     return bool(np.any(np.abs(pairs[:, 0] - pairs[:, 1]) > min_arc_px)) if len(pairs) else False
 
 
