@@ -97,3 +97,41 @@ def pad_to_multiple(x: torch.Tensor, multiple: int) -> tuple[torch.Tensor, tuple
 def crop_to(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """Inverse of :func:`pad_to_multiple` for a full-resolution output."""
     return x[..., : size[0], : size[1]]
+
+
+class Decoder3(nn.Module):
+    """Three-level U-Net decoder shared by GAMD and MIMO-UNet.
+
+    From the coarsest features upwards: residual stack, 4×4 transposed conv (×2), 1×1 merge
+    with the skip features of the next finer level, residual stack; RGB heads add the level's
+    input image (residual learning). ``mid_output`` adds the scale-2 head (MIMO-UNet's third
+    output; GAMD's loss uses scales 1 and 4 only).
+    """
+
+    def __init__(self, c1: int, c2: int, c3: int, num_res: int, mid_output: bool) -> None:
+        super().__init__()
+        self.dec3 = res_stack(c3, num_res)
+        self.out3 = ConvAct(c3, 3, 3, act=False)
+        self.up3 = nn.Sequential(nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1),
+                                 nn.ReLU(inplace=True))
+        self.skip2 = ConvAct(2 * c2, c2, 1)
+        self.dec2 = res_stack(c2, num_res)
+        self.out2 = ConvAct(c2, 3, 3, act=False) if mid_output else None
+        self.up2 = nn.Sequential(nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1),
+                                 nn.ReLU(inplace=True))
+        self.skip1 = ConvAct(2 * c1, c1, 1)
+        self.dec1 = res_stack(c1, num_res)
+        self.out1 = ConvAct(c1, 3, 3, act=False)
+
+    def forward(self, skips: list[torch.Tensor], images: list[torch.Tensor]
+                ) -> list[torch.Tensor]:
+        """``skips`` = features of levels 1..3 (finest first), ``images`` = the blurred input
+        at the same levels; returns the outputs finest first (scales 1, [2,] 4)."""
+        d3 = self.dec3(skips[2])
+        out3 = self.out3(d3) + images[2]
+        d2 = self.dec2(self.skip2(torch.cat([self.up3(d3), skips[1]], dim=1)))
+        d1 = self.dec1(self.skip1(torch.cat([self.up2(d2), skips[0]], dim=1)))
+        out1 = self.out1(d1) + images[0]
+        if self.out2 is None:
+            return [out1, out3]
+        return [out1, self.out2(d2) + images[1], out3]

@@ -26,7 +26,15 @@ import torch
 from torch import nn
 
 from gamd.nets.base import DeblurNet, check_width
-from gamd.nets.blocks import ConvAct, SameConv, downsample, heat_pyramid, res_stack, resize_to
+from gamd.nets.blocks import (
+    ConvAct,
+    Decoder3,
+    SameConv,
+    downsample,
+    heat_pyramid,
+    res_stack,
+    resize_to,
+)
 
 
 class InputHead(nn.Module):
@@ -85,17 +93,7 @@ class Gamd(DeblurNet):
         self.rconv = nn.ModuleList(res_stack(c, num_res) for c in (c1, c2, c3))
         self.ffm2 = FFM([c2, c1], c2)
         self.ffm3 = FFM([c3, c2, c1], c3)
-        self.dec3 = res_stack(c3, num_res)
-        self.out3 = ConvAct(c3, 3, 3, act=False)
-        self.up3 = nn.Sequential(nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
-        self.skip2 = ConvAct(2 * c2, c2, 1)
-        self.dec2 = res_stack(c2, num_res)
-        self.up2 = nn.Sequential(nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
-        self.skip1 = ConvAct(2 * c1, c1, 1)
-        self.dec1 = res_stack(c1, num_res)
-        self.out1 = ConvAct(c1, 3, 3, act=False)
+        self.decoder = Decoder3(c1, c2, c3, num_res, mid_output=False)
 
     def _forward(self, blur: torch.Tensor, heat: torch.Tensor | None) -> list[torch.Tensor]:
         images = [blur, downsample(blur, 2), downsample(blur, 4)]
@@ -107,9 +105,4 @@ class Gamd(DeblurNet):
         p1 = r1
         p2 = self.ffm2(r2, r1)
         p3 = self.ffm3(r3, r2, r1)
-        d3 = self.dec3(p3)
-        out3 = self.out3(d3) + images[2]
-        d2 = self.dec2(self.skip2(torch.cat([self.up3(d3), p2], dim=1)))
-        d1 = self.dec1(self.skip1(torch.cat([self.up2(d2), p1], dim=1)))
-        out1 = self.out1(d1) + images[0]
-        return [out1, out3]
+        return self.decoder([p1, p2, p3], images)

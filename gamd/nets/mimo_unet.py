@@ -24,7 +24,7 @@ from torch import nn
 
 from gamd.errors import GamdConfigError
 from gamd.nets.base import DeblurNet, check_width
-from gamd.nets.blocks import ConvAct, downsample, heat_pyramid, res_stack, resize_to
+from gamd.nets.blocks import ConvAct, Decoder3, downsample, heat_pyramid, res_stack, resize_to
 
 
 class SCM(nn.Module):
@@ -97,18 +97,7 @@ class MimoUNet(DeblurNet):
         self.enc3 = res_stack(c3, num_res)
         self.aff1 = AFF(c1 + c2 + c3, c1)
         self.aff2 = AFF(c1 + c2 + c3, c2)
-        self.dec3 = res_stack(c3, num_res)
-        self.out3 = ConvAct(c3, 3, 3, act=False)
-        self.up3 = nn.Sequential(nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
-        self.skip2 = ConvAct(2 * c2, c2, 1)
-        self.dec2 = res_stack(c2, num_res)
-        self.out2 = ConvAct(c2, 3, 3, act=False)
-        self.up2 = nn.Sequential(nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
-        self.skip1 = ConvAct(2 * c1, c1, 1)
-        self.dec1 = res_stack(c1, num_res)
-        self.out1 = ConvAct(c1, 3, 3, act=False)
+        self.decoder = Decoder3(c1, c2, c3, num_res, mid_output=True)
 
     def _forward(self, blur: torch.Tensor, heat: torch.Tensor | None) -> list[torch.Tensor]:
         images = [blur, downsample(blur, 2), downsample(blur, 4)]
@@ -123,10 +112,4 @@ class MimoUNet(DeblurNet):
         s1, s2 = e1.shape[-2:], e2.shape[-2:]
         a1 = self.aff1(e1, resize_to(e2, s1), resize_to(e3, s1))
         a2 = self.aff2(resize_to(e1, s2), e2, resize_to(e3, s2))
-        d3 = self.dec3(e3)
-        out3 = self.out3(d3) + images[2]
-        d2 = self.dec2(self.skip2(torch.cat([self.up3(d3), a2], dim=1)))
-        out2 = self.out2(d2) + images[1]
-        d1 = self.dec1(self.skip1(torch.cat([self.up2(d2), a1], dim=1)))
-        out1 = self.out1(d1) + images[0]
-        return [out1, out2, out3]
+        return self.decoder([a1, a2, e3], images)
