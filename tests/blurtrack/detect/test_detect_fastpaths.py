@@ -1,0 +1,102 @@
+"""The fast paths of detection agree with their plain definitions (hot pixels, short fits)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import ndtr
+
+from blurtrack.detect.image import remove_hot_pixels
+from blurtrack.detect.shortfit import _basis, fit_short
+
+_RING = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+
+
+def _hot_reference(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The definition, pixel by pixel: interior raw local maxima above ``floor`` that exceed
+    ``ratio`` times their brightest 8-neighbour; returns the hot mask and the repaired signal."""
+    H, W = raw.shape
+    hot = np.zeros((H, W), bool)
+    out = signal.copy()
+    for y in range(1, H - 1):
+        for x in range(1, W - 1):
+            nb = [raw[y + dy, x + dx] for dy, dx in _RING]
+            ring = max(signal[y + dy, x + dx] for dy, dx in _RING)
+            v = signal[y, x]
+            if raw[y, x] >= max(nb) and v > floor and v > ratio * max(ring, 0.0):
+                hot[y, x] = True
+                out[y, x] = ring
+    return hot, out
+
+
+def _frame_with_hot_pixels(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    H, W = 48, 64
+    yy, xx = np.mgrid[0:H, 0:W]
+    img = 20.0 + rng.normal(0.0, 2.0, (H, W))
+    for _ in range(6):  # Gaussian dots (sigma 1.2 px): never hot
+        cx, cy = rng.uniform(4, W - 4), rng.uniform(4, H - 4)
+        img += 150.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * 1.2**2))
+    for _ in range(10):  # single bright pixels, some on the border (never replaced)
+        img[rng.integers(0, H), rng.integers(0, W)] = rng.uniform(60, 255)
+    raw = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    signal = (raw.astype(np.float32) - 20.0) / 255.0
+    return raw, signal
+
+
+def test_hot_pixel_removal_equals_its_definition() -> None:
+    for seed in range(4):
+        raw, signal = _frame_with_hot_pixels(seed)
+        hot, expected = _hot_reference(raw, signal, 3.0, 0.05)
+        fast = signal.copy()
+        count = remove_hot_pixels(raw, fast, 3.0, 0.05)
+        assert count == int(hot.sum()) and count >= 3
+        np.testing.assert_array_equal(fast, expected)
+
+
+def test_hot_pixel_removal_without_candidates_changes_nothing() -> None:
+    raw = np.full((16, 16), 7, np.uint8)
+    signal = np.zeros((16, 16), np.float32)
+    assert remove_hot_pixels(raw, signal, 3.0, 0.01) == 0
+    assert not signal.any()
+
+
+def test_basis_derivatives_match_finite_differences() -> None:
+    s = np.arange(30, dtype=np.float64)[None, :]
+    a, L, sg = np.array([8.3, 10.0]), np.array([6.2, 1.0]), np.array([1.8, 2.5])
+    h = 1e-6
+    F0, F1, ga, gb = _basis(s, a, L, sg)
+    F0a, F1a, _, _ = _basis(s, a + h, L, sg)
+    F0l, F1l, _, _ = _basis(s, a, L + h, sg)
+    half_L = 0.5 * L[:, None]
+    np.testing.assert_allclose((F0a - F0) / h, gb - ga, atol=1e-6)
+    np.testing.assert_allclose((F1a - F1) / h, -F0 + (ga + gb) * half_L, atol=1e-5)
+    np.testing.assert_allclose((F0l - F0) / h, gb, atol=1e-6)
+    np.testing.assert_allclose((F1l - F1) / h, -0.5 * F0 + gb * half_L, atol=1e-5)
+
+
+def test_fit_short_recovers_noise_free_segments() -> None:
+    # Blurred segments of uniform and linearly varying density, fitted from rough starts.
+    s = np.arange(40, dtype=np.float64)
+    a_true = np.array([12.0, 15.3, 18.7])
+    L_true = np.array([6.0, 3.4, 9.1])
+    slope = np.array([0.0, 0.0, 0.15])  # density 1 + slope (u - mid) on the third
+    sigma = np.array([1.8, 1.8, 2.0])
+    y = np.zeros((3, s.size))
+    for i in range(3):
+        u = np.linspace(a_true[i], a_true[i] + L_true[i], 4001)
+        dens = 1.0 + slope[i] * (u - u.mean())
+        g = np.exp(-0.5 * ((s[:, None] - u[None, :]) / sigma[i]) ** 2)
+        g /= sigma[i] * np.sqrt(2 * np.pi)
+        y[i] = np.trapezoid(g * dens[None, :], u, axis=1)
+    w = np.ones_like(y)
+    a, L, c0 = fit_short(y, w, sigma, a_true + np.array([0.6, -0.5, 0.8]),
+                         L_true + np.array([-1.0, 1.2, -0.9]))
+    np.testing.assert_allclose(a, a_true, atol=2e-3)
+    np.testing.assert_allclose(L, L_true, atol=4e-3)
+    np.testing.assert_allclose(c0, 1.0, atol=2e-3)
+    # A pure edge step (not a segment) stays finite and inside the window.
+    edge = np.tile(ndtr((s - 20.0) / 1.8), (1, 1))
+    a2, L2, _ = fit_short(edge, np.ones_like(edge), np.array([1.8]), np.array([18.0]),
+                          np.array([5.0]))
+    assert np.isfinite(a2).all() and a2[0] >= 0 and a2[0] + L2[0] <= 39.0 + 1e-9
