@@ -22,7 +22,7 @@ from blurtrack.detect.ragged import Ragged
 from blurtrack.detect.sampling import sample_image
 
 #: Sampling passes over the normals: all but the last move the line to the centroids.
-REFINE_PASSES = 3
+REFINE_PASSES = 2
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,12 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
         nrm, v = _cross_samples(smooth, r, h, cubic=final)
         prof = v.sum(axis=1)
         if final:
+            d = half - half_move
+            vp = np.maximum(v[:, d : v.shape[1] - d], 0.0)
+            off = np.arange(-half_move, half_move + 1, dtype=np.float64)
+            shift = np.clip((vp @ off) / np.maximum(vp.sum(axis=1), 1e-12), -1.0, 1.0)
+            lit = prof > 0.25 * _line_max(prof, r)
+            r = Ragged(r.points + np.where(lit, shift, 0.0)[:, None] * nrm, r.sizes)
             break
         vp = np.maximum(v, 0.0)
         off = np.arange(-h, h + 1, dtype=np.float64)
