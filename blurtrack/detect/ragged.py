@@ -9,6 +9,7 @@ Every line must have at least 2 points.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -21,11 +22,12 @@ class Ragged:
     points: np.ndarray
     sizes: np.ndarray
 
-    @property
+    @cached_property
     def starts(self) -> np.ndarray:
+        """First index of every line, ``(N,)`` (computed once per instance)."""
         return np.concatenate(([0], np.cumsum(self.sizes)[:-1])).astype(np.int64)
 
-    @property
+    @cached_property
     def line_of(self) -> np.ndarray:
         """Line index of every point, ``(M,)``."""
         return np.repeat(np.arange(self.sizes.size), self.sizes)

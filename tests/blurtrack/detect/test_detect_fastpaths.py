@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr
 
+from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import remove_hot_pixels
 from blurtrack.detect.shortfit import _basis, fit_short
 
@@ -100,3 +101,26 @@ def test_fit_short_recovers_noise_free_segments() -> None:
     a2, L2, _ = fit_short(edge, np.ones_like(edge), np.array([1.8]), np.array([18.0]),
                           np.array([5.0]))
     assert np.isfinite(a2).all() and a2[0] >= 0 and a2[0] + L2[0] <= 39.0 + 1e-9
+
+
+def test_cross_section_widths_of_sampled_gaussians() -> None:
+    half = 7
+    o = np.arange(-half, half + 1, dtype=np.float64)
+    sig = np.array([1.2, 1.7, 2.6])
+    shift = np.array([0.0, 0.3, -0.45])
+    v = 0.8 * np.exp(-0.5 * ((o[None, :] - shift[:, None]) / sig[:, None]) ** 2)
+    np.testing.assert_allclose(cross_section_sigma(v, half), sig, rtol=1e-9)
+    # Centred and clipped at 40 % of the peak: the flanks still give the width.
+    centred = 0.8 * np.exp(-0.5 * (o[None, :] / sig[:, None]) ** 2)
+    np.testing.assert_allclose(tail_sigma(np.minimum(centred, 0.32), half, 0.32), sig,
+                               rtol=1e-9)
+    # Unusable rows are nan: a dip in the middle, too few flank samples.
+    flat = np.ones((1, 2 * half + 1))
+    assert np.isnan(cross_section_sigma(-v[:1], half)).all()
+    assert np.isnan(tail_sigma(flat, half, 0.5)).all()
+    # The centroid of the central window (negative samples as 0), clipped to the limit.
+    w = np.maximum(v[:, half - 3 : half + 4] - 0.05, 0.0)
+    expected = np.clip(w @ o[half - 3 : half + 4] / w.sum(axis=1), -0.2, 0.2)
+    np.testing.assert_allclose(_centre_shift(v - 0.05, 3, 0.2), expected, rtol=1e-12)
+    c = _centre_shift(v, 3, 1.0)
+    assert abs(c[0]) < 1e-12 and np.all(np.sign(c[1:]) == np.sign(shift[1:]))
