@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.shortfit import fit_short
 
 #: Plateau fit window (samples) and how far inside the half-level crossing it starts (sigmas).
@@ -87,8 +88,9 @@ def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
 
 def _cumulative(A: np.ndarray) -> np.ndarray:
     """Trapezoid integral of each row from index 0 to every index, same shape as ``A``."""
-    C = np.zeros_like(A)
-    C[:, 1:] = np.cumsum(0.5 * (A[:, 1:] + A[:, :-1]), axis=1)
+    C = np.empty(A.shape)
+    C[:, 0] = 0.0
+    np.cumsum(0.5 * (A[:, 1:] + A[:, :-1]), axis=1, out=C[:, 1:])
     return C
 
 
@@ -198,9 +200,9 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     # can make the peak many times the plateau, so the peak is no reference).
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no lit sample
-        m1 = np.nanmedian(np.where(A > 0, A, np.nan), axis=1) if N else peak
+        m1 = row_nanmedian(np.where(A > 0, A, np.nan)) if N else peak
         lit = np.where(0.3 * np.nan_to_num(m1)[:, None] < A, A, np.nan)
-        guess = np.nan_to_num(np.nanmedian(lit, axis=1), nan=0.0) if N else peak
+        guess = np.nan_to_num(row_nanmedian(lit), nan=0.0) if N else peak
     pa, Pa, oka = rising_edges(A, lens, sigma, guess)
     pb_rev, Pb, okb = rising_edges(reverse_rows(A, lens), lens, sigma, guess)
     pb = (lens - 1) - pb_rev

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.special import ndtr
 
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import remove_hot_pixels
+from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.shortfit import _basis, fit_short
 
 _RING = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
@@ -124,3 +127,16 @@ def test_cross_section_widths_of_sampled_gaussians() -> None:
     np.testing.assert_allclose(_centre_shift(v - 0.05, 3, 0.2), expected, rtol=1e-12)
     c = _centre_shift(v, 3, 1.0)
     assert abs(c[0]) < 1e-12 and np.all(np.sign(c[1:]) == np.sign(shift[1:]))
+
+
+def test_row_nanmedian_equals_numpy() -> None:
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(120, 17))
+    X[rng.random(X.shape) < 0.6] = np.nan
+    X[5] = np.nan  # a row without any value
+    X[7, :] = 2.0  # ties
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanmedian(X, axis=1)
+    np.testing.assert_array_equal(row_nanmedian(X), expected)
+    assert row_nanmedian(np.zeros((0, 4))).shape == (0,)
