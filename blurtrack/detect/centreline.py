@@ -217,8 +217,8 @@ def trim_lines(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray) -> Trimm
     f = np.clip((half[k] - local[km1]) / np.where(gap > 0, gap, 1.0), 0.0, 1.0)[:, None]
     mid = pts[km1] * (1 - f) + pts[k] * f
     return TrimmedLines(
-        points=np.split(pts, cuts),
-        profile=np.split(prof, cuts),
+        points=ragged.split_at(pts, cuts),
+        profile=ragged.split_at(prof, cuts),
         end_a=pts[ends_a],
         end_b=pts[ends_b],
         time_mid=mid,

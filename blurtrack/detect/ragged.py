@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import pairwise
 
 import numpy as np
 
@@ -39,12 +40,19 @@ class Ragged:
         return lo, lo + np.repeat(self.sizes, self.sizes) - 1
 
     def split(self) -> list[np.ndarray]:
-        return np.split(self.points, np.cumsum(self.sizes)[:-1])
+        return split_at(self.points, np.cumsum(self.sizes)[:-1])
 
     @staticmethod
     def from_list(lines: list[np.ndarray]) -> Ragged:
         return Ragged(np.concatenate(lines).astype(np.float64),
                       np.array([len(p) for p in lines], dtype=np.int64))
+
+
+def split_at(values: np.ndarray, cuts: np.ndarray) -> list[np.ndarray]:
+    """``np.split(values, cuts)`` (views along the first axis) with plain slicing, which is
+    several times faster for hundreds of pieces."""
+    bounds = [0, *np.asarray(cuts).tolist(), values.shape[0]]
+    return [values[a:b] for a, b in pairwise(bounds)]
 
 
 def smooth(r: Ragged) -> Ragged:

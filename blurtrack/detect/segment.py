@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from blurtrack.detect.ragged import split_at
 from blurtrack.errors import DetectionError
 
 
@@ -140,5 +141,5 @@ def axis_polylines(
     folded = np.maximum.reduceat(bad.astype(np.int8), offsets[:-1]) > 0
     px = mx[bin_label] + bs * ux[bin_label] - bt * uy[bin_label]
     py = my[bin_label] + bs * uy[bin_label] + bt * ux[bin_label]
-    polylines = np.split(np.stack([px, py], axis=1), offsets[1:-1])
+    polylines = split_at(np.stack([px, py], axis=1), offsets[1:-1])
     return polylines, folded
