@@ -10,7 +10,6 @@ import numpy as np
 from blurtrack.errors import DetectionError
 
 _BOX = np.ones((3, 3), np.uint8)
-_RING_KERNEL = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)
 #: Block size (px) of the background map.
 BACKGROUND_BLOCK_PX = 32
 _DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])  # the 8-neighbour ring
@@ -80,12 +79,14 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     return background, noise
 
 
-def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                      ) -> np.ndarray:
-    """Background level per block of ``block`` px, ``(by, bx)`` float32 (frame units): the
-    mean of a sparse sample within ``4 noise + 1`` of the block's median (dots cover a small
-    part of a block; the trimmed mean avoids the half-step bias of medians of integer data),
-    then a 3x3 median over blocks (a block crowded by a streak takes its neighbours' level)."""
+def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                   ) -> np.ndarray:
+    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
+    ambient gradients): per block of ``block`` px, the mean of a sparse sample within
+    ``4 noise + 1`` of the block's median (dots cover a small part of a block; the trimmed
+    mean avoids the half-step bias of medians of integer data), then a 3x3 median over blocks
+    (a block crowded by a streak takes its neighbours' level) and bilinear upsampling."""
+    H, W = gray.shape
     step = max(block // 8, 1)
     k = block // step
     sub = gray[::step, ::step]
@@ -98,30 +99,10 @@ def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BL
     level = (smp * keep).sum(axis=2) / np.maximum(keep.sum(axis=2), 1)
     if by >= 3 and bx >= 3:
         level = cv2.medianBlur(level.astype(np.float32), 3)
-    return level.astype(np.float32)
+    return cv2.resize(level.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
 
 
-def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                   ) -> np.ndarray:
-    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
-    ambient gradients): :func:`background_levels` upsampled bilinearly."""
-    H, W = gray.shape
-    return cv2.resize(background_levels(gray, noise, block), (W, H),
-                      interpolation=cv2.INTER_LINEAR)
-
-
-def _level_bounds(level: np.ndarray, shape: tuple[int, int]) -> tuple[float, float]:
-    """Highest value of the upsampled background and a bound on its change between
-    8-neighbours (bilinear upsampling changes by at most the largest step between adjacent
-    blocks per block width, along each axis)."""
-    by, bx = level.shape
-    gx = float(np.abs(np.diff(level, axis=1)).max()) * bx / shape[1] if bx > 1 else 0.0
-    gy = float(np.abs(np.diff(level, axis=0)).max()) * by / shape[0] if by > 1 else 0.0
-    return float(level.max()), gx + gy
-
-
-def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float,
-                      background: tuple[float, float] | None = None) -> int:
+def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
 
     A hot pixel (not on the frame border) is a local maximum of ``raw`` (at least as bright as
@@ -131,19 +112,7 @@ def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: 
     never qualifies. The candidate mask (local maximum and above the floor) is built with
     full-frame OpenCV operations, which are several times faster than numpy on a large frame
     and leave only a few candidates (dot peaks, hot pixels) for the exact ring test.
-
-    ``background``: the highest background level subtracted from ``raw`` to make ``signal``
-    (raw units) and a bound on its change between neighbours. With it (and ``ratio >= 1``) a
-    necessary condition on ``raw`` alone, ``raw > ratio * ring_max(raw) - (ratio - 1) * top -
-    change``, usually rules out every pixel of a frame at once.
     """
-    if background is not None and ratio >= 1.0:
-        top, change = background
-        ring_raw = cv2.dilate(raw, _RING_KERNEL)
-        margin = cv2.addWeighted(raw, 1.0, ring_raw, -float(ratio),
-                                 (ratio - 1.0) * top + change + 1.0, dtype=cv2.CV_32F)
-        if cv2.countNonZero(cv2.compare(margin, 0.0, cv2.CMP_GT)) == 0:
-            return 0
     cand = cv2.compare(raw, cv2.dilate(raw, _BOX), cv2.CMP_GE)
     cv2.bitwise_and(cand, cv2.compare(signal, float(floor), cv2.CMP_GT), dst=cand)
     cand[0, :] = 0
@@ -176,12 +145,10 @@ def prepare_frame(
     saturated = raw >= level if raw.max() >= level else np.zeros((1, 1), bool)
     bg_raw, noise_raw = background_and_noise(raw)
     background, noise = bg_raw / top, max(noise_raw / top, 1e-4)
-    bg_level = background_levels(raw, noise_raw)
-    bg_map = cv2.resize(bg_level, (raw.shape[1], raw.shape[0]), interpolation=cv2.INTER_LINEAR)
     # (raw - background) / top in one OpenCV pass (float32 out).
-    signal = cv2.addWeighted(raw, 1.0 / top, bg_map, -1.0 / top, 0.0, dtype=cv2.CV_32F)
-    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, 5.0 * noise,
-                            _level_bounds(bg_level, raw.shape))
+    signal = cv2.addWeighted(raw, 1.0 / top, background_map(raw, noise_raw), -1.0 / top, 0.0,
+                             dtype=cv2.CV_32F)
+    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, 5.0 * noise)
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)
     smooth = cv2.GaussianBlur(signal, (k, k), smooth_sigma_px, borderType=cv2.BORDER_REPLICATE)
     # Noise of white noise after a Gaussian blur of sigma s: sigma / (2 sqrt(pi) s).
