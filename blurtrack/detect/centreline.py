@@ -126,12 +126,14 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
     get their width from the tails (:func:`tail_sigma`), their top being clipped."""
     half = int(np.ceil(3.0 * sigma_c)) + 1  # final pass: the whole cross-section integral
     half_move = int(np.ceil(2.0 * sigma_c)) + 1  # earlier passes only need the centroid
-    n_ext = int(np.ceil(3.0 * sigma_c)) + 3
+    n_ext = int(np.ceil(3.0 * sigma_c)) + 3  # final pass: edges, tails and their baseline
+    # Moving passes only need the lit part past the component's (thresholded) ends.
+    n_ext_move = int(np.ceil(1.5 * sigma_c)) + 2
     r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
     for it in range(REFINE_PASSES):
         # Extensions always start from refined points, along the refined end tangents.
-        r = ragged.extend(r, n_ext)
         final = it == REFINE_PASSES - 1
+        r = ragged.extend(r, n_ext if final else n_ext_move)
         h = half if final else half_move
         nrm, v = _cross_samples(smooth, r, h, cubic=final)
         prof = _row_sums(v)
