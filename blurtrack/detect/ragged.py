@@ -48,6 +48,11 @@ class Ragged:
                       np.array([len(p) for p in lines], dtype=np.int64))
 
 
+def _norms(d: np.ndarray) -> np.ndarray:
+    """Lengths ``(M,)`` of 2-D vectors ``(M, 2)`` (``np.linalg.norm(d, axis=1)``, faster)."""
+    return np.hypot(d[:, 0], d[:, 1])
+
+
 def split_at(values: np.ndarray, cuts: np.ndarray) -> list[np.ndarray]:
     """``np.split(values, cuts)`` (views along the first axis) with plain slicing, which is
     several times faster for hundreds of pieces."""
@@ -66,7 +71,10 @@ def smooth(r: Ragged) -> Ragged:
         out[2:-2] = (p[:-4] + p[4:] + 4.0 * (p[1:-3] + p[3:-1]) + 6.0 * p[2:-2]) / 16.0
     st = r.starts
     en = st + r.sizes - 1
-    near = np.unique(np.concatenate([st, st + 1, en - 1, en]).clip(0, M - 1))
+    is_near = np.zeros(M, bool)  # a mask, not np.unique: no sort
+    for idx in (st, st + 1, en - 1, en):
+        is_near[idx.clip(0, M - 1)] = True
+    near = np.flatnonzero(is_near)
     line = np.searchsorted(st, near, side="right") - 1
     lo, hi = st[line], en[line]
     acc = 6.0 * p[near]
@@ -87,12 +95,12 @@ def tangents(r: Ragged) -> np.ndarray:
     lo, hi = r.bounds()
     idx = np.arange(r.points.shape[0])
     d = r.points[np.minimum(idx + 1, hi)] - r.points[np.maximum(idx - 1, lo)]
-    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return d / np.maximum(_norms(d), 1e-12)[:, None]
 
 
 def arc_lengths(r: Ragged) -> tuple[np.ndarray, np.ndarray]:
     """Per point the arc length from its line's start ``(M,)``; per line the total ``(N,)``."""
-    seg = np.linalg.norm(np.diff(r.points, axis=0), axis=1)
+    seg = _norms(np.diff(r.points, axis=0))
     ends = np.cumsum(r.sizes)[:-1] - 1  # last point of every line but the last
     seg[ends] = 0.0
     cs = np.concatenate(([0.0], np.cumsum(seg)))
@@ -137,9 +145,9 @@ def extend(r: Ragged, n_ext: int, span: int = 3) -> Ragged:
     p = r.points
     d_tail = p[en] - p[np.maximum(en - span, st)]
     d_head = p[st] - p[np.minimum(st + span, en)]
-    d_tail /= np.maximum(np.linalg.norm(d_tail, axis=1, keepdims=True), 1e-12)
-    d_head /= np.maximum(np.linalg.norm(d_head, axis=1, keepdims=True), 1e-12)
-    zero = np.linalg.norm(p[en] - p[st], axis=1) < 1e-9  # round spots: any axis
+    d_tail /= np.maximum(_norms(d_tail), 1e-12)[:, None]
+    d_head /= np.maximum(_norms(d_head), 1e-12)[:, None]
+    zero = _norms(p[en] - p[st]) < 1e-9  # round spots: any axis
     d_tail[zero] = [1.0, 0.0]
     d_head[zero] = [-1.0, 0.0]
     steps = np.arange(1, n_ext + 1, dtype=np.float64)
