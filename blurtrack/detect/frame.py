@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -69,12 +68,11 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
 
 
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
-    """``(N,)`` bool: which kept components contain saturated pixels."""
-    nz = cv2.findNonZero(saturated.view(np.uint8))
-    nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2)
-    lab = comps.labels[nz[:, 1], nz[:, 0]]
-    count = np.bincount(lab, minlength=int(comps.labels.max()) + 1)
-    return count[comps.ids] > 0
+    """``(N,)`` bool: which kept components contain saturated pixels (from their pixel
+    lists: a saturated pixel is bright enough to lie in a component)."""
+    if comps.ids.size == 0:
+        return np.zeros(0, bool)
+    return np.maximum.reduceat(saturated[comps.ys, comps.xs], comps.starts)
 
 
 def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:

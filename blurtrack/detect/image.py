@@ -79,14 +79,12 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     return background, noise
 
 
-def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                   ) -> np.ndarray:
-    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
-    ambient gradients): per block of ``block`` px, the mean of a sparse sample within
-    ``4 noise + 1`` of the block's median (dots cover a small part of a block; the trimmed
-    mean avoids the half-step bias of medians of integer data), then a 3x3 median over blocks
-    (a block crowded by a streak takes its neighbours' level) and bilinear upsampling."""
-    H, W = gray.shape
+def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                      ) -> np.ndarray:
+    """Background level per block of ``block`` px, ``(by, bx)`` float32 (frame units): the
+    mean of a sparse sample within ``4 noise + 1`` of the block's median (dots cover a small
+    part of a block; the trimmed mean avoids the half-step bias of medians of integer data),
+    then a 3x3 median over blocks (a block crowded by a streak takes its neighbours' level)."""
     step = max(block // 8, 1)
     k = block // step
     sub = gray[::step, ::step]
@@ -99,10 +97,20 @@ def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK
     level = (smp * keep).sum(axis=2) / np.maximum(keep.sum(axis=2), 1)
     if by >= 3 and bx >= 3:
         level = cv2.medianBlur(level.astype(np.float32), 3)
-    return cv2.resize(level.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    return level.astype(np.float32)
 
 
-def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float) -> int:
+def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                   ) -> np.ndarray:
+    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
+    ambient gradients): :func:`background_levels` upsampled bilinearly."""
+    H, W = gray.shape
+    return cv2.resize(background_levels(gray, noise, block), (W, H),
+                      interpolation=cv2.INTER_LINEAR)
+
+
+def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float,
+                      raw_floor: float | None = None) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
 
     A hot pixel (not on the frame border) is a local maximum of ``raw`` (at least as bright as
@@ -112,9 +120,17 @@ def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: 
     never qualifies. The candidate mask (local maximum and above the floor) is built with
     full-frame OpenCV operations, which are several times faster than numpy on a large frame
     and leave only a few candidates (dot peaks, hot pixels) for the exact ring test.
+
+    ``raw_floor``: a raw value that every pixel above ``floor`` exceeds (e.g. ``floor`` in raw
+    units plus the lowest background, minus 1); the floor is then pre-tested on the (smaller)
+    raw frame and checked exactly on the candidates only.
     """
     cand = cv2.compare(raw, cv2.dilate(raw, _BOX), cv2.CMP_GE)
-    cv2.bitwise_and(cand, cv2.compare(signal, float(floor), cv2.CMP_GT), dst=cand)
+    if raw_floor is None or raw_floor < 0:
+        above = cv2.compare(signal, float(floor), cv2.CMP_GT)
+    else:  # integer data: raw > x exactly when raw > floor(x) (OpenCV rounds the scalar)
+        above = cv2.compare(raw, float(np.floor(raw_floor)), cv2.CMP_GT)
+    cv2.bitwise_and(cand, above, dst=cand)
     cand[0, :] = 0
     cand[-1, :] = 0
     cand[:, 0] = 0
@@ -124,6 +140,8 @@ def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: 
     nz = cv2.findNonZero(cand).reshape(-1, 2).astype(np.int64)
     xs, ys = nz[:, 0], nz[:, 1]
     value = signal[ys, xs]
+    bright = value > floor
+    xs, ys, value = xs[bright], ys[bright], value[bright]
     ring = np.max(signal[ys[:, None] + _DY[None, :], xs[:, None] + _DX[None, :]], axis=1)
     hot = value > ratio * np.maximum(ring, 0.0)
     count = int(np.count_nonzero(hot))
@@ -145,10 +163,14 @@ def prepare_frame(
     saturated = raw >= level if raw.max() >= level else np.zeros((1, 1), bool)
     bg_raw, noise_raw = background_and_noise(raw)
     background, noise = bg_raw / top, max(noise_raw / top, 1e-4)
+    bg_level = background_levels(raw, noise_raw)
+    bg_map = cv2.resize(bg_level, (raw.shape[1], raw.shape[0]), interpolation=cv2.INTER_LINEAR)
     # (raw - background) / top in one OpenCV pass (float32 out).
-    signal = cv2.addWeighted(raw, 1.0 / top, background_map(raw, noise_raw), -1.0 / top, 0.0,
-                             dtype=cv2.CV_32F)
-    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, 5.0 * noise)
+    signal = cv2.addWeighted(raw, 1.0 / top, bg_map, -1.0 / top, 0.0, dtype=cv2.CV_32F)
+    floor = 5.0 * noise
+    # Bilinear upsampling stays within the block levels: their minimum bounds the map's.
+    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, floor,
+                            floor * top + float(bg_level.min()) - 1.0)
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)
     smooth = cv2.GaussianBlur(signal, (k, k), smooth_sigma_px, borderType=cv2.BORDER_REPLICATE)
     # Noise of white noise after a Gaussian blur of sigma s: sigma / (2 sqrt(pi) s).

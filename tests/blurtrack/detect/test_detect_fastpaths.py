@@ -5,12 +5,15 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 from scipy.special import ndtr
 
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import remove_hot_pixels
 from blurtrack.detect.ragged import row_nanmedian
+from blurtrack.detect.segment import find_components
 from blurtrack.detect.shortfit import _basis, fit_short
+from blurtrack.errors import DetectionError
 
 _RING = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
 
@@ -33,29 +36,36 @@ def _hot_reference(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: flo
     return hot, out
 
 
-def _frame_with_hot_pixels(seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _frame_with_hot_pixels(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A noisy frame on a sloped background with Gaussian dots and single bright pixels:
+    raw, its signal and the background."""
     rng = np.random.default_rng(seed)
     H, W = 48, 64
     yy, xx = np.mgrid[0:H, 0:W]
-    img = 20.0 + rng.normal(0.0, 2.0, (H, W))
+    bg = (20.0 + 0.15 * xx + 0.1 * yy).astype(np.float32)
+    img = bg + rng.normal(0.0, 2.0, (H, W))
     for _ in range(6):  # Gaussian dots (sigma 1.2 px): never hot
         cx, cy = rng.uniform(4, W - 4), rng.uniform(4, H - 4)
         img += 150.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * 1.2**2))
     for _ in range(10):  # single bright pixels, some on the border (never replaced)
         img[rng.integers(0, H), rng.integers(0, W)] = rng.uniform(60, 255)
     raw = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    signal = (raw.astype(np.float32) - 20.0) / 255.0
-    return raw, signal
+    signal = (raw.astype(np.float32) - bg) / 255.0
+    return raw, signal, bg
 
 
 def test_hot_pixel_removal_equals_its_definition() -> None:
     for seed in range(4):
-        raw, signal = _frame_with_hot_pixels(seed)
-        hot, expected = _hot_reference(raw, signal, 3.0, 0.05)
-        fast = signal.copy()
-        count = remove_hot_pixels(raw, fast, 3.0, 0.05)
-        assert count == int(hot.sum()) and count >= 3
-        np.testing.assert_array_equal(fast, expected)
+        raw, signal, bg = _frame_with_hot_pixels(seed)
+        for floor in (0.05, 0.2):
+            hot, expected = _hot_reference(raw, signal, 3.0, floor)
+            assert hot.sum() >= 2
+            # The floor tested on the signal, or first on the raw frame (lowest background).
+            for raw_floor in (None, floor * 255.0 + float(bg.min()) - 1.0):
+                fast = signal.copy()
+                count = remove_hot_pixels(raw, fast, 3.0, floor, raw_floor)
+                assert count == int(hot.sum())
+                np.testing.assert_array_equal(fast, expected)
 
 
 def test_hot_pixel_removal_without_candidates_changes_nothing() -> None:
@@ -140,3 +150,14 @@ def test_row_nanmedian_equals_numpy() -> None:
         expected = np.nanmedian(X, axis=1)
     np.testing.assert_array_equal(row_nanmedian(X), expected)
     assert row_nanmedian(np.zeros((0, 4))).shape == (0,)
+
+
+def test_too_many_blobs_is_an_error_not_a_label_overflow() -> None:
+    # 67600 separate pixels: more than 16-bit labels hold, so the 32-bit path runs and the
+    # streak cap rejects the frame.
+    smooth = np.zeros((520, 520), np.float32)
+    smooth[::2, ::2] = 1.0
+    with pytest.raises(DetectionError):
+        find_components(smooth, 0.5, 1, 5000)
+    comps = find_components(smooth[:40, :40], 0.5, 1, 5000)
+    assert comps.ids.size == 400 and np.all(comps.areas == 1)
