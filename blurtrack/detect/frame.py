@@ -107,9 +107,15 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     crossing: list[bool] = []
     looped: list[bool] = []
     spur = 2.0 * sigma_c + 3.0
-    for i, poly in enumerate(polylines):
-        if not folded[i]:
-            if len(poly) < 2 or abs(poly[-1] - poly[0]).sum() < 1e-9:
+    # Round spots (one point, or ends that coincide) get a 1 px segment; tested for all lines
+    # at once, since the loop below runs once per component.
+    sizes = np.fromiter(map(len, polylines), np.int64, len(polylines))
+    last = np.cumsum(sizes) - 1
+    flat = np.concatenate(polylines)
+    spot = ((sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)).tolist()
+    for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
+        if not fold:
+            if spot[i]:
                 poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
             owner.append(i)
             lines.append(poly)
