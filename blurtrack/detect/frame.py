@@ -11,6 +11,7 @@ from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.gaps import split_at_gaps
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import to_matrix
 from blurtrack.detect.segment import Components, axis_polylines, find_components
@@ -93,6 +94,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         session level decides whether that is an error).
     """
     p = params or DetectParams()
+    keep_frame_buffers()  # once per process: no page faults for per-frame buffers
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.signal.shape
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5

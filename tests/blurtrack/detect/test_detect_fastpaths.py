@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import platform
+import sys
 import warnings
 
 import numpy as np
@@ -10,6 +12,7 @@ from scipy.special import ndtr
 
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import remove_hot_pixels
+from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.segment import find_components
 from blurtrack.detect.shortfit import _basis, fit_short
@@ -161,3 +164,10 @@ def test_too_many_blobs_is_an_error_not_a_label_overflow() -> None:
         find_components(smooth, 0.5, 1, 5000)
     comps = find_components(smooth[:40, :40], 0.5, 1, 5000)
     assert comps.ids.size == 400 and np.all(comps.areas == 1)
+
+
+def test_keep_frame_buffers_is_idempotent() -> None:
+    first = keep_frame_buffers()
+    assert keep_frame_buffers() is first
+    if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
+        assert first  # glibc has mallopt and accepts both settings
