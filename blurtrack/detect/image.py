@@ -91,8 +91,9 @@ def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BL
     by, bx = max(sub.shape[0] // k, 1), max(sub.shape[1] // k, 1)
     kh, kw = min(k, sub.shape[0]), min(k, sub.shape[1])
     smp = sub[: by * kh, : bx * kw].reshape(by, kh, bx, kw).transpose(0, 2, 1, 3)
-    smp = smp.reshape(by, bx, kh * kw).astype(np.float32)
-    med = np.median(smp, axis=2, keepdims=True)
+    smp = smp.reshape(by, bx, kh * kw)
+    med = np.median(smp, axis=2, keepdims=True).astype(np.float32)  # on the integers: faster
+    smp = smp.astype(np.float32)
     keep = np.abs(smp - med) <= 4.0 * noise + 1.0
     level = (smp * keep).sum(axis=2) / np.maximum(keep.sum(axis=2), 1)
     if by >= 3 and bx >= 3:

@@ -55,7 +55,7 @@ def find_components(
     except cv2.error:
         n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SAUF)
     nz = cv2.findNonZero(mask)  # much faster than np.nonzero on a full frame
-    nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
+    nz = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
     lab = labels[nz[:, 1], nz[:, 0]]
     areas = np.bincount(lab, minlength=n)
     keep_label = areas >= min_area_px
@@ -67,10 +67,11 @@ def find_components(
             "not a laser-dot frame"
         )
     # Pixels of kept components, grouped by component (per-component reductions then run
-    # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls).
-    sel = keep_label[lab]
-    order = np.argsort(lab[sel], kind="stable")
-    xs, ys = nz[sel][order, 0], nz[sel][order, 1]
+    # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls). Labels
+    # are 16-bit in practice, which numpy sorts stably by radix.
+    sel = np.flatnonzero(keep_label[lab])
+    grouped = nz[sel[np.argsort(lab[sel], kind="stable")]]
+    xs, ys = np.ascontiguousarray(grouped.T)
     starts = np.concatenate(([0], np.cumsum(areas[ids])[:-1])).astype(np.int64)
     if ids.size:
         x0, x1 = np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts)
