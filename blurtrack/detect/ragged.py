@@ -92,9 +92,13 @@ def smooth(r: Ragged) -> Ragged:
 
 def tangents(r: Ragged) -> np.ndarray:
     """Unit tangents ``(M, 2)`` by central differences (one-sided at the ends)."""
-    lo, hi = r.bounds()
-    idx = np.arange(r.points.shape[0])
-    d = r.points[np.minimum(idx + 1, hi)] - r.points[np.maximum(idx - 1, lo)]
+    p = r.points
+    d = np.empty_like(p)
+    d[1:-1] = p[2:] - p[:-2]  # across line boundaries too: the ends are redone below
+    st = r.starts
+    en = st + r.sizes - 1
+    d[st] = p[st + 1] - p[st]
+    d[en] = p[en] - p[en - 1]
     return d / np.maximum(_norms(d), 1e-12)[:, None]
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
+from blurtrack.detect import ragged
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import remove_hot_pixels
 from blurtrack.detect.memory import keep_frame_buffers
@@ -171,3 +172,16 @@ def test_keep_frame_buffers_is_idempotent() -> None:
     assert keep_frame_buffers() is first
     if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
         assert first  # glibc has mallopt and accepts both settings
+
+
+def test_tangents_are_clamped_central_differences() -> None:
+    rng = np.random.default_rng(0)
+    lines = [rng.normal(size=(n, 2)).cumsum(axis=0) for n in rng.integers(2, 30, 60)]
+    r = ragged.Ragged.from_list(lines)
+    t = ragged.tangents(r)
+    for k, line in enumerate(lines):
+        i = np.arange(len(line))
+        d = line[np.minimum(i + 1, len(line) - 1)] - line[np.maximum(i - 1, 0)]
+        expected = d / np.linalg.norm(d, axis=1, keepdims=True)
+        np.testing.assert_allclose(t[r.starts[k] : r.starts[k] + len(line)], expected,
+                                   atol=1e-12)
