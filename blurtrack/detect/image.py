@@ -122,9 +122,10 @@ def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: 
     full-frame OpenCV operations, which are several times faster than numpy on a large frame
     and leave only a few candidates (dot peaks, hot pixels) for the exact ring test.
 
-    ``raw_floor``: a raw value that every pixel above ``floor`` exceeds (e.g. ``floor`` in raw
-    units plus the lowest background, minus 1); the floor is then pre-tested on the (smaller)
-    raw frame and checked exactly on the candidates only.
+    ``raw_floor``: a raw value that every pixel above ``floor`` exceeds (``floor`` in raw units
+    plus the lowest background, less a rounding margin); the floor is then pre-tested on the
+    (smaller) raw frame and checked exactly on the candidates only. On a noise-free flat
+    background every pixel is a local maximum, so the floor must come first.
     """
     cand = cv2.compare(raw, cv2.dilate(raw, _BOX), cv2.CMP_GE)
     if raw_floor is None or raw_floor < 0:
@@ -169,9 +170,10 @@ def prepare_frame(
     # (raw - background) / top in one OpenCV pass (float32 out).
     signal = cv2.addWeighted(raw, 1.0 / top, bg_map, -1.0 / top, 0.0, dtype=cv2.CV_32F)
     floor = 5.0 * noise
-    # Bilinear upsampling stays within the block levels: their minimum bounds the map's.
+    # Bilinear upsampling stays within the block levels: their minimum bounds the map's (the
+    # margin covers float32 rounding of the signal, far below 0.01 raw units).
     hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, floor,
-                            floor * top + float(bg_level.min()) - 1.0)
+                            floor * top + float(bg_level.min()) - 0.01)
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)
     smooth = cv2.GaussianBlur(signal, (k, k), smooth_sigma_px, borderType=cv2.BORDER_REPLICATE)
     # Noise of white noise after a Gaussian blur of sigma s: sigma / (2 sqrt(pi) s).

@@ -65,7 +65,7 @@ def test_hot_pixel_removal_equals_its_definition() -> None:
             hot, expected = _hot_reference(raw, signal, 3.0, floor)
             assert hot.sum() >= 2
             # The floor tested on the signal, or first on the raw frame (lowest background).
-            for raw_floor in (None, floor * 255.0 + float(bg.min()) - 1.0):
+            for raw_floor in (None, floor * 255.0 + float(bg.min()) - 0.01):
                 fast = signal.copy()
                 count = remove_hot_pixels(raw, fast, 3.0, floor, raw_floor)
                 assert count == int(hot.sum())
@@ -185,3 +185,19 @@ def test_tangents_are_clamped_central_differences() -> None:
         expected = d / np.linalg.norm(d, axis=1, keepdims=True)
         np.testing.assert_allclose(t[r.starts[k] : r.starts[k] + len(line)], expected,
                                    atol=1e-12)
+
+
+def test_hot_pixel_on_a_noise_free_flat_frame() -> None:
+    # Every background pixel is a local maximum here; only the floor rules them out. On a
+    # flat frame even one count above the background beats 3x its (zero) neighbours.
+    raw = np.full((30, 40), 20, np.uint8)
+    raw[12, 17] = 200
+    raw[5, 30] = 21
+    signal = (raw.astype(np.float32) - 20.0) / 255.0
+    floor = 5 * 1e-4
+    hot, expected = _hot_reference(raw, signal, 3.0, floor)
+    assert int(hot.sum()) == 2
+    for raw_floor in (None, floor * 255.0 + 20.0 - 0.01):
+        s = signal.copy()
+        assert remove_hot_pixels(raw, s, 3.0, floor, raw_floor) == 2
+        np.testing.assert_array_equal(s, expected)
