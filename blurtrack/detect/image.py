@@ -60,15 +60,38 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def _weighted_median(values: np.ndarray, counts: np.ndarray) -> float:
+    """``np.median`` of a sample given as distinct ``values`` (ascending) and their counts:
+    the middle order statistic, or the mean of the two middle ones."""
+    cum = np.cumsum(counts)
+    n = int(cum[-1])
+    lo = values[np.searchsorted(cum, (n - 1) // 2, side="right")]
+    hi = values[np.searchsorted(cum, n // 2, side="right")]
+    return 0.5 * (float(lo) + float(hi))
+
+
 def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     """Robust background level (median) and noise sigma (scaled MAD) of a sparse-dot frame,
     in the frame's own units.
 
     Uses a regular sub-sample, so that the cost does not grow with the frame. Dots cover a
-    small fraction of a laser-grid frame, so both statistics see the background.
+    small fraction of a laser-grid frame, so both statistics see the background. 8-bit frames
+    take the same statistics from the sample's histogram (exact, and faster than sorting).
     """
     step = max(1, int(np.sqrt(gray.size / 12000)))
-    sample = gray[::step, ::step].ravel().astype(np.float64)
+    sample = gray[::step, ::step].ravel()
+    if gray.dtype == np.uint8:
+        counts = np.bincount(sample, minlength=256)
+        values = np.arange(256, dtype=np.float64)
+        median = _weighted_median(values, counts)
+        dist = np.abs(values - median)
+        order = np.argsort(dist, kind="stable")
+        sigma0 = max(1.4826 * _weighted_median(dist[order], counts[order]), 0.5)
+        w = np.where(dist <= 4.0 * sigma0 + 1.0, counts, 0).astype(np.float64)
+        background = float(w @ values / w.sum())
+        noise = float(np.sqrt(w @ (values - background) ** 2 / w.sum()))
+        return background, noise
+    sample = sample.astype(np.float64)
     median = float(np.median(sample))
     sigma0 = max(1.4826 * float(np.median(np.abs(sample - median))), 0.5)
     # The median of integer-valued data is off by up to half a step, which the integrals

@@ -12,7 +12,7 @@ from scipy.special import ndtr
 
 from blurtrack.detect import ragged
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
-from blurtrack.detect.image import remove_hot_pixels
+from blurtrack.detect.image import background_and_noise, remove_hot_pixels
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.segment import find_components
@@ -201,3 +201,31 @@ def test_hot_pixel_on_a_noise_free_flat_frame() -> None:
         s = signal.copy()
         assert remove_hot_pixels(raw, s, 3.0, floor, raw_floor) == 2
         np.testing.assert_array_equal(s, expected)
+
+
+def _background_reference(gray: np.ndarray) -> tuple[float, float]:
+    """The definition on the sorted sample: median, scaled MAD, mean and sigma of the core."""
+    step = max(1, int(np.sqrt(gray.size / 12000)))
+    sample = gray[::step, ::step].ravel().astype(np.float64)
+    median = float(np.median(sample))
+    sigma0 = max(1.4826 * float(np.median(np.abs(sample - median))), 0.5)
+    core = sample[np.abs(sample - median) <= 4.0 * sigma0 + 1.0]
+    return float(np.mean(core)), float(np.std(core))
+
+
+def test_background_from_the_histogram_equals_the_sorted_sample() -> None:
+    rng = np.random.default_rng(2)
+    frames = [
+        rng.integers(0, 256, (100, 131)).astype(np.uint8),  # odd and even sample sizes
+        rng.integers(0, 256, (100, 130)).astype(np.uint8),
+        np.clip(rng.normal(20.0, 2.0, (200, 300)), 0, 255).astype(np.uint8),
+        np.full((40, 40), 7, np.uint8),
+    ]
+    dots = frames[2].copy()
+    dots[::9, ::7] = 250  # sparse bright pixels: outside the core
+    frames.append(dots)
+    for gray in frames:
+        np.testing.assert_allclose(background_and_noise(gray), _background_reference(gray),
+                                   rtol=1e-12, atol=1e-12)
+    wide = rng.integers(0, 4096, (90, 90)).astype(np.uint16)  # 16-bit: the sorted path
+    np.testing.assert_allclose(background_and_noise(wide), _background_reference(wide))
