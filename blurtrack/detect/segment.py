@@ -30,6 +30,7 @@ class Components:
     - ``boxes``: ``(N, 4)`` int ``x, y, w, h`` bounding boxes.
     - ``peaks``: ``(N,)`` peak of the smoothed signal per component.
     - ``areas``: ``(N,)`` pixel counts.
+    - ``values``: the smoothed signal at every pixel of ``ys``, ``xs`` (float64).
     """
 
     labels: np.ndarray
@@ -40,6 +41,7 @@ class Components:
     boxes: np.ndarray
     peaks: np.ndarray
     areas: np.ndarray
+    values: np.ndarray
 
 
 def find_components(
@@ -73,10 +75,11 @@ def find_components(
     grouped = nz[sel[np.argsort(lab[sel], kind="stable")]]
     xs, ys = np.ascontiguousarray(grouped.T)
     starts = np.concatenate(([0], np.cumsum(areas[ids])[:-1])).astype(np.int64)
+    values = smooth[ys, xs].astype(np.float64)
     if ids.size:
         x0, x1 = np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts)
         y0, y1 = np.minimum.reduceat(ys, starts), np.maximum.reduceat(ys, starts)
-        peaks = np.maximum.reduceat(smooth[ys, xs].astype(np.float64), starts)
+        peaks = np.maximum.reduceat(values, starts)
     else:
         x0 = x1 = y0 = y1 = np.zeros(0, np.int64)
         peaks = np.zeros(0)
@@ -89,6 +92,7 @@ def find_components(
         boxes=np.stack([x0, y0, x1 - x0 + 1, y1 - y0 + 1], axis=1),
         peaks=peaks,
         areas=areas[ids],
+        values=values,
     )
 
 
@@ -112,7 +116,7 @@ def axis_polylines(
         return [], np.zeros(0, bool)
     ys, xs, st = comps.ys, comps.xs, comps.starts
     idx = np.repeat(np.arange(N), comps.areas)
-    w = np.maximum(smooth[ys, xs].astype(np.float64), 1e-12)
+    w = np.maximum(comps.values, 1e-12)
     x = xs.astype(np.float64)
     y = ys.astype(np.float64)
     sw = np.add.reduceat(w, st)
