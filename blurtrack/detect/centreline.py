@@ -9,7 +9,7 @@ the time spent there) blurred by the same Gaussian. Endpoints are located on ``I
 
 Coarse polylines are refined in two passes, all streaks at once with one image sampling call
 per pass: the first resamples at 1 px, extends past the ends, samples the normals, shifts to
-the centroids and smooths; the final one samples wider (bicubic) for the profiles and widths
+the centroids and smooths; the final one samples wider for the profiles and widths
 and shifts the points to the centroids once more (no resampling: a shift of a small fraction
 of a pixel leaves the profile unchanged to first order).
 """
@@ -46,7 +46,7 @@ class RefinedLines:
     step: np.ndarray
 
 
-def _cross_samples(image: np.ndarray, r: Ragged, half: int, cubic: bool = False
+def _cross_samples(image: np.ndarray, r: Ragged, half: int
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Normals ``(M, 2)`` and samples ``(M, 2 half + 1)`` across every line point."""
     tan = ragged.tangents(r)
@@ -56,7 +56,7 @@ def _cross_samples(image: np.ndarray, r: Ragged, half: int, cubic: bool = False
     nrm32 = nrm.astype(np.float32)
     x = pts[:, 0:1] + off[None, :] * nrm32[:, 0:1]
     y = pts[:, 1:2] + off[None, :] * nrm32[:, 1:2]
-    return nrm, sample_image(image, x, y, cubic)
+    return nrm, sample_image(image, x, y)
 
 
 def cross_section_sigma(v: np.ndarray, half: int) -> np.ndarray:
@@ -135,7 +135,10 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
         final = it == REFINE_PASSES - 1
         r = ragged.extend(r, n_ext if final else n_ext_move)
         h = half if final else half_move
-        nrm, v = _cross_samples(smooth, r, h, cubic=final)
+        # Bilinear throughout: it widens the cross-sections (the measured sigma) and the
+        # profile along the line alike, by about 1/6 px^2, so the edge fits stay consistent
+        # (bicubic sampling measured no better and costs three times as much).
+        nrm, v = _cross_samples(smooth, r, h)
         prof = _row_sums(v)
         # Only points that carry signal (a quarter of their line's peak profile) are moved
         # (and kept, on all but the final pass: the unlit rest of the extensions is rebuilt).
