@@ -61,16 +61,16 @@ class _State:
 _FIELDS = ("F0", "F1", "ga", "gb", "c0", "c1", "res", "cost")
 
 
-def _project(F0: np.ndarray, F1: np.ndarray, y: np.ndarray, w: np.ndarray, L: np.ndarray
+def _project(F0: np.ndarray, F1: np.ndarray, y: np.ndarray, L: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact linear solve for ``c0, c1`` given the basis ``(..., N, S)``: residuals of that
-    shape and the amplitudes ``(..., N)`` (leading axes batch several trial bases)."""
-    F0w, F1w = F0 * w, F1 * w
-    m00 = np.einsum("...j,...j->...", F0w, F0) + 1e-12
-    m01 = np.einsum("...j,...j->...", F0w, F1)
-    m11 = np.einsum("...j,...j->...", F1w, F1) + 1e-12
-    r0 = np.einsum("...j,...j->...", F0w, y)
-    r1 = np.einsum("...j,...j->...", F1w, y)
+    """Exact linear solve for ``c0, c1`` given the basis ``(..., N, S)`` (zero outside the fit
+    window, like ``y``): residuals of that shape and the amplitudes ``(..., N)`` (leading axes
+    batch several trial bases)."""
+    m00 = np.einsum("...j,...j->...", F0, F0) + 1e-12
+    m01 = np.einsum("...j,...j->...", F0, F1)
+    m11 = np.einsum("...j,...j->...", F1, F1) + 1e-12
+    r0 = np.einsum("...j,...j->...", F0, y)
+    r1 = np.einsum("...j,...j->...", F1, y)
     det = m00 * m11 - m01 * m01
     ok = det > 1e-9 * m00 * m11
     c0 = np.where(ok, (m11 * r0 - m01 * r1) / np.where(ok, det, 1.0), r0 / m00)
@@ -82,19 +82,24 @@ def _project(F0: np.ndarray, F1: np.ndarray, y: np.ndarray, w: np.ndarray, L: np
     changed = c1_new != c1
     c0 = np.where(changed, (r0 - m01 * c1_new) / m00, c0)
     c1 = c1_new
-    res = (y - c0[..., None] * F0 - c1[..., None] * F1) * w
+    res = y - c0[..., None] * F0 - c1[..., None] * F1
     return res, c0, c1
 
 
 def _residual(y: np.ndarray, w: np.ndarray, s: np.ndarray, a: np.ndarray, L: np.ndarray,
               sigma: np.ndarray) -> _State:
-    """Residuals after the exact linear solve for ``c0, c1``, with the basis."""
+    """Residuals after the exact linear solve for ``c0, c1``, with the basis (all masked by
+    the 0/1 window ``w``; ``y`` must be zero outside it)."""
     F0, F1, ga, gb = _basis(s, a, L, sigma)
-    res, c0, c1 = _project(F0, F1, y, w, L)
+    F0 *= w
+    F1 *= w
+    ga *= w
+    gb *= w
+    res, c0, c1 = _project(F0, F1, y, L)
     return _State(F0, F1, ga, gb, c0, c1, res, np.einsum("ij,ij->i", res, res))
 
 
-def _jacobian(st: _State, y: np.ndarray, w: np.ndarray, L: np.ndarray, h: float
+def _jacobian(st: _State, y: np.ndarray, L: np.ndarray, h: float
               ) -> tuple[np.ndarray, np.ndarray]:
     """Forward differences (step ``h``) of the projected residuals with respect to ``a`` (at
     fixed ``L``) and ``L``, the basis moved by its analytic derivative (exact to ``O(h**2)``):
@@ -106,7 +111,7 @@ def _jacobian(st: _State, y: np.ndarray, w: np.ndarray, L: np.ndarray, h: float
     # Both perturbations in one batched solve (the cost here is per numpy call).
     r2, _, _ = _project(np.stack([F0 + h * (gb - ga), F0 + h * gb]),
                         np.stack([F1 + h * ((ga * half_L + gbh) - F0), F1 + h * (gbh - 0.5 * F0)]),
-                        y, w, np.stack([L, L + h]))
+                        y, np.stack([L, L + h]))
     return (r2[0] - st.res) / h, (r2[1] - st.res) / h
 
 
@@ -121,6 +126,7 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
     density ``c0`` (per sample).
     """
     s = np.arange(y.shape[1], dtype=np.float64)[None, :]
+    y = y * w  # the fit sees the window only
     top = y.shape[1] - 1.0
     a = np.clip(np.nan_to_num(a0.astype(np.float64), nan=0.0), 0.0, top)
     L = np.clip(np.nan_to_num(L0.astype(np.float64), nan=0.05), 0.05, np.maximum(top - a, 0.05))
@@ -131,7 +137,7 @@ def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
         if act.size == 0:
             break
         ya, wa, sga, aa, La = y[act], w[act], sigma[act], a[act], L[act]
-        ja, jl = _jacobian(st, ya, wa, La, 1e-3)
+        ja, jl = _jacobian(st, ya, La, 1e-3)
         r = st.res
         # Gauss-Newton step for (a, L), with a small damping term.
         gaa = np.einsum("ij,ij->i", ja, ja) * 1.001 + 1e-12
