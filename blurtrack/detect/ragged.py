@@ -50,7 +50,8 @@ class Ragged:
 
 def _norms(d: np.ndarray) -> np.ndarray:
     """Lengths ``(M,)`` of 2-D vectors ``(M, 2)`` (``np.linalg.norm(d, axis=1)``, faster)."""
-    return np.hypot(d[:, 0], d[:, 1])
+    x, y = d[:, 0], d[:, 1]
+    return np.sqrt(x * x + y * y)  # no overflow concern at pixel scales; hypot is 4x slower
 
 
 def split_at(values: np.ndarray, cuts: np.ndarray) -> list[np.ndarray]:
