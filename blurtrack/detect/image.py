@@ -133,6 +133,22 @@ def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK
                       interpolation=cv2.INTER_LINEAR)
 
 
+def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices ``(K,)`` of the nonzero pixels of a uint8 mask, in raster order,
+    given their ``count``. A sparse contiguous mask is scanned as 64-bit words (numpy finds
+    the few nonzero words about twice as fast as ``cv2.findNonZero`` scans the bytes);
+    otherwise ``cv2.findNonZero``."""
+    flat = mask.reshape(-1) if mask.flags.c_contiguous else None
+    if flat is None or flat.size % 8 or count > flat.size // 1000:
+        nz = cv2.findNonZero(mask)
+        nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
+        return nz[:, 1], nz[:, 0]
+    words = np.flatnonzero(flat.view(np.uint64))
+    idx = (words[:, None] * 8 + np.arange(8)).ravel()
+    idx = idx[flat[idx] != 0]
+    return idx // mask.shape[1], idx % mask.shape[1]
+
+
 def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float,
                       raw_floor: float | None = None) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
@@ -160,10 +176,10 @@ def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: 
     cand[-1, :] = 0
     cand[:, 0] = 0
     cand[:, -1] = 0
-    if cv2.countNonZero(cand) == 0:
+    count = cv2.countNonZero(cand)
+    if count == 0:
         return 0
-    nz = cv2.findNonZero(cand).reshape(-1, 2).astype(np.int64)
-    xs, ys = nz[:, 0], nz[:, 1]
+    ys, xs = sparse_points(cand, count)
     value = signal[ys, xs]
     bright = value > floor
     xs, ys, value = xs[bright], ys[bright], value[bright]

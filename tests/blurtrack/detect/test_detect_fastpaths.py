@@ -6,13 +6,14 @@ import platform
 import sys
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scipy.special import ndtr
 
 from blurtrack.detect import ragged
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
-from blurtrack.detect.image import background_and_noise, remove_hot_pixels
+from blurtrack.detect.image import background_and_noise, remove_hot_pixels, sparse_points
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.segment import find_components
@@ -229,3 +230,15 @@ def test_background_from_the_histogram_equals_the_sorted_sample() -> None:
                                    rtol=1e-12, atol=1e-12)
     wide = rng.integers(0, 4096, (90, 90)).astype(np.uint16)  # 16-bit: the sorted path
     np.testing.assert_allclose(background_and_noise(wide), _background_reference(wide))
+
+
+def test_sparse_points_match_find_non_zero() -> None:
+    rng = np.random.default_rng(4)
+    for shape, density in (((72, 128), 0.0005), ((72, 128), 0.3), ((31, 17), 0.01)):
+        mask = (rng.random(shape) < density).astype(np.uint8) * 255
+        mask[0, 0] = 1
+        count = cv2.countNonZero(mask)
+        ys, xs = sparse_points(mask, count)
+        nz = cv2.findNonZero(mask).reshape(-1, 2)
+        np.testing.assert_array_equal(ys, nz[:, 1])
+        np.testing.assert_array_equal(xs, nz[:, 0])
