@@ -139,7 +139,7 @@ def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]
     the few nonzero words about twice as fast as ``cv2.findNonZero`` scans the bytes);
     otherwise ``cv2.findNonZero``."""
     flat = mask.reshape(-1) if mask.flags.c_contiguous else None
-    if flat is None or flat.size % 8 or count > flat.size // 1000:
+    if flat is None or flat.size % 8 or count > flat.size // 200:
         nz = cv2.findNonZero(mask)
         nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
         return nz[:, 1], nz[:, 0]
