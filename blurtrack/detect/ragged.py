@@ -63,8 +63,8 @@ def split_at(values: np.ndarray, cuts: np.ndarray) -> list[np.ndarray]:
 
 def smooth(r: Ragged) -> Ragged:
     """Binomial [1 4 6 4 1]/16 smoothing within each line; beyond its ends a line is continued
-    by point reflection through the end point, so straight lines and the end points are kept
-    exactly."""
+    by point reflection through the end point, so straight lines and the end points of lines
+    with 3 points or more are kept exactly."""
     p = r.points
     M = p.shape[0]
     out = np.empty_like(p)
@@ -72,11 +72,19 @@ def smooth(r: Ragged) -> Ragged:
         out[2:-2] = (p[:-4] + p[4:] + 4.0 * (p[1:-3] + p[3:-1]) + 6.0 * p[2:-2]) / 16.0
     st = r.starts
     en = st + r.sizes - 1
-    is_near = np.zeros(M, bool)  # a mask, not np.unique: no sort
-    for idx in (st, st + 1, en - 1, en):
-        is_near[idx.clip(0, M - 1)] = True
-    near = np.flatnonzero(is_near)
-    line = np.searchsorted(st, near, side="right") - 1
+    big = r.sizes >= 4
+    # Lines of 4 points or more: the reflection worked out (the ends stay where they are).
+    sb, eb = st[big], en[big]
+    out[sb] = p[sb]
+    out[eb] = p[eb]
+    out[sb + 1] = (6.0 * p[sb] + 5.0 * p[sb + 1] + 4.0 * p[sb + 2] + p[sb + 3]) / 16.0
+    out[eb - 1] = (6.0 * p[eb] + 5.0 * p[eb - 1] + 4.0 * p[eb - 2] + p[eb - 3]) / 16.0
+    if big.all():
+        return Ragged(out, r.sizes)
+    # Shorter lines (few): every point by explicit reflection, clamped to the line.
+    small = np.flatnonzero(~big)
+    near = np.concatenate([np.arange(st[i], en[i] + 1) for i in small.tolist()])
+    line = np.repeat(small, r.sizes[small])
     lo, hi = st[line], en[line]
     acc = 6.0 * p[near]
     for off, w in ((-2, 1.0), (-1, 4.0), (1, 4.0), (2, 1.0)):

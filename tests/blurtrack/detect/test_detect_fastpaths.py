@@ -242,3 +242,33 @@ def test_sparse_points_match_find_non_zero() -> None:
         nz = cv2.findNonZero(mask).reshape(-1, 2)
         np.testing.assert_array_equal(ys, nz[:, 1])
         np.testing.assert_array_equal(xs, nz[:, 0])
+
+
+def _smooth_reference(line: np.ndarray) -> np.ndarray:
+    """[1 4 6 4 1]/16 over one line continued by point reflection through its end points
+    (reflected indices clamped to the line)."""
+    n = len(line)
+    out = np.empty_like(line)
+    for i in range(n):
+        acc = 6.0 * line[i]
+        for off, w in ((-2, 1.0), (-1, 4.0), (1, 4.0), (2, 1.0)):
+            j = i + off
+            if j < 0:
+                q = 2 * line[0] - line[min(-j, n - 1)]
+            elif j > n - 1:
+                q = 2 * line[-1] - line[max(2 * (n - 1) - j, 0)]
+            else:
+                q = line[j]
+            acc = acc + w * q
+        out[i] = acc / 16.0
+    return out
+
+
+def test_smooth_equals_per_line_reflection() -> None:
+    rng = np.random.default_rng(6)
+    lines = [rng.normal(size=(n, 2)).cumsum(axis=0) for n in rng.integers(2, 12, 50)]
+    out = ragged.smooth(ragged.Ragged.from_list(lines)).split()
+    for got, line in zip(out, lines, strict=True):
+        np.testing.assert_allclose(got, _smooth_reference(line), atol=1e-12)
+        if len(line) >= 3:
+            np.testing.assert_allclose(got[[0, -1]], line[[0, -1]], atol=1e-12)
