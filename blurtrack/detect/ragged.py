@@ -18,10 +18,13 @@ import numpy as np
 @dataclass(frozen=True)
 class Ragged:
     """``points (M, 2)`` of N polylines; line ``i`` is ``points[starts[i]:starts[i] + sizes[i]]``.
+    ``step``: per line the arc-length spacing of its points where known (after
+    :func:`resample`), else None.
     """
 
     points: np.ndarray
     sizes: np.ndarray
+    step: np.ndarray | None = None
 
     @cached_property
     def starts(self) -> np.ndarray:
@@ -144,14 +147,18 @@ def resample(r: Ragged, step: float = 1.0) -> Ragged:
     f = np.where(ds > 0, (u - s[k]) / np.where(ds > 0, ds, 1.0), 0.0)
     f = np.clip(f, 0.0, 1.0)[:, None]
     pts = r.points[k] * (1 - f) + r.points[k + 1] * f
-    return Ragged(pts, n_new)
+    return Ragged(pts, n_new, total / (n_new - 1))
 
 
 def extend(r: Ragged, n_ext: int, span: int = 3) -> Ragged:
     """Extend both ends of every (uniformly sampled) line straight by ``n_ext`` points, at the
-    line's own mean spacing, along the direction of its last ``span`` points."""
-    _, total = arc_lengths(r)
-    spacing = np.where(r.sizes > 1, total / np.maximum(r.sizes - 1, 1), 1.0)
+    line's own mean spacing (its resampling step where known), along the direction of its last
+    ``span`` points."""
+    if r.step is not None:
+        spacing = r.step
+    else:
+        _, total = arc_lengths(r)
+        spacing = np.where(r.sizes > 1, total / np.maximum(r.sizes - 1, 1), 1.0)
     spacing = np.where(spacing > 1e-9, spacing, 1.0)
     st = r.starts
     en = st + r.sizes - 1
