@@ -13,7 +13,7 @@ from blurtrack.detect.gaps import split_at_gaps
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import to_matrix
+from blurtrack.detect.ragged import Ragged, to_matrix
 from blurtrack.detect.segment import Components, axis_polylines, find_components
 from blurtrack.detect.skeleton import trace_paths
 
@@ -159,8 +159,10 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             sigma_c = sig_c
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
         # (there the clipped cross-section integral is an exact function of the true one).
-        raw = to_matrix(raw_profiles(prep.signal, ref.lines, sigma_c), lens)
-        A[line_sat] = unclip_profiles(raw[line_sat], prep.saturation, sigma_raw)
+        if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
+            sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
+            raw = to_matrix(raw_profiles(prep.signal, sat_lines, sigma_c), sat_lines.sizes)
+            A[line_sat, : raw.shape[1]] = unclip_profiles(raw, prep.saturation, sigma_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
     edge_sigma = np.where(line_sat, np.sqrt(sigma_raw**2 + 1.0 / 6.0) if line_sat.any()
                           else sigma_c, sigma_c)
