@@ -116,7 +116,7 @@ def _jacobian(st: _State, y: np.ndarray, L: np.ndarray, h: float
 
 
 def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
-              L0: np.ndarray, iterations: int = 4, tol: float = 1e-3
+              L0: np.ndarray, iterations: int = 3, tol: float = 1e-3
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``(a, L)`` to profiles ``y (N, S)`` sampled at indices ``0..S-1`` with 0/1 weights
     ``w`` (the fit window), known ``sigma (N,)``, from the start ``a0``, ``L0``.
