@@ -53,9 +53,9 @@ def find_components(
     # statistics come from the pixel list, which the centre lines need anyway.
     # 16-bit labels halve the memory traffic; OpenCV raises on label overflow.
     try:
-        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_16U, cv2.CCL_SAUF)
+        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_16U, cv2.CCL_SPAGHETTI)
     except cv2.error:
-        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SAUF)
+        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SPAGHETTI)
     nz = cv2.findNonZero(mask)  # much faster than np.nonzero on a full frame
     nz = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
     lab = labels[nz[:, 1], nz[:, 0]]
