@@ -118,7 +118,7 @@ def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)
 
 
-def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float,
+def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray] | Ragged, sigma_c: float,
                  ceiling: float | None = None) -> RefinedLines:
     """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image.
 
@@ -129,7 +129,8 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray], sigma_c: float
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3  # final pass: edges, tails and their baseline
     # Moving passes only need the lit part past the component's (thresholded) ends.
     n_ext_move = int(np.ceil(1.5 * sigma_c)) + 2
-    r = ragged.resample(ragged.smooth(Ragged.from_list(polylines)))
+    coarse = polylines if isinstance(polylines, Ragged) else Ragged.from_list(polylines)
+    r = ragged.resample(ragged.smooth(coarse))
     for it in range(REFINE_PASSES):
         # Extensions always start from refined points, along the refined end tangents.
         final = it == REFINE_PASSES - 1

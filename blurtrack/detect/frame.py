@@ -114,25 +114,31 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     sizes = np.fromiter(map(len, polylines), np.int64, len(polylines))
     last = np.cumsum(sizes) - 1
     flat = np.concatenate(polylines)
-    spot = ((sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)).tolist()
-    for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
-        if not fold:
-            if spot[i]:
-                poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
-            owner.append(i)
-            lines.append(poly)
-            crossing.append(False)
-            looped.append(False)
-            continue
-        x, y, w, h = comps.boxes[i]
-        mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
-        paths = trace_paths(np.pad(mask, 1), spur, spur)
-        for path in paths:
-            owner.append(i)
-            lines.append(path.points + np.array([x - 1.0, y - 1.0]))
-            crossing.append(path.shares_junction or len(paths) > 1)
-            looped.append(path.self_crossing)
-    ref = refine_lines(prep.smooth, lines, sigma_c,
+    spot = (sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)
+    line_input: Ragged | list[np.ndarray] = lines
+    if not (spot.any() or folded.any()):  # the usual frame: every line as it is
+        owner = list(range(len(polylines)))
+        crossing = looped = [False] * len(polylines)
+        line_input = Ragged(flat, sizes)
+    else:
+        for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
+            if not fold:
+                if spot[i]:
+                    poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
+                owner.append(i)
+                lines.append(poly)
+                crossing.append(False)
+                looped.append(False)
+                continue
+            x, y, w, h = comps.boxes[i]
+            mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
+            paths = trace_paths(np.pad(mask, 1), spur, spur)
+            for path in paths:
+                owner.append(i)
+                lines.append(path.points + np.array([x - 1.0, y - 1.0]))
+                crossing.append(path.shares_junction or len(paths) > 1)
+                looped.append(path.self_crossing)
+    ref = refine_lines(prep.smooth, line_input, sigma_c,
                        prep.saturation if prep.saturated.any() else None)
     ref, parent = split_at_gaps(ref)
     owner = [owner[k] for k in parent]
