@@ -72,8 +72,10 @@ def find_components(
     # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls). Labels
     # are 16-bit in practice, which numpy sorts stably by radix.
     sel = np.flatnonzero(keep_label[lab])
-    grouped = nz[sel[np.argsort(lab[sel], kind="stable")]]
-    xs, ys = np.ascontiguousarray(grouped.T)
+    order = sel[np.argsort(lab[sel], kind="stable")]
+    # Each (x, y) int32 pair gathered as one int64: one 1-D gather instead of a 2-D one.
+    pairs = np.ascontiguousarray(nz).view(np.int64).ravel()[order]
+    xs, ys = np.ascontiguousarray(pairs.view(np.int32).reshape(-1, 2).T)
     starts = np.concatenate(([0], np.cumsum(areas[ids])[:-1])).astype(np.int64)
     values = smooth[ys, xs].astype(np.float64)
     if ids.size:
