@@ -160,10 +160,11 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray] | Ragged, sigma
     line_of = r.line_of
     width = np.full(r.sizes.size, np.nan)
     if np.any(good):
-        # Per-line median via a lexicographic sort (lines with no good sample stay nan).
-        order = np.lexsort((sig[good], line_of[good]))
-        lg = line_of[good][order]
-        sg = sig[good][order]
+        # Per-line median via one sort by line, then sigma (lines with no good sample stay
+        # nan): the key is the line index plus the sigma scaled into [0, 1).
+        lg, sg = line_of[good], sig[good]
+        order = np.argsort(lg + sg / (2.0 * float(sg.max()) + 1.0))
+        lg, sg = lg[order], sg[order]
         counts = np.bincount(lg, minlength=r.sizes.size)
         first = np.concatenate(([0], np.cumsum(counts)[:-1]))
         has = counts > 0
