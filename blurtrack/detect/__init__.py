@@ -6,7 +6,8 @@ Modules: :mod:`~blurtrack.detect.image` (frame preparation, background, hot pixe
 :mod:`~blurtrack.detect.centreline` and :mod:`~blurtrack.detect.ragged` (batched sub-pixel
 centre lines and profiles), :mod:`~blurtrack.detect.gaps` (streaks touching end to end),
 :mod:`~blurtrack.detect.endpoints` and :mod:`~blurtrack.detect.shortfit` (endpoints),
-:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.detect.orientation` and
+:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.detect.memory` (allocator
+tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
 (a whole session), :mod:`~blurtrack.detect.table` (the streak table),
 :mod:`~blurtrack.detect.overlay` and :mod:`~blurtrack.detect.demo` (pictures, demo step),

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.shortfit import fit_short
 
 #: Plateau fit window (samples) and how far inside the half-level crossing it starts (sigmas).
@@ -87,8 +88,9 @@ def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
 
 def _cumulative(A: np.ndarray) -> np.ndarray:
     """Trapezoid integral of each row from index 0 to every index, same shape as ``A``."""
-    C = np.zeros_like(A)
-    C[:, 1:] = np.cumsum(0.5 * (A[:, 1:] + A[:, :-1]), axis=1)
+    C = np.empty(A.shape)
+    C[:, 0] = 0.0
+    np.cumsum(0.5 * (A[:, 1:] + A[:, :-1]), axis=1, out=C[:, 1:])
     return C
 
 
@@ -198,16 +200,20 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     # can make the peak many times the plateau, so the peak is no reference).
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no lit sample
-        m1 = np.nanmedian(np.where(A > 0, A, np.nan), axis=1) if N else peak
+        m1 = row_nanmedian(np.where(A > 0, A, np.nan)) if N else peak
         lit = np.where(0.3 * np.nan_to_num(m1)[:, None] < A, A, np.nan)
-        guess = np.nan_to_num(np.nanmedian(lit, axis=1), nan=0.0) if N else peak
-    pa, Pa, oka = rising_edges(A, lens, sigma, guess)
-    pb_rev, Pb, okb = rising_edges(reverse_rows(A, lens), lens, sigma, guess)
-    pb = (lens - 1) - pb_rev
+        guess = np.nan_to_num(row_nanmedian(lit), nan=0.0) if N else peak
+    # Both ends at once: the rows of A, then the reversed rows (end B's edge rises first).
+    AA = np.concatenate([A, reverse_rows(A, lens)])
+    lens2 = np.concatenate([lens, lens])
+    p2, P2, ok2 = rising_edges(AA, lens2, np.concatenate([sigma, sigma]),
+                               np.concatenate([guess, guess]))
+    pa, Pa, oka = p2[:N], P2[:N], ok2[:N]
+    pb, Pb, okb = (lens - 1) - p2[N:], P2[N:], ok2[N:]
     short = ~(oka & okb) | (pb - pa < 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)
     # Moments of the profile for short streaks: within the half-peak crossings +- 3 sigma + 1.
-    lo, has_lo = _first_crossing(A, lens, 0.5 * peak)
-    hi_rev, has_hi = _first_crossing(reverse_rows(A, lens), lens, 0.5 * peak)
+    c2, has2 = _first_crossing(AA, lens2, 0.5 * np.concatenate([peak, peak]))
+    lo, has_lo, hi_rev, has_hi = c2[:N], has2[:N], c2[N:], has2[N:]
     lo = np.maximum(lo - MOMENT_MARGIN_SIGMAS * sigma - 1.0, 0.0)
     hi = np.minimum((lens - 1) - hi_rev + MOMENT_MARGIN_SIGMAS * sigma + 1.0, lens - 1.0)
     cols = np.arange(A.shape[1], dtype=np.float64)[None, :]

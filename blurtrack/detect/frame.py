@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -12,8 +11,9 @@ from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.gaps import split_at_gaps
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import to_matrix
+from blurtrack.detect.ragged import Ragged, to_matrix
 from blurtrack.detect.segment import Components, axis_polylines, find_components
 from blurtrack.detect.skeleton import trace_paths
 
@@ -69,12 +69,11 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
 
 
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
-    """``(N,)`` bool: which kept components contain saturated pixels."""
-    nz = cv2.findNonZero(saturated.view(np.uint8))
-    nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2)
-    lab = comps.labels[nz[:, 1], nz[:, 0]]
-    count = np.bincount(lab, minlength=int(comps.labels.max()) + 1)
-    return count[comps.ids] > 0
+    """``(N,)`` bool: which kept components contain saturated pixels (from their pixel
+    lists: a saturated pixel is bright enough to lie in a component)."""
+    if comps.ids.size == 0:
+        return np.zeros(0, bool)
+    return np.maximum.reduceat(saturated[comps.ys, comps.xs], comps.starts)
 
 
 def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:
@@ -95,6 +94,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         session level decides whether that is an error).
     """
     p = params or DetectParams()
+    keep_frame_buffers()  # once per process: no page faults for per-frame buffers
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.signal.shape
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
@@ -109,24 +109,36 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     crossing: list[bool] = []
     looped: list[bool] = []
     spur = 2.0 * sigma_c + 3.0
-    for i, poly in enumerate(polylines):
-        if not folded[i]:
-            if len(poly) < 2 or abs(poly[-1] - poly[0]).sum() < 1e-9:
-                poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
-            owner.append(i)
-            lines.append(poly)
-            crossing.append(False)
-            looped.append(False)
-            continue
-        x, y, w, h = comps.boxes[i]
-        mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
-        paths = trace_paths(np.pad(mask, 1), spur, spur)
-        for path in paths:
-            owner.append(i)
-            lines.append(path.points + np.array([x - 1.0, y - 1.0]))
-            crossing.append(path.shares_junction or len(paths) > 1)
-            looped.append(path.self_crossing)
-    ref = refine_lines(prep.smooth, lines, sigma_c,
+    # Round spots (one point, or ends that coincide) get a 1 px segment; tested for all lines
+    # at once, since the loop below runs once per component.
+    sizes = np.fromiter(map(len, polylines), np.int64, len(polylines))
+    last = np.cumsum(sizes) - 1
+    flat = np.concatenate(polylines)
+    spot = (sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)
+    line_input: Ragged | list[np.ndarray] = lines
+    if not (spot.any() or folded.any()):  # the usual frame: every line as it is
+        owner = list(range(len(polylines)))
+        crossing = looped = [False] * len(polylines)
+        line_input = Ragged(flat, sizes)
+    else:
+        for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
+            if not fold:
+                if spot[i]:
+                    poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
+                owner.append(i)
+                lines.append(poly)
+                crossing.append(False)
+                looped.append(False)
+                continue
+            x, y, w, h = comps.boxes[i]
+            mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
+            paths = trace_paths(np.pad(mask, 1), spur, spur)
+            for path in paths:
+                owner.append(i)
+                lines.append(path.points + np.array([x - 1.0, y - 1.0]))
+                crossing.append(path.shares_junction or len(paths) > 1)
+                looped.append(path.self_crossing)
+    ref = refine_lines(prep.smooth, line_input, sigma_c,
                        prep.saturation if prep.saturated.any() else None)
     ref, parent = split_at_gaps(ref)
     owner = [owner[k] for k in parent]
@@ -153,8 +165,10 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             sigma_c = sig_c
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
         # (there the clipped cross-section integral is an exact function of the true one).
-        raw = to_matrix(raw_profiles(prep.signal, ref.lines, sigma_c), lens)
-        A[line_sat] = unclip_profiles(raw[line_sat], prep.saturation, sigma_raw)
+        if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
+            sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
+            raw = to_matrix(raw_profiles(prep.signal, sat_lines, sigma_c), sat_lines.sizes)
+            A[line_sat, : raw.shape[1]] = unclip_profiles(raw, prep.saturation, sigma_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
     edge_sigma = np.where(line_sat, np.sqrt(sigma_raw**2 + 1.0 / 6.0) if line_sat.any()
                           else sigma_c, sigma_c)

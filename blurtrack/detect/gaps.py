@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from blurtrack.detect.centreline import RefinedLines
-from blurtrack.detect.ragged import Ragged, to_matrix
+from blurtrack.detect.ragged import Ragged, row_nanmedian, to_matrix
 
 GAP_LEVEL = 0.3
 LONG_FACTOR = 1.6
@@ -33,7 +33,7 @@ def split_at_gaps(ref: RefinedLines) -> tuple[RefinedLines, np.ndarray]:
     with np.errstate(all="ignore"):
         peak = A.max(axis=1)
         lit_vals = np.where(valid & (0.3 * peak[:, None] < A), A, np.nan)
-        level = np.nan_to_num(np.nanmedian(lit_vals, axis=1))
+        level = np.nan_to_num(row_nanmedian(lit_vals))
     lit = valid & (0.5 * level[:, None] <= A)
     has = lit.any(axis=1)
     first = np.argmax(lit, axis=1)

@@ -12,7 +12,8 @@ from blurtrack.errors import DetectionError
 _BOX = np.ones((3, 3), np.uint8)
 #: Block size (px) of the background map.
 BACKGROUND_BLOCK_PX = 32
-_OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])  # the 8-neighbour ring
+_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
 
 
 @dataclass(frozen=True)
@@ -59,15 +60,38 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def _weighted_median(values: np.ndarray, counts: np.ndarray) -> float:
+    """``np.median`` of a sample given as distinct ``values`` (ascending) and their counts:
+    the middle order statistic, or the mean of the two middle ones."""
+    cum = np.cumsum(counts)
+    n = int(cum[-1])
+    lo = values[np.searchsorted(cum, (n - 1) // 2, side="right")]
+    hi = values[np.searchsorted(cum, n // 2, side="right")]
+    return 0.5 * (float(lo) + float(hi))
+
+
 def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     """Robust background level (median) and noise sigma (scaled MAD) of a sparse-dot frame,
     in the frame's own units.
 
     Uses a regular sub-sample, so that the cost does not grow with the frame. Dots cover a
-    small fraction of a laser-grid frame, so both statistics see the background.
+    small fraction of a laser-grid frame, so both statistics see the background. 8-bit frames
+    take the same statistics from the sample's histogram (exact, and faster than sorting).
     """
     step = max(1, int(np.sqrt(gray.size / 12000)))
-    sample = gray[::step, ::step].ravel().astype(np.float64)
+    sample = gray[::step, ::step].ravel()
+    if gray.dtype == np.uint8:
+        counts = np.bincount(sample, minlength=256)
+        values = np.arange(256, dtype=np.float64)
+        median = _weighted_median(values, counts)
+        dist = np.abs(values - median)
+        order = np.argsort(dist, kind="stable")
+        sigma0 = max(1.4826 * _weighted_median(dist[order], counts[order]), 0.5)
+        w = np.where(dist <= 4.0 * sigma0 + 1.0, counts, 0).astype(np.float64)
+        background = float(w @ values / w.sum())
+        noise = float(np.sqrt(w @ (values - background) ** 2 / w.sum()))
+        return background, noise
+    sample = sample.astype(np.float64)
     median = float(np.median(sample))
     sigma0 = max(1.4826 * float(np.median(np.abs(sample - median))), 0.5)
     # The median of integer-valued data is off by up to half a step, which the integrals
@@ -78,47 +102,88 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     return background, noise
 
 
-def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                   ) -> np.ndarray:
-    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
-    ambient gradients): per block of ``block`` px, the mean of a sparse sample within
-    ``4 noise + 1`` of the block's median (dots cover a small part of a block; the trimmed
-    mean avoids the half-step bias of medians of integer data), then a 3x3 median over blocks
-    (a block crowded by a streak takes its neighbours' level) and bilinear upsampling."""
-    H, W = gray.shape
+def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                      ) -> np.ndarray:
+    """Background level per block of ``block`` px, ``(by, bx)`` float32 (frame units): the
+    mean of a sparse sample within ``4 noise + 1`` of the block's median (dots cover a small
+    part of a block; the trimmed mean avoids the half-step bias of medians of integer data),
+    then a 3x3 median over blocks (a block crowded by a streak takes its neighbours' level)."""
     step = max(block // 8, 1)
     k = block // step
     sub = gray[::step, ::step]
     by, bx = max(sub.shape[0] // k, 1), max(sub.shape[1] // k, 1)
     kh, kw = min(k, sub.shape[0]), min(k, sub.shape[1])
     smp = sub[: by * kh, : bx * kw].reshape(by, kh, bx, kw).transpose(0, 2, 1, 3)
-    smp = smp.reshape(by, bx, kh * kw).astype(np.float32)
-    med = np.median(smp, axis=2, keepdims=True)
+    smp = smp.reshape(by, bx, kh * kw)
+    med = np.median(smp, axis=2, keepdims=True).astype(np.float32)  # on the integers: faster
+    smp = smp.astype(np.float32)
     keep = np.abs(smp - med) <= 4.0 * noise + 1.0
     level = (smp * keep).sum(axis=2) / np.maximum(keep.sum(axis=2), 1)
     if by >= 3 and bx >= 3:
         level = cv2.medianBlur(level.astype(np.float32), 3)
-    return cv2.resize(level.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    return level.astype(np.float32)
 
 
-def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float) -> int:
+def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+                   ) -> np.ndarray:
+    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
+    ambient gradients): :func:`background_levels` upsampled bilinearly."""
+    H, W = gray.shape
+    return cv2.resize(background_levels(gray, noise, block), (W, H),
+                      interpolation=cv2.INTER_LINEAR)
+
+
+def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices ``(K,)`` of the nonzero pixels of a uint8 mask, in raster order,
+    given their ``count``. A sparse contiguous mask is scanned as 64-bit words (numpy finds
+    the few nonzero words about twice as fast as ``cv2.findNonZero`` scans the bytes);
+    otherwise ``cv2.findNonZero``."""
+    flat = mask.reshape(-1) if mask.flags.c_contiguous else None
+    if flat is None or flat.size % 8 or count > flat.size // 200:
+        nz = cv2.findNonZero(mask)
+        nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
+        return nz[:, 1], nz[:, 0]
+    words = np.flatnonzero(flat.view(np.uint64))
+    idx = (words[:, None] * 8 + np.arange(8)).ravel()
+    idx = idx[flat[idx] != 0]
+    return idx // mask.shape[1], idx % mask.shape[1]
+
+
+def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float,
+                      raw_floor: float | None = None) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
 
-    A hot pixel exceeds ``floor`` (in ``signal`` units) and is more than ``ratio`` times
-    brighter than its brightest 8-neighbour. A real dot (sigma >= ~0.7 px) always has a
-    neighbour at more than a third of its peak, so it never qualifies. Candidates are the
-    local maxima of the raw frame (a cheap integer dilation); only those few get the test.
+    A hot pixel (not on the frame border) is a local maximum of ``raw`` (at least as bright as
+    its 8 neighbours), exceeds ``floor`` (in ``signal`` units) and is more than ``ratio`` times
+    brighter than its brightest 8-neighbour in ``signal``; it is replaced by that neighbour. A
+    real dot (sigma >= ~0.7 px) always has a neighbour at more than a third of its peak, so it
+    never qualifies. The candidate mask (local maximum and above the floor) is built with
+    full-frame OpenCV operations, which are several times faster than numpy on a large frame
+    and leave only a few candidates (dot peaks, hot pixels) for the exact ring test.
+
+    ``raw_floor``: a raw value that every pixel above ``floor`` exceeds (``floor`` in raw units
+    plus the lowest background, less a rounding margin); the floor is then pre-tested on the
+    (smaller) raw frame and checked exactly on the candidates only. On a noise-free flat
+    background every pixel is a local maximum, so the floor must come first.
     """
-    peak = raw >= cv2.dilate(raw, _BOX)
-    nz = cv2.findNonZero(peak[1:-1, 1:-1].view(np.uint8))
-    if nz is None:
+    cand = cv2.compare(raw, cv2.dilate(raw, _BOX), cv2.CMP_GE)
+    if raw_floor is None or raw_floor < 0:
+        above = cv2.compare(signal, float(floor), cv2.CMP_GT)
+    else:  # integer data: raw > x exactly when raw > floor(x) (OpenCV rounds the scalar)
+        above = cv2.compare(raw, float(np.floor(raw_floor)), cv2.CMP_GT)
+    cv2.bitwise_and(cand, above, dst=cand)
+    cand[0, :] = 0
+    cand[-1, :] = 0
+    cand[:, 0] = 0
+    cand[:, -1] = 0
+    count = cv2.countNonZero(cand)
+    if count == 0:
         return 0
-    nz = nz.reshape(-1, 2).astype(np.int64) + 1
-    xs, ys = nz[:, 0], nz[:, 1]
+    ys, xs = sparse_points(cand, count)
     value = signal[ys, xs]
     bright = value > floor
     xs, ys, value = xs[bright], ys[bright], value[bright]
-    ring = np.stack([signal[ys + dy, xs + dx] for dy, dx in _OFFSETS], axis=1).max(axis=1)
+    ring = np.max(signal[ys[:, None] + _DY[None, :], xs[:, None] + _DX[None, :]], axis=1)
     hot = value > ratio * np.maximum(ring, 0.0)
     count = int(np.count_nonzero(hot))
     if count:
@@ -139,10 +204,15 @@ def prepare_frame(
     saturated = raw >= level if raw.max() >= level else np.zeros((1, 1), bool)
     bg_raw, noise_raw = background_and_noise(raw)
     background, noise = bg_raw / top, max(noise_raw / top, 1e-4)
-    signal = raw.astype(np.float32)
-    signal -= background_map(raw, noise_raw)
-    signal *= np.float32(1.0 / top)
-    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, 5.0 * noise)
+    bg_level = background_levels(raw, noise_raw)
+    bg_map = cv2.resize(bg_level, (raw.shape[1], raw.shape[0]), interpolation=cv2.INTER_LINEAR)
+    # (raw - background) / top in one OpenCV pass (float32 out).
+    signal = cv2.addWeighted(raw, 1.0 / top, bg_map, -1.0 / top, 0.0, dtype=cv2.CV_32F)
+    floor = 5.0 * noise
+    # Bilinear upsampling stays within the block levels: their minimum bounds the map's (the
+    # margin covers float32 rounding of the signal, far below 0.01 raw units).
+    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, floor,
+                            floor * top + float(bg_level.min()) - 0.01)
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)
     smooth = cv2.GaussianBlur(signal, (k, k), smooth_sigma_px, borderType=cv2.BORDER_REPLICATE)
     # Noise of white noise after a Gaussian blur of sigma s: sigma / (2 sqrt(pi) s).

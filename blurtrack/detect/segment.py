@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from blurtrack.detect.ragged import split_at
 from blurtrack.errors import DetectionError
 
 
@@ -21,13 +22,15 @@ from blurtrack.errors import DetectionError
 class Components:
     """Connected components of the thresholded frame.
 
-    - ``labels``: ``(H, W)`` int32 label image (0 = background).
+    - ``labels``: ``(H, W)`` uint16 (int32 for frames with more than 65535 blobs) label image
+      (0 = background).
     - ``ys``, ``xs``: coordinates of the kept components' pixels, grouped by component;
       component ``i`` owns ``starts[i] : starts[i] + areas[i]``.
     - ``ids``: ``(N,)`` labels kept (large and bright enough).
     - ``boxes``: ``(N, 4)`` int ``x, y, w, h`` bounding boxes.
     - ``peaks``: ``(N,)`` peak of the smoothed signal per component.
     - ``areas``: ``(N,)`` pixel counts.
+    - ``values``: the smoothed signal at every pixel of ``ys``, ``xs`` (float64).
     """
 
     labels: np.ndarray
@@ -38,6 +41,7 @@ class Components:
     boxes: np.ndarray
     peaks: np.ndarray
     areas: np.ndarray
+    values: np.ndarray
 
 
 def find_components(
@@ -47,10 +51,16 @@ def find_components(
     mask = (smooth > threshold).view(np.uint8)
     # Labels without OpenCV's statistics pass (several times slower than the labelling); the
     # statistics come from the pixel list, which the centre lines need anyway.
-    n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SAUF)
+    # 16-bit labels halve the memory traffic; OpenCV raises on label overflow.
+    try:
+        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_16U, cv2.CCL_SPAGHETTI)
+    except cv2.error:
+        n, labels = cv2.connectedComponentsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_SPAGHETTI)
     nz = cv2.findNonZero(mask)  # much faster than np.nonzero on a full frame
-    nz = np.zeros((0, 2), np.int64) if nz is None else nz.reshape(-1, 2).astype(np.int64)
-    lab = labels[nz[:, 1], nz[:, 0]]
+    nz = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
+    W = mask.shape[1]
+    flat_idx = nz[:, 1].astype(np.intp) * W + nz[:, 0]
+    lab = labels.ravel()[flat_idx]  # 1-D gathers: faster than 2-D indexing
     areas = np.bincount(lab, minlength=n)
     keep_label = areas >= min_area_px
     keep_label[0] = False
@@ -61,15 +71,19 @@ def find_components(
             "not a laser-dot frame"
         )
     # Pixels of kept components, grouped by component (per-component reductions then run
-    # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls).
-    sel = keep_label[lab]
-    order = np.argsort(lab[sel], kind="stable")
-    xs, ys = nz[sel][order, 0], nz[sel][order, 1]
+    # as reduceat over contiguous runs instead of slow unbuffered ufunc.at calls). Labels
+    # are 16-bit in practice, which numpy sorts stably by radix.
+    sel = np.flatnonzero(keep_label[lab])
+    order = sel[np.argsort(lab[sel], kind="stable")]
+    # Each (x, y) int32 pair gathered as one int64: one 1-D gather instead of a 2-D one.
+    pairs = np.ascontiguousarray(nz).view(np.int64).ravel()[order]
+    xs, ys = np.ascontiguousarray(pairs.view(np.int32).reshape(-1, 2).T)
     starts = np.concatenate(([0], np.cumsum(areas[ids])[:-1])).astype(np.int64)
+    values = smooth.ravel()[flat_idx[order]].astype(np.float64)
     if ids.size:
         x0, x1 = np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts)
         y0, y1 = np.minimum.reduceat(ys, starts), np.maximum.reduceat(ys, starts)
-        peaks = np.maximum.reduceat(smooth[ys, xs].astype(np.float64), starts)
+        peaks = np.maximum.reduceat(values, starts)
     else:
         x0 = x1 = y0 = y1 = np.zeros(0, np.int64)
         peaks = np.zeros(0)
@@ -82,6 +96,7 @@ def find_components(
         boxes=np.stack([x0, y0, x1 - x0 + 1, y1 - y0 + 1], axis=1),
         peaks=peaks,
         areas=areas[ids],
+        values=values,
     )
 
 
@@ -105,7 +120,7 @@ def axis_polylines(
         return [], np.zeros(0, bool)
     ys, xs, st = comps.ys, comps.xs, comps.starts
     idx = np.repeat(np.arange(N), comps.areas)
-    w = np.maximum(smooth[ys, xs].astype(np.float64), 1e-12)
+    w = np.maximum(comps.values, 1e-12)
     x = xs.astype(np.float64)
     y = ys.astype(np.float64)
     sw = np.add.reduceat(w, st)
@@ -140,5 +155,5 @@ def axis_polylines(
     folded = np.maximum.reduceat(bad.astype(np.int8), offsets[:-1]) > 0
     px = mx[bin_label] + bs * ux[bin_label] - bt * uy[bin_label]
     py = my[bin_label] + bs * uy[bin_label] + bt * ux[bin_label]
-    polylines = np.split(np.stack([px, py], axis=1), offsets[1:-1])
+    polylines = split_at(np.stack([px, py], axis=1), offsets[1:-1])
     return polylines, folded
