@@ -97,7 +97,7 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
             cv2.accumulate(warped, part)
         cv2.scaleAdd(part, float((tb - ta) / (n * exposure_s)), acc, dst=acc)
     if work is not img:
-        acc = acc[..., :img.shape[2]]
+        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
     tau = (np.concatenate(times) - t0) / exposure_s
     grid = NodeGrid.build(W, H, st.grid_px)
     mx, my = source_positions(model, t0, exposure_s, t_ref, grid.u, grid.v, tau)

@@ -298,7 +298,7 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
                     cv2.remap(work, m, None, cv2.INTER_LINEAR, dst=out, borderMode=border)
                 cv2.scaleAdd(out, float(wk), dst, dst=dst)
     if work is not img:
-        acc = acc[..., :img.shape[2]]
+        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
     valid = grid.upsample(margin) >= 0
     return RenderResult(acc, np.ascontiguousarray(valid), tau, plan.step_px,
                         "homography" if homography else "remap", plan.weights)
