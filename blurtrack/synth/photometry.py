@@ -61,6 +61,9 @@ def decode_srgb8(img: np.ndarray) -> np.ndarray:
     """uint8 sRGB image to float32 linear light in [0, 1] (exact table lookup)."""
     if img.dtype != np.uint8:
         raise SynthesisError(f"expected an 8-bit image, got {img.dtype}")
+    if img.ndim == 2 or (img.ndim == 3 and 2 <= img.shape[2] <= 4):
+        # OpenCV's lookup: the same table, about 3x faster than numpy's fancy indexing.
+        return cv2.LUT(np.ascontiguousarray(img), _DECODE_LUT)
     return _DECODE_LUT[img]
 
 
