@@ -11,7 +11,7 @@ Also reported: the heat maps' Bezier fit share within 0.5 px, and the error that
 ``stride`` adds against ``stride=1``. Prints one JSON object; ratios and medians, since the
 machine is shared and noisy.
 
-    PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2] [--build-count 16]
+    PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2] [--build-count 40]
 """
 
 from __future__ import annotations
@@ -179,7 +179,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=8, help="triplets per size")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--build-count", type=int, default=16,
+    ap.add_argument("--build-count", type=int, default=40,
                     help="triplets of the 1280x720 builds (twice as many at 640x360)")
     ap.add_argument("--fit-segments", type=int, default=50)
     args = ap.parse_args()
