@@ -21,7 +21,6 @@ machines are combined with :func:`merge`.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import multiprocessing
 import os
@@ -142,8 +141,9 @@ def read_manifest(path: Path, repair: bool = False) -> dict[int, dict[str, Any]]
     return records
 
 
-def _write_atomic(path: Path, data: bytes, tag: str = "x") -> None:
-    """Write ``data`` to a hidden ``.<name>.<tag>.<pid>.tmp`` file, then rename it to ``path``.
+def _write_atomic(path: Path, data: bytes | np.ndarray, tag: str = "x") -> None:
+    """Write ``data`` (bytes, or an array as ``.npy``, streamed without an in-memory copy) to a
+    hidden ``.<name>.<tag>.<pid>.tmp`` file, then rename it to ``path``.
 
     ``tag`` names the shard, so a shard cleaning up after a killed run of itself never
     touches the temporaries of another shard running in the same folder.
@@ -151,7 +151,11 @@ def _write_atomic(path: Path, data: bytes, tag: str = "x") -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{tag}.{os.getpid()}.tmp")
     try:
-        tmp.write_bytes(data)
+        if isinstance(data, np.ndarray):
+            with tmp.open("wb") as f:
+                np.save(f, data, allow_pickle=False)
+        else:
+            tmp.write_bytes(data)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -159,16 +163,13 @@ def _write_atomic(path: Path, data: bytes, tag: str = "x") -> None:
 
 
 def _png(img: np.ndarray, level: int = 0) -> bytes:
-    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, int(level)])
+    flags = [cv2.IMWRITE_PNG_COMPRESSION, int(level)]
+    if level == 0:  # row filters only help deflate; unfiltered stored PNG encodes 4x faster
+        flags += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
+    ok, buf = cv2.imencode(".png", img, flags)
     if not ok:
         raise SynthesisError("PNG encoding failed")
     return buf.tobytes()
-
-
-def _npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    return buf.getvalue()
 
 
 # ------------------------------------------------------------------ worker side
@@ -196,10 +197,10 @@ def _work(job: Job) -> dict[str, Any]:
     tag = _STATE["tag"]
     _write_atomic(paths["sharp"], _png(tr.sharp, _STATE["png"]), tag)
     _write_atomic(paths["blur"], _png(tr.blur, _STATE["png"]), tag)
-    _write_atomic(paths["heat"], _npy(tr.heat), tag)
+    _write_atomic(paths["heat"], tr.heat, tag)
     if spec.extras:
         _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255, 1), tag)
-        _write_atomic(paths["fit"], _npy(tr.fit_error.astype(np.float32)), tag)
+        _write_atomic(paths["fit"], tr.fit_error.astype(np.float32), tag)
     info = dict(tr.info)
     return {"index": job.index, "split": job.split, "name": job.name, "stem": job.stem,
             "source_image": job.image, "gyro_segment": info.pop("gyro_segment"),

@@ -30,6 +30,7 @@ from blurtrack.synth.render import (
     NodeGrid,
     RenderResult,
     RenderSettings,
+    four_channels,
     source_positions,
 )
 from blurtrack.trajectory import BlurModel
@@ -76,7 +77,10 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
         raise SynthesisError(f"paper mode would need {int(n_j.sum())} sub-steps "
                              f"(limit {st.max_samples})")
     border = BORDERS[st.border]
-    acc = np.zeros(img.shape, np.float32)
+    work = four_channels(img)
+    acc = np.zeros(work.shape, np.float32)
+    part = np.empty_like(acc)
+    warped = np.empty_like(acc)
     times, weights = [], []
     for j, n in enumerate(n_j):
         ta, tb = bounds[j], bounds[j + 1]
@@ -84,14 +88,16 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
         times.append(ts)
         weights.append(np.full(n, (tb - ta) / (n * exposure_s)))
         src = model.warp(np.tile(corners, (n, 1)), np.repeat(ts, 4), np.full(4 * n, t_ref))
-        part = np.zeros(img.shape, np.float32)
+        part[...] = 0
         for k in range(n):
             Hk = cv2.getPerspectiveTransform(corners.astype(np.float32),
                                              src[4 * k:4 * k + 4].astype(np.float32))
-            w = cv2.warpPerspective(img, Hk, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                    borderMode=border)
-            cv2.accumulate(w, part)
+            cv2.warpPerspective(work, Hk, (W, H), dst=warped,
+                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border)
+            cv2.accumulate(warped, part)
         cv2.scaleAdd(part, float((tb - ta) / (n * exposure_s)), acc, dst=acc)
+    if work is not img:
+        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
     tau = (np.concatenate(times) - t0) / exposure_s
     grid = NodeGrid.build(W, H, st.grid_px)
     mx, my = source_positions(model, t0, exposure_s, t_ref, grid.u, grid.v, tau)

@@ -61,6 +61,9 @@ def decode_srgb8(img: np.ndarray) -> np.ndarray:
     """uint8 sRGB image to float32 linear light in [0, 1] (exact table lookup)."""
     if img.dtype != np.uint8:
         raise SynthesisError(f"expected an 8-bit image, got {img.dtype}")
+    if img.ndim == 2 or (img.ndim == 3 and 2 <= img.shape[2] <= 4):
+        # OpenCV's lookup: the same table, about 3x faster than numpy's fancy indexing.
+        return cv2.LUT(np.ascontiguousarray(img), _DECODE_LUT)
     return _DECODE_LUT[img]
 
 
@@ -70,7 +73,9 @@ def encode_srgb8(lin: np.ndarray) -> np.ndarray:
     A 16-bit lookup table replaces the power function (about 10x faster; the quantisation of
     the linear value adds under 0.06 LSB, so 8-bit codes round trip exactly).
     """
-    idx = np.clip(lin, 0.0, 1.0) * np.float32(2**_ENC_BITS - 1) + np.float32(0.5)
+    idx = np.clip(lin, 0.0, 1.0, dtype=np.float32)
+    idx *= np.float32(2**_ENC_BITS - 1)
+    idx += np.float32(0.5)
     return _ENCODE_LUT[idx.astype(np.uint16)]
 
 
@@ -159,7 +164,9 @@ def finish_blur(blur: np.ndarray, ph: Photometry, rng: np.random.Generator) -> n
     ``blur`` is linear light when ``ph.linear``, otherwise sRGB values in [0, 1].
     """
     if ph.linear:
-        img8 = encode_srgb8(add_noise(blur, ph.noise_shot, ph.noise_read, rng))
+        noisy = ph.noise_shot > 0 or ph.noise_read > 0
+        img8 = encode_srgb8(add_noise(blur, ph.noise_shot, ph.noise_read, rng) if noisy
+                            else blur)  # encode_srgb8 clips
     else:
         img8 = np.clip(np.round(blur * 255.0), 0, 255).astype(np.uint8)
     return jpeg_roundtrip(img8, ph.jpeg_quality)

@@ -42,6 +42,8 @@ from blurtrack.trajectory import BlurModel
 BORDERS = {"reflect": cv2.BORDER_REFLECT_101, "constant": cv2.BORDER_CONSTANT}
 #: Samples processed together in the remap path (bounds memory at ~10 MB of node maps).
 _TAU_CHUNK = 64
+#: Pixels per band of rows processed through all samples of a chunk (fits the CPU cache).
+_BAND_PIXELS = 131072
 
 
 @dataclass(frozen=True)
@@ -174,35 +176,69 @@ def node_spacing(model: BlurModel, reach_px: float, settings: RenderSettings) ->
 
 @dataclass(frozen=True)
 class NodeGrid:
-    """Coarse nodes laid out so that ``cv2.resize`` (INTER_LINEAR, pixel-centre convention)
-    of a ``(gh, gw)`` node array to ``(H + 2p, W + 2p)`` interpolates exactly between nodes;
-    the image is the canvas cropped by ``p`` on every side, and every image pixel lies inside
-    the node hull (no clamped extrapolation)."""
+    """Coarse nodes ``spacing`` px apart laid out so that ``cv2.resize`` (INTER_LINEAR,
+    pixel-centre convention) of a ``(gh, gw)`` node array to the ``(gh·s, gw·s)`` canvas
+    interpolates exactly between nodes; the image is the canvas from ``(p, p)`` on, and every
+    image pixel lies inside the node hull (no clamped extrapolation). The integer spacing lets
+    any band of rows be upsampled on its own, with the same values (:meth:`upsample_rows`)."""
 
     u: np.ndarray
     v: np.ndarray
     pad: int
     width: int
     height: int
+    spacing: int = 1
 
     @classmethod
     def build(cls, width: int, height: int, grid_px: int) -> NodeGrid:
-        p = math.ceil(grid_px / 2)
+        s = int(grid_px)
+        p = math.ceil(s / 2)
 
         def axis(n: int) -> np.ndarray:
-            count = max(2, math.ceil((n + 2 * p) / grid_px))
-            s = (n + 2 * p) / count
+            count = max(2, math.ceil((n + 2 * p) / s))
             return (np.arange(count) + 0.5) * s - 0.5 - p
 
-        return cls(axis(width), axis(height), p, width, height)
+        return cls(axis(width), axis(height), p, width, height, s)
 
     def upsample(self, nodes: np.ndarray) -> np.ndarray:
         """Node values ``(gh, gw[, C])`` float32 to every pixel ``(H, W[, C])`` (a view)."""
-        p = self.pad
-        up = cv2.resize(np.ascontiguousarray(nodes, np.float32),
-                        (self.width + 2 * p, self.height + 2 * p),
-                        interpolation=cv2.INTER_LINEAR)
-        return up[p:p + self.height, p:p + self.width]
+        return self.upsample_rows(nodes, 0, self.height)
+
+    def upsample_rows(self, nodes: np.ndarray, y0: int, rows: int,
+                      canvas: np.ndarray | None = None) -> np.ndarray:
+        """Rows ``y0 .. y0 + rows - 1`` of :meth:`upsample` (a view; ``canvas`` is an optional
+        reusable contiguous float32 buffer of at least ``(rows + 3s)·gw·s·C`` values).
+
+        Only the node rows around the band are resized: a sub-array starting at node row
+        ``ja`` maps canvas row ``c`` to node coordinate ``(c + 0.5)/s - 0.5 - ja``, exactly
+        the full array's minus ``ja``, and clamps only where the full array clamps too.
+        """
+        s, p = self.spacing, self.pad
+        c0, c1 = y0 + p, y0 + p + rows - 1  # first and last canvas rows
+        ja = max(0, math.floor((c0 + 0.5) / s - 0.5))
+        jb = min(self.v.size, math.floor((c1 + 0.5) / s - 0.5) + 2)
+        part = np.ascontiguousarray(nodes[ja:jb], np.float32)
+        size = (self.u.size * s, (jb - ja) * s)
+        dst = None
+        if canvas is not None:
+            shape = (size[1], size[0], *part.shape[2:])
+            dst = canvas.reshape(-1)[:math.prod(shape)].reshape(shape)
+        up = cv2.resize(part, size, dst=dst, interpolation=cv2.INTER_LINEAR)
+        return up[c0 - ja * s:c1 + 1 - ja * s, p:p + self.width]
+
+
+def four_channels(img: np.ndarray) -> np.ndarray:
+    """A 3-channel float32 image padded to 4 channels (the 4th is 1.0); others unchanged.
+
+    OpenCV's ``remap`` and ``warpPerspective`` have vectorised float32 kernels for 1 and 4
+    channels but not for 3: on a 4-channel copy they give bit-identical colour channels in
+    about half the time (2.6 ms instead of 5.1 ms per 1280x720 warp on one core), which more
+    than pays for the extra channel in the accumulation. Callers drop the 4th channel at the
+    end (``cv2.COLOR_BGRA2BGR``).
+    """
+    if img.ndim == 3 and img.shape[2] == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2BGRA)
+    return img
 
 
 def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_s: float,
@@ -224,32 +260,46 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
     tau, wts = plan.tau, plan.weights.astype(np.float32)
     n = tau.size
     border = BORDERS[st.border]
-    acc = np.zeros(img.shape, np.float32)
+    work = four_channels(img)
+    acc = np.zeros(work.shape, np.float32)
     grid = NodeGrid.build(W, H, node_spacing(model, plan.reach_px, st))
     margin = np.full((grid.v.size, grid.u.size), np.inf)
     homography = cam.readout_s == 0 and not cam.dist
+    # Whole node cells per band: each band then resizes only one node row more than it uses.
+    band = grid.spacing * max(1, _BAND_PIXELS // (W * grid.spacing))
+    bands = [(y0, min(band, H - y0)) for y0 in range(0, H, band)]
+    warped = np.empty((band, *work.shape[1:]), np.float32)  # reused output of every warp
+    canvas = np.empty((band + 3 * grid.spacing) * grid.u.size * grid.spacing * 2,
+                      np.float32)  # reused per-pixel coordinate map of a band
     if homography:
         R = model.rotations(frame_t_s + exposure_s * tau, np.full(n, t_ref))
         K = cam.K
-        Kinv = np.linalg.inv(K)
-        for Rk, wk in zip(R, wts, strict=True):
-            Hk = K @ Rk.T @ Kinv
-            w = cv2.warpPerspective(img, Hk, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                    borderMode=border)
-            cv2.scaleAdd(w, float(wk), acc, dst=acc)
+        Hs = K @ np.transpose(R, (0, 2, 1)) @ np.linalg.inv(K)
     for k0 in range(0, n, _TAU_CHUNK):
         mx, my = source_positions(model, frame_t_s, exposure_s, t_ref, grid.u, grid.v,
                                   tau[k0:k0 + _TAU_CHUNK])
         inside = np.minimum(np.minimum(mx, W - 1.0 - mx), np.minimum(my, H - 1.0 - my))
         margin = np.minimum(margin, inside.min(axis=0))
-        if homography:
-            continue
         # Absolute coordinates: the identity is linear, so bilinear upsampling keeps it exact.
-        maps = np.stack([mx, my], axis=-1).astype(np.float32)
-        for node_map, wk in zip(maps, wts[k0:k0 + _TAU_CHUNK], strict=True):
-            m = grid.upsample(node_map)
-            w = cv2.remap(img, m, None, cv2.INTER_LINEAR, borderMode=border)
-            cv2.scaleAdd(w, float(wk), acc, dst=acc)
+        maps = None if homography else np.stack([mx, my], axis=-1).astype(np.float32)
+        chunk = wts[k0:k0 + _TAU_CHUNK]
+        # Band by band, every sample: the band's accumulator, warp output and map stay in the
+        # CPU cache (about 1.4x faster than whole frames, which are memory-bound).
+        for y0, rows in bands:
+            out = warped[:rows]
+            dst = acc[y0:y0 + rows]
+            shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
+            for k, wk in enumerate(chunk):
+                if homography:
+                    cv2.warpPerspective(work, Hs[k0 + k] @ shift, (W, rows), dst=out,
+                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                        borderMode=border)
+                else:
+                    m = grid.upsample_rows(maps[k], y0, rows, canvas)
+                    cv2.remap(work, m, None, cv2.INTER_LINEAR, dst=out, borderMode=border)
+                cv2.scaleAdd(out, float(wk), dst, dst=dst)
+    if work is not img:
+        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
     valid = grid.upsample(margin) >= 0
     return RenderResult(acc, np.ascontiguousarray(valid), tau, plan.step_px,
                         "homography" if homography else "remap", plan.weights)

@@ -144,11 +144,11 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
                            seg.frame_t_s, exposure, t_ref, params.render)
         heat_calib = model.calib
     drawn: dict[str, Any] = {}
-    heat_trace = seg.trace
+    heat_model = model  # the blur's own model (its resampled gyro is reused) unless perturbed
     if params.perturbation.active:
         heat_calib, heat_trace, drawn = params.perturbation.apply(heat_calib, seg.trace,
                                                                         perturb_rng)
-    heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
+        heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
     heat, err = heat_model.heat_maps(heat_frame_t, exposure, params.heat_n_t, t_ref,
                                      params.heat_stride)
     finish = p if params.mode == "exact" else ph.Photometry(linear=False)

@@ -12,7 +12,7 @@ from blurtrack.errors import CoverageError, GeometryError
 from blurtrack.gyro import GyroTrace
 from blurtrack.model import distort, relative_rotation, undistort
 from blurtrack.rotation import so3_exp, so3_log
-from blurtrack.trajectory import BlurModel
+from blurtrack.trajectory import BlurModel, _grid, _upsample
 
 CAM = Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5))
 
@@ -182,6 +182,24 @@ def test_heat_maps_match_point_tracks() -> None:
     strided, _ = m.heat_maps(0.4, 0.03, n_t=9, stride=4)
     assert np.abs(strided - maps).max() < 0.01
     assert err.max() < 0.5
+
+
+@pytest.mark.parametrize(("W", "H", "stride"), [(96, 64, 4), (100, 37, 16), (50, 20, 64),
+                                                (17, 9, 3)])
+def test_strided_heat_map_upsampling_is_bilinear(W: int, H: int, stride: int) -> None:
+    # a + b x + c y + d x y is bilinear in every grid cell, so interpolating it from the stride
+    # grid (last row and column included) must reproduce it at every pixel.
+    xs = _grid(W, stride)
+    ys = _grid(H, stride)
+    coef = np.array([[1.5, -0.2, 0.3, 0.004], [-3.0, 0.05, -0.1, -0.002]])
+
+    def f(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack([a + b * x + c * y + d * x * y for a, b, c, d in coef])
+
+    got = _upsample(f(xs[None, :], ys[:, None]), xs, ys, W, H)
+    want = f(np.arange(W)[None, :], np.arange(H)[:, None])
+    assert got.dtype == np.float32 and got.shape == (2, H, W)
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-5 * np.abs(want).max())
 
 
 def test_coverage_is_enforced() -> None:

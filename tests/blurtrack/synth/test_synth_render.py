@@ -204,3 +204,20 @@ def test_node_grid_property(W: int, H: int, g: int, a: float, b: float) -> None:
     u, v = np.meshgrid(np.arange(W), np.arange(H))
     want = a * u + b * v
     np.testing.assert_allclose(grid.upsample(nodes), want, atol=1e-3 + 2e-6 * np.abs(want).max())
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(W=st.integers(2, 120), H=st.integers(2, 90), g=st.integers(2, 20),
+       y0=st.integers(0, 89), rows=st.integers(1, 90))
+def test_node_grid_band_equals_full_upsampling(W: int, H: int, g: int, y0: int,
+                                               rows: int) -> None:
+    # The renderer upsamples the coordinate maps band by band: the same values (up to float32
+    # rounding of OpenCV's scale factors).
+    y0, rows = min(y0, H - 1), min(rows, H - min(y0, H - 1))
+    grid = NodeGrid.build(W, H, g)
+    nodes = np.random.default_rng(W * H + g).random((grid.v.size, grid.u.size, 2))
+    nodes = nodes.astype(np.float32)
+    canvas = np.full((rows + 3 * g) * grid.u.size * g * 2, np.nan, np.float32)
+    band = grid.upsample_rows(nodes, y0, rows, canvas)
+    np.testing.assert_allclose(band, grid.upsample(nodes)[y0:y0 + rows], rtol=0, atol=1e-6)
+    assert np.shares_memory(band, canvas)  # the buffer was big enough to be used
