@@ -28,7 +28,15 @@ from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
-from calib.params import GROUPS, THETA_NAMES, apply_theta, parse_fit, theta_from
+from calib.params import (
+    DEFAULT_FIT,
+    GROUPS,
+    THETA_NAMES,
+    apply_theta,
+    parse_fit,
+    symmetric_scale_form,
+    theta_from,
+)
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import JacobianEvaluator, levenberg_marquardt
@@ -55,7 +63,7 @@ FINE_DELTA_SIGMAS = 5.0
 
 @dataclass(frozen=True)
 class FitOptions:
-    fit: str = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
+    fit: str = DEFAULT_FIT
     holdout_fraction: float = 0.2
     shift_window_s: float = 0.06
     max_iter: int = 30
@@ -141,6 +149,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     timings: dict[str, float] = {}
     warnings: list[str] = []
     free = parse_fit(options.fit)
+    initial = symmetric_scale_form(initial)
     cam = initial.camera
     if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
         raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
