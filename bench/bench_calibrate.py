@@ -93,12 +93,15 @@ def _sigmas(res, truth: Calibration) -> dict[str, float]:
 
 
 def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0) -> dict:
+    from calib.centreline import CENTRE_POINTS
+
     session = load_session(session_dir)
     table = streak_table.from_truth(session.truth)
     if frame_fraction < 1.0:
         nf = round(len(session.frames) * frame_fraction)
         table = table[table["frame"] < nf]
-    streaks = streaks_from_table(table, session.frames)
+    streaks = streaks_from_table(table, session.frames,
+                                 centre_k=CENTRE_POINTS if options.centreline else 0)
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     initial = session.initial_calibration()
     gyro = session.gyro()
@@ -139,8 +142,9 @@ def main() -> int:
     ap.add_argument("--fit", default=DEFAULT_FIT)
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_calib"))
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
+    ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
     args = ap.parse_args()
-    opts = FitOptions(fit=args.fit)
+    opts = FitOptions(fit=args.fit, centreline=args.centreline)
     runs = []
     lengths = [int(f) for f in args.frames.split(",")]
     for preset in args.presets.split(","):
@@ -179,7 +183,8 @@ def main() -> int:
                 [r["initial_mean_endpoint_error_px"] for r in rs])),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "targets": TARGETS, "by_preset": by_preset,
+    print(json.dumps({"fit": args.fit, "centreline": args.centreline, "targets": TARGETS,
+                      "by_preset": by_preset,
                       "fraction_of_estimates_within_3sigma":
                           float(np.mean(np.array(z_all) <= 3)) if z_all else None,
                       "fraction_of_runs_all_within_3sigma":

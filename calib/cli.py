@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,9 @@ def register(subparsers: Any) -> None:
                    help="fraction of frames held out for evaluation (default 0.2)")
     p.add_argument("--shift-window-ms", type=float, default=60.0,
                    help="half-width of the initial time-shift search (default 60 ms)")
+    p.add_argument("--centreline", action="store_true",
+                   help="also fit the streaks' centre lines (point-to-track distances of a few "
+                        "points per streak, together weighing as one endpoint coordinate)")
     p.set_defaults(func=run_calibrate)
 
     r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
@@ -103,6 +107,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     from blurtrack.yamlio import write_text_atomic
+    from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.errors import CalibError
     from calib.export import write_camera_info, write_openvins
@@ -111,12 +116,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.result import named
 
     session, table = _load(args)
-    streaks = streaks_from_table(table, session.frames)
+    streaks = streaks_from_table(table, session.frames,
+                                 centre_k=CENTRE_POINTS if args.centreline else 0)
     initial = session.initial_calibration()
-    res = calibrate(streaks, session.gyro(), initial,
-                    FitOptions(fit=args.fit, holdout_fraction=args.holdout,
-                               shift_window_s=args.shift_window_ms * 1e-3))
+    options = FitOptions(fit=args.fit, holdout_fraction=args.holdout,
+                         shift_window_s=args.shift_window_ms * 1e-3, centreline=args.centreline)
+    res = calibrate(streaks, session.gyro(), initial, options)
     summary = res.to_dict()
+    summary["options"] = dataclasses.asdict(options)
     summary["initial"] = named(theta_from(initial))
     truth = truth_values(session, initial)
     if truth is not None:

@@ -72,6 +72,9 @@ class FitOptions:
     #: (:data:`blurtrack.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction and
     #: synthesis do not use, so it is for experiments only.
     gyro_upsample: int = GYRO_UPSAMPLE
+    #: Centre-line residuals (:mod:`calib.centreline`) in the final stage; the streaks must
+    #: carry centre points (``streaks_from_table(..., centre_k=CENTRE_POINTS)``).
+    centreline: bool = False
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -151,6 +154,9 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     free = parse_fit(options.fit)
     initial = symmetric_scale_form(initial)
     cam = initial.camera
+    if options.centreline and streaks.centre is None:
+        raise CalibError("centre-line residuals asked for, but the streaks carry no centre "
+                         "lines")
     if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
         raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
                          f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames")
@@ -211,7 +217,9 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         theta, iters = lm.theta, iters + lm.iterations
     timings["coarse"] = clock() - t_start - timings["init"]
 
-    ev_fine = JacobianEvaluator(model)
+    ev_fine = JacobianEvaluator(
+        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None
+        else 0)
     inl = np.ones(len(train), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
     converged = False
