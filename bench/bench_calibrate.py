@@ -143,8 +143,9 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_calib"))
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
     ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
+    ap.add_argument("--frame-noise", action="store_true", help="frame-noise GLS refinement")
     args = ap.parse_args()
-    opts = FitOptions(fit=args.fit, centreline=args.centreline)
+    opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise)
     runs = []
     lengths = [int(f) for f in args.frames.split(",")]
     for preset in args.presets.split(","):
@@ -183,7 +184,8 @@ def main() -> int:
                 [r["initial_mean_endpoint_error_px"] for r in rs])),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "centreline": args.centreline, "targets": TARGETS,
+    print(json.dumps({"fit": args.fit, "centreline": args.centreline,
+                      "frame_noise": args.frame_noise, "targets": TARGETS,
                       "by_preset": by_preset,
                       "fraction_of_estimates_within_3sigma":
                           float(np.mean(np.array(z_all) <= 3)) if z_all else None,

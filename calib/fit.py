@@ -75,6 +75,9 @@ class FitOptions:
     #: Centre-line residuals (:mod:`calib.centreline`) in the final stage; the streaks must
     #: carry centre points (``streaks_from_table(..., centre_k=CENTRE_POINTS)``).
     centreline: bool = False
+    #: Generalised-least-squares refinement under the frame-correlated gyro-noise model
+    #: (:mod:`calib.framenoise`) after the robust fit.
+    frame_noise: bool = False
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -251,6 +254,20 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     out = rho > thr
     unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
                                free)
+    sigma_vec, corr_mat = unc.sigma, unc.correlation
+    if options.frame_noise:
+        from calib.framenoise import gls_refine
+
+        gls = gls_refine(ev_fine, train.subset(inl), theta, free, lm.weights, cam.height,
+                         float(theta[5]), start=(lm.residual, lm.jacobian))
+        theta, iters = gls.theta, iters + gls.iterations
+        sigma_vec = gls.sigma
+        sc = np.sqrt(np.maximum(np.diag(gls.covariance), 1e-300))
+        corr_mat = gls.covariance / np.outer(sc, sc)
+        timings["gls_iterations"] = gls.iterations
+        timings["gls_prior_scale"] = gls.prior_scale
+        rho, _, _ = classify(model, theta, train, np.inf)
+        out = rho > thr
     warnings.extend(unc.warnings)
     warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
@@ -280,10 +297,10 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         status = "failed"
     if status == "ok" and warnings:
         status = "warning"
-    sigma = named(unc.sigma, free)
+    sigma = named(sigma_vec, free)
     calib = apply_theta(initial, theta)
     calib = calib.with_(sigma=sigma_block(sigma))
-    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(unc.correlation[i, j])
+    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(corr_mat[i, j])
                              for j, b in enumerate(free)} for i, a in enumerate(free)}
     timings["total"] = clock() - t_start
     return CalibResult(
