@@ -258,16 +258,22 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     if options.frame_noise:
         from calib.framenoise import gls_refine
 
-        gls = gls_refine(ev_fine, train.subset(inl), theta, free, lm.weights, cam.height,
-                         float(theta[5]), start=(lm.residual, lm.jacobian))
-        theta, iters = gls.theta, iters + gls.iterations
-        sigma_vec = gls.sigma
-        sc = np.sqrt(np.maximum(np.diag(gls.covariance), 1e-300))
-        corr_mat = gls.covariance / np.outer(sc, sc)
-        timings["gls_iterations"] = gls.iterations
-        timings["gls_prior_scale"] = gls.prior_scale
-        rho, _, _ = classify(model, theta, train, np.inf)
-        out = rho > thr
+        try:
+            gls = gls_refine(ev_fine, train.subset(inl), theta, free, lm.weights, cam.height,
+                             float(theta[5]), start=(lm.residual, lm.jacobian))
+        except CalibError as exc:
+            warnings.append(f"frame-noise refinement skipped ({exc}); the estimate is the "
+                            f"plain robust fit")
+        else:
+            theta, iters = gls.theta, iters + gls.iterations
+            converged = converged and gls.converged
+            sigma_vec = gls.sigma
+            sc = np.sqrt(np.maximum(np.diag(gls.covariance), 1e-300))
+            corr_mat = gls.covariance / np.outer(sc, sc)
+            timings["gls_iterations"] = gls.iterations
+            timings["gls_prior_scale"] = gls.prior_scale
+            rho, _, _ = classify(model, theta, train, np.inf)
+            out = rho > thr
     warnings.extend(unc.warnings)
     warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2

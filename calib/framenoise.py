@@ -33,18 +33,25 @@ from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.jacobian import JacobianEvaluator
 from calib.params import THETA_NAMES
+from calib.uncertainty import MODEL_FLOOR_PX
 
 #: Bias entries of theta (their Jacobian columns span the per-frame rate offset).
 BIAS = (6, 7, 8)
 #: Candidate factors on the moment estimate of the prior precision (1e6: practically OLS).
 PRIOR_SCALES = (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e6)
+#: Readout (fraction of the exposure) below which the drift mode is left out.
+MIN_DRIFT_READOUT = 0.1
 
 
 def nuisance_columns(J: np.ndarray, streaks: StreakSet, height: int, readout_s: float,
                      ) -> np.ndarray:
     """``(N, m, 6)``: rate-offset columns and drift columns (offset times the streak's
-    normalised time in its frame's exposure window, in [-1/2, 1/2])."""
+    normalised time in its frame's exposure window, in [-1/2, 1/2]). ``(N, m, 3)`` (offset
+    only) when the readout is under :data:`MIN_DRIFT_READOUT` of the exposure: then the rows
+    share one window and a drift is indistinguishable from an offset."""
     jb = J[:, :, list(BIAS)]
+    if readout_s < MIN_DRIFT_READOUT * float(np.median(streaks.exposure_s)):
+        return jb
     row = (streaks.start[:, 1] + streaks.end[:, 1]) / (2 * height)
     span = readout_s + streaks.exposure_s
     tau = readout_s * (row - 0.5) / np.maximum(span, 1e-9)
@@ -56,9 +63,9 @@ class FrameModel:
     """Per-frame noise model: frame groups, nuisance columns, robust weights, prior ratio."""
 
     groups: tuple[np.ndarray, ...]
-    B: np.ndarray  # (N, m, 6)
+    B: np.ndarray  # (N, m, k), k = 6 (offset, drift) or 3 (offset)
     d: np.ndarray  # (N,) robust weights
-    prior: np.ndarray  # (6,) σ² / Σ_ν (diagonal prior precision relative to the noise)
+    prior: np.ndarray  # (k,) σ² / Σ_ν (diagonal prior precision relative to the noise)
     sigma2: float  # per-coordinate noise variance after the frame effects
 
     @classmethod
@@ -70,13 +77,13 @@ class FrameModel:
         for g in groups:
             Bf, rf, df = _flat(B[g]), r[g].reshape(-1), np.repeat(d[g], r.shape[1])
             BDB = Bf.T @ (df[:, None] * Bf)
-            if np.linalg.matrix_rank(BDB) < 6:
+            if np.linalg.matrix_rank(BDB) < BDB.shape[0]:
                 continue
             Binv = np.linalg.inv(BDB)
             nu = Binv @ (Bf.T @ (df * rf))
             e = rf - Bf @ nu
             ss += float(e @ (df * e))
-            dof += rf.size - 6
+            dof += rf.size - nu.size
             nus.append(nu)
             diag_inv.append(np.diag(Binv))
         if len(nus) < 3 or dof <= 0:
@@ -123,13 +130,15 @@ def _flat(a: np.ndarray) -> np.ndarray:
 def sandwich(fm: FrameModel, J: np.ndarray, r: np.ndarray, free: tuple[int, ...],
              ) -> tuple[np.ndarray, np.ndarray]:
     """Frame-clustered sandwich covariance ``(p, p)`` and sigma ``(p,)`` (never below the
-    plain ``σ² A⁻¹``) of the weighted estimate."""
+    plain ``σ² A⁻¹``, ``σ`` at least the model's own accuracy
+    :data:`calib.uncertainty.MODEL_FLOOR_PX`) of the weighted estimate."""
     A, _, G, _ = fm.normal_equations(J, r, free)
     dA = np.sqrt(np.maximum(np.diag(A), 1e-300))
     Ainv = np.linalg.pinv(A / np.outer(dA, dA)) / np.outer(dA, dA)
     nc = G.shape[0]
     cov = Ainv @ (G.T @ G * (nc / max(nc - 1, 1))) @ Ainv
-    return cov, np.sqrt(np.maximum(np.diag(cov), fm.sigma2 * np.diag(Ainv)))
+    s2 = max(fm.sigma2, MODEL_FLOOR_PX**2)
+    return cov, np.sqrt(np.maximum(np.diag(cov), s2 * np.diag(Ainv)))
 
 
 def choose_prior(fm: FrameModel, J: np.ndarray, r: np.ndarray, free: tuple[int, ...],
@@ -195,7 +204,8 @@ def gls_refine(ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray,
             c_try = fm.cost(r_try)
             if np.isfinite(c_try) and c_try <= cost:
                 theta, improved = trial, True
-                small = bool(np.all(np.abs(step_s) < step_tol * np.sqrt(fm.sigma2)))
+                small = bool(np.all(np.abs(step_s) < step_tol * max(np.sqrt(fm.sigma2),
+                                                                     MODEL_FLOOR_PX)))
                 lam = max(lam / 10, 1e-9)
                 break
             lam *= 10
