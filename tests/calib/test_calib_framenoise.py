@@ -50,7 +50,8 @@ def test_moment_estimate_finds_the_frame_effect_variance() -> None:
     r = np.einsum("nkj,nj->nk", B, nu[fr]) + rng.normal(0, 0.05, (n_f * per, 2))
     fm = FrameModel.estimate(r, B, fr, np.ones(n_f * per))
     assert abs(np.sqrt(fm.sigma2) - 0.05) < 0.005
-    np.testing.assert_allclose(fm.sigma2 / fm.prior, 0.04, rtol=0.25)  # Σ_ν = 0.2², 400 frames: 7 % standard error
+    # Σ_ν = 0.2²; 400 frames give a 7 % standard error
+    np.testing.assert_allclose(fm.sigma2 / fm.prior, 0.04, rtol=0.25)
 
 
 def test_fit_with_frame_noise_under_gyro_noise() -> None:
