@@ -5,11 +5,13 @@ streaks (``from_truth``: isolates calibration error from detection error) or fro
 given with ``--streaks-name``, and compare every estimate with the truth and its 1-sigma.
 Baselines measured in the same run: the initial guess's errors and hold-out endpoint error, and
 the time of one numpy evaluation of the residual over all streaks (speed ratio).
-Speed against the number of streaks: the first session calibrated on 25, 50 and 100 % of its
-frames. Prints one JSON document.
+Accuracy against the amount of data: ``--frames 100,400`` runs every preset and seed at each
+recording length (the 1-sigma should shrink about as ``1/sqrt(frames)``). Speed against the
+number of streaks: the first session calibrated on 25, 50 and 100 % of its frames. Prints one
+JSON document.
 
     PYTHONPATH=. python bench/bench_calibrate.py --presets clean,realistic --seeds 0,1,2 \\
-        --frames 100 --work /tmp/bench_calib [--fit ...,scale]
+        --frames 100,400 --work /tmp/bench_calib [--fit ...] [--centreline]
 """
 
 from __future__ import annotations
@@ -79,13 +81,27 @@ def _z_scores(res, truth: Calibration, initial: Calibration) -> dict[str, float]
             if n in res.sigma and res.sigma[n] > 0}
 
 
+def _sigmas(res, truth: Calibration) -> dict[str, float]:
+    """1-sigma in the units of :data:`TARGETS` (focal lengths relative, bias the largest axis)."""
+    s = res.sigma
+    fx, fy = truth.camera.intrinsics[:2]
+    out = {"timeshift_s": s.get("timeshift_s"), "fx_rel": s.get("fx", np.nan) / fx,
+           "fy_rel": s.get("fy", np.nan) / fy, "cx": s.get("cx"), "cy": s.get("cy"),
+           "readout_s": s.get("readout_s"),
+           "bias_radps": max(s.get(f"bias_{a}", np.nan) for a in "xyz")}
+    return {k: float(np.nan if v is None else v) for k, v in out.items()}
+
+
 def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0) -> dict:
+    from calib.centreline import CENTRE_POINTS
+
     session = load_session(session_dir)
     table = streak_table.from_truth(session.truth)
     if frame_fraction < 1.0:
         nf = round(len(session.frames) * frame_fraction)
         table = table[table["frame"] < nf]
-    streaks = streaks_from_table(table, session.frames)
+    streaks = streaks_from_table(table, session.frames,
+                                 centre_k=CENTRE_POINTS if options.centreline else 0)
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     initial = session.initial_calibration()
     gyro = session.gyro()
@@ -102,7 +118,7 @@ def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0)
     err = _errors(res.calibration, truth, effective_rotation(session.truth, truth.R_cam_imu))
     ok = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}
     z = _z_scores(res, truth, initial)
-    return {
+    return {"sigma": _sigmas(res, truth),
         "session": session_dir.name, "n_streaks": len(streaks), "n_frames": streaks.n_frames,
         "status": res.status, "iterations": res.iterations, "cpu_s": cpu, "wall_s": wall,
         "baseline_residual_cpu_s": base_cpu, "cpu_over_baseline": cpu / max(base_cpu, 1e-9),
@@ -121,23 +137,27 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="clean,realistic")
     ap.add_argument("--seeds", default="0,1,2")
-    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--frames", default="100",
+                    help="recording length(s) in frames, comma-separated (default 100)")
     ap.add_argument("--fit", default=DEFAULT_FIT)
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_calib"))
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
+    ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
+    ap.add_argument("--frame-noise", action="store_true", help="frame-noise GLS refinement")
     args = ap.parse_args()
-    opts = FitOptions(fit=args.fit)
+    opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise)
     runs = []
+    lengths = [int(f) for f in args.frames.split(",")]
     for preset in args.presets.split(","):
-        for seed in (int(s) for s in args.seeds.split(",")):
-            d = simulate(args.work / f"{preset}_s{seed}_f{args.frames}", preset, seed,
-                         args.frames)
-            run = run_one(d, opts)
-            run.update(preset=preset, seed=seed)
-            runs.append(run)
-            print(f"# {preset} seed {seed}: {run['status']}, {run['cpu_s']:.1f} s cpu, "
-                  f"hold-out {run['holdout_mean_px']:.3f} px, max z {run['max_z']:.2f}",
-                  file=sys.stderr)
+        for frames in lengths:
+            for seed in (int(s) for s in args.seeds.split(",")):
+                d = simulate(args.work / f"{preset}_s{seed}_f{frames}", preset, seed, frames)
+                run = run_one(d, opts)
+                run.update(preset=preset, seed=seed, frames=frames)
+                runs.append(run)
+                print(f"# {preset} {frames} frames seed {seed}: {run['status']}, "
+                      f"{run['cpu_s']:.1f} s cpu, hold-out {run['holdout_mean_px']:.3f} px, "
+                      f"max z {run['max_z']:.2f}", file=sys.stderr)
     scaling = []
     if not args.no_scaling and runs:
         first = args.work / runs[0]["session"]
@@ -147,20 +167,26 @@ def main() -> int:
                             "cpu_s": r["cpu_s"], "wall_s": r["wall_s"],
                             "cpu_over_baseline": r["cpu_over_baseline"]})
     by_preset = {}
-    for preset in {r["preset"] for r in runs}:
-        rs = [r for r in runs if r["preset"] == preset]
-        by_preset[preset] = {
+    for key in sorted({(r["preset"], r["frames"]) for r in runs}):
+        rs = [r for r in runs if (r["preset"], r["frames"]) == key]
+        by_preset[f"{key[0]}/{key[1]}"] = {
             "runs": len(rs),
             "all_within_target": sum(r["all_within_target"] for r in rs),
             "within_3sigma": sum(r["within_3sigma"] for r in rs),
             "median_holdout_mean_px": float(np.median([r["holdout_mean_px"] for r in rs])),
             "median_cpu_s": float(np.median([r["cpu_s"] for r in rs])),
             "max_abs_error": {k: float(max(abs(r["error"][k]) for r in rs)) for k in TARGETS},
+            "median_sigma": {k: float(np.median([r["sigma"][k] for r in rs]))
+                             for k in rs[0]["sigma"]},
+            "max_z": float(max(r["max_z"] or 0.0 for r in rs)),
+            "median_cpu_over_baseline": float(np.median([r["cpu_over_baseline"] for r in rs])),
             "median_initial_endpoint_error_px": float(np.median(
                 [r["initial_mean_endpoint_error_px"] for r in rs])),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "targets": TARGETS, "by_preset": by_preset,
+    print(json.dumps({"fit": args.fit, "centreline": args.centreline,
+                      "frame_noise": args.frame_noise, "targets": TARGETS,
+                      "by_preset": by_preset,
                       "fraction_of_estimates_within_3sigma":
                           float(np.mean(np.array(z_all) <= 3)) if z_all else None,
                       "fraction_of_runs_all_within_3sigma":

@@ -1,9 +1,11 @@
 """CasADi calibration of the gyro blur model (see docs/calibration.md).
 
 Modules: :mod:`calib.params` (parameter vector), :mod:`calib.data` (streaks, hold-out),
-:mod:`calib.problem` (the residual from blurtrack.model), :mod:`calib.jacobian` (exact CasADi
-Jacobians), :mod:`calib.init` (time-shift and focal search), :mod:`calib.solve` (robust
-Levenberg–Marquardt), :mod:`calib.uncertainty` (sigma, observability), :mod:`calib.fit` (the
-driver), :mod:`calib.result` (result objects), :mod:`calib.export` (OpenVINS, ROS camera_info),
+:mod:`calib.problem` (the residual and predicted track from blurtrack.model),
+:mod:`calib.centreline` (centre-line residuals), :mod:`calib.jacobian` (exact CasADi
+Jacobians), :mod:`calib.framenoise` (frame-correlated gyro-noise GLS), :mod:`calib.init`
+(time-shift and focal search), :mod:`calib.solve` (robust Levenberg–Marquardt),
+:mod:`calib.uncertainty` (sigma, observability), :mod:`calib.fit` (the driver),
+:mod:`calib.result` (result objects), :mod:`calib.export` (OpenVINS, ROS camera_info),
 :mod:`calib.synthetic` (known-truth problems), :mod:`calib.cli` (``calibrate``, ``report``).
 """

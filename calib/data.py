@@ -28,6 +28,8 @@ class StreakSet:
         frame: ``(N,)`` frame index in the session.
         streak_id: ``(N,)`` streak number (dot id for simulated sessions).
         t0_s: absolute camera time of the origin, s.
+        centre: optional ``(N, K, 2)`` points of the measured centre line (pixels, ordered
+            start to end; see :func:`centre_points`); NaN rows: no usable centre line.
     """
 
     start: np.ndarray
@@ -37,9 +39,18 @@ class StreakSet:
     frame: np.ndarray
     streak_id: np.ndarray
     t0_s: float = 0.0
+    centre: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.frame)
+        if self.centre is not None:
+            c = np.asarray(self.centre, dtype=float)
+            if c.ndim != 3 or c.shape[0] != n or c.shape[2] != 2 or c.shape[1] < 1:
+                raise CalibError(f"streak centre points must have shape ({n}, K, 2)")
+            if np.any(np.isinf(c)) or np.any(np.isnan(c).any(axis=(1, 2))
+                                             != np.isnan(c).all(axis=(1, 2))):
+                raise CalibError("streak centre points must be finite (or a whole row NaN)")
+            object.__setattr__(self, "centre", c)
         for name in ("start", "end"):
             a = np.asarray(getattr(self, name), dtype=float)
             if a.shape != (n, 2) or not np.all(np.isfinite(a)):
@@ -71,25 +82,54 @@ class StreakSet:
         m = np.asarray(mask)
         return replace(self, start=self.start[m], end=self.end[m], frame_t_s=self.frame_t_s[m],
                        exposure_s=self.exposure_s[m], frame=self.frame[m],
-                       streak_id=self.streak_id[m])
+                       streak_id=self.streak_id[m],
+                       centre=None if self.centre is None else self.centre[m])
 
     def flipped(self) -> StreakSet:
-        """The same streaks with start and end swapped."""
-        return replace(self, start=self.end, end=self.start)
+        """The same streaks with start and end swapped (centre points reversed)."""
+        return replace(self, start=self.end, end=self.start,
+                       centre=None if self.centre is None else self.centre[:, ::-1])
 
     def reoriented(self, mask: np.ndarray) -> StreakSet:
         """Start and end swapped where ``mask`` (N,) is true."""
         m = np.asarray(mask, dtype=bool)[:, None]
+        c = self.centre
+        if c is not None:
+            c = np.where(m[:, :, None], c[:, ::-1], c)
         return replace(self, start=np.where(m, self.end, self.start),
-                       end=np.where(m, self.start, self.end))
+                       end=np.where(m, self.start, self.end), centre=c)
+
+
+def centre_points(polyline: object, k: int) -> np.ndarray:
+    """``k`` points ``(k, 2)`` of a centre line at arc-length fractions ``j / (k + 1)``.
+
+    ``polyline``: ordered ``[[x, y], ...]`` (pixels). Fewer than two distinct points: a NaN
+    row (no usable centre line). Interior points only: the endpoints have their own residual.
+
+    >>> centre_points([[0, 0], [4, 0], [4, 4]], 3).tolist()
+    [[2.0, 0.0], [4.0, 0.0], [4.0, 2.0]]
+    """
+    try:
+        P = np.asarray(polyline, dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError):
+        raise CalibError("a streak centre line is not a list of [x, y] points") from None
+    if not np.all(np.isfinite(P)):
+        raise CalibError("a streak centre line has NaN or infinite points")
+    seg = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    if P.shape[0] < 2 or arc[-1] <= 0:
+        return np.full((k, 2), np.nan)
+    s = arc[-1] * np.arange(1, k + 1) / (k + 1)
+    return np.stack([np.interp(s, arc, P[:, 0]), np.interp(s, arc, P[:, 1])], axis=1)
 
 
 def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
-                       drop_flagged: bool = True) -> StreakSet:
+                       drop_flagged: bool = True, centre_k: int = 0) -> StreakSet:
     """A :class:`StreakSet` from a validated streak table and the session's frame table.
 
     ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). Streaks
-    flagged clipped, saturated or merged are left out when ``drop_flagged``.
+    flagged clipped, saturated or merged are left out when ``drop_flagged``. ``centre_k > 0``
+    also resamples each row's ``centerline`` to that many interior points (:func:`centre_points`).
     """
     df = table
     if drop_flagged and len(df):
@@ -112,6 +152,8 @@ def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
         frame=idx,
         streak_id=df["streak_id"].to_numpy(np.int64),
         t0_s=t0_ns * 1e-9,
+        centre=(np.stack([centre_points(c, centre_k) for c in df["centerline"]])
+                if centre_k > 0 and len(df) else None),
     )
 
 

@@ -28,7 +28,15 @@ from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
-from calib.params import GROUPS, THETA_NAMES, apply_theta, parse_fit, theta_from
+from calib.params import (
+    DEFAULT_FIT,
+    GROUPS,
+    THETA_NAMES,
+    apply_theta,
+    parse_fit,
+    symmetric_scale_form,
+    theta_from,
+)
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import JacobianEvaluator, levenberg_marquardt
@@ -55,7 +63,7 @@ FINE_DELTA_SIGMAS = 5.0
 
 @dataclass(frozen=True)
 class FitOptions:
-    fit: str = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
+    fit: str = DEFAULT_FIT
     holdout_fraction: float = 0.2
     shift_window_s: float = 0.06
     max_iter: int = 30
@@ -64,6 +72,12 @@ class FitOptions:
     #: (:data:`blurtrack.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction and
     #: synthesis do not use, so it is for experiments only.
     gyro_upsample: int = GYRO_UPSAMPLE
+    #: Centre-line residuals (:mod:`calib.centreline`) in the final stage; the streaks must
+    #: carry centre points (``streaks_from_table(..., centre_k=CENTRE_POINTS)``).
+    centreline: bool = False
+    #: Generalised-least-squares refinement under the frame-correlated gyro-noise model
+    #: (:mod:`calib.framenoise`) after the robust fit.
+    frame_noise: bool = False
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -141,7 +155,11 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     timings: dict[str, float] = {}
     warnings: list[str] = []
     free = parse_fit(options.fit)
+    initial = symmetric_scale_form(initial)
     cam = initial.camera
+    if options.centreline and streaks.centre is None:
+        raise CalibError("centre-line residuals asked for, but the streaks carry no centre "
+                         "lines")
     if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
         raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
                          f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames")
@@ -202,7 +220,9 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         theta, iters = lm.theta, iters + lm.iterations
     timings["coarse"] = clock() - t_start - timings["init"]
 
-    ev_fine = JacobianEvaluator(model)
+    ev_fine = JacobianEvaluator(
+        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None
+        else 0)
     inl = np.ones(len(train), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
     converged = False
@@ -234,6 +254,26 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     out = rho > thr
     unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
                                free)
+    sigma_vec, corr_mat = unc.sigma, unc.correlation
+    if options.frame_noise:
+        from calib.framenoise import gls_refine
+
+        try:
+            gls = gls_refine(ev_fine, train.subset(inl), theta, free, lm.weights, cam.height,
+                             float(theta[5]), start=(lm.residual, lm.jacobian))
+        except CalibError as exc:
+            warnings.append(f"frame-noise refinement skipped ({exc}); the estimate is the "
+                            f"plain robust fit")
+        else:
+            theta, iters = gls.theta, iters + gls.iterations
+            converged = converged and gls.converged
+            sigma_vec = gls.sigma
+            sc = np.sqrt(np.maximum(np.diag(gls.covariance), 1e-300))
+            corr_mat = gls.covariance / np.outer(sc, sc)
+            timings["gls_iterations"] = gls.iterations
+            timings["gls_prior_scale"] = gls.prior_scale
+            rho, _, _ = classify(model, theta, train, np.inf)
+            out = rho > thr
     warnings.extend(unc.warnings)
     warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
@@ -263,10 +303,10 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         status = "failed"
     if status == "ok" and warnings:
         status = "warning"
-    sigma = named(unc.sigma, free)
+    sigma = named(sigma_vec, free)
     calib = apply_theta(initial, theta)
     calib = calib.with_(sigma=sigma_block(sigma))
-    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(unc.correlation[i, j])
+    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(corr_mat[i, j])
                              for j, b in enumerate(free)} for i, a in enumerate(free)}
     timings["total"] = clock() - t_start
     return CalibResult(

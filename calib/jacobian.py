@@ -20,10 +20,17 @@ import casadi as ca
 import numpy as np
 
 from blurtrack.model import NUMPY_OPS
+from calib.centreline import (
+    associate,
+    centre_data,
+    centre_factors,
+    centre_residual_np,
+    centre_residual_sx,
+)
 from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.params import N_THETA
-from calib.problem import CA_OPS, ResidualModel, endpoint_residual
+from calib.problem import CA_OPS, ResidualModel, endpoint_residual, predicted_track
 
 
 def _slopes(t_grid: np.ndarray, w_grid: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -33,14 +40,19 @@ def _slopes(t_grid: np.ndarray, w_grid: np.ndarray, t: np.ndarray) -> np.ndarray
 
 
 class JacobianEvaluator:
-    """Residuals ``(N, 2)`` and Jacobians ``(N, 2, N_THETA)`` of streak sets under one model
-    (columns of fixed parameters are zero)."""
+    """Residuals ``(N, m)`` and Jacobians ``(N, m, N_THETA)`` of streak sets under one model
+    (columns of fixed parameters are zero). ``m = 2`` (endpoint) or, with ``centre_k > 0``,
+    ``2 + centre_k``: the weighted centre-line residuals of :mod:`calib.centreline`, whose
+    point-to-track association is made at the parameters of each :meth:`evaluate` and held by
+    :meth:`residual` until the next one."""
 
-    def __init__(self, model: ResidualModel) -> None:
+    def __init__(self, model: ResidualModel, centre_k: int = 0) -> None:
         self.model = model
+        self.centre_k = centre_k
         ns = model.n_sub
+        n_local = 6 + 7 * ns
         self._th = ca.SX.sym("theta", N_THETA)
-        self._d = ca.SX.sym("d", 6 + 7 * ns)
+        self._d = ca.SX.sym("d", n_local + (centre_k * (2 + ns) + 1 if centre_k else 0))
         d = self._d
         calls = [0]
 
@@ -52,17 +64,38 @@ class JacobianEvaluator:
             base = 6 + 7 * k
             return tuple(d[base + 1 + a] + d[base + 4 + a] * (t - d[base]) for a in range(3))
 
-        rx, ry = endpoint_residual([self._th[i] for i in range(N_THETA)],
-                                   [d[j] for j in range(6)], omega_local, model.R0_cam_imu,
-                                   model.dist, model.height, ns, CA_OPS)
+        th = [self._th[i] for i in range(N_THETA)]
+        cols = [d[j] for j in range(6)]
+        if centre_k:
+            us, vs = predicted_track(th, cols, omega_local, model.R0_cam_imu, model.dist,
+                                     model.height, ns, CA_OPS)
+            res = [us[-1] - d[2], vs[-1] - d[3],
+                   *centre_residual_sx(us, vs, d, n_local, centre_k, CA_OPS)]
+        else:
+            res = list(endpoint_residual(th, cols, omega_local, model.R0_cam_imu, model.dist,
+                                         model.height, ns, CA_OPS))
         if calls[0] != ns:
             raise CalibError(f"the model asked the gyro {calls[0]} times, expected {ns}")
-        self._r = ca.vertcat(rx, ry)
+        self._r = ca.vertcat(*res)
+        self._m = len(res)
         self._funcs: dict[tuple[int, ...], ca.Function] = {}
         self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
+        self._assoc: tuple[int, np.ndarray] | None = None
+
+    @property
+    def n_residuals(self) -> int:
+        """Residual values per streak (2 + centre-line points)."""
+        return self._m
+
+    def _track(self, theta: np.ndarray, streaks: StreakSet,
+               gyro_at: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        m = self.model
+        return predicted_track(list(np.asarray(theta, float)), list(m.data_matrix(streaks).T),
+                               gyro_at, m.R0_cam_imu, m.dist, m.height, m.n_sub, NUMPY_OPS)
 
     def _local_data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
-        """``(6 + 7 n_sub, N)``: streak columns, then per sub-step ``t_k, ω_k (3), ω'_k (3)``."""
+        """``(6 + 7 n_sub [+ centre data], N)``: streak columns, then per sub-step ``t_k, ω_k
+        (3), ω'_k (3)``, then (centre lines) the association of :mod:`calib.centreline`."""
         g = self.model.gyro
         times: list[np.ndarray] = []
 
@@ -71,14 +104,43 @@ class JacobianEvaluator:
             return g.omega_components(t)
 
         cols = self.model.data_matrix(streaks)
-        endpoint_residual(list(np.asarray(theta, float)), list(cols.T), recorder,
-                          self.model.R0_cam_imu, self.model.dist, self.model.height,
-                          self.model.n_sub, NUMPY_OPS)
+        if self.centre_k:
+            us, vs = self._track(theta, streaks, recorder)
+        else:
+            endpoint_residual(list(np.asarray(theta, float)), list(cols.T), recorder,
+                              self.model.R0_cam_imu, self.model.dist, self.model.height,
+                              self.model.n_sub, NUMPY_OPS)
         T = np.stack(times, axis=1)  # (N, n_sub)
         W = g.omega_at(T.reshape(-1)).reshape(*T.shape, 3)
         S = _slopes(g.t_s, g.omega_radps, T)
         local = np.concatenate([T[..., None], W, S], axis=2).reshape(T.shape[0], -1)
-        return np.concatenate([cols, local], axis=1).T
+        parts = [cols, local]
+        if self.centre_k:
+            centre = self._centre(streaks)
+            seg = associate(np.stack(us, axis=1), np.stack(vs, axis=1), centre)
+            self._assoc = (len(streaks), seg)
+            parts.append(centre_data(centre, seg, centre_factors(streaks), self.model.n_sub))
+        return np.concatenate(parts, axis=1).T
+
+    def _centre(self, streaks: StreakSet) -> np.ndarray:
+        if streaks.centre is None or streaks.centre.shape[1] != self.centre_k:
+            raise CalibError(f"centre-line residuals need {self.centre_k} centre points per "
+                             f"streak")
+        return streaks.centre
+
+    def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
+        """Residuals ``(N, m)`` by numpy, centre lines under the last :meth:`evaluate`'s
+        association (a fresh one if that was of another streak set)."""
+        if not self.centre_k:
+            return self.model.residual_np(theta, streaks)
+        us, vs = self._track(theta, streaks, self.model.gyro.omega_components)
+        U, V = np.stack(us, axis=1), np.stack(vs, axis=1)
+        centre = self._centre(streaks)
+        if self._assoc is None or self._assoc[0] != len(streaks):
+            self._assoc = (len(streaks), associate(U, V, centre))
+        rc = centre_residual_np(U, V, centre, self._assoc[1], centre_factors(streaks))
+        return np.concatenate([np.stack([U[:, -1] - streaks.end[:, 0],
+                                         V[:, -1] - streaks.end[:, 1]], axis=1), rc], axis=1)
 
     def _map(self, free: tuple[int, ...], n: int) -> ca.Function:
         if free not in self._funcs:
@@ -95,9 +157,9 @@ class JacobianEvaluator:
         data = self._local_data(theta, streaks)
         th = np.tile(np.asarray(theta, float)[:, None], (1, n))
         r_out, j_out = self._map(tuple(free), n)(th, data)
-        p = len(free)
-        r = np.asarray(r_out).T  # (N, 2)
-        J = np.asarray(j_out).reshape(2, n, p)  # columns: one (2, p) block per streak
-        full = np.zeros((n, 2, N_THETA))
+        p, m = len(free), self._m
+        r = np.asarray(r_out).T  # (N, m)
+        J = np.asarray(j_out).reshape(m, n, p)  # columns: one (m, p) block per streak
+        full = np.zeros((n, m, N_THETA))
         full[:, :, list(free)] = J.transpose(1, 0, 2)
         return r, full

@@ -7,7 +7,8 @@ shift (s, ``t_imu = t_cam + shift``), intrinsics (px), rolling-shutter readout (
 camera side, ``R_cam_imu = exp([rot]_x) · R_cam_imu_0``, and the symmetric gyro scale /
 cross-axis error ``S`` of the measurement model ``ω_meas = (I + S) R_cam_imuᵀ ω_cam + bias``
 (DESIGN: "scale and misalignment optional"; its antisymmetric part is a rotation, already
-covered by ``rot``). ``S`` is optional (``--fit ...,scale``) and zero by default.
+covered by ``rot``). ``I + S`` is the calibration's ``gyro_scale_matrix``, which the blur model
+(:class:`blurtrack.trajectory.BlurModel`) applies everywhere, so ``S`` is fitted by default.
 """
 
 from __future__ import annotations
@@ -33,7 +34,12 @@ GROUPS: dict[str, tuple[int, ...]] = {
     "timeshift": (0,), "fx": (1,), "fy": (2,), "cx": (3,), "cy": (4,), "readout": (5,),
     "bias": (6, 7, 8), "rotation": (9, 10, 11), "scale": (12, 13, 14, 15, 16, 17),
 }
-DEFAULT_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
+#: Every group. ``scale`` is in: ``gyro_scale_matrix`` is part of the calibration file and the
+#: blur model, and an unmodelled scale error biases the focal lengths (docs/calibration.md).
+DEFAULT_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation,scale"
+
+#: Largest plausible gyro scale / cross-axis error (MEMS datasheets: a few percent at most).
+MAX_SCALE_ERROR = 0.1
 
 #: Typical magnitude of each parameter's uncertainty, used to scale steps and report units.
 THETA_UNITS: dict[str, str] = {
@@ -61,10 +67,43 @@ def parse_fit(spec: str | Sequence[str]) -> tuple[int, ...]:
 
 
 def theta_from(calib: Calibration) -> np.ndarray:
-    """The theta of a calibration, with a zero rotation perturbation."""
+    """The theta of a calibration, with a zero rotation perturbation.
+
+    The scale entries are the symmetric part of ``gyro_scale_matrix - I``; an antisymmetric
+    part (a rotation of the gyro axes) is not representable here: move it into the mounting
+    rotation first with :func:`symmetric_scale_form`.
+    """
     cam = calib.camera
+    M = np.asarray(calib.gyro_scale_matrix, dtype=float)
+    S = (M + M.T) / 2 - np.eye(3)
     return np.array([calib.timeshift_cam_imu_s, *cam.intrinsics, cam.readout_s,
-                     *calib.gyro_bias_radps, *([0.0] * 9)], dtype=float)
+                     *calib.gyro_bias_radps, 0.0, 0.0, 0.0,
+                     S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]], dtype=float)
+
+
+def symmetric_scale_form(calib: Calibration) -> Calibration:
+    """The same measurement model with a symmetric ``gyro_scale_matrix``.
+
+    ``M = P Q`` (polar decomposition, ``P`` symmetric positive definite, ``Q`` a rotation) gives
+    ``M R_cam_imuᵀ = P (R_cam_imu Qᵀ)ᵀ``: the rotation factor of ``M`` is a rotation of the
+    gyro's axes, indistinguishable from the mounting rotation, and moves into it.
+
+    >>> from blurtrack.camera import Camera
+    >>> c = Calibration(Camera((64, 48), (50.0, 50.0, 32.0, 24.0)),
+    ...                 gyro_scale_matrix=so3_exp(np.array([0.0, 0.0, 0.01])) * 1.002)
+    >>> n = symmetric_scale_form(c)
+    >>> bool(np.allclose(n.gyro_scale_matrix, np.eye(3) * 1.002))
+    True
+    >>> bool(np.allclose(n.gyro_scale_matrix @ n.R_cam_imu.T, c.gyro_scale_matrix @ c.R_cam_imu.T))
+    True
+    """
+    M = np.asarray(calib.gyro_scale_matrix, dtype=float)
+    if np.array_equal(M, M.T):
+        return calib
+    U, s, Vt = np.linalg.svd(M)
+    Q = U @ Vt
+    P = U @ np.diag(s) @ U.T
+    return calib.with_(gyro_scale_matrix=(P + P.T) / 2, R_cam_imu=calib.R_cam_imu @ Q.T)
 
 
 def scale_matrix(theta: np.ndarray) -> np.ndarray:
@@ -74,10 +113,8 @@ def scale_matrix(theta: np.ndarray) -> np.ndarray:
 
 
 def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
-    """``base`` with the values of ``theta`` (rotation perturbation applied to its rotation).
-
-    The gyro scale entries have no place in a :class:`Calibration`; see :func:`scale_matrix`.
-    """
+    """``base`` with the values of ``theta`` (rotation perturbation applied to its rotation,
+    ``gyro_scale_matrix = I + S``)."""
     th = np.asarray(theta, dtype=float)
     if th.shape != (N_THETA,) or not np.all(np.isfinite(th)):
         raise CalibError(f"parameter vector must be {N_THETA} finite numbers")
@@ -86,10 +123,14 @@ def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
     readout = float(th[5])
     if not 0.0 <= readout < 1.0:
         raise CalibError(f"fit diverged: readout {readout * 1e3:.3f} ms is outside [0, 1000) ms")
+    S = scale_matrix(th) - np.eye(3)
+    if np.max(np.abs(S)) > MAX_SCALE_ERROR:
+        raise CalibError(f"fit diverged: gyro scale/cross-axis error of "
+                         f"{np.max(np.abs(S)) * 100:.0f} % (the data contradict the model)")
     R = so3_exp(th[9:12]) @ base.R_cam_imu
     return base.with_(intrinsics=tuple(float(v) for v in th[1:5]), readout_s=readout,
                       timeshift_cam_imu_s=float(th[0]), gyro_bias_radps=th[6:9].copy(),
-                      R_cam_imu=R)
+                      R_cam_imu=R, gyro_scale_matrix=scale_matrix(th))
 
 
 def rotation_error_rad(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:

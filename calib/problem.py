@@ -29,16 +29,39 @@ from blurtrack.model import (
     NUMPY_OPS,
     constant_mat3,
     matmul3,
+    matvec3,
     n_substeps,
     omega_cam_fn,
+    project_c,
     row_start_c,
     so3_exp_c,
+    transpose3,
+    unproject_c,
     warp_c,
 )
 from calib.data import StreakSet
 from calib.params import N_THETA
 
 CA_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, sqrt=ca.sqrt)
+
+
+def _streak_motion(theta: Sequence[Any], cols: Sequence[Any],
+                   omega_imu_at: Callable[[Any], tuple], R0_cam_imu: np.ndarray, height: int,
+                   ops: Any) -> tuple:
+    """Camera-frame ω function, intrinsics and the warp interval ``(t_s, t_e)`` of streaks."""
+    shift, fx, fy, cx, cy, readout = theta[0:6]
+    bias = (theta[6], theta[7], theta[8])
+    dR = so3_exp_c(theta[9], theta[10], theta[11], ops)
+    sxx, syy, szz, sxy, sxz, syz = theta[12:18]
+    S = (sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz)
+    S2 = matmul3(S, S)
+    # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
+    inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
+    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
+    _, sy, _, ey, ft, exp = cols
+    t_s = row_start_c(ft, sy, readout, height)
+    t_e = row_start_c(ft, ey, readout, height) + exp
+    return omega_cam_fn(omega_imu_at, R, bias, shift), (fx, fy, cx, cy), t_s, t_e
 
 
 def endpoint_residual(
@@ -57,21 +80,39 @@ def endpoint_residual(
         height: image height H in rows.
         n_sub: integration sub-steps per warp (fixed for a CasADi graph).
     """
-    shift, fx, fy, cx, cy, readout = theta[0:6]
-    bias = (theta[6], theta[7], theta[8])
-    dR = so3_exp_c(theta[9], theta[10], theta[11], ops)
-    sxx, syy, szz, sxy, sxz, syz = theta[12:18]
-    S = (sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz)
-    S2 = matmul3(S, S)
-    # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
-    inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
-    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
-    sx, sy, ex, ey, ft, exp = cols
-    t_s = row_start_c(ft, sy, readout, height)
-    t_e = row_start_c(ft, ey, readout, height) + exp
-    omega = omega_cam_fn(omega_imu_at, R, bias, shift)
-    u, v = warp_c(sx, sy, t_s, t_e, omega, (fx, fy, cx, cy), tuple(dist), n_sub, ops)
+    omega, K, t_s, t_e = _streak_motion(theta, cols, omega_imu_at, R0_cam_imu, height, ops)
+    sx, sy, ex, ey = cols[0:4]
+    u, v = warp_c(sx, sy, t_s, t_e, omega, K, tuple(dist), n_sub, ops)
     return u - ex, v - ey
+
+
+def predicted_track(
+    theta: Sequence[Any], cols: Sequence[Any], omega_imu_at: Callable[[Any], tuple],
+    R0_cam_imu: np.ndarray, dist: Sequence[float], height: int, n_sub: int, ops: Any,
+) -> tuple[list[Any], list[Any]]:
+    """The predicted point track from the measured start over the warp interval.
+
+    ``n_sub + 1`` nodes ``(u_k, v_k)`` at the integration sub-step ends ``t_s + k h``,
+    ``h = (t_e - t_s) / n_sub``: the partial products of the same midpoint Lie-group
+    integrator as :func:`blurtrack.model.relative_rotation` (same ω samples, same order), so
+    the last node is :func:`endpoint_residual`'s warped start exactly (bit for bit in numpy).
+    Arguments as :func:`endpoint_residual`; returns lists of ``n_sub + 1`` arrays/columns.
+    """
+    omega, K, t_s, t_e = _streak_motion(theta, cols, omega_imu_at, R0_cam_imu, height, ops)
+    sx, sy = cols[0], cols[1]
+    ray = unproject_c(sx, sy, K, tuple(dist))
+    h = (t_e - t_s) / n_sub
+    us, vs = [sx], [sy]
+    R: Any = None
+    for k in range(n_sub):
+        wx, wy, wz = omega(t_s + (k + 0.5) * h)
+        step = so3_exp_c(wx * h, wy * h, wz * h, ops)
+        R = step if R is None else matmul3(R, step)
+        X, Y, Z = matvec3(transpose3(R), ray)
+        u, v = project_c(X, Y, Z, K, tuple(dist))
+        us.append(u)
+        vs.append(v)
+    return us, vs
 
 
 def choose_substeps(streaks: StreakSet, height: int, readout_bound_s: float,

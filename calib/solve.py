@@ -1,8 +1,8 @@
 """Robust Levenberg–Marquardt on CasADi's exact Jacobian (Gauss–Newton Hessian ``JᵀWJ``).
 
 Jacobians come from :class:`calib.jacobian.JacobianEvaluator` (one SX function per streak,
-mapped over the streaks). The robust loss is pseudo-Huber on each streak's endpoint error
-``ρ = |r|``:
+mapped over the streaks). The robust loss is pseudo-Huber on each streak's error
+``ρ = |r|`` (its endpoint residual, and its weighted centre-line residuals when used):
 ``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted Gauss–Newton with weights
 ``1 / sqrt(1 + (ρ/δ)²)``.
 """
@@ -34,8 +34,8 @@ class LMResult:
     iterations: int
     converged: bool
     cost: float
-    residual: np.ndarray  # (N, 2)
-    jacobian: np.ndarray  # (N, 2, N_THETA), zero in the columns of fixed parameters
+    residual: np.ndarray  # (N, m): endpoint (2) [+ weighted centre-line points]
+    jacobian: np.ndarray  # (N, m, N_THETA), zero in the columns of fixed parameters
     weights: np.ndarray  # (N,)
 
 
@@ -53,7 +53,6 @@ def levenberg_marquardt(
     """
     if not free:
         raise CalibError("no parameter left to fit")
-    model = ev.model
     theta = np.asarray(theta0, float).copy()
     fr = np.asarray(free)
     lam = lam0
@@ -82,7 +81,7 @@ def levenberg_marquardt(
             if trial[1] <= 0 or trial[2] <= 0 or not 0 <= trial[5] < 1:
                 lam *= 10
                 continue
-            r_try = model.residual_np(trial, streaks)
+            r_try = ev.residual(trial, streaks)
             c_try = float(np.sum(pseudo_huber(np.linalg.norm(r_try, axis=1), delta_px)))
             if np.isfinite(c_try) and c_try <= cost:
                 improved = True
@@ -102,6 +101,8 @@ def levenberg_marquardt(
             converged = True
             break
         r, J = ev.evaluate(theta, streaks, tuple(free))
+        # A new centre-line association changes the cost at the same parameters.
+        cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
     w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
     if not np.all(np.isfinite(theta)):
         raise CalibError("fit diverged to non-finite parameters: "

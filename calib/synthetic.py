@@ -18,7 +18,7 @@ from blurtrack.camera import Camera
 from blurtrack.gyro import GyroTrace
 from blurtrack.rotation import so3_exp
 from blurtrack.trajectory import BlurModel
-from calib.data import StreakSet
+from calib.data import StreakSet, centre_points
 
 #: Sampling rate of the "continuous" true motion behind the truth endpoints.
 TRUTH_RATE_HZ = 4000.0
@@ -50,10 +50,14 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
                  endpoint_noise_px: float = 0.1, gyro_noise_radps: float = 0.0,
                  roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
                  shift_error_s: float = 0.03, focal_error: float = 0.05,
-                 gyro_scale: np.ndarray | None = None) -> SyntheticProblem:
+                 gyro_scale: np.ndarray | None = None, centre_k: int = 0,
+                 centre_noise_px: float = 0.0) -> SyntheticProblem:
     """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
 
     ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
+    ``centre_k > 0``: the streaks carry that many points of their true centre line (the true
+    track sampled at 33 times over the streak, resampled by :func:`calib.data.centre_points`),
+    with Gaussian noise ``centre_noise_px`` per coordinate.
     """
     rng = np.random.default_rng(seed)
     cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
@@ -70,13 +74,19 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     model = BlurModel(truth, GyroTrace(t_dense, omega(t_dense) + truth.gyro_bias_radps))
     t_imu = np.arange(frame_t[0] - 0.25, frame_t[-1] + 0.25, 1.0 / rate_hz)
     w_true = omega(t_imu)
-    starts, ends, fts, frames, ids = [], [], [], [], []
+    starts, ends, fts, frames, ids, centres = [], [], [], [], [], []
     for i, ft in enumerate(frame_t):
         px = np.stack([rng.uniform(40, 1240, dots_per_frame),
                        rng.uniform(40, 680, dots_per_frame)], axis=1)
         t_ref = model.default_reference_time(ft, exposure)
-        s, e, _, _ = model.streak_endpoints(px, t_ref, ft, exposure)
+        s, e, ts, te = model.streak_endpoints(px, t_ref, ft, exposure)
         ok = np.all((s > 3) & (e > 3) & (s < [1276, 716]) & (e < [1276, 716]), axis=1)
+        if centre_k:
+            tau = np.linspace(0.0, 1.0, 33)
+            path = model.point_track(px[ok], np.full(ok.sum(), t_ref),
+                                     ts[ok, None] + (te - ts)[ok, None] * tau)
+            centres.append(np.array([centre_points(q, centre_k) for q in path]).reshape(
+                -1, centre_k, 2))
         starts.append(s[ok])
         ends.append(e[ok])
         fts.append(np.full(ok.sum(), ft))
@@ -85,8 +95,13 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     start = np.concatenate(starts) + rng.normal(0, endpoint_noise_px, (sum(map(len, ids)), 2))
     end = np.concatenate(ends) + rng.normal(0, endpoint_noise_px, start.shape)
     ft_all = np.concatenate(fts)
+    centre = None
+    if centre_k:
+        centre = np.concatenate(centres)
+        centre = centre + rng.normal(0, centre_noise_px, centre.shape)
     streaks = StreakSet(start, end, ft_all - frame_t[0], np.full(ft_all.size, exposure),
-                        np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]))
+                        np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]),
+                        centre=centre)
     M = np.eye(3) if gyro_scale is None else np.asarray(gyro_scale, float)
     w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps,
                                                                  w_true.shape)

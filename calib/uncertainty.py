@@ -65,7 +65,8 @@ def estimate(J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray,
     """Covariance of the free parameters at the optimum (see the module docstring).
 
     Args:
-        J: ``(N, 2, 12)`` Jacobian; r: ``(N, 2)`` residuals, px; w: ``(N,)`` robust weights;
+        J: ``(N, m, 18)`` Jacobian; r: ``(N, m)`` residuals, px (columns 0-1 the endpoint,
+            the rest weighted centre-line residuals); w: ``(N,)`` robust weights;
         frames: ``(N,)`` frame index of each streak (the clusters).
     """
     fr = list(free)
@@ -73,7 +74,8 @@ def estimate(J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray,
     Jf = J[:, :, fr]
     p = len(fr)
     m = 2 * r.shape[0]
-    s2 = max(float(np.sum(w[:, None] * r**2) / max(m - p, 1)), MODEL_FLOOR_PX**2)
+    # Endpoint noise from the endpoint columns (centre-line columns carry their weights).
+    s2 = max(float(np.sum(w[:, None] * r[:, :2] ** 2) / max(m - p, 1)), MODEL_FLOOR_PX**2)
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     Ainv = np.linalg.pinv(A / np.outer(d, d)) / np.outer(d, d)
     cov_plain = s2 * Ainv

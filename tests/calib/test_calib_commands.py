@@ -102,3 +102,16 @@ def test_report_rejects_garbled_calibration(session_dir, tmp_path: Path, capsys)
     assert main(["report", str(folder), "--calib", str(bad), "--out",
                  str(tmp_path / "r")]) == 2
     assert "not valid YAML" in capsys.readouterr().err
+
+
+def test_calibrate_with_centre_lines(session_dir, tmp_path: Path, capsys) -> None:
+    folder, truth = session_dir
+    out = tmp_path / "calib.yaml"
+    assert main(["calibrate", str(folder), "--out", str(out), "--from-truth",
+                 "--centreline"]) == 0
+    capsys.readouterr()
+    cal = Calibration.from_yaml(out)
+    assert abs(cal.timeshift_cam_imu_s - truth.timeshift_cam_imu_s) < 2e-4
+    summ = json.loads((tmp_path / "calib.summary.json").read_text())
+    assert summ["status"] in ("ok", "warning")
+    assert summ["options"]["centreline"] is True

@@ -113,9 +113,9 @@ def test_gyro_scale_fit_removes_the_focal_bias() -> None:
     M = np.eye(3) + np.array([[4e-3, 1e-3, 0.0], [1e-3, -3e-3, 5e-4], [0.0, 5e-4, 2e-3]])
     p = make_problem(seed=9, n_frames=12, dots_per_frame=40, endpoint_noise_px=0.05,
                      gyro_scale=M, shift_error_s=0.01, focal_error=0.02)
-    res = calibrate(p.streaks, p.gyro, p.initial,
-                    FitOptions(fit="timeshift,fx,fy,cx,cy,readout,bias,rotation,scale",
-                               holdout_fraction=0.0))
+    res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
+    assert "scale_xy" in res.fitted  # by default
+    assert not any("scale/cross-axis" in w for w in res.warnings)  # no score test when fitted
     # The samples are rotated from the camera frame by R_cam_imu: compare in the IMU frame.
     got = np.array([res.values[f"scale_{a}"] for a in ("xx", "yy", "zz", "xy", "xz", "yz")])
     want = np.array([M[0, 0] - 1, M[1, 1] - 1, M[2, 2] - 1, M[0, 1], M[0, 2], M[1, 2]])
@@ -123,6 +123,14 @@ def test_gyro_scale_fit_removes_the_focal_bias() -> None:
     assert np.all(np.abs(got - want) < np.maximum(4 * sig, 3e-4)), (got - want) / sig
     assert abs(res.values["fx"] / p.truth.camera.intrinsics[0] - 1) < 1.5e-3
     assert res.calibration.sigma["gyro_scale"][0] > 0
+    np.testing.assert_allclose(res.calibration.gyro_scale_matrix - np.eye(3),
+                               [[got[0], got[3], got[4]], [got[3], got[1], got[5]],
+                                [got[4], got[5], got[2]]], atol=1e-15)
+    # Without the scale group the score test flags what the fit now absorbs.
+    res0 = calibrate(p.streaks, p.gyro, p.initial,
+                     FitOptions(fit="timeshift,fx,fy,cx,cy,readout,bias,rotation",
+                                holdout_fraction=0.0))
+    assert np.array_equal(res0.calibration.gyro_scale_matrix, np.eye(3))
 
 
 

@@ -12,12 +12,14 @@ from blurtrack.camera import Camera
 from calib.data import holdout_mask
 from calib.errors import CalibError
 from calib.params import (
+    DEFAULT_FIT,
     GROUPS,
     N_THETA,
     apply_theta,
     parse_fit,
     rotation_error_rad,
     scale_matrix,
+    symmetric_scale_form,
     theta_from,
 )
 from calib.result import sigma_block
@@ -35,9 +37,15 @@ def test_apply_theta_round_trip(u: list[float]) -> None:
     th[5] = 0.02 + 0.01 * d[5]
     th[6:9] = 0.05 * d[6:9]
     th[9:12] = 0.3 * d[9:12]
+    th[12:18] = 0.01 * d[12:18]
     cal = apply_theta(BASE, th)
     back = theta_from(cal)
     np.testing.assert_allclose(back[:9], th[:9], atol=1e-12)
+    np.testing.assert_allclose(back[12:18], th[12:18], atol=1e-15)
+    np.testing.assert_array_equal(cal.gyro_scale_matrix, scale_matrix(th))
+    # and through the calibration file
+    np.testing.assert_allclose(theta_from(Calibration.from_dict(cal.to_dict()))[12:18],
+                               th[12:18], atol=1e-15)
     np.testing.assert_allclose(rotation_error_rad(cal.R_cam_imu, BASE.R_cam_imu), th[9:12],
                                atol=1e-9)
 
@@ -86,3 +94,30 @@ def test_scale_matrix_and_sigma_block() -> None:
     blk = sigma_block({"fx": 0.5, "timeshift_s": 1e-5, "bias_y": 1e-4})
     assert blk == {"timeshift_cam_imu": 1e-5, "intrinsics": [0.5, None, None, None],
                    "gyro_bias_radps": [None, 1e-4, None]}
+
+
+def test_default_fit_is_every_group_including_the_gyro_scale() -> None:
+    assert parse_fit(DEFAULT_FIT) == tuple(range(N_THETA))
+    assert apply_theta(BASE, theta_from(BASE)).to_dict() == BASE.to_dict()  # S = 0: no key
+
+
+def test_implausible_gyro_scale_is_a_divergence() -> None:
+    th = theta_from(BASE)
+    th[15] = 0.3
+    with pytest.raises(CalibError, match="diverged"):
+        apply_theta(BASE, th)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=12, max_size=12))
+def test_symmetric_scale_form_keeps_the_measurement_model(u: list[float]) -> None:
+    d = np.asarray(u)
+    from blurtrack.rotation import so3_exp
+
+    M = np.eye(3) + 0.02 * d[:9].reshape(3, 3)
+    cal = BASE.with_(R_cam_imu=so3_exp(d[9:12]), gyro_scale_matrix=M)
+    n = symmetric_scale_form(cal)
+    np.testing.assert_allclose(n.gyro_scale_matrix, n.gyro_scale_matrix.T, atol=1e-15)
+    assert np.all(np.linalg.eigvalsh(n.gyro_scale_matrix) > 0)
+    np.testing.assert_allclose(n.gyro_scale_matrix @ n.R_cam_imu.T, M @ cal.R_cam_imu.T,
+                               atol=1e-12)
