@@ -1,8 +1,10 @@
 """Calibration accuracy and speed over simulator presets and seeds (truth known).
 
 For each preset and seed: simulate a session (``blurtrack simulate``), calibrate from the true
-streaks (``from_truth``: isolates calibration error from detection error) or from a streak table
-given with ``--streaks-name``, and compare every estimate with the truth and its 1-sigma.
+streaks (``--streaks truth``, the default: isolates calibration error from detection error) or
+from the streaks ``blurtrack detect`` finds in the frames (``--streaks detected``: the whole
+pipeline, detection errors and wrongly resolved start/end included), and compare every estimate
+with the truth and its 1-sigma.
 Baselines measured in the same run: the initial guess's errors and hold-out endpoint error, and
 the time of one numpy evaluation of the residual over all streaks (speed ratio).
 Accuracy against the amount of data: ``--frames 100,400`` runs every preset and seed at each
@@ -11,7 +13,8 @@ number of streaks: the first session calibrated on 25, 50 and 100 % of its frame
 JSON document.
 
     PYTHONPATH=. python bench/bench_calibrate.py --presets clean,realistic --seeds 0,1,2 \\
-        --frames 100,400 --work /tmp/bench_calib [--fit ...] [--centreline]
+        --frames 100,400 --work /tmp/bench_calib [--fit ...] [--centreline] \\
+        [--streaks detected]
 """
 
 from __future__ import annotations
@@ -49,6 +52,18 @@ def simulate(out: Path, preset: str, seed: int, frames: int) -> Path:
         cmd += ["--shake", str(SHAKE)]
     subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
     return out
+
+
+def detect(session_dir: Path) -> tuple[Path, float]:
+    """``blurtrack detect`` over the session (once; the table is kept beside the frames).
+    Returns the table's path and the command's wall seconds (0 when it was already there)."""
+    out = session_dir / "streaks.parquet"
+    if out.is_file():
+        return out, 0.0
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "blurtrack", "detect", str(session_dir), "--out",
+                    str(out)], check=True, capture_output=True, cwd=REPO)
+    return out, time.perf_counter() - t0
 
 
 def effective_rotation(truth: dict, R_true: np.ndarray) -> np.ndarray:
@@ -92,11 +107,17 @@ def _sigmas(res, truth: Calibration) -> dict[str, float]:
     return {k: float(np.nan if v is None else v) for k, v in out.items()}
 
 
-def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0) -> dict:
+def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0,
+            source: str = "truth") -> dict:
     from calib.centreline import CENTRE_POINTS
 
     session = load_session(session_dir)
-    table = streak_table.from_truth(session.truth)
+    detect_wall = 0.0
+    if source == "detected":
+        path, detect_wall = detect(session_dir)
+        table = streak_table.read(path)
+    else:
+        table = streak_table.from_truth(session.truth)
     if frame_fraction < 1.0:
         nf = round(len(session.frames) * frame_fraction)
         table = table[table["frame"] < nf]
@@ -118,8 +139,9 @@ def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0)
     err = _errors(res.calibration, truth, effective_rotation(session.truth, truth.R_cam_imu))
     ok = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}
     z = _z_scores(res, truth, initial)
-    return {"sigma": _sigmas(res, truth),
-        "session": session_dir.name, "n_streaks": len(streaks), "n_frames": streaks.n_frames,
+    return {"sigma": _sigmas(res, truth), "streaks": source, "detect_wall_s": detect_wall,
+        "n_flipped": res.n_flipped, "session": session_dir.name, "n_streaks": len(streaks),
+        "n_frames": streaks.n_frames,
         "status": res.status, "iterations": res.iterations, "cpu_s": cpu, "wall_s": wall,
         "baseline_residual_cpu_s": base_cpu, "cpu_over_baseline": cpu / max(base_cpu, 1e-9),
         "error": err, "within_target": ok, "all_within_target": all(ok.values()),
@@ -144,6 +166,8 @@ def main() -> int:
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
     ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
     ap.add_argument("--frame-noise", action="store_true", help="frame-noise GLS refinement")
+    ap.add_argument("--streaks", choices=("truth", "detected"), default="truth",
+                    help="calibrate from the simulator's true streaks or from blurtrack detect")
     args = ap.parse_args()
     opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise)
     runs = []
@@ -152,7 +176,7 @@ def main() -> int:
         for frames in lengths:
             for seed in (int(s) for s in args.seeds.split(",")):
                 d = simulate(args.work / f"{preset}_s{seed}_f{frames}", preset, seed, frames)
-                run = run_one(d, opts)
+                run = run_one(d, opts, source=args.streaks)
                 run.update(preset=preset, seed=seed, frames=frames)
                 runs.append(run)
                 print(f"# {preset} {frames} frames seed {seed}: {run['status']}, "
@@ -162,7 +186,7 @@ def main() -> int:
     if not args.no_scaling and runs:
         first = args.work / runs[0]["session"]
         for frac in (0.25, 0.5, 1.0):
-            r = run_one(first, opts, frac)
+            r = run_one(first, opts, frac, source=args.streaks)
             scaling.append({"frames": r["n_frames"], "n_streaks": r["n_streaks"],
                             "cpu_s": r["cpu_s"], "wall_s": r["wall_s"],
                             "cpu_over_baseline": r["cpu_over_baseline"]})
@@ -184,7 +208,7 @@ def main() -> int:
                 [r["initial_mean_endpoint_error_px"] for r in rs])),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "centreline": args.centreline,
+    print(json.dumps({"fit": args.fit, "streaks": args.streaks, "centreline": args.centreline,
                       "frame_noise": args.frame_noise, "targets": TARGETS,
                       "by_preset": by_preset,
                       "fraction_of_estimates_within_3sigma":
