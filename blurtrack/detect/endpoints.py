@@ -5,9 +5,14 @@ At an end, the profile ``I(s)`` (cross-section integral along the centre line) i
 profile is at half the local plateau, not where it vanishes. We locate ``s0`` by the edge's
 area, which is linear in the data and unbiased under noise: for a plateau ``P(s) = P + g (s -
 s_in)`` the integral of ``I`` from outside the streak to a point ``s_in`` on the plateau is
-``P d - g d**2 / 2 - g sigma**2 / 2`` with ``d = s_in - s0``. Streaks too short to have a
-plateau at each end use the profile's first three moments (a segment of linearly varying
-brightness, :func:`linear_density_segment`).
+``P d - g d**2 / 2 + g sigma**2 / 2`` with ``d = s_in - s0`` (across ``s_in`` the blur brings
+``g sigma**2 / 2`` more light from the denser side than it takes back). Brightness is
+``1 / speed``, and a dot that slows down or speeds up makes it convex along the streak, which a
+line extrapolated to the end under-fills, pushing the end outwards; so ``d`` is refined under
+the density of a constant acceleration, ``(alpha + beta x)**-1/2`` (:func:`_time_law_density`).
+Streaks too short to have a plateau at each end use the profile's first three moments (a
+segment of linearly varying brightness, :func:`linear_density_segment`), then a least-squares
+fit (:mod:`~blurtrack.detect.shortfit`).
 
 All positions here are in sample-index units of uniformly sampled profiles; rows of the
 matrices are streaks, padded with zeros past each row's length.
@@ -73,17 +78,38 @@ def _first_crossing(A: np.ndarray, lens: np.ndarray, level: np.ndarray
 
 
 def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares line through ``PLATEAU_WINDOW`` samples from ``s_in`` on, each divided by
-    the edge's remaining rise ``rise (N, PLATEAU_WINDOW)``: value at ``s_in``, slope, and
-    whether the window fits inside the row."""
+    the edge's remaining rise ``rise (N, PLATEAU_WINDOW)``: value at ``s_in``, slope, whether
+    the window fits inside the row, and the divided samples ``(N, PLATEAU_WINDOW)``."""
     j = np.arange(PLATEAU_WINDOW, dtype=np.float64)
     v = _at(A, s_in[:, None] + j[None, :], lens) / rise
     jc = j - j.mean()
     slope = (v @ jc) / float(jc @ jc)
     value = v.mean(axis=1) - slope * j.mean()
     ok = s_in + PLATEAU_WINDOW - 1 <= lens - 1
-    return value, slope, ok
+    return value, slope, ok, v
+
+
+def _time_law_density(v: np.ndarray, value: np.ndarray, slope: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plateau as the density of a dot under constant acceleration: brightness is
+    ``1 / speed`` and ``speed**2`` is linear in position, so ``1 / density**2`` is a line.
+    Fitted to the window samples ``v (N, W)`` (baseline removed): ``alpha``, ``beta`` of
+    ``density(s_in + x) = (alpha + beta x)**-1/2``, and whether that fit is usable (all samples
+    positive); elsewhere the linear plateau (``value``, ``slope``) in the same form to first
+    order. A linear density extrapolated to the edge under-fills a convex one (a dot slowing
+    down, or speeding up, towards the end) and pushes the endpoint outwards."""
+    j = np.arange(v.shape[1], dtype=np.float64)
+    jc = j - j.mean()
+    pos = np.all(v > 0, axis=1)
+    q = 1.0 / np.where(v > 0, v, 1.0) ** 2
+    beta = (q @ jc) / float(jc @ jc)
+    alpha = q.mean(axis=1) - beta * j.mean()
+    good = pos & (alpha > 0)
+    lin_alpha = 1.0 / np.where(value > 0, value, 1.0) ** 2
+    lin_beta = -2.0 * slope * lin_alpha / np.where(value > 0, value, 1.0)
+    return np.where(good, alpha, lin_alpha), np.where(good, beta, lin_beta), good
 
 
 def _cumulative(A: np.ndarray) -> np.ndarray:
@@ -122,7 +148,7 @@ def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, guess: np.n
         s_in = s_half + PLATEAU_INSET_SIGMAS * sigma
         x = s_in[:, None] + j[None, :]
         rise = np.maximum(ndtr((x - s_half[:, None]) / sigma[:, None]), 0.5)
-        value, slope, fits = _plateau(A, lens, s_in, rise)
+        value, slope, fits, v = _plateau(A, lens, s_in, rise)
         ok &= fits & (value > 0)
         s_half, has = _first_crossing(A, lens, 0.5 * np.where(value > 0, value, guess))
         ok &= has
@@ -140,7 +166,26 @@ def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, guess: np.n
     for _ in range(3):
         z = d / sigma
         psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * ndtr(-z)
-        d = (M + 0.5 * slope * (d * d + sigma * sigma)) / P - sigma * psi
+        d = (M + 0.5 * slope * (d * d - sigma * sigma)) / P - sigma * psi
+    # Refined under the constant-acceleration density: the bulk of the edge's mass,
+    # ∫_{-d}^{0} (alpha + beta x)**-1/2 dx = 2 d / (sqrt(alpha) + sqrt(alpha - beta d)), in place
+    # of the linear density's P d - g d**2 / 2, and the blur terms with that density's value
+    # at the end and slope at s_in. Newton from the linear model's d.
+    alpha, beta, _ = _time_law_density(v - base[:, None], P, slope)
+    sa = np.sqrt(alpha)
+    g_in = -0.5 * beta / (alpha * sa)
+    d_lin = d
+    for _ in range(2):
+        z = d / sigma
+        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * ndtr(-z)
+        se = np.sqrt(np.maximum(alpha - beta * d, alpha / 16.0))  # at most 4x the plateau
+        f = 2.0 * d / (sa + se) + sigma * psi / se + 0.5 * g_in * sigma * sigma - M
+        df = ndtr(z) / se
+        step = np.where(np.isfinite(f) & (df > 1e-12), f / np.where(df > 1e-12, df, 1.0), 0.0)
+        d = d - np.clip(step, -sigma, sigma)
+    # A refinement is a correction of a few tenths of a pixel; a larger one means the window
+    # is no plateau (a crossing, a dip): the linear model's end stands.
+    d = np.where(np.isfinite(d) & (np.abs(d - d_lin) <= sigma), d, d_lin)
     return s_in - d, P, ok
 
 
@@ -206,8 +251,16 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     # Both ends at once: the rows of A, then the reversed rows (end B's edge rises first).
     AA = np.concatenate([A, reverse_rows(A, lens)])
     lens2 = np.concatenate([lens, lens])
-    p2, P2, ok2 = rising_edges(AA, lens2, np.concatenate([sigma, sigma]),
-                               np.concatenate([guess, guess]))
+    sigma2, guess2 = np.concatenate([sigma, sigma]), np.concatenate([guess, guess])
+    # Edge fits only where a plateau can fit: the lit extent (quarter-level crossings, outside
+    # the half-level ends) must hold both insets and the window; the rest is short anyway.
+    c4, has4 = _first_crossing(AA, lens2, 0.25 * guess2)
+    extent = (lens - 1) - c4[N:] - c4[:N]
+    cand = has4[:N] & has4[N:] & (extent >= 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)
+    p2, P2, ok2 = np.zeros(2 * N), np.ones(2 * N), np.zeros(2 * N, bool)
+    sel = np.flatnonzero(np.concatenate([cand, cand]))
+    if sel.size:
+        p2[sel], P2[sel], ok2[sel] = rising_edges(AA[sel], lens2[sel], sigma2[sel], guess2[sel])
     pa, Pa, oka = p2[:N], P2[:N], ok2[:N]
     pb, Pb, okb = (lens - 1) - p2[N:], P2[N:], ok2[N:]
     short = ~(oka & okb) | (pb - pa < 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)

@@ -63,6 +63,34 @@ def test_accelerating_streak_profile_follows_speed() -> None:
     assert fs.time_mid[0][0] > 62.0
 
 
+@pytest.mark.parametrize("length", [12.0, 20.0])
+def test_decelerating_streaks_have_unbiased_ends(length: float) -> None:
+    # Speed falling from 1.4 to 0.6 times the mean (constant deceleration): the brightness
+    # (1 / speed) is convex along the streak. A linear density model extrapolated to the ends
+    # placed both outwards (+0.21 to +0.24 px per end on 12 px streaks, the short-streak fit;
+    # +0.11 to +0.23 px on 20 px ones, the edge fit); the mean signed along-track error of
+    # twelve streaks per length must stay near zero.
+    rng = np.random.default_rng(7)
+    curves = []
+    for k in range(12):
+        p0 = np.array([25.0 + 60 * (k % 6), 25.0 + 50 * (k // 6)]) + rng.uniform(-3, 3, 2)
+        ang = rng.uniform(0, 2 * np.pi)
+        curves.append(line(p0, p0 + length * np.array([np.cos(ang), np.sin(ang)]), n=800,
+                           accel=0.4))
+    img = quantise(render_streaks((130, 390), curves, 0.6, 1.3, 0.03, 0.004, 3))
+    fs = detect_frame(img)
+    out_start, out_end = [], []
+    for c in curves:
+        i, _, _ = _match(fs, c[0], c[-1])
+        u = (c[-1] - c[0]) / length
+        a, b = fs.end_a[i], fs.end_b[i]
+        if np.linalg.norm(a - c[0]) > np.linalg.norm(b - c[0]):
+            a, b = b, a
+        out_start.append(-float(np.dot(a - c[0], u)))
+        out_end.append(float(np.dot(b - c[-1], u)))
+    assert abs(np.mean(out_start)) < 0.1 and abs(np.mean(out_end)) < 0.1
+
+
 def test_round_static_dots_have_near_zero_length() -> None:
     # Several dots, so that the frame's dot width (which short streaks rely on) is well known.
     rng = np.random.default_rng(5)

@@ -71,6 +71,35 @@ def test_edge_fit_recovers_erf_endpoints(length: float, s0: float, sigma: float,
         assert fit.plateau_a[0] == pytest.approx(plateau, rel=0.01)
 
 
+def _time_law_profile(length: float, s0: float, sigma: float, gamma: float, n: int
+                      ) -> np.ndarray:
+    """Blurred profile of a dot under constant acceleration (position fraction
+    ``t + gamma t (1 - t)``, speed falling from ``1 + gamma`` to ``1 - gamma``): light per
+    sample is time per sample, by dense sampling in time."""
+    t = np.linspace(0.0, 1.0, 40001)
+    x = s0 + length * (t + gamma * t * (1.0 - t))
+    s = np.arange(n, dtype=float)
+    prof = np.zeros(n)
+    for chunk in np.array_split(x, 20):
+        prof += ndtr((s[:, None] + 0.5 - chunk[None, :]) / sigma).sum(axis=1)
+        prof -= ndtr((s[:, None] - 0.5 - chunk[None, :]) / sigma).sum(axis=1)
+    return prof * (length / x.size)
+
+
+@settings(max_examples=25, deadline=None)
+@given(length=st.floats(16.0, 50.0), sigma=st.floats(1.3, 2.2), gamma=st.floats(-0.45, 0.45))
+def test_edge_fit_follows_an_accelerating_dot(length: float, sigma: float,
+                                              gamma: float) -> None:
+    # Brightness 1 / speed is convex along the streak; both ends within 0.06 px (a linear
+    # density extrapolated to the ends put them up to 0.2 px outside at |gamma| = 0.4).
+    n = int(10 + length + 12)
+    A = _time_law_profile(length, 10.0, sigma, gamma, n)[None, :]
+    fit = fit_edges(A, np.array([n]), np.array([np.sqrt(sigma**2 + 1 / 12)]))
+    assert fit.valid[0] and not fit.short[0]
+    assert fit.pos_a[0] == pytest.approx(10.0, abs=0.06)
+    assert fit.pos_b[0] == pytest.approx(10.0 + length, abs=0.06)
+
+
 @pytest.mark.parametrize("length", [0.5, 2.0, 5.0, 9.0])
 def test_short_profiles_use_moments(length: float) -> None:
     A = _erf_profile(length, 10.0, 1.8, 1.0, 32)[None, :]
