@@ -78,9 +78,13 @@ def levenberg_marquardt(
                 continue
             trial = theta.copy()
             trial[fr] += step_s / d
-            if trial[1] <= 0 or trial[2] <= 0 or not 0 <= trial[5] < 1:
+            if trial[1] <= 0 or trial[2] <= 0:
                 lam *= 10
                 continue
+            # The readout is a duration in [0, 1) s: a step past a bound is projected onto it.
+            # Rejecting it instead stalled the whole fit at its start on a global-shutter
+            # camera (readout 0, where noise pulls every Gauss-Newton step below 0).
+            trial[5] = min(max(trial[5], 0.0), 0.999)
             r_try = ev.residual(trial, streaks)
             c_try = float(np.sum(pseudo_huber(np.linalg.norm(r_try, axis=1), delta_px)))
             if np.isfinite(c_try) and c_try <= cost:

@@ -51,17 +51,19 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
                  roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
                  shift_error_s: float = 0.03, focal_error: float = 0.05,
                  gyro_scale: np.ndarray | None = None, centre_k: int = 0,
-                 centre_noise_px: float = 0.0) -> SyntheticProblem:
+                 centre_noise_px: float = 0.0, readout_s: float = 0.025) -> SyntheticProblem:
     """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
 
     ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
     ``centre_k > 0``: the streaks carry that many points of their true centre line (the true
     track sampled at 33 times over the streak, resampled by :func:`calib.data.centre_points`),
-    with Gaussian noise ``centre_noise_px`` per coordinate.
+    with Gaussian noise ``centre_noise_px`` per coordinate. ``readout_s``: the true rolling-shutter
+    readout (0: a global shutter, which the initial guess then states exactly; else the guess
+    is 20 ms).
     """
     rng = np.random.default_rng(seed)
     cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
-                 readout_s=0.025)
+                 readout_s=readout_s)
     R0 = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     R_true = so3_exp(np.array([0.01, -0.015, 0.02])) @ R0
     truth = Calibration(camera=cam, R_cam_imu=R_true, timeshift_cam_imu_s=0.0123,
@@ -109,6 +111,6 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     fx, fy = cam.intrinsics[:2]
     initial = Calibration(
         camera=Camera(cam.resolution, (fx * (1 + focal_error), fy * (1 + focal_error),
-                                       639.5, 359.5), readout_s=0.02),
+                                       639.5, 359.5), readout_s=0.02 if readout_s else 0.0),
         R_cam_imu=R0, timeshift_cam_imu_s=truth.timeshift_cam_imu_s + shift_error_s)
     return SyntheticProblem(streaks, gyro, truth, initial)

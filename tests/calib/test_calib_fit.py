@@ -48,6 +48,22 @@ def test_sigma_covers_the_true_error(fitted) -> None:
     assert set(sig) >= {"timeshift_cam_imu", "intrinsics", "readout_s", "gyro_bias_radps"}
 
 
+def test_global_shutter_readout_at_its_bound() -> None:
+    # Readout 0 (true and guessed), fitted: every Gauss-Newton step pulls it a little below 0.
+    # Rejecting those steps stalled the fit at its start (cx, cy and the bias stayed at the
+    # guess); the step is projected onto the bound instead.
+    p = make_problem(seed=3, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
+                     readout_s=0.0, shift_error_s=0.01, focal_error=0.03)
+    res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.25))
+    truth = theta_from(p.truth)
+    v = res.values
+    assert res.converged and res.status in ("ok", "warning")
+    assert 0.0 <= v["readout_s"] < 2e-4
+    assert abs(v["cx"] - truth[3]) < 2.0 and abs(v["cy"] - truth[4]) < 2.0
+    assert np.all(np.abs(np.array([v["bias_x"], v["bias_y"], v["bias_z"]]) - truth[6:9]) < 1e-3)
+    assert res.holdout.mean_px < 0.3
+
+
 def test_flipped_and_gross_outliers_are_rejected() -> None:
     p = make_problem(seed=5, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
                      shift_error_s=0.02, focal_error=0.03)
