@@ -33,7 +33,7 @@ from blurtrack.calibration import Calibration
 from blurtrack.rotation import rotation_angle_deg
 from blurtrack.session import load_session
 from calib.data import relative_gyro, streaks_from_table
-from calib.fit import FitOptions, calibrate
+from calib.fit import RESIDUALS, FitOptions, calibrate
 from calib.params import DEFAULT_FIT, theta_from
 from calib.problem import ResidualModel, choose_substeps
 
@@ -166,10 +166,13 @@ def main() -> int:
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
     ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
     ap.add_argument("--frame-noise", action="store_true", help="frame-noise GLS refinement")
+    ap.add_argument("--residuals", choices=RESIDUALS, default=FitOptions().residuals,
+                    help="final-stage residuals (endpoints, tracks or both)")
     ap.add_argument("--streaks", choices=("truth", "detected"), default="truth",
                     help="calibrate from the simulator's true streaks or from blurtrack detect")
     args = ap.parse_args()
-    opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise)
+    opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise,
+                      residuals=args.residuals)
     runs = []
     lengths = [int(f) for f in args.frames.split(",")]
     for preset in args.presets.split(","):
@@ -208,7 +211,8 @@ def main() -> int:
                 [r["initial_mean_endpoint_error_px"] for r in rs])),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "streaks": args.streaks, "centreline": args.centreline,
+    print(json.dumps({"fit": args.fit, "streaks": args.streaks, "residuals": args.residuals,
+                      "centreline": args.centreline,
                       "frame_noise": args.frame_noise, "targets": TARGETS,
                       "by_preset": by_preset,
                       "fraction_of_estimates_within_3sigma":

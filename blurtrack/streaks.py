@@ -90,7 +90,8 @@ def empty() -> pd.DataFrame:
 
 
 def from_truth(truth: dict[str, Any], inside_only: bool = True) -> pd.DataFrame:
-    """The simulator's true streaks (``truth.yaml`` ``frames``) as a streak table."""
+    """The simulator's true streaks (``truth.yaml`` ``frames``) as a streak table, with the
+    time midpoints ``mid_x``, ``mid_y`` (NaN where the truth has none)."""
     try:
         rows = []
         for fr in truth["frames"]:
@@ -109,7 +110,9 @@ def from_truth(truth: dict[str, Any], inside_only: bool = True) -> pd.DataFrame:
                     "orientation_confidence": 1.0, "orientation_source": "truth",
                     "clipped": not s.get("inside", True), "saturated": False,
                     "merged": False, "faint": False,
+                    "mid_x": float(s["mid"][0]) if "mid" in s else np.nan,
+                    "mid_y": float(s["mid"][1]) if "mid" in s else np.nan,
                 })
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise StreakTableError(f"truth.yaml has no usable streak truth ({exc!r})") from None
-    return validate(pd.DataFrame(rows, columns=list(COLUMNS))) if rows else empty()
+    return validate(pd.DataFrame(rows, columns=[*COLUMNS, "mid_x", "mid_y"])) if rows else empty()

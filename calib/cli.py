@@ -39,6 +39,13 @@ def register(subparsers: Any) -> None:
                    help="refine by generalised least squares under a per-frame gyro-noise "
                         "model (rate offset and drift per frame): sharper principal point and "
                         "focal lengths when gyro noise dominates, about 1.5x the time")
+    p.add_argument("--residuals", choices=("auto", "endpoints", "tracks", "both"),
+                   default="auto",
+                   help="what the final stage fits: each streak's end predicted from its "
+                        "start (endpoints), each dot's time midpoint carried to the next frame "
+                        "(tracks: insensitive to biased streak ends), or both; auto (default): "
+                        "tracks where the streak table has midpoints and consecutive frames "
+                        "see the same dots, else endpoints with a warning")
     p.set_defaults(func=run_calibrate)
 
     r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
@@ -125,7 +132,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     initial = session.initial_calibration()
     options = FitOptions(fit=args.fit, holdout_fraction=args.holdout,
                          shift_window_s=args.shift_window_ms * 1e-3, centreline=args.centreline,
-                         frame_noise=args.frame_noise)
+                         frame_noise=args.frame_noise, residuals=args.residuals)
     res = calibrate(streaks, session.gyro(), initial, options)
     summary = res.to_dict()
     summary["options"] = dataclasses.asdict(options)
@@ -156,6 +163,12 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
     print(f"calibration {res.status}: {res.iterations} iterations, "
           f"{res.train.n} inlier streaks, {res.n_outliers} outliers "
           f"({res.n_flipped} wrongly oriented), {res.timings_s.get('total', 0):.1f} s")
+    if res.tracks is not None:
+        print(f"fitted {res.residuals}: {res.n_tracks} inter-frame tracks "
+              f"({res.n_track_outliers} outliers), track error mean {res.tracks.mean_px:.3f} "
+              f"px, median {res.tracks.median_px:.3f}, p95 {res.tracks.p95_px:.3f}")
+    else:
+        print(f"fitted {res.residuals}")
     head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>10}"
     print(head + (f"{'truth':>12}{'error':>10}" if truth else ""))
     for k, v in res.values.items():

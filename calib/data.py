@@ -30,6 +30,13 @@ class StreakSet:
         t0_s: absolute camera time of the origin, s.
         centre: optional ``(N, K, 2)`` points of the measured centre line (pixels, ordered
             start to end; see :func:`centre_points`); NaN rows: no usable centre line.
+        time_row: optional ``(N, 2)`` rows (pixels) whose rolling-shutter start times date
+            the start and the end; ``None``: the points' own rows ``start[:, 1]``,
+            ``end[:, 1]`` (a streak). Inter-frame tracks (:mod:`calib.tracks`) date a time
+            midpoint by the mean row of its streak's ends instead.
+        mid: optional ``(N, 2)`` time midpoints (the point that halves the streak's light,
+            where the dot was at the middle of its exposure), pixels: what inter-frame
+            tracks are made of.
     """
 
     start: np.ndarray
@@ -40,9 +47,21 @@ class StreakSet:
     streak_id: np.ndarray
     t0_s: float = 0.0
     centre: np.ndarray | None = None
+    time_row: np.ndarray | None = None
+    mid: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.frame)
+        if self.mid is not None:
+            md = np.asarray(self.mid, dtype=float)
+            if md.shape != (n, 2) or not np.all(np.isfinite(md)):
+                raise CalibError(f"streak time midpoints must be finite with shape ({n}, 2)")
+            object.__setattr__(self, "mid", md)
+        if self.time_row is not None:
+            tr = np.asarray(self.time_row, dtype=float)
+            if tr.shape != (n, 2) or not np.all(np.isfinite(tr)):
+                raise CalibError(f"streak time rows must be finite with shape ({n}, 2)")
+            object.__setattr__(self, "time_row", tr)
         if self.centre is not None:
             c = np.asarray(self.centre, dtype=float)
             if c.ndim != 3 or c.shape[0] != n or c.shape[2] != 2 or c.shape[1] < 1:
@@ -75,6 +94,13 @@ class StreakSet:
         return int(np.unique(self.frame).size)
 
     @property
+    def rows(self) -> np.ndarray:
+        """``(N, 2)`` rows dating the start and the end (see ``time_row``)."""
+        if self.time_row is not None:
+            return self.time_row
+        return np.stack([self.start[:, 1], self.end[:, 1]], axis=1)
+
+    @property
     def length_px(self) -> np.ndarray:
         return np.linalg.norm(self.end - self.start, axis=1)
 
@@ -83,12 +109,15 @@ class StreakSet:
         return replace(self, start=self.start[m], end=self.end[m], frame_t_s=self.frame_t_s[m],
                        exposure_s=self.exposure_s[m], frame=self.frame[m],
                        streak_id=self.streak_id[m],
-                       centre=None if self.centre is None else self.centre[m])
+                       centre=None if self.centre is None else self.centre[m],
+                       time_row=None if self.time_row is None else self.time_row[m],
+                       mid=None if self.mid is None else self.mid[m])
 
     def flipped(self) -> StreakSet:
         """The same streaks with start and end swapped (centre points reversed)."""
         return replace(self, start=self.end, end=self.start,
-                       centre=None if self.centre is None else self.centre[:, ::-1])
+                       centre=None if self.centre is None else self.centre[:, ::-1],
+                       time_row=None if self.time_row is None else self.time_row[:, ::-1])
 
     def reoriented(self, mask: np.ndarray) -> StreakSet:
         """Start and end swapped where ``mask`` (N,) is true."""
@@ -96,8 +125,11 @@ class StreakSet:
         c = self.centre
         if c is not None:
             c = np.where(m[:, :, None], c[:, ::-1], c)
+        tr = self.time_row
+        if tr is not None:
+            tr = np.where(m, tr[:, ::-1], tr)
         return replace(self, start=np.where(m, self.end, self.start),
-                       end=np.where(m, self.start, self.end), centre=c)
+                       end=np.where(m, self.start, self.end), centre=c, time_row=tr)
 
 
 def centre_points(polyline: object, k: int) -> np.ndarray:
@@ -144,6 +176,11 @@ def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
     if np.any(df["timestamp_ns"].to_numpy(np.int64) != ts[idx]):
         raise CalibError("streak table timestamps do not match the session's cam0/data.csv")
     t0_ns = int(ts[0])
+    mid = None
+    if {"mid_x", "mid_y"} <= set(df.columns):
+        mid = df[["mid_x", "mid_y"]].to_numpy(float)
+        if not np.all(np.isfinite(mid)):
+            mid = None  # tables without usable midpoints support no inter-frame tracks
     return StreakSet(
         start=df[["start_x", "start_y"]].to_numpy(float),
         end=df[["end_x", "end_y"]].to_numpy(float),
@@ -154,6 +191,7 @@ def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
         t0_s=t0_ns * 1e-9,
         centre=(np.stack([centre_points(c, centre_k) for c in df["centerline"]])
                 if centre_k > 0 and len(df) else None),
+        mid=mid,
     )
 
 

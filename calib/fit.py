@@ -40,6 +40,7 @@ from calib.params import (
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import JacobianEvaluator, levenberg_marquardt
+from calib.tracks import build_tracks, concat
 
 MIN_STREAKS = 30
 MIN_FRAMES = 3
@@ -59,6 +60,7 @@ SCALE_Z = 3.0
 #: scale near the rejection threshold keeps the IRLS weights of inliers nearly constant, so
 #: Gauss–Newton converges in two or three Jacobians.
 FINE_DELTA_SIGMAS = 5.0
+RESIDUALS = ("auto", "endpoints", "tracks", "both")
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,20 @@ class FitOptions:
     #: Generalised-least-squares refinement under the frame-correlated gyro-noise model
     #: (:mod:`calib.framenoise`) after the robust fit.
     frame_noise: bool = False
+    #: What the final stage fits: ``endpoints`` (each streak's end predicted from its start),
+    #: ``tracks`` (each dot's time midpoint carried to the next frame, :mod:`calib.tracks`;
+    #: insensitive to biased streak ends), ``both``, or ``auto``: tracks when the streaks
+    #: carry midpoints and enough of them pair up, else endpoints with a warning saying why
+    #: (the result's ``residuals`` names the choice). Initialisation always uses endpoints.
+    residuals: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.residuals not in RESIDUALS:
+            raise CalibError(f"residuals must be one of {', '.join(RESIDUALS)}, got "
+                             f"{self.residuals!r}")
+        if self.residuals in ("tracks", "both") and (self.centreline or self.frame_noise):
+            raise CalibError("centre-line residuals and the frame-noise refinement work on "
+                             "endpoint residuals only (--residuals endpoints)")
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -220,40 +236,89 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         theta, iters = lm.theta, iters + lm.iterations
     timings["coarse"] = clock() - t_start - timings["init"]
 
+    mode = options.residuals
+    if mode == "auto":
+        mode = "endpoints"
+        if options.centreline or options.frame_noise:
+            pass  # both work on endpoint residuals only
+        elif train.mid is None:
+            warnings.append("the streaks carry no time midpoints (mid_x, mid_y): fitted "
+                            "endpoints, which a detector's length bias moves")
+        else:
+            mode = "tracks"
+    use_ep = mode in ("endpoints", "both")
+    tracks = None
+    if mode != "endpoints":
+        tracks, _ = build_tracks(model, theta, train)
+        if len(tracks) < MIN_STREAKS and options.residuals == "auto":
+            warnings.append(f"only {len(tracks)} inter-frame tracks paired up (consecutive "
+                            f"frames must see the same dots): fitted endpoints instead")
+            mode, use_ep, tracks = "endpoints", True, None
+        elif len(tracks) < MIN_STREAKS:
+            raise CalibError(f"only {len(tracks)} inter-frame tracks found (need "
+                             f"{MIN_STREAKS}): consecutive frames must see the same dots")
+    if tracks is not None:
+        both = concat([train, tracks])
+        model = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
+                              choose_substeps(both, cam.height, readout_bound))
     ev_fine = JacobianEvaluator(
         model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None
         else 0)
     inl = np.ones(len(train), dtype=bool)
+    tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
     converged = False
+    fitset = train
     for round_ in range(3):
-        rho, _, _ = classify(model, theta, train, np.inf)
-        sig = _rayleigh_sigma(rho[inl])
-        thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
-        train, rho, flip = _reorient(model, theta, train, thr)
-        reoriented ^= flip
-        new_inl = rho <= thr
-        if round_ and np.count_nonzero(new_inl != inl) <= 0.002 * len(train):
-            break  # the inlier set has settled
-        inl = new_inl
-        if np.count_nonzero(inl) < MIN_STREAKS:
+        changed = 0
+        new_inl = inl
+        if use_ep:
+            rho, _, _ = classify(model, theta, train, np.inf)
+            sig = _rayleigh_sigma(rho[inl])
+            thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
+            train, rho, flip = _reorient(model, theta, train, thr)
+            reoriented ^= flip
+            new_inl = rho <= thr
+            changed += np.count_nonzero(new_inl != inl)
+        new_tinl = tinl
+        if tracks is not None:
+            rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
+            thr_t = max(OUTLIER_SIGMAS * _rayleigh_sigma(rho_t[tinl]), MIN_OUTLIER_PX)
+            new_tinl = rho_t <= thr_t
+            changed += np.count_nonzero(new_tinl != tinl)
+        if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
+            break  # the inlier sets have settled
+        inl, tinl = new_inl, new_tinl
+        if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
             raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
                              f"the data contradict it")
-        sig = _rayleigh_sigma(rho[inl])
-        lm = levenberg_marquardt(ev_fine, train.subset(inl), theta, free,
-                                 max(FINE_DELTA_SIGMAS * sig, 1e-3),
-                                 max_iter=options.max_iter, step_tol=max(0.1 * sig, 1e-5),
+        if tracks is None:
+            fitset = train.subset(inl)
+        elif use_ep:
+            fitset = concat([train.subset(inl), tracks.subset(tinl)])
+        else:
+            fitset = tracks.subset(tinl)
+        sig_fit = _rayleigh_sigma(np.linalg.norm(model.residual_np(theta, fitset), axis=1))
+        lm = levenberg_marquardt(ev_fine, fitset, theta, free,
+                                 max(FINE_DELTA_SIGMAS * sig_fit, 1e-3),
+                                 max_iter=options.max_iter, step_tol=max(0.1 * sig_fit, 1e-5),
                                  lam0=1e-6)
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         timings[f"fine{round_}_iterations"] = lm.iterations
+    if not use_ep:
+        # Endpoint statistics of the training streaks at the track fit (reorientation too).
+        rho, _, _ = classify(model, theta, train, np.inf)
+        thr = max(OUTLIER_SIGMAS * _rayleigh_sigma(rho), MIN_OUTLIER_PX)
+        train, rho, flip = _reorient(model, theta, train, thr)
+        reoriented ^= flip
+        inl = rho <= thr
     timings["fine"] = clock() - t_start - timings["init"] - timings["coarse"]
 
     rho, _, _ = classify(model, theta, train, np.inf)
     sig = _rayleigh_sigma(rho[inl])
     thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
     out = rho > thr
-    unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, train.subset(inl).frame,
-                               free)
+    unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, fitset.frame, free)
     sigma_vec, corr_mat = unc.sigma, unc.correlation
     if options.frame_noise:
         from calib.framenoise import gls_refine
@@ -275,7 +340,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
             rho, _, _ = classify(model, theta, train, np.inf)
             out = rho > thr
     warnings.extend(unc.warnings)
-    warnings.extend(scale_check(ev_fine, theta, train.subset(inl), lm.weights, free))
+    warnings.extend(scale_check(ev_fine, theta, fitset, lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
     R = apply_theta(initial, theta).R_cam_imu
     w_cam = np.stack(omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]),
@@ -303,6 +368,11 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         status = "failed"
     if status == "ok" and warnings:
         status = "warning"
+    track_stats: dict = {"residuals": mode}
+    if tracks is not None:
+        rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
+        track_stats.update(tracks=ErrorStats.of(rho_t[tinl]), n_tracks=len(tracks),
+                           n_track_outliers=int(np.count_nonzero(~tinl)))
     sigma = named(sigma_vec, free)
     calib = apply_theta(initial, theta)
     calib = calib.with_(sigma=sigma_block(sigma))
@@ -316,4 +386,5 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         converged=converged, train=ErrorStats.of(rho[~out]), train_all=ErrorStats.of(rho),
         holdout=holdout, holdout_all=holdout_all, n_outliers=int(np.count_nonzero(out)),
         n_flipped=int(np.count_nonzero(reoriented)), residual_sigma_px=sig,
-        init_shift_curve=ini.shift_curve, warnings=tuple(warnings), timings_s=timings)
+        init_shift_curve=ini.shift_curve, warnings=tuple(warnings), timings_s=timings,
+        **track_stats)

@@ -30,7 +30,7 @@ from calib.centreline import (
 from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.params import N_THETA
-from calib.problem import CA_OPS, ResidualModel, endpoint_residual, predicted_track
+from calib.problem import CA_OPS, N_COLS, ResidualModel, endpoint_residual, predicted_track
 
 
 def _slopes(t_grid: np.ndarray, w_grid: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -50,7 +50,7 @@ class JacobianEvaluator:
         self.model = model
         self.centre_k = centre_k
         ns = model.n_sub
-        n_local = 6 + 7 * ns
+        n_local = N_COLS + 7 * ns
         self._th = ca.SX.sym("theta", N_THETA)
         self._d = ca.SX.sym("d", n_local + (centre_k * (2 + ns) + 1 if centre_k else 0))
         d = self._d
@@ -61,11 +61,11 @@ class JacobianEvaluator:
             calls[0] += 1
             if k >= ns:
                 raise CalibError("the model asked the gyro more often than its sub-steps")
-            base = 6 + 7 * k
+            base = N_COLS + 7 * k
             return tuple(d[base + 1 + a] + d[base + 4 + a] * (t - d[base]) for a in range(3))
 
         th = [self._th[i] for i in range(N_THETA)]
-        cols = [d[j] for j in range(6)]
+        cols = [d[j] for j in range(N_COLS)]
         if centre_k:
             us, vs = predicted_track(th, cols, omega_local, model.R0_cam_imu, model.dist,
                                      model.height, ns, CA_OPS)
@@ -94,7 +94,7 @@ class JacobianEvaluator:
                                gyro_at, m.R0_cam_imu, m.dist, m.height, m.n_sub, NUMPY_OPS)
 
     def _local_data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
-        """``(6 + 7 n_sub [+ centre data], N)``: streak columns, then per sub-step ``t_k, ω_k
+        """``(N_COLS + 7 n_sub [+ centre data], N)``: streak columns, then per sub-step ``t_k, ω_k
         (3), ω'_k (3)``, then (centre lines) the association of :mod:`calib.centreline`."""
         g = self.model.gyro
         times: list[np.ndarray] = []

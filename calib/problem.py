@@ -58,9 +58,9 @@ def _streak_motion(theta: Sequence[Any], cols: Sequence[Any],
     # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
     inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
     R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
-    _, sy, _, ey, ft, exp = cols
-    t_s = row_start_c(ft, sy, readout, height)
-    t_e = row_start_c(ft, ey, readout, height) + exp
+    ft, exp, row_s, row_e = cols[4:8]
+    t_s = row_start_c(ft, row_s, readout, height)
+    t_e = row_start_c(ft, row_e, readout, height) + exp
     return omega_cam_fn(omega_imu_at, R, bias, shift), (fx, fy, cx, cy), t_s, t_e
 
 
@@ -72,8 +72,9 @@ def endpoint_residual(
 
     Args:
         theta: the 18 parameters of :mod:`calib.params` (numbers or CasADi scalars).
-        cols: ``(start_x, start_y, end_x, end_y, frame_t_s, exposure_s)``, arrays ``(N,)``
-            or CasADi columns; times on the camera clock, seconds.
+        cols: ``(start_x, start_y, end_x, end_y, frame_t_s, exposure_s, row_s, row_e)``,
+            arrays ``(N,)`` or CasADi columns; times on the camera clock, seconds; ``row_s``,
+            ``row_e`` date the start and the end (a streak's own ``start_y``, ``end_y``).
         omega_imu_at: IMU-clock time -> ``(wx, wy, wz)`` measured rate, rad/s.
         R0_cam_imu: ``(3, 3)`` initial camera–IMU rotation, perturbed by ``theta[9:12]``.
         dist: fixed radtan coefficients (``()`` for none).
@@ -120,14 +121,20 @@ def choose_substeps(streaks: StreakSet, height: int, readout_bound_s: float,
     """Sub-steps so that no streak's warp interval exceeds ``max_substep_s`` per step."""
     if len(streaks) == 0:
         return 1
-    dv = np.abs(streaks.end[:, 1] - streaks.start[:, 1]) / height
+    rows = streaks.rows
+    dv = np.abs(rows[:, 1] - rows[:, 0]) / height
     span = float(np.max(streaks.exposure_s + readout_bound_s * dv))
     return n_substeps(span, max_substep_s)
 
 
+#: Data columns per streak (see :func:`endpoint_residual`).
+N_COLS = 8
+
+
 def _columns(streaks: StreakSet) -> list[np.ndarray]:
+    rows = streaks.rows
     return [streaks.start[:, 0], streaks.start[:, 1], streaks.end[:, 0], streaks.end[:, 1],
-            streaks.frame_t_s, streaks.exposure_s]
+            streaks.frame_t_s, streaks.exposure_s, rows[:, 0], rows[:, 1]]
 
 
 @dataclass(frozen=True)
@@ -150,18 +157,18 @@ class ResidualModel:
     def casadi_functions(self, n: int) -> tuple[ca.Function, ca.Function]:
         """``res(theta, D) -> r (2N,)`` and ``jac(theta, D) -> (r, dr/dtheta (2N, N_THETA))``.
 
-        ``D`` is the ``(N, 6)`` data matrix of :meth:`data_matrix`. The gyro enters through
+        ``D`` is the ``(N, N_COLS)`` data matrix of :meth:`data_matrix`. The gyro enters through
         linear ``ca.interpolant`` look-ups, differentiable in the time shift.
         """
         theta = ca.MX.sym("theta", N_THETA)
-        D = ca.MX.sym("D", n, 6)
+        D = ca.MX.sym("D", n, N_COLS)
         interp = [ca.interpolant(f"omega_{k}", "linear", [self.gyro.t_s],
                                  self.gyro.omega_radps[:, k]) for k in range(3)]
 
         def omega_imu_at(t: Any) -> tuple:
             return tuple(f(t) for f in interp)
 
-        cols = [D[:, j] for j in range(6)]
+        cols = [D[:, j] for j in range(N_COLS)]
         th = [theta[i] for i in range(N_THETA)]
         rx, ry = endpoint_residual(th, cols, omega_imu_at, self.R0_cam_imu, self.dist,
                                    self.height, self.n_sub, CA_OPS)

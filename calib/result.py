@@ -66,6 +66,12 @@ class CalibResult:
     init_shift_curve: tuple[tuple[float, float], ...]
     warnings: tuple[str, ...]
     timings_s: dict[str, float] = field(default_factory=dict)
+    #: What the final stage fitted (``endpoints``, ``tracks`` or ``both``) and, with tracks,
+    #: the inter-frame tracks' errors (inliers) and counts.
+    residuals: str = "endpoints"
+    tracks: ErrorStats | None = None
+    n_tracks: int = 0
+    n_track_outliers: int = 0
 
     def __post_init__(self) -> None:
         if self.status not in ("ok", "warning", "failed"):
@@ -81,6 +87,9 @@ class CalibResult:
             "holdout_inliers": self.holdout.to_dict(), "holdout_all": self.holdout_all.to_dict(),
             "n_outliers": self.n_outliers, "n_flipped": self.n_flipped,
             "residual_sigma_px": self.residual_sigma_px,
+            "residuals": self.residuals, "n_tracks": self.n_tracks,
+            "n_track_outliers": self.n_track_outliers,
+            "tracks_inliers": None if self.tracks is None else self.tracks.to_dict(),
             "warnings": list(self.warnings), "timings_s": dict(self.timings_s),
             "calibration": self.calibration.to_dict(),
         }

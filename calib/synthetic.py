@@ -51,7 +51,8 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
                  roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
                  shift_error_s: float = 0.03, focal_error: float = 0.05,
                  gyro_scale: np.ndarray | None = None, centre_k: int = 0,
-                 centre_noise_px: float = 0.0, readout_s: float = 0.025) -> SyntheticProblem:
+                 centre_noise_px: float = 0.0, readout_s: float = 0.025,
+                 tracked: bool = False, end_bias_px: float = 0.0) -> SyntheticProblem:
     """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
 
     ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
@@ -59,7 +60,11 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     track sampled at 33 times over the streak, resampled by :func:`calib.data.centre_points`),
     with Gaussian noise ``centre_noise_px`` per coordinate. ``readout_s``: the true rolling-shutter
     readout (0: a global shutter, which the initial guess then states exactly; else the guess
-    is 20 ms).
+    is 20 ms). ``tracked``: the dots are fixed in the scene (a laser grid), so each frame sees
+    the dots of the previous one where they moved to (dots that leave the frame are replaced
+    by new ones with new ids), and the streaks carry their time midpoints (with the endpoint
+    noise): what :mod:`calib.tracks` pairs. ``end_bias_px``: both ends of every streak moved
+    outwards along the streak by this much (a detector's length bias; midpoints unaffected).
     """
     rng = np.random.default_rng(seed)
     cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
@@ -76,13 +81,30 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     model = BlurModel(truth, GyroTrace(t_dense, omega(t_dense) + truth.gyro_bias_radps))
     t_imu = np.arange(frame_t[0] - 0.25, frame_t[-1] + 0.25, 1.0 / rate_hz)
     w_true = omega(t_imu)
-    starts, ends, fts, frames, ids, centres = [], [], [], [], [], []
+    starts, ends, fts, frames, ids, centres, mids = [], [], [], [], [], [], []
+
+    def new_dots(n: int) -> np.ndarray:
+        return np.stack([rng.uniform(40, 1240, n), rng.uniform(40, 680, n)], axis=1)
+
+    dot_id = np.arange(dots_per_frame)
+    px = np.zeros((0, 2))
+    t_prev = 0.0
     for i, ft in enumerate(frame_t):
-        px = np.stack([rng.uniform(40, 1240, dots_per_frame),
-                       rng.uniform(40, 680, dots_per_frame)], axis=1)
         t_ref = model.default_reference_time(ft, exposure)
+        if not tracked or i == 0:
+            px = new_dots(dots_per_frame)
+        else:
+            px = model.point_track(px, np.full(len(px), t_prev), np.array([t_ref]))[:, 0]
+            gone = ~np.all((px > [40, 40]) & (px < [1240, 680]), axis=1)
+            px[gone] = new_dots(int(gone.sum()))
+            dot_id = dot_id.copy()
+            dot_id[gone] = dot_id.max() + 1 + np.arange(int(gone.sum()))
+        t_prev = t_ref
         s, e, ts, te = model.streak_endpoints(px, t_ref, ft, exposure)
         ok = np.all((s > 3) & (e > 3) & (s < [1276, 716]) & (e < [1276, 716]), axis=1)
+        if tracked:
+            mids.append(model.point_track(px[ok], np.full(ok.sum(), t_ref),
+                                          ((ts + te) / 2)[ok, None])[:, 0])
         if centre_k:
             tau = np.linspace(0.0, 1.0, 33)
             path = model.point_track(px[ok], np.full(ok.sum(), t_ref),
@@ -93,9 +115,17 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
         ends.append(e[ok])
         fts.append(np.full(ok.sum(), ft))
         frames.append(np.full(ok.sum(), i))
-        ids.append(np.flatnonzero(ok))
-    start = np.concatenate(starts) + rng.normal(0, endpoint_noise_px, (sum(map(len, ids)), 2))
-    end = np.concatenate(ends) + rng.normal(0, endpoint_noise_px, start.shape)
+        ids.append(dot_id[ok])
+    start = np.concatenate(starts)
+    end = np.concatenate(ends)
+    if end_bias_px:
+        d = (end - start) / np.maximum(np.linalg.norm(end - start, axis=1), 1e-9)[:, None]
+        start, end = start - end_bias_px * d, end + end_bias_px * d
+    start = start + rng.normal(0, endpoint_noise_px, start.shape)
+    end = end + rng.normal(0, endpoint_noise_px, start.shape)
+    mid = None
+    if tracked:
+        mid = np.concatenate(mids) + rng.normal(0, endpoint_noise_px, start.shape)
     ft_all = np.concatenate(fts)
     centre = None
     if centre_k:
@@ -103,7 +133,7 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
         centre = centre + rng.normal(0, centre_noise_px, centre.shape)
     streaks = StreakSet(start, end, ft_all - frame_t[0], np.full(ft_all.size, exposure),
                         np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]),
-                        centre=centre)
+                        centre=centre, mid=mid)
     M = np.eye(3) if gyro_scale is None else np.asarray(gyro_scale, float)
     w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps,
                                                                  w_true.shape)

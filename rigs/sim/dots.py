@@ -23,7 +23,7 @@ from rigs.sim.motion import TrueMotion
 #: float64 resolution of the clock value).
 ROW_TIME_MAX_ITER = 60
 #: Dense samples per streak used for visibility, length and the centre line.
-DENSE_SAMPLES = 129
+DENSE_SAMPLES = 129  # odd: the middle sample is the time midpoint
 #: Most centre-line points written per streak.
 MAX_CENTERLINE_POINTS = 32
 #: Target spacing of centre-line points (px); keeps truth.yaml small enough to load fast.
@@ -128,6 +128,12 @@ class FrameStreaks:
     @property
     def end(self) -> np.ndarray:
         return self.path[:, -1]
+
+    @property
+    def mid(self) -> np.ndarray:
+        """``(J, 2)`` positions at the time midpoint ``(t_start + t_end) / 2``: the point that
+        halves the streak's light (``DENSE_SAMPLES`` is odd)."""
+        return self.path[:, DENSE_SAMPLES // 2]
 
     def centerline(self, j: int) -> np.ndarray:
         """At most 32 points ``(n, 2)``, start to end, equally spaced in time, about one per

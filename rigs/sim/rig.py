@@ -212,7 +212,7 @@ class SimRig:
         for j in np.flatnonzero(s.visible):
             out.append({
                 "dot": int(j),
-                "start": _r(s.start[j], 6), "end": _r(s.end[j], 6),
+                "start": _r(s.start[j], 6), "end": _r(s.end[j], 6), "mid": _r(s.mid[j], 6),
                 "t_start_ns": round(s.t_start_s[j] * 1e9),
                 "t_end_ns": round(s.t_end_s[j] * 1e9),
                 "centerline": [_r(q, 3) for q in s.centerline(int(j))],
