@@ -59,6 +59,7 @@ def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
     errors: list[float] = []
+    mid_errors: list[float] = []
     n_oriented = n_long = 0
     n_inside = n_found = 0
     n_det_unclipped = n_det_real = 0
@@ -67,6 +68,9 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
         d = table[table["frame"] == fr["index"]]
         s = d[["start_x", "start_y"]].to_numpy(float)
         e = d[["end_x", "end_y"]].to_numpy(float)
+        m = d[["mid_x", "mid_y"]].to_numpy(float)
+        M = np.array([st.get("mid", [np.nan, np.nan]) for st in fr.get("streaks") or []],
+                     float).reshape(-1, 2)
         clipped = d["clipped"].to_numpy(bool)
         n_inside += int(inside.sum())
         n_det_unclipped += int((~clipped).sum())
@@ -86,11 +90,17 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
             if not inside[c]:
                 continue
             errors += [float(np.linalg.norm(s[r] - S[c])), float(np.linalg.norm(e[r] - E[c]))]
+            if np.all(np.isfinite(M[c])) and not d["saturated"].to_numpy(bool)[r]:
+                mid_errors.append(float(np.linalg.norm(m[r] - M[c])))
             if length[c] > 5.0:
                 n_long += 1
                 n_oriented += int(same[r, c] <= swap[r, c])
     err = np.array(errors) if errors else np.array([np.nan])
+    mid = np.array(mid_errors) if mid_errors else np.array([np.nan])
     return {
+        # Time midpoints (what calibration's inter-frame tracks use), unsaturated streaks.
+        "mid_error_median_px": float(np.median(mid)),
+        "mid_error_p95_px": float(np.percentile(mid, 95)),
         "endpoint_error_median_px": float(np.median(err)),
         "endpoint_error_p95_px": float(np.percentile(err, 95)),
         "orientation_correct": n_oriented / max(n_long, 1),
@@ -173,7 +183,8 @@ def main() -> int:
         summary = {}
         for preset in args.presets:
             rs = [r for r in results["runs"] if r["preset"] == preset]
-            keys = ("endpoint_error_median_px", "endpoint_error_p95_px", "orientation_correct",
+            keys = ("endpoint_error_median_px", "endpoint_error_p95_px", "mid_error_median_px",
+                    "mid_error_p95_px", "orientation_correct",
                     "recall_inside", "precision_unclipped", "detect_fps", "baseline_fps",
                     "time_ratio")
             summary[preset] = {k: float(np.median([r[k] for r in rs])) for k in keys}

@@ -61,6 +61,9 @@ SCALE_Z = 3.0
 #: Gauss–Newton converges in two or three Jacobians.
 FINE_DELTA_SIGMAS = 5.0
 RESIDUALS = ("auto", "endpoints", "tracks", "both")
+#: ``auto`` fits tracks alone when they number at least this share of the training streaks,
+#: else tracks and endpoints together (tracks alone would discard most of the data).
+MIN_TRACK_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -83,8 +86,10 @@ class FitOptions:
     #: What the final stage fits: ``endpoints`` (each streak's end predicted from its start),
     #: ``tracks`` (each dot's time midpoint carried to the next frame, :mod:`calib.tracks`;
     #: insensitive to biased streak ends), ``both``, or ``auto``: tracks when the streaks
-    #: carry midpoints and enough of them pair up, else endpoints with a warning saying why
-    #: (the result's ``residuals`` names the choice). Initialisation always uses endpoints.
+    #: carry midpoints and enough of them pair up (both when tracks are under
+    #: :data:`MIN_TRACK_SHARE` of the streaks, endpoints when under 30 or without midpoints;
+    #: a warning says why). The result's ``residuals`` names the choice. Initialisation always
+    #: uses endpoints.
     residuals: str = "auto"
 
     def __post_init__(self) -> None:
@@ -254,6 +259,11 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
             warnings.append(f"only {len(tracks)} inter-frame tracks paired up (consecutive "
                             f"frames must see the same dots): fitted endpoints instead")
             mode, use_ep, tracks = "endpoints", True, None
+        elif options.residuals == "auto" and len(tracks) < MIN_TRACK_SHARE * len(train):
+            warnings.append(f"only {len(tracks)} inter-frame tracks for {len(train)} "
+                            f"streaks (few dots unflagged in consecutive frames): fitted both "
+                            f"tracks and endpoints, so a detector's length bias enters")
+            mode, use_ep = "both", True
         elif len(tracks) < MIN_STREAKS:
             raise CalibError(f"only {len(tracks)} inter-frame tracks found (need "
                              f"{MIN_STREAKS}): consecutive frames must see the same dots")

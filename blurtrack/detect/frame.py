@@ -175,7 +175,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     fit = fit_edges(A, lens, edge_sigma / ref.step)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
-    trimmed = trim_lines(ref, pos_a, pos_b)
+    trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)
     keep = np.flatnonzero(fit.valid)
     if keep.size == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels)

@@ -91,6 +91,33 @@ def test_decelerating_streaks_have_unbiased_ends(length: float) -> None:
     assert abs(np.mean(out_start)) < 0.1 and abs(np.mean(out_end)) < 0.1
 
 
+@pytest.mark.parametrize("length", [9.0, 14.0, 24.0])
+def test_time_midpoints_of_decelerating_streaks(length: float) -> None:
+    # Speed falling from 1.4 to 0.6 times the mean: the dot is at 60 % of the streak at
+    # mid-exposure (1.2-2.4 px past the centre). The blurred profile's halving point between
+    # the ends is pulled back towards the centre (by 0.2-0.35 px here before the correction,
+    # :func:`blurtrack.detect.centreline.blur_corrected_mid`); the mean signed error along
+    # the streak of twelve streaks must stay under 0.05 px.
+    rng = np.random.default_rng(11)
+    curves = []
+    for k in range(12):
+        c0 = np.array([35.0 + 70 * (k % 5), 35.0 + 60 * (k // 5)]) + rng.uniform(-3, 3, 2)
+        ang = rng.uniform(0, 2 * np.pi)
+        d = length * np.array([np.cos(ang), np.sin(ang)])
+        curves.append(line(c0 - d / 2, c0 + d / 2, n=801, accel=0.4))
+    img = quantise(render_streaks((180, 380), curves, 0.6, 1.3, 0.03, 0.002, 4))
+    fs = detect_frame(img)
+    assert len(fs) == 12
+    along, offset = [], []
+    for c in curves:
+        i, _, _ = _match(fs, c[0], c[-1])
+        u = (c[-1] - c[0]) / length
+        along.append(float(np.dot(fs.time_mid[i] - c[400], u)))
+        offset.append(float(np.dot(c[400] - (c[0] + c[-1]) / 2, u)))
+    assert np.mean(offset) > 0.09 * length
+    assert abs(np.mean(along)) < 0.05, np.mean(along)
+
+
 def test_round_static_dots_have_near_zero_length() -> None:
     # Several dots, so that the frame's dot width (which short streaks rely on) is well known.
     rng = np.random.default_rng(5)
