@@ -2,7 +2,8 @@
 
 Modules: :mod:`calib.params` (parameter vector), :mod:`calib.data` (streaks, hold-out),
 :mod:`calib.problem` (the residual and predicted track from blurtrack.model),
-:mod:`calib.centreline` (centre-line residuals), :mod:`calib.jacobian` (exact CasADi
+:mod:`calib.tracks` (inter-frame tracks of streak midpoints, the default final-stage
+residual), :mod:`calib.centreline` (centre-line residuals), :mod:`calib.jacobian` (exact CasADi
 Jacobians), :mod:`calib.framenoise` (frame-correlated gyro-noise GLS), :mod:`calib.init`
 (time-shift and focal search), :mod:`calib.solve` (robust Levenberg–Marquardt),
 :mod:`calib.uncertainty` (sigma, observability), :mod:`calib.fit` (the driver),

@@ -56,6 +56,14 @@ def render(summary: dict[str, Any], figs: list[tuple[str, bytes]],
         parts.append(f"<h2>Fit</h2><p>status: <b>{html.escape(str(fit.get('status')))}</b>, "
                      f"iterations {fit.get('iterations')}, outliers {fit.get('n_outliers')}, "
                      f"wrongly oriented {fit.get('n_flipped')}</p>")
+        tr = fit.get("tracks_inliers")
+        kind = html.escape(str(fit.get("residuals", "endpoints")))
+        extra = ""
+        if isinstance(tr, dict):
+            extra = (f"; {fit.get('n_tracks')} inter-frame tracks of streak midpoints "
+                     f"({fit.get('n_track_outliers')} outliers), error mean "
+                     f"{_fmt(tr.get('mean_px'))} px, p95 {_fmt(tr.get('p95_px'))} px")
+        parts.append(f"<p>fitted residuals: <b>{kind}</b>{extra}</p>")
         rows = {k: {"value": v, "sigma": (fit.get("sigma") or {}).get(k),
                     "truth": (fit.get("truth") or {}).get(k)}
                 for k, v in fit["values"].items()}

@@ -127,12 +127,13 @@ def test_options_and_time_rows_are_validated() -> None:
                      np.arange(2)).rows.tolist() == [[0.0, 1.0], [0.0, 1.0]]
 
 
-def test_auto_picks_tracks_both_or_endpoints() -> None:
+def test_auto_picks_tracks_or_endpoints() -> None:
     p = make_problem(seed=4, n_frames=14, dots_per_frame=30, endpoint_noise_px=0.05,
                      tracked=True, shift_error_s=0.01, focal_error=0.02)
     res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0))
     assert res.residuals == "tracks" and res.n_tracks > 300
-    # Midpoints of most streaks moved far off: the few tracks left join the endpoints.
+    # Midpoints of most streaks moved far off: few tracks are left, fitted alone, with a
+    # warning.
     rng = np.random.default_rng(0)
     ang = rng.uniform(0, 2 * np.pi, len(p.streaks))
     off = np.stack([np.cos(ang), np.sin(ang)], axis=1) * 40.0
@@ -141,8 +142,8 @@ def test_auto_picks_tracks_both_or_endpoints() -> None:
 
     few = calibrate(replace(p.streaks, mid=mid), p.gyro, p.initial,
                     FitOptions(holdout_fraction=0))
-    assert few.residuals == "both" and 30 <= few.n_tracks < 0.25 * len(p.streaks)
-    assert any("fitted both" in w for w in few.warnings)
+    assert few.residuals == "tracks" and 30 <= few.n_tracks < 0.25 * len(p.streaks)
+    assert any("the fit uses the tracks only" in w for w in few.warnings)
     bare = calibrate(replace(p.streaks, mid=None), p.gyro, p.initial,
                      FitOptions(holdout_fraction=0))
     assert bare.residuals == "endpoints" and bare.tracks is None
