@@ -16,9 +16,10 @@ from blurtrack.session import ImuConfig, SessionMeta, SessionWriter
 from calib.synthetic import make_problem
 
 
-def _write_session(folder: Path, seed: int = 21) -> tuple[Path, Calibration]:
+def _write_session(folder: Path, seed: int = 21,
+                   tracked: bool = False) -> tuple[Path, Calibration]:
     p = make_problem(seed=seed, n_frames=10, dots_per_frame=30, endpoint_noise_px=0.05,
-                     shift_error_s=0.02, focal_error=0.04)
+                     shift_error_s=0.02, focal_error=0.04, tracked=tracked)
     s = p.streaks
     T = np.eye(4)
     T[:3, :3] = p.initial.R_cam_imu
@@ -34,9 +35,11 @@ def _write_session(folder: Path, seed: int = 21) -> tuple[Path, Calibration]:
             sel = s.frame == i
             frames.append({"index": i, "timestamp_ns": int(ts), "exposure_ns": 20_000_000,
                            "streaks": [{"dot": int(d), "start": a.tolist(), "end": b.tolist(),
-                                        "centerline": [a.tolist(), b.tolist()], "inside": True}
-                                       for d, a, b in zip(s.streak_id[sel], s.start[sel],
-                                                          s.end[sel], strict=True)]})
+                                        "centerline": [a.tolist(), b.tolist()], "inside": True,
+                                        **({"mid": m.tolist()} if tracked else {})}
+                                       for d, a, b, m in zip(
+                                           s.streak_id[sel], s.start[sel], s.end[sel],
+                                           (s.mid if tracked else s.start)[sel], strict=True)]})
         w.write_truth({"calibration": p.truth.to_dict(), "simulator": {"preset": "test"},
                        "frames": frames})
     from blurtrack.session import load_session
@@ -115,3 +118,32 @@ def test_calibrate_with_centre_lines(session_dir, tmp_path: Path, capsys) -> Non
     summ = json.loads((tmp_path / "calib.summary.json").read_text())
     assert summ["status"] in ("ok", "warning")
     assert summ["options"]["centreline"] is True
+
+
+def test_calibrate_fits_tracks_where_dots_persist(tmp_path: Path, capsys) -> None:
+    folder, truth = _write_session(tmp_path / "tracked", seed=22, tracked=True)
+    out = tmp_path / "calib.yaml"
+    assert main(["calibrate", str(folder), "--out", str(out)]) == 0
+    assert "fitted tracks:" in capsys.readouterr().out
+    summ = json.loads((tmp_path / "calib.summary.json").read_text())
+    assert summ["residuals"] == "tracks" and summ["n_tracks"] > 150
+    assert summ["tracks_inliers"]["mean_px"] < 0.2
+    assert abs(summ["error_vs_truth"]["fx"]) < 2.0
+    rep = tmp_path / "report"
+    assert main(["report", str(folder), "--calib", str(out), "--out", str(rep),
+                 "--overlays", "0"]) == 0
+    assert "fitted residuals: <b>tracks</b>" in (rep / "report.html").read_text()
+
+
+def test_tracks_refused_without_midpoints(session_dir, tmp_path: Path, capsys) -> None:
+    folder, _ = session_dir  # its truth (and so its table) has no midpoints
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"), "--from-truth",
+                 "--residuals", "tracks"]) == 2
+    assert "midpoints" in capsys.readouterr().err
+    assert not (tmp_path / "c.yaml").exists()
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
+                 "--from-truth"]) == 0
+    assert "fitted endpoints" in capsys.readouterr().out
+    summ = json.loads((tmp_path / "c.summary.json").read_text())
+    assert summ["residuals"] == "endpoints"
+    assert any("no time midpoints" in w for w in summ["warnings"])
