@@ -121,7 +121,7 @@ def test_calibrate_with_centre_lines(session_dir, tmp_path: Path, capsys) -> Non
 
 
 def test_calibrate_fits_tracks_where_dots_persist(tmp_path: Path, capsys) -> None:
-    folder, truth = _write_session(tmp_path / "tracked", seed=22, tracked=True)
+    folder, _ = _write_session(tmp_path / "tracked", seed=22, tracked=True)
     out = tmp_path / "calib.yaml"
     assert main(["calibrate", str(folder), "--out", str(out)]) == 0
     assert "fitted tracks:" in capsys.readouterr().out
