@@ -72,6 +72,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
         M = np.array([st.get("mid", [np.nan, np.nan]) for st in fr.get("streaks") or []],
                      float).reshape(-1, 2)
         clipped = d["clipped"].to_numpy(bool)
+        saturated = d["saturated"].to_numpy(bool)
         n_inside += int(inside.sum())
         n_det_unclipped += int((~clipped).sum())
         if len(d) == 0 or len(S) == 0:
@@ -90,7 +91,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
             if not inside[c]:
                 continue
             errors += [float(np.linalg.norm(s[r] - S[c])), float(np.linalg.norm(e[r] - E[c]))]
-            if np.all(np.isfinite(M[c])) and not d["saturated"].to_numpy(bool)[r]:
+            if np.all(np.isfinite(M[c])) and not saturated[r]:
                 mid_errors.append(float(np.linalg.norm(m[r] - M[c])))
             if length[c] > 5.0:
                 n_long += 1

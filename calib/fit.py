@@ -108,6 +108,11 @@ def _rayleigh_sigma(rho: np.ndarray) -> float:
     return float(np.median(rho) / 1.1774) if rho.size else 0.0
 
 
+def _outlier_threshold(rho_inliers: np.ndarray) -> float:
+    """Rejection threshold (px) from the current inliers' errors."""
+    return max(OUTLIER_SIGMAS * _rayleigh_sigma(rho_inliers), MIN_OUTLIER_PX)
+
+
 def classify(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
              threshold_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Endpoint errors ``(N,)``, outlier mask and wrongly-oriented mask at ``theta``."""
@@ -286,8 +291,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         new_inl = inl
         if use_ep:
             rho, _, _ = classify(model, theta, train, np.inf)
-            sig = _rayleigh_sigma(rho[inl])
-            thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
+            thr = _outlier_threshold(rho[inl])
             train, rho, flip = _reorient(model, theta, train, thr)
             reoriented ^= flip
             new_inl = rho <= thr
@@ -295,8 +299,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         new_tinl = tinl
         if tracks is not None:
             rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
-            thr_t = max(OUTLIER_SIGMAS * _rayleigh_sigma(rho_t[tinl]), MIN_OUTLIER_PX)
-            new_tinl = rho_t <= thr_t
+            new_tinl = rho_t <= _outlier_threshold(rho_t[tinl])
             changed += np.count_nonzero(new_tinl != tinl)
         if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
             break  # the inlier sets have settled
@@ -304,13 +307,15 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
             raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
                              f"the data contradict it")
-        if tracks is None:
-            fitset = train.subset(inl)
-        elif use_ep:
-            fitset = concat([train.subset(inl), tracks.subset(tinl)])
-        else:
-            fitset = tracks.subset(tinl)
-        sig_fit = _rayleigh_sigma(np.linalg.norm(model.residual_np(theta, fitset), axis=1))
+        parts, errors = [], []
+        if use_ep:
+            parts.append(train.subset(inl))
+            errors.append(rho[inl])
+        if tracks is not None:
+            parts.append(tracks.subset(tinl))
+            errors.append(rho_t[tinl])
+        fitset = parts[0] if len(parts) == 1 else concat(parts)
+        sig_fit = _rayleigh_sigma(np.concatenate(errors))
         lm = levenberg_marquardt(ev_fine, fitset, theta, free,
                                  max(FINE_DELTA_SIGMAS * sig_fit, 1e-3),
                                  max_iter=options.max_iter, step_tol=max(0.1 * sig_fit, 1e-5),
@@ -320,7 +325,7 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     if not use_ep:
         # Endpoint statistics of the training streaks at the track fit (reorientation too).
         rho, _, _ = classify(model, theta, train, np.inf)
-        thr = max(OUTLIER_SIGMAS * _rayleigh_sigma(rho), MIN_OUTLIER_PX)
+        thr = _outlier_threshold(rho)
         train, rho, flip = _reorient(model, theta, train, thr)
         reoriented ^= flip
         inl = rho <= thr

@@ -30,6 +30,7 @@ to a fraction of a pixel, so the pairing is unambiguous.
 from __future__ import annotations
 
 from dataclasses import replace
+from itertools import pairwise
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -74,56 +75,39 @@ def build_tracks(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
                          "mid_y columns that blurtrack detect writes)")
     frames = np.unique(streaks.frame)
     by_frame = {int(f): np.flatnonzero(streaks.frame == f) for f in frames}
-    a_list: list[np.ndarray] = []
-    b_first: list[np.ndarray] = []
-    for k, f in enumerate(frames[:-1]):
-        g = frames[k + 1]
-        if g - f > MAX_FRAME_GAP:
-            continue
-        idx = by_frame[int(f)]
-        a_list.append(idx)
-        b_first.append(np.full(idx.size, by_frame[int(g)][0]))
-    if not a_list:
-        return _pseudo(streaks, np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)),
-                       np.zeros(0)), np.zeros((0, 2), dtype=np.int64)
-    a = np.concatenate(a_list)
-    b0 = np.concatenate(b_first)
-    assert streaks.mid is not None
-    # Predict each midpoint into the later frame; its row there is first guessed as its own,
-    # then taken from the first prediction (one rolling-shutter fixed-point step is ample:
-    # a row error of a pixel moves the time by readout / H).
-    row = streaks.mid[a, 1]
-    pred = streaks.mid[a]
-    for _ in range(2):
-        probe = _pseudo(streaks, a, b0, pred, row)
-        pred = model.residual_np(theta, probe) + probe.end
-        row = pred[:, 1]
-    pairs: list[tuple[int, int, float]] = []
-    off = 0
-    for idx_a, first in zip(a_list, b_first, strict=True):
-        n = idx_a.size
-        f_b = int(streaks.frame[first[0]])
-        idx_b = by_frame[f_b]
-        p = pred[off:off + n]
-        off += n
-        ok = np.all(np.isfinite(p), axis=1)
-        if not np.any(ok):
-            continue
-        dist, j = cKDTree(streaks.mid[idx_b]).query(p[ok], distance_upper_bound=gate_px)
-        hit = np.isfinite(dist)
-        src = idx_a[ok][hit]
-        dst = idx_b[j[hit]]
-        order = np.argsort(dist[hit])
-        seen: set[int] = set()
-        for o in order:
-            if int(dst[o]) in seen:
-                continue  # a later midpoint keeps its closest claimant
-            seen.add(int(dst[o]))
-            pairs.append((int(src[o]), int(dst[o]), float(dist[hit][o])))
-    if not pairs:
-        return _pseudo(streaks, np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)),
-                       np.zeros(0)), np.zeros((0, 2), dtype=np.int64)
-    P = np.array([(s, d) for s, d, _ in pairs], dtype=np.int64)
+    steps = [(by_frame[int(f)], by_frame[int(g)]) for f, g in pairwise(frames)
+             if g - f <= MAX_FRAME_GAP]
+    src: list[np.ndarray] = []
+    dst: list[np.ndarray] = []
+    if steps:
+        a = np.concatenate([ia for ia, _ in steps])
+        b0 = np.concatenate([np.full(ia.size, ib[0]) for ia, ib in steps])
+        # Predict each midpoint into the later frame; its row there is first guessed as its
+        # own, then taken from the first prediction (one rolling-shutter fixed-point step is
+        # ample: a row error of a pixel moves the time by readout / H).
+        row = streaks.mid[a, 1]
+        pred = streaks.mid[a]
+        for _ in range(2):
+            probe = _pseudo(streaks, a, b0, pred, row)
+            pred = model.residual_np(theta, probe) + probe.end
+            row = pred[:, 1]
+        off = 0
+        for idx_a, idx_b in steps:
+            p = pred[off:off + idx_a.size]
+            off += idx_a.size
+            ok = np.all(np.isfinite(p), axis=1)
+            if not np.any(ok):
+                continue
+            dist, j = cKDTree(streaks.mid[idx_b]).query(p[ok], distance_upper_bound=gate_px)
+            hit = np.isfinite(dist)
+            order = np.argsort(dist[hit])
+            claimed = idx_b[j[hit]][order]
+            # A later midpoint keeps its closest claimant (first in distance order).
+            _, first = np.unique(claimed, return_index=True)
+            src.append(idx_a[ok][hit][order][first])
+            dst.append(claimed[first])
+    P = (np.stack([np.concatenate(src), np.concatenate(dst)], axis=1).astype(np.int64)
+         if src else np.zeros((0, 2), dtype=np.int64))
     P = P[np.lexsort((P[:, 0], streaks.frame[P[:, 0]]))]
     tracks = _pseudo(streaks, P[:, 0], P[:, 1], streaks.mid[P[:, 1]],
                      mean_rows(streaks)[P[:, 1]])

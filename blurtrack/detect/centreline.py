@@ -247,17 +247,28 @@ def _light_moments(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray,
     return q, centroid
 
 
+def _lerp(A: np.ndarray, g: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Rows of ``A`` (flat ragged samples, ``(M,)`` or ``(M, 2)``) linearly interpolated at
+    fractional flat indices ``g``, each at most its line's ``last`` index."""
+    i0 = np.floor(g).astype(np.int64)
+    i1 = np.minimum(i0 + 1, last)
+    f = g - i0
+    if A.ndim == 2:
+        f = f[:, None]
+    return A[i0] * (1 - f) + A[i1] * f
+
+
 def trim_lines(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray,
-               sigma: np.ndarray | None = None) -> TrimmedLines:
+               sigma: np.ndarray) -> TrimmedLines:
     """Cut refined lines between fractional sample indices ``pos_a <= pos_b`` (``(N,)``).
 
-    ``sigma`` (``(N,)``, samples): the profiles' blur along the line; given, the time
-    midpoint is the halving point of the whole profile corrected for the blur
-    (:func:`blur_corrected_mid`). Without it, it halves the light between the ends, which a
-    blur pulls towards the dimmer end by ``rho' / rho (L sigma / sqrt(2 pi) + sigma²) / 2``:
-    17 % of the way back towards the centre on the simulator's ``realistic`` preset, which
-    shortened the distance between a dot's midpoints in consecutive frames by 0.5 % (what
-    :mod:`calib.tracks` calibrates from)."""
+    ``sigma`` (``(N,)``, samples): the profiles' blur along the line. The time midpoint is the
+    halving point of the whole profile corrected for the blur (:func:`blur_corrected_mid`).
+    Halving the light between the ends instead (as detection once did) is pulled towards the
+    dimmer end by ``rho' / rho (L sigma / sqrt(2 pi) + sigma²) / 2``: 17 % of the way back
+    towards the centre on the simulator's ``realistic`` preset, which shortened the distance
+    between a dot's midpoints in consecutive frames by 0.5 % (what :mod:`calib.tracks`
+    calibrates from)."""
     r = ref.lines
     st = r.starts
     last = st + r.sizes - 1
@@ -267,35 +278,14 @@ def trim_lines(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray,
     j = np.arange(line.size) - np.repeat(np.concatenate(([0], np.cumsum(n)[:-1])), n)
     u = pos_a[line] + j * ((pos_b - pos_a) / (n - 1))[line]
     g = np.clip(st[line] + u, st[line], last[line])
-    i0 = np.floor(g).astype(np.int64)
-    i1 = np.minimum(i0 + 1, last[line])
-    f = (g - i0)[:, None]
-    pts = r.points[i0] * (1 - f) + r.points[i1] * f
-    prof = ref.profile[i0] * (1 - f[:, 0]) + ref.profile[i1] * f[:, 0]
+    pts = _lerp(r.points, g, last[line])
+    prof = _lerp(ref.profile, g, last[line])
     cuts = np.cumsum(n)[:-1]
     ends_b = np.cumsum(n) - 1
     ends_a = ends_b - n + 1
-    if sigma is not None:
-        q, centroid = _light_moments(ref, pos_a, pos_b, sigma)
-        q = np.clip(blur_corrected_mid(q, centroid, pos_a, pos_b, sigma), pos_a, pos_b)
-        g = st + q
-        j0 = np.clip(np.floor(g).astype(np.int64), st, last)
-        j1 = np.minimum(j0 + 1, last)
-        fr = (g - j0)[:, None]
-        mid = r.points[j0] * (1 - fr) + r.points[j1] * fr
-    else:
-        # Where the cumulative light between the endpoints reaches half, each sample's light
-        # centred on its point (midpoint rule), interpolated between points.
-        w = np.maximum(prof, 0.0)
-        cum = np.cumsum(w)
-        local = cum - np.repeat(cum[ends_a] - w[ends_a], n) - 0.5 * w
-        half = 0.5 * np.repeat(local[ends_b] + 0.5 * w[ends_b], n)
-        idx = np.where(local >= half, np.arange(line.size), line.size)
-        k = np.clip(np.minimum.reduceat(idx, ends_a), ends_a + 1, ends_b)
-        km1 = k - 1
-        gap = local[k] - local[km1]
-        f = np.clip((half[k] - local[km1]) / np.where(gap > 0, gap, 1.0), 0.0, 1.0)
-        mid = pts[km1] * (1 - f[:, None]) + pts[k] * f[:, None]
+    q, centroid = _light_moments(ref, pos_a, pos_b, sigma)
+    q = np.clip(blur_corrected_mid(q, centroid, pos_a, pos_b, sigma), pos_a, pos_b)
+    mid = _lerp(r.points, np.clip(st + q, st, last), last)
     return TrimmedLines(
         points=ragged.split_at(pts, cuts),
         profile=ragged.split_at(prof, cuts),
