@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from blurtrack import streaks as streak_table
-from blurtrack.calibration import Calibration
-from blurtrack.rotation import rotation_angle_deg
-from blurtrack.session import load_session
+from blurtrack.geometry.rotation import rotation_angle_deg
+from blurtrack.io import streaks as streak_table
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import load_session
 from calib.data import relative_gyro, streaks_from_table
 from calib.fit import RESIDUALS, FitOptions, calibrate
 from calib.params import DEFAULT_FIT, theta_from

@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
 from blurtrack.detect.session import detect_session  # noqa: E402
-from blurtrack.session import load_session  # noqa: E402
+from blurtrack.io.session import load_session  # noqa: E402
 
 MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
 

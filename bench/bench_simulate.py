@@ -3,7 +3,8 @@
 Prints JSON: per-preset wall time of ``write_session`` (rendering, noise, PNG, truth), the
 median per-frame render time, and the same run's baseline (100 PNG encodes of a 1280 x 720
 frame plus a Gaussian blur each, a fixed workload), so that ratios stay comparable on a noisy
-machine. Per preset it also reports how far ``blurtrack.trajectory.BlurModel`` with the TRUE
+machine. Per preset it also reports how far ``blurtrack.geometry.blur_model.BlurModel`` with the
+TRUE
 calibration lands from the true streak endpoints: with an ideal 1 kHz gyro (simulator/model
 agreement) and with the preset's own gyro (the error floor that gyro noise, bias, scale and
 sampling leave for calibration). Usage:
@@ -27,8 +28,8 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from blurtrack.gyro import GyroTrace  # noqa: E402
-from blurtrack.trajectory import BlurModel  # noqa: E402
+from blurtrack.geometry.blur_model import BlurModel  # noqa: E402
+from blurtrack.geometry.gyro import GyroTrace  # noqa: E402
 from rigs.sim.preset import SimPreset, get_preset  # noqa: E402
 from rigs.sim.rig import SimRig  # noqa: E402
 from rigs.sim.shake import default_shake_path  # noqa: E402

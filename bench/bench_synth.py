@@ -30,13 +30,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth.dataset import DatasetSpec, build
 from blurtrack.synth.images import camera_for_size, list_images, load_image
 from blurtrack.synth.motion import open_source
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
-from blurtrack.trajectory import BlurModel
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CALIB = Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))

@@ -7,10 +7,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import CoverageError
-from blurtrack.session import Session
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import Session
 
 
 def trajectory_grid(model: BlurModel, frame_t_s: float, exposure_s: float, nx: int = 9,

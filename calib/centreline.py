@@ -12,7 +12,7 @@ residual is the signed perpendicular distance to that segment's line::
 
 with ``A``, ``B`` the segment's nodes and ``×`` the 2-D cross product. The CasADi graph selects
 the segment by a one-hot data vector (the association), so the residual is differentiated
-exactly through the same :mod:`blurtrack.model` functions as the endpoint residual.
+exactly through the same :mod:`blurtrack.geometry.kernels` functions as the endpoint residual.
 
 Weights: each of a streak's ``K`` points gets ``CENTRE_WEIGHT / K``, so all of them together
 weigh as much as one endpoint coordinate and a centre line never outweighs its endpoints.
@@ -73,7 +73,7 @@ def perpendicular(ax: Any, ay: Any, bx: Any, by: Any, px: Any, py: Any, ops: Any
 def centre_residual_np(us: np.ndarray, vs: np.ndarray, centre: np.ndarray, seg: np.ndarray,
                        factor: np.ndarray) -> np.ndarray:
     """Weighted centre-line residuals ``(N, K)`` for a fixed association ``seg`` ``(N, K)``."""
-    from blurtrack.model import NUMPY_OPS
+    from blurtrack.geometry.kernels import NUMPY_OPS
 
     rows = np.arange(us.shape[0])[:, None]
     c = np.nan_to_num(centre)

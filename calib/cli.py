@@ -68,8 +68,8 @@ def _streak_args(p: argparse.ArgumentParser) -> None:
 
 
 def _load(args: argparse.Namespace):
-    from blurtrack import streaks as streak_table
-    from blurtrack.session import load_session
+    from blurtrack.io import streaks as streak_table
+    from blurtrack.io.session import load_session
     from calib.errors import CalibError
 
     session = load_session(args.session)
@@ -92,8 +92,8 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     """The simulator's true parameters in theta terms (rotation relative to the initial one)."""
     import numpy as np
 
-    from blurtrack.calibration import Calibration
     from blurtrack.errors import BlurTrackError
+    from blurtrack.io.calibration import Calibration
     from calib.params import rotation_error_rad, theta_from
     from calib.result import named
 
@@ -117,7 +117,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from blurtrack.yamlio import write_text_atomic
+    from blurtrack.io.yamlio import write_text_atomic
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.errors import CalibError
@@ -192,7 +192,7 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from blurtrack.calibration import Calibration
+    from blurtrack.io.calibration import Calibration
     from blurtrack.report.build import build_report
     from calib.errors import CalibError
 

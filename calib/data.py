@@ -12,8 +12,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
-from blurtrack.camera import Camera
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
 from calib.errors import CalibError
 
 

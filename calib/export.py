@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from blurtrack.calibration import Calibration
-from blurtrack.yamlio import write_text_atomic
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.yamlio import write_text_atomic
 
 
 def _num(v: float) -> str:

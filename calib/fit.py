@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
-from blurtrack.model import constant_mat3, omega_cam_fn
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.geometry.kernels import constant_mat3, omega_cam_fn
+from blurtrack.io.calibration import Calibration
 from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
@@ -50,7 +50,7 @@ OUTLIER_SIGMAS = 5.0
 MIN_OUTLIER_PX = 0.5
 SUBSAMPLE = 2000
 #: Integration sub-step of the initialisation and subsample stages (the final stage uses
-#: blurtrack.model's default 1 ms).
+#: blurtrack.geometry.kernels's default 1 ms).
 COARSE_SUBSTEP_S = 3e-3
 #: Robust endpoint sigma (px) above which the data are called contradictory.
 MAX_RESIDUAL_SIGMA_PX = 3.0
@@ -77,7 +77,8 @@ class FitOptions:
     max_iter: int = 30
     seed: int = 0
     #: Cubic-spline upsampling of the gyro before linear interpolation: the blur model's
-    #: (:data:`blurtrack.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction and
+    #: (:data:`blurtrack.geometry.gyro.GYRO_UPSAMPLE`); another value fits a model that prediction
+    #: and
     #: synthesis do not use, so it is for experiments only.
     gyro_upsample: int = GYRO_UPSAMPLE
     #: Centre-line residuals (:mod:`calib.centreline`) in the final stage; the streaks must

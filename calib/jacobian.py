@@ -19,7 +19,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from blurtrack.model import NUMPY_OPS
+from blurtrack.geometry.kernels import NUMPY_OPS
 from calib.centreline import (
     associate,
     centre_data,

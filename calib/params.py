@@ -8,7 +8,8 @@ camera side, ``R_cam_imu = exp([rot]_x) · R_cam_imu_0``, and the symmetric gyro
 cross-axis error ``S`` of the measurement model ``ω_meas = (I + S) R_cam_imuᵀ ω_cam + bias``
 (DESIGN: "scale and misalignment optional"; its antisymmetric part is a rotation, already
 covered by ``rot``). ``I + S`` is the calibration's ``gyro_scale_matrix``, which the blur model
-(:class:`blurtrack.trajectory.BlurModel`) applies everywhere, so ``S`` is fitted by default.
+(:class:`blurtrack.geometry.blur_model.BlurModel`) applies everywhere, so ``S`` is fitted by
+default.
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.rotation import so3_exp, so3_log
+from blurtrack.geometry.rotation import so3_exp, so3_log
+from blurtrack.io.calibration import Calibration
 from calib.errors import CalibError
 
 #: Scalar parameter names in ``theta`` order.
@@ -88,7 +89,7 @@ def symmetric_scale_form(calib: Calibration) -> Calibration:
     ``M R_cam_imuᵀ = P (R_cam_imu Qᵀ)ᵀ``: the rotation factor of ``M`` is a rotation of the
     gyro's axes, indistinguishable from the mounting rotation, and moves into it.
 
-    >>> from blurtrack.camera import Camera
+    >>> from blurtrack.geometry.camera import Camera
     >>> c = Calibration(Camera((64, 48), (50.0, 50.0, 32.0, 24.0)),
     ...                 gyro_scale_matrix=so3_exp(np.array([0.0, 0.0, 0.01])) * 1.002)
     >>> n = symmetric_scale_form(c)

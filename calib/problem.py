@@ -1,4 +1,4 @@
-"""The calibration residual, built once from :mod:`blurtrack.model` for numpy and CasADi.
+"""The calibration residual, built once from :mod:`blurtrack.geometry.kernels` for numpy and CasADi.
 
 Residual of one streak (DESIGN's pure-rotation model, rolling shutter included): the measured
 start ``s`` was seen when its row started exposing, ``t_s = frame_t + readout · s_y / H``; the
@@ -8,7 +8,7 @@ Warping ``s`` from ``t_s`` to ``t_e`` with the gyro-driven model must land on ``
     r = warp_c(s, t_s, t_e; theta) - e          (2 values per streak, pixels)
 
 At the true parameters and noise-free endpoints ``r = 0`` exactly: the end satisfies the same
-row-time equation that :func:`blurtrack.model.rolling_endpoint_c` solves by fixed-point
+row-time equation that :func:`blurtrack.geometry.kernels.rolling_endpoint_c` solves by fixed-point
 iteration, and this form needs a single warp per streak instead of five (see
 docs/calibration.md). The same function :func:`endpoint_residual` is evaluated on numpy arrays
 (initialisation, outlier tests) and on CasADi ``MX`` columns (the solver's exact Jacobian).
@@ -24,8 +24,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from blurtrack.gyro import GyroTrace
-from blurtrack.model import (
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.kernels import (
     NUMPY_OPS,
     constant_mat3,
     matmul3,
@@ -95,7 +95,8 @@ def predicted_track(
 
     ``n_sub + 1`` nodes ``(u_k, v_k)`` at the integration sub-step ends ``t_s + k h``,
     ``h = (t_e - t_s) / n_sub``: the partial products of the same midpoint Lie-group
-    integrator as :func:`blurtrack.model.relative_rotation` (same ω samples, same order), so
+    integrator as :func:`blurtrack.geometry.kernels.relative_rotation` (same ω samples, same
+    order), so
     the last node is :func:`endpoint_residual`'s warped start exactly (bit for bit in numpy).
     Arguments as :func:`endpoint_residual`; returns lists of ``n_sub + 1`` arrays/columns.
     """

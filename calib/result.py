@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
+from blurtrack.io.calibration import Calibration
 from calib.params import THETA_NAMES
 
 

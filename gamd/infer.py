@@ -78,7 +78,7 @@ def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | 
     ``heat_dir`` is ``blurtrack predict``'s output folder (or its ``heat`` subfolder); every
     frame needs its heat map when the network uses them (no silent fallback).
     """
-    from blurtrack.session import load_session
+    from blurtrack.io.session import load_session
 
     model, config, _ = load_model(checkpoint)
     sess = load_session(session)

@@ -121,7 +121,7 @@ def _open_rig_camera(u: DeviceUrl, clock: Clock | None) -> VirtualCamera:
     Not paced by default (``realtime=0``): the renderer is slower than real time at full
     resolution, and the frames' stamps follow the rig's schedule on the shared timeline
     whenever they are delivered, so nothing is dropped."""
-    from rigs.simrig import rig_from_params
+    from rigs.sim.shared_rig import rig_from_params
 
     u.check_keys({"rig", "seed", "frames", "realtime"})
     shared = rig_from_params(u.url, u.params, clock)

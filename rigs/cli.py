@@ -93,7 +93,7 @@ def run_record(args: argparse.Namespace) -> int:
     from rigs.errors import RigError
     from rigs.imu import open_imu
     from rigs.recorder import Recorder, RecorderConfig, RecorderStatus
-    from rigs.simrig import rig_guess_for_urls
+    from rigs.sim.shared_rig import rig_guess_for_urls
 
     if not args.imu and not args.camera:
         raise RigError("give --imu URL, --camera URL or both")

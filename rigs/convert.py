@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import BlurTrackError
-from blurtrack.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
+from blurtrack.io.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
 from rigs.errors import RecorderLogError
 from rigs.reclog import LogScan, iter_frames, scan_log
 from rigs.recorder import rate_of

@@ -145,8 +145,8 @@ def _sim_config(u: DeviceUrl) -> VirtualImuConfig:
 
 
 def _rig_config(u: DeviceUrl, clock: Clock | None) -> tuple[VirtualImuConfig, MotionFn]:
-    """A board sampling a rigs.sim rig (rate from the rig's preset; see rigs.simrig)."""
-    from rigs.simrig import rig_from_params
+    """A board sampling a rigs.sim rig (rate from the rig's preset; see rigs.sim.shared_rig)."""
+    from rigs.sim.shared_rig import rig_from_params
 
     if "rate" in u.params or "samples" in u.params:
         raise DeviceUrlError(f"{u.url}: with rig=..., rate and samples come from the rig")

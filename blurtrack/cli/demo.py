@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _synth(out: Path, data: Path) -> int:
-    from blurtrack.calibration import Calibration
+    from blurtrack.io.calibration import Calibration
     from blurtrack.synth.demo import demo_dataset
 
     calib = Calibration.from_yaml(out / "calib.yaml")

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from blurtrack.detect.session import detect_session
     from blurtrack.detect.table import write_table
     from blurtrack.errors import DetectionError
-    from blurtrack.session import load_session
+    from blurtrack.io.session import load_session
 
     cv2.setNumThreads(1)
     session = load_session(args.session)

@@ -18,9 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from blurtrack.importers import IMPORTERS
+    from blurtrack.io.importers import IMPORTERS
+    from blurtrack.io.session import load_session
     from blurtrack.overlay import draw_session_overlays
-    from blurtrack.session import load_session
 
     summary = IMPORTERS[args.kind](args.src, args.out)
     session = load_session(args.out)

@@ -28,11 +28,11 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from blurtrack.calibration import Calibration
     from blurtrack.errors import SynthesisError
-    from blurtrack.session import load_session
+    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.session import load_session
+    from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.predict import predict_session
-    from blurtrack.yamlio import write_text_atomic
 
     try:
         gx, gy = (int(v) for v in args.grid.lower().split("x"))

@@ -75,8 +75,8 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 
 
 def spec_from_args(args: argparse.Namespace):
-    from blurtrack.calibration import Calibration
     from blurtrack.errors import SynthesisError
+    from blurtrack.io.calibration import Calibration
     from blurtrack.synth.dataset import DatasetSpec
     from blurtrack.synth.perturb import Perturbation
     from blurtrack.synth.photometry import Photometry
@@ -112,8 +112,8 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from blurtrack.errors import SynthesisError
+    from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.dataset import build, parse_shard
-    from blurtrack.yamlio import write_text_atomic
 
     if args.workers < 1:
         raise SynthesisError("--workers must be >= 1")
@@ -143,8 +143,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_merge(args: argparse.Namespace) -> int:
+    from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.dataset import merge
-    from blurtrack.yamlio import write_text_atomic
 
     summary = {"command": "synth-merge", **merge(args.dataset, args.shards)}
     write_text_atomic(Path(args.dataset) / "summary.json", json.dumps(summary, indent=2) + "\n")

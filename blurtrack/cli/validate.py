@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from blurtrack.validate import validate_session
+    from blurtrack.io.validate import validate_session
 
     gap = None if args.max_gyro_gap_ms is None else args.max_gyro_gap_ms * 1e-3
     rep = validate_session(args.session, gap)

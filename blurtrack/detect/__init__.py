@@ -11,7 +11,8 @@ tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
 (a whole session), :mod:`~blurtrack.detect.table` (the streak table),
 :mod:`~blurtrack.detect.overlay` and :mod:`~blurtrack.detect.demo` (pictures, demo step),
-:mod:`~blurtrack.detect.synthetic` and :mod:`~blurtrack.detect.synthsession` (exact test data).
+:mod:`~blurtrack.testing.streak_frames` and :mod:`~blurtrack.testing.mini_session` (exact test
+data).
 """
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks, detect_frame

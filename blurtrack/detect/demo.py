@@ -19,7 +19,7 @@ from blurtrack.detect.overlay import draw_streaks
 from blurtrack.detect.session import detect_session
 from blurtrack.detect.table import write_table
 from blurtrack.errors import DetectionError
-from blurtrack.session import load_session
+from blurtrack.io.session import load_session
 
 
 def detection_demo(session_folder: str | Path, out_dir: str | Path,

@@ -64,7 +64,8 @@ def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object,
               sigma_rel: float = GYRO_SIGMA_REL) -> np.ndarray:
     """``(N, 2)`` LLRs of the gyro and profile cues for one frame.
 
-    ``model`` is a :class:`blurtrack.trajectory.BlurModel` (camera clock); it must cover the
+    ``model`` is a :class:`blurtrack.geometry.blur_model.BlurModel` (camera clock); it must cover
+    the
     frame's exposure (the caller checks coverage). ``sigma_rel``: prediction uncertainty per
     px of streak length (smaller once the time shift has been refined).
     """

@@ -61,7 +61,7 @@ def detect_session(
     """Detect and orient the streaks of every frame of a loaded session.
 
     Args:
-        session: a :class:`blurtrack.session.Session`.
+        session: a :class:`blurtrack.io.session.Session`.
         params: detection parameters.
         gyro: ``auto`` (use the gyro for frames it covers, and report the others), ``on``
             (every frame must be covered: :class:`CoverageError` otherwise), ``off``.
@@ -95,7 +95,7 @@ def detect_session(
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = None
     if inputs is not None:
-        from blurtrack.trajectory import BlurModel
+        from blurtrack.geometry.blur_model import BlurModel
 
         calib, trace = inputs
         shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None

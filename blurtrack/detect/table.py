@@ -1,6 +1,6 @@
-"""The streak table of a session (schema: :mod:`blurtrack.streaks`, plus detection extras).
+"""The streak table of a session (schema: :mod:`blurtrack.io.streaks`, plus detection extras).
 
-Extra columns beyond :data:`blurtrack.streaks.COLUMNS` (see docs/detection.md):
+Extra columns beyond :data:`blurtrack.io.streaks.COLUMNS` (see docs/detection.md):
 ``crossing`` (the streak crosses another one), ``looped`` (it crosses itself), ``snr`` (peak
 signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-smoothed
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
@@ -16,9 +16,9 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from blurtrack import streaks
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import Orientation
+from blurtrack.io import streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
     "crossing": "bool", "looped": "bool", "snr": "float64", "width_px": "float64",
@@ -74,7 +74,7 @@ def build_table(parts: Sequence[pd.DataFrame]) -> pd.DataFrame:
 
 
 def write_table(df: pd.DataFrame, path: str) -> None:
-    """Write the table as Parquet, atomically (see :func:`blurtrack.streaks.write`)."""
+    """Write the table as Parquet, atomically (see :func:`blurtrack.io.streaks.write`)."""
     streaks.write(df, path)
 
 

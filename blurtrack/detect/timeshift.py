@@ -70,11 +70,11 @@ def estimate_timeshift(
 ) -> TimeshiftEstimate | None:
     """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage.
 
-    ``calib`` is a :class:`blurtrack.calibration.Calibration` (its ``timeshift_cam_imu_s``
-    is the initial guess), ``gyro`` a :class:`blurtrack.gyro.GyroTrace`.
+    ``calib`` is a :class:`blurtrack.io.calibration.Calibration` (its ``timeshift_cam_imu_s``
+    is the initial guess), ``gyro`` a :class:`blurtrack.geometry.gyro.GyroTrace`.
     """
     from blurtrack.errors import CoverageError
-    from blurtrack.trajectory import BlurModel
+    from blurtrack.geometry.blur_model import BlurModel
 
     initial = float(calib.timeshift_cam_imu_s)  # type: ignore[attr-defined]
     # Frames whose whole exposure (plus a readout's worth) stays covered for every shift.

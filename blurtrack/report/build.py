@@ -16,9 +16,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import BlurTrackError
-from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import Session
+from blurtrack.io.yamlio import write_text_atomic
 from blurtrack.report import figures
 from blurtrack.report.html import render
 from blurtrack.report.metrics import (
@@ -28,9 +31,6 @@ from blurtrack.report.metrics import (
     per_frame,
     stats,
 )
-from blurtrack.session import Session
-from blurtrack.trajectory import BlurModel
-from blurtrack.yamlio import write_text_atomic
 
 #: Frames drawn with their predicted and measured streaks.
 N_OVERLAYS = 3
@@ -83,7 +83,8 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
                  n_overlays: int = N_OVERLAYS) -> dict[str, Any]:
     """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
 
-    The gyro is resampled as the blur model does (:data:`~blurtrack.gyro.GYRO_UPSAMPLE`, the
+    The gyro is resampled as the blur model does (:data:`~blurtrack.geometry.gyro.GYRO_UPSAMPLE`,
+    the
     calibration's too), and a fitted gyro scale matrix in ``after`` is applied by the model.
     """
     out = Path(out_dir)

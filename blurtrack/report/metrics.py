@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import BlurTrackError
-from blurtrack.gyro import GyroTrace
-from blurtrack.model import ROW_TIME_ITERATIONS
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.kernels import ROW_TIME_ITERATIONS
+from blurtrack.io.calibration import Calibration
 
 
 class ReportError(BlurTrackError):
@@ -56,7 +56,8 @@ def predict_end(model: BlurModel, start: np.ndarray, t_ref_s: np.ndarray, frame_
                 exposure_s: np.ndarray) -> np.ndarray:
     """End ``(N, 2)`` of the streaks that start at ``start (N, 2)`` at ``t_ref_s`` (camera clock).
 
-    The same fixed-point row-time solve as :func:`blurtrack.model.rolling_endpoint_c` (and as
+    The same fixed-point row-time solve as :func:`blurtrack.geometry.kernels.rolling_endpoint_c`
+    (and as
     many iterations), through :meth:`BlurModel.warp` so that the model's ``rotation_model`` is
     honoured (``BlurModel.streak_endpoints`` always integrates exactly).
     """
@@ -75,7 +76,7 @@ def endpoint_errors(gyro: GyroTrace, table: pd.DataFrame, frames: pd.DataFrame,
 
     Args:
         gyro: session gyro trace (absolute IMU clock, s).
-        table: validated streak table (:mod:`blurtrack.streaks`).
+        table: validated streak table (:mod:`blurtrack.io.streaks`).
         frames: the session's frame table (``timestamp_ns``, ``exposure_ns``).
         calib: the calibration to evaluate; ``rolling=False`` forces a global shutter.
 

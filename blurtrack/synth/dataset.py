@@ -34,12 +34,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import BlurTrackError, SynthesisError
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.yamlio import read_yaml, write_text_atomic, write_yaml
 from blurtrack.synth.images import list_images, load_image, split_of
 from blurtrack.synth.motion import open_source
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
-from blurtrack.yamlio import read_yaml, write_text_atomic, write_yaml
 
 FORMAT = "blurtrack-dataset/1"
 KINDS = (("sharp", ".png"), ("blur", ".png"), ("heat", ".npy"))

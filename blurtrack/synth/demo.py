@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth.dataset import DatasetSpec, build
 from blurtrack.synth.photometry import Photometry
 from blurtrack.synth.triplet import TripletParams

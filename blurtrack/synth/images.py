@@ -25,8 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blurtrack.camera import Camera
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.camera import Camera
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 #: Largest accepted source photograph (pixels), checked before decoding fully.

@@ -6,7 +6,7 @@ recorded in the manifest:
 * ``session`` — a recorded session folder (its ``imu0``). The calibration belongs to this IMU,
   so its time shift and gyro bias apply (``own_imu``).
 * ``shake`` — a plain shake file (GyroDeblurNet's ``timestamp_ns wx wy wz``), read by
-  :mod:`blurtrack.shake` (manifest times count from the file's first sample). The trace is
+  :mod:`blurtrack.io.shake` (manifest times count from the file's first sample). The trace is
   another device's, so the calibration's time shift and bias are not applied (they describe
   the calibrated IMU, not this one); its axes are taken as the IMU axes and rotated by the
   calibration's ``R_cam_imu``.
@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import BlurTrackError, CoverageError, SynthesisError
-from blurtrack.gyro import GyroTrace
-from blurtrack.shake import read_shake_trace
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.shake import read_shake_trace
 
 #: Redraws of a segment that hits a gap before giving up.
 MAX_DRAWS = 200
@@ -138,7 +138,7 @@ def open_source(spec: str) -> GyroSource:
     p = Path(spec)
     try:
         if (p / "session.yaml").is_file():
-            from blurtrack.session import load_session
+            from blurtrack.io.session import load_session
 
             s = load_session(p)
             if s.imu_t_ns.size < 2:

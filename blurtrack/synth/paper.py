@@ -22,9 +22,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import SynthesisError
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth.render import (
     BORDERS,
     NodeGrid,
@@ -33,7 +34,6 @@ from blurtrack.synth.render import (
     four_channels,
     source_positions,
 )
-from blurtrack.trajectory import BlurModel
 
 
 def paper_model(calib: Calibration, trace: GyroTrace) -> BlurModel:

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import SynthesisError
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
 
 #: Keys accepted by :meth:`Perturbation.parse` and their units.
 KEYS = {"timeshift_ms": "ms", "gyro_noise": "rad/s per sample", "gyro_bias": "rad/s per axis",

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import CoverageError, SynthesisError
-from blurtrack.session import Session
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import Session
 from blurtrack.synth.render import source_positions
-from blurtrack.trajectory import BlurModel
 
 
 @dataclass(frozen=True)

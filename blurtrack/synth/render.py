@@ -3,8 +3,10 @@
 DESIGN's blur relation: ``B(x) = ∫₀¹ S(x + q_x(τ)) dτ`` where ``S`` is the scene at the reference
 time ``t_ref`` and ``x + q_x(τ) = warp(x, t_r + τ·exposure -> t_ref)`` with ``t_r`` the start of
 exposure of ``x``'s row (rolling shutter). Rotations come from
-:meth:`blurtrack.trajectory.BlurModel.rotations` (the one model), so the blur, the heat maps of
-:meth:`~blurtrack.trajectory.BlurModel.heat_maps` and the calibration agree by construction.
+:meth:`blurtrack.geometry.blur_model.BlurModel.rotations` (the one model), so the blur, the heat
+maps of
+:meth:`~blurtrack.geometry.blur_model.BlurModel.heat_maps` and the calibration agree by
+construction.
 
 The integral is a midpoint rule ``B ≈ Σ_k w_k S(x + q_x(τ_k))`` whose cells are chosen so that
 consecutive samples of every pixel move at most ``max_step_px`` (0.5 px: the source paper's
@@ -36,8 +38,8 @@ import cv2
 import numpy as np
 
 from blurtrack.errors import SynthesisError
-from blurtrack.model import project_c, unproject_c
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.kernels import project_c, unproject_c
 
 BORDERS = {"reflect": cv2.BORDER_REFLECT_101, "constant": cv2.BORDER_CONSTANT}
 #: Samples processed together in the remap path (bounds memory at ~10 MB of node maps).

@@ -15,15 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth import photometry as ph
 from blurtrack.synth.images import camera_for_size, fit_to_size
 from blurtrack.synth.motion import GyroSource
 from blurtrack.synth.paper import paper_model, paper_window, render_paper
 from blurtrack.synth.perturb import Perturbation
 from blurtrack.synth.render import RenderSettings, render_blur
-from blurtrack.trajectory import BlurModel
 
 MODES = ("exact", "paper")
 #: Gyro coverage kept on each side of a segment (s); larger only for perturbed time shifts

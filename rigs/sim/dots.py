@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.camera import Camera
-from blurtrack.model import project_c
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.kernels import project_c
 from rigs.sim.errors import SimError
 from rigs.sim.motion import TrueMotion
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from blurtrack.rotation import so3_exp
+from blurtrack.geometry.rotation import so3_exp
 from rigs.sim.errors import SimError
 from rigs.sim.shake import ShakeTrace, band_pass
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.errors import ConfigError
-from blurtrack.yamlio import read_yaml, write_yaml
+from blurtrack.io.yamlio import read_yaml, write_yaml
 from rigs.sim.errors import SimError
 
 MOTION_SOURCES = ("synthetic", "shake")

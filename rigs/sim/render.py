@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.special import ndtr
 
-from blurtrack.camera import Camera
+from blurtrack.geometry.camera import Camera
 from rigs.sim.dots import FrameStreaks, dot_pixels
 from rigs.sim.motion import TrueMotion
 

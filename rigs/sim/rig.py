@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
-from blurtrack.rotation import so3_exp
-from blurtrack.session import ImuConfig, SessionMeta
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.rotation import so3_exp
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import ImuConfig, SessionMeta
 from rigs.sim.dots import FrameStreaks, dot_directions, dot_pixels, frame_streaks
 from rigs.sim.errors import SimError
 from rigs.sim.imu import GyroModel

@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from blurtrack.yamlio import write_text_atomic
+from blurtrack.io.yamlio import write_text_atomic
 from rigs.sim.errors import SimError
 
 

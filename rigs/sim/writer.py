@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.session import SessionWriter
+from blurtrack.io.session import SessionWriter
 from rigs.sim.rig import SimRig
 from rigs.sim.truthio import write_truth
 

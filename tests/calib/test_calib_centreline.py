@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.model import NUMPY_OPS
+from blurtrack.geometry.kernels import NUMPY_OPS
 from calib.centreline import associate, centre_factors, centre_residual_np
 from calib.data import StreakSet, centre_points, relative_gyro
 from calib.errors import CalibError
@@ -13,7 +13,7 @@ from calib.fit import FitOptions, calibrate
 from calib.jacobian import JacobianEvaluator
 from calib.params import theta_from
 from calib.problem import ResidualModel, choose_substeps, predicted_track
-from calib.synthetic import make_problem
+from calib.testing import make_problem
 
 
 @pytest.fixture(scope="module")

@@ -9,11 +9,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blurtrack import streaks as streak_table
-from blurtrack.calibration import Calibration
 from blurtrack.cli import main
-from blurtrack.session import ImuConfig, SessionMeta, SessionWriter
-from calib.synthetic import make_problem
+from blurtrack.io import streaks as streak_table
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
+from calib.testing import make_problem
 
 
 def _write_session(folder: Path, seed: int = 21,
@@ -42,7 +42,7 @@ def _write_session(folder: Path, seed: int = 21,
                                            (s.mid if tracked else s.start)[sel], strict=True)]})
         w.write_truth({"calibration": p.truth.to_dict(), "simulator": {"preset": "test"},
                        "frames": frames})
-    from blurtrack.session import load_session
+    from blurtrack.io.session import load_session
 
     table = streak_table.from_truth(load_session(folder).truth)
     streak_table.write(table, folder / "streaks.parquet")

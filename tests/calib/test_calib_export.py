@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import yaml
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
-from blurtrack.rotation import so3_exp
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.rotation import so3_exp
+from blurtrack.io.calibration import Calibration
 from calib.export import write_camera_info, write_openvins
 
 

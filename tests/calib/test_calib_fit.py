@@ -9,7 +9,7 @@ from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
 from calib.params import rotation_error_rad, theta_from
-from calib.synthetic import make_problem
+from calib.testing import make_problem
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +97,7 @@ def test_no_motion() -> None:
 
 
 def test_gyro_not_covering_the_exposures() -> None:
-    from blurtrack.gyro import GyroTrace
+    from blurtrack.geometry.gyro import GyroTrace
 
     p = make_problem(seed=4, n_frames=8, dots_per_frame=20)
     g = p.gyro

@@ -7,7 +7,7 @@ import numpy as np
 from calib.fit import FitOptions, calibrate
 from calib.framenoise import FrameModel
 from calib.params import theta_from
-from calib.synthetic import make_problem
+from calib.testing import make_problem
 
 
 def _random_problem(seed: int = 0, n: int = 60, frames: int = 6):

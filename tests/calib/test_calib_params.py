@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
 from calib.data import holdout_mask
 from calib.errors import CalibError
 from calib.params import (
@@ -112,7 +112,7 @@ def test_implausible_gyro_scale_is_a_divergence() -> None:
 @given(st.lists(st.floats(-1, 1), min_size=12, max_size=12))
 def test_symmetric_scale_form_keeps_the_measurement_model(u: list[float]) -> None:
     d = np.asarray(u)
-    from blurtrack.rotation import so3_exp
+    from blurtrack.geometry.rotation import so3_exp
 
     M = np.eye(3) + 0.02 * d[:9].reshape(3, 3)
     cal = BASE.with_(R_cam_imu=so3_exp(d[9:12]), gyro_scale_matrix=M)

@@ -9,7 +9,7 @@ from calib.data import relative_gyro
 from calib.jacobian import JacobianEvaluator
 from calib.params import apply_theta, theta_from
 from calib.problem import ResidualModel, choose_substeps
-from calib.synthetic import make_problem
+from calib.testing import make_problem
 
 
 @pytest.fixture(scope="module")

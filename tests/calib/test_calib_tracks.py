@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.gyro import GYRO_UPSAMPLE
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
 from calib.params import theta_from
 from calib.problem import ResidualModel, choose_substeps
 from calib.solve import JacobianEvaluator
-from calib.synthetic import make_problem
+from calib.testing import make_problem
 from calib.tracks import build_tracks, concat, mean_rows
 
 

@@ -1,4 +1,5 @@
-"""The CasADi evaluation of blurtrack.model equals the numpy one (one model, two backends)."""
+"""The CasADi evaluation of blurtrack.geometry.kernels equals the numpy one (one model, two
+backends)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from types import SimpleNamespace
 import casadi as ca
 import numpy as np
 
-from blurtrack.model import constant_mat3, omega_cam_fn, rolling_endpoint_c, warp_c
+from blurtrack.geometry.kernels import constant_mat3, omega_cam_fn, rolling_endpoint_c, warp_c
 
 CA_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, sqrt=ca.sqrt)
 

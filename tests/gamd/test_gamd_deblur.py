@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from blurtrack.camera import Camera
-from blurtrack.session import SessionMeta, SessionWriter
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.session import SessionMeta, SessionWriter
 from gamd.cli import main
 from gamd.infer import frame_to_rgb
 

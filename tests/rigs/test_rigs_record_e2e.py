@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from blurtrack.cli import main as cli_main
-from blurtrack.session import load_session
+from blurtrack.io.session import load_session
 from rigs.convert import ConvertOptions, log_to_session
 from rigs.fake_camera import VirtualCamera, VirtualCameraConfig
 from rigs.fake_imu import sine_motion

@@ -79,7 +79,7 @@ def test_conversion_maps_drifting_jittery_imu_onto_host_time(tmp_path) -> None:
     """Through the whole log -> session path: 100 ppm drift, 2 ms jitter, batched reads."""
     import cv2
 
-    from blurtrack.session import load_session
+    from blurtrack.io.session import load_session
     from rigs.camera_types import CameraFrame
     from rigs.convert import log_to_session
     from rigs.reclog import RecLogWriter

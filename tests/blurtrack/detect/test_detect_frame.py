@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from blurtrack.detect import DetectParams, detect_frame
-from blurtrack.detect.synthetic import line, quantise, render_streaks
 from blurtrack.errors import DetectionError
+from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
 SHAPE = (100, 120)
 

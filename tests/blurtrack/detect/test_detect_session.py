@@ -9,15 +9,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blurtrack import streaks
 from blurtrack.cli import main
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import FrameTiming, combine, continuity_cues
 from blurtrack.detect.session import detect_session
-from blurtrack.detect.synthsession import write_synthetic_session
 from blurtrack.detect.table import EXTRA_COLUMNS, read_table, write_table
 from blurtrack.errors import CoverageError, DetectionError
-from blurtrack.session import load_session
+from blurtrack.io import streaks
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
 
 
 @pytest.fixture(scope="module")

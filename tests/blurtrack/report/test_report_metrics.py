@@ -6,13 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blurtrack import streaks as streak_table
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io import streaks as streak_table
+from blurtrack.io.calibration import Calibration
 from blurtrack.report.html import render
 from blurtrack.report.metrics import ReportError, endpoint_errors, per_frame, stats
-from blurtrack.trajectory import BlurModel
 
 
 def _scene(seed: int = 0, amp: float = 2.0):
@@ -105,7 +105,7 @@ def test_html_is_self_contained_and_escaped() -> None:
 
 
 def test_blur_model_applies_a_calibrated_gyro_scale() -> None:
-    from blurtrack.trajectory import BlurModel
+    from blurtrack.geometry.blur_model import BlurModel
 
     calib, gyro, _, _ = _scene()
     M = np.array([[1.02, 0.004, 0.0], [0.004, 0.99, 0.0], [0.0, 0.0, 1.0]])

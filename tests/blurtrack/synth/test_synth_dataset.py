@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth.dataset import DatasetSpec, build, merge, read_manifest
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
 

@@ -8,15 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.errors import SynthesisError
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth import photometry as ph
 from blurtrack.synth.images import camera_for_size, fit_to_size, list_images, load_image, split_of
 from blurtrack.synth.motion import SyntheticSource, TraceSource, open_source
 from blurtrack.synth.perturb import Perturbation
-from blurtrack.trajectory import BlurModel
 
 DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
 SHAKE = DATA / "real" / "gyrodeblurnet-shake"

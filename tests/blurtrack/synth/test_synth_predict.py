@@ -9,13 +9,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.cli import main
 from blurtrack.errors import CoverageError, SynthesisError
-from blurtrack.session import SessionMeta, SessionWriter, load_session
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import SessionMeta, SessionWriter, load_session
 from blurtrack.synth.predict import predict_session
-from blurtrack.trajectory import BlurModel
 
 CAM = Camera((80, 60), (70.0, 70.0, 39.5, 29.5), readout_s=0.01)
 

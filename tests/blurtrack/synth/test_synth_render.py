@@ -8,10 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.errors import SynthesisError
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
 from blurtrack.synth.paper import paper_model, render_paper
 from blurtrack.synth.render import (
     NodeGrid,
@@ -20,7 +21,6 @@ from blurtrack.synth.render import (
     render_blur,
     source_positions,
 )
-from blurtrack.trajectory import BlurModel
 
 RADTAN = (-0.12, 0.03, 0.001, -0.0015)
 

@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.calibration import Calibration
-from blurtrack.session import load_session
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import load_session
 from blurtrack.synth.render import render_blur
-from blurtrack.trajectory import BlurModel
 
 sim_rig = pytest.importorskip("rigs.sim.rig", reason="rigs/sim (the simulator) not installed")
 sim_preset = pytest.importorskip("rigs.sim.preset")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from blurtrack.cli import main
-from blurtrack.session import load_session
+from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.model import relative_rotation
-from blurtrack.rotation import so3_exp, so3_log
+from blurtrack.geometry.kernels import relative_rotation
+from blurtrack.geometry.rotation import so3_exp, so3_log
 from rigs.sim.errors import SimError
 from rigs.sim.motion import TrueMotion, cumulative_product, synthetic_omega
 from rigs.sim.preset import NOMINAL_R_CAM_IMU, get_preset

@@ -158,8 +158,8 @@ def test_blurred_frame_is_the_sharp_frame_averaged_along_the_model_trajectories(
     # DESIGN's heat-map definition: B(x) = mean over the row's exposure of S(warp(x, t, t_ref)).
     import cv2
 
-    from blurtrack.gyro import GyroTrace
-    from blurtrack.trajectory import BlurModel
+    from blurtrack.geometry.blur_model import BlurModel
+    from blurtrack.geometry.gyro import GyroTrace
 
     preset = get_preset("realistic").replace(
         width=160, height=120, focal_px=400.0, dot_cols=4, dot_rows=3, motion="synthetic",

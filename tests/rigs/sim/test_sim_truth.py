@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blurtrack import streaks
-from blurtrack.calibration import Calibration
-from blurtrack.session import load_session
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io import streaks
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
 from rigs.sim.writer import write_session
@@ -131,7 +131,7 @@ SHAKE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" 
 @pytest.mark.parametrize("name", ["realistic", "hard"])
 def test_core_model_reproduces_truth_on_real_shake(name: str) -> None:
     # Without rendering: the rig's truth against BlurModel on its ideal 1 kHz gyro.
-    from blurtrack.gyro import GyroTrace
+    from blurtrack.geometry.gyro import GyroTrace
 
     p = get_preset(name).replace(gyro_noise_radps=0.0, gyro_bias_radps=0.0,
                                  gyro_scale_error=0.0, imu_rate_hz=1000.0)

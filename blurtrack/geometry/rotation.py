@@ -2,7 +2,7 @@
 
 Rotation vectors are axis * angle in radians, shape ``(..., 3)``; matrices ``(..., 3, 3)``;
 quaternions ``(..., 4)`` in ``(w, x, y, z)`` order, unit norm. The CasADi-compatible
-component-wise forms used by the blur model live in :mod:`blurtrack.model`.
+component-wise forms used by the blur model live in :mod:`blurtrack.geometry.kernels`.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from blurtrack.errors import GeometryError
-from blurtrack.model import so3_exp_c
+from blurtrack.geometry.kernels import so3_exp_c
 
 
 def hat(v: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@
 Global shutter, identity camera–IMU rotation and zero time shift (so the session's initial
 guesses are the truth); ω is a smooth random shake. Dot directions are fixed in the world;
 each frame's streaks are the dots' image tracks over the exposure (the core blur model's
-``point_track``), rendered by :func:`blurtrack.detect.synthetic.render_streaks`. The
+``point_track``), rendered by :func:`blurtrack.testing.streak_frames.render_streaks`. The
 project's full simulator lives in ``rigs``; this one is deliberately minimal.
 """
 
@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.detect.synthetic import quantise, render_streaks
-from blurtrack.gyro import GyroTrace
-from blurtrack.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
+from blurtrack.testing.streak_frames import quantise, render_streaks
 
 
 def shake(t_s: np.ndarray, seed: int, amplitude_radps: float) -> np.ndarray:

@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from blurtrack.camera import Camera
 from blurtrack.errors import BlurTrackError, ConfigError, SessionError
-from blurtrack.yamlio import read_yaml, write_yaml
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.yamlio import read_yaml, write_yaml
 
 FORMAT = "blurtrack-session/1"
 CAM_HEADER = "#timestamp [ns],filename,exposure [ns]"
@@ -287,14 +287,14 @@ class Session:
         return img
 
     def gyro(self, max_gap_s: float | None = None):
-        """The IMU samples as a :class:`~blurtrack.gyro.GyroTrace` (IMU clock, seconds)."""
-        from blurtrack.gyro import GyroTrace
+        """The IMU samples as a :class:`~blurtrack.geometry.gyro.GyroTrace` (IMU clock, seconds)."""
+        from blurtrack.geometry.gyro import GyroTrace
 
         return GyroTrace(self.imu_times_s, self.omega_radps, max_gap_s)
 
     def initial_calibration(self):
         """The rig's own guesses (session.yaml) as a calibration."""
-        from blurtrack.calibration import Calibration
+        from blurtrack.io.calibration import Calibration
 
         T = self.meta.imu.T_cam_imu
         try:

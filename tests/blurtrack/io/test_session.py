@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.errors import ConfigError, SessionError
-from blurtrack.session import ImuConfig, SessionMeta, SessionWriter, load_session
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter, load_session
 
 META = SessionMeta(Camera((8, 6), (10.0, 10.0, 3.5, 2.5), readout_s=0.01),
                    ImuConfig(rate_hz=200.0, timeshift_cam_imu=0.002))
@@ -154,7 +154,7 @@ def test_calibration_yaml_round_trip_and_errors(tmp_path: Path) -> None:
 
 def test_validate_reports_undecodable_frames_and_uncovered_exposures(tmp_path: Path) -> None:
     from blurtrack.cli import main
-    from blurtrack.validate import validate_session
+    from blurtrack.io.validate import validate_session
 
     folder = make_session(tmp_path)
     rep = validate_session(folder)

@@ -21,9 +21,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from blurtrack.camera import Camera
 from blurtrack.errors import ImportFormatError
-from blurtrack.session import ImuConfig, SessionMeta, SessionWriter
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 
 MAX_TEXT_BYTES = 256 * 1024**2
 

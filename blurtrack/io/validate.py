@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from blurtrack.errors import BlurTrackError
-from blurtrack.session import Session, load_session
+from blurtrack.io.session import Session, load_session
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
-"""Blur trajectories from gyro samples and a calibration (numpy face of blurtrack.model).
+"""Blur trajectories from gyro samples and a calibration (numpy face of blurtrack.geometry.kernels).
 
-:class:`BlurModel` binds a :class:`~blurtrack.calibration.Calibration` and a
-:class:`~blurtrack.gyro.GyroTrace` and evaluates the functions of :mod:`blurtrack.model` on
+:class:`BlurModel` binds a :class:`~blurtrack.io.calibration.Calibration` and a
+:class:`~blurtrack.geometry.gyro.GyroTrace` and evaluates the functions of
+:mod:`blurtrack.geometry.kernels` on
 numpy arrays: the same code the CasADi calibration differentiates. All times are on the camera
 clock in seconds; pixels follow DESIGN.md.
 """
@@ -13,11 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack import heatmap
-from blurtrack.calibration import Calibration
 from blurtrack.errors import GeometryError
-from blurtrack.gyro import GYRO_UPSAMPLE, GyroTrace
-from blurtrack.model import (
+from blurtrack.geometry import heatmap
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.geometry.kernels import (
     DEFAULT_MAX_SUBSTEP_S,
     NUMPY_OPS,
     Mat3,
@@ -33,6 +33,7 @@ from blurtrack.model import (
     unproject_c,
     warp_c,
 )
+from blurtrack.io.calibration import Calibration
 
 #: Motion models: exact rotation integration, or the source paper's per-axis small angles.
 ROTATION_MODELS: dict[str, Callable[..., Mat3]] = {
@@ -53,7 +54,7 @@ class BlurModel:
         check_coverage: refuse times the gyro does not cover (default) instead of
             extrapolating with the end samples.
         gyro_upsample: cubic-spline resampling factor of the measured gyro
-            (:data:`~blurtrack.gyro.GYRO_UPSAMPLE`, the calibration's; 1 = plain linear
+            (:data:`~blurtrack.geometry.gyro.GYRO_UPSAMPLE`, the calibration's; 1 = plain linear
             interpolation of the samples). ``model.gyro`` is the resampled trace.
     """
 

@@ -10,10 +10,10 @@ import pytest
 pytest.importorskip("rigs.sim.rig", reason="the rigs.sim simulator is not in this tree")
 
 from blurtrack.cli import main as cli_main
-from blurtrack.session import load_session
+from blurtrack.io.session import load_session
 from rigs.protocol import GYRO_SCALE_RADPS
 from rigs.reclog import scan_log
-from rigs.simrig import shared_rig
+from rigs.sim.shared_rig import shared_rig
 
 
 def test_record_a_simulated_laser_grid_rig(tmp_path: Path) -> None:

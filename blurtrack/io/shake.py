@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from blurtrack.errors import ImportFormatError
-from blurtrack.gyro import GyroTrace
+from blurtrack.geometry.gyro import GyroTrace
 
 #: Refuse files larger than this (bytes) before reading them.
 MAX_SHAKE_BYTES = 512 * 1024**2

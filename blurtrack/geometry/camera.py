@@ -3,7 +3,8 @@
 Conventions (DESIGN.md): camera frame x right, y down, z forward; pixel (0, 0) is the centre of
 the top-left pixel; intrinsics ``[fx, fy, cx, cy]`` in pixels; distortion ``none`` or ``radtan``
 (OpenCV ``k1 k2 p1 p2``). Row ``r`` of an ``H``-row frame stamped ``t`` starts exposing at
-``t + readout_s * r / H``. The projection maths is :mod:`blurtrack.model`'s, shared with the
+``t + readout_s * r / H``. The projection maths is :mod:`blurtrack.geometry.kernels`'s, shared
+with the
 CasADi calibration.
 """
 
@@ -16,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import GeometryError
-from blurtrack.model import project_c, row_start_c, unproject_c
+from blurtrack.geometry.kernels import project_c, row_start_c, unproject_c
 
 DISTORTION_MODELS = ("none", "radtan")
 

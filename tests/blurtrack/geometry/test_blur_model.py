@@ -1,4 +1,4 @@
-"""Known-value and property tests of the blur model (blurtrack.model / trajectory)."""
+"""Known-value and property tests of the blur model (blurtrack.geometry.kernels / trajectory)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
 from blurtrack.errors import CoverageError, GeometryError
-from blurtrack.gyro import GyroTrace
-from blurtrack.model import distort, relative_rotation, undistort
-from blurtrack.rotation import so3_exp, so3_log
-from blurtrack.trajectory import BlurModel, _grid, _upsample
+from blurtrack.geometry.blur_model import BlurModel, _grid, _upsample
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.kernels import distort, relative_rotation, undistort
+from blurtrack.geometry.rotation import so3_exp, so3_log
+from blurtrack.io.calibration import Calibration
 
 CAM = Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5))
 
@@ -111,7 +111,7 @@ def test_integration_converges_for_time_varying_axis() -> None:
     fine = np.stack(relative_rotation(t0, t1, omega, 4000), -1).reshape(3, 3)
     assert np.linalg.norm(so3_log(coarse.T @ fine)) < 2e-6
     # ...while the per-axis small-angle sum is far off: the exact model matters.
-    from blurtrack.model import relative_rotation_small_angle
+    from blurtrack.geometry.kernels import relative_rotation_small_angle
 
     approx = np.stack(relative_rotation_small_angle(t0, t1, omega, 4000), -1).reshape(3, 3)
     assert np.linalg.norm(so3_log(approx.T @ fine)) > 1e-2

@@ -10,9 +10,9 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.errors import ImportFormatError
-from blurtrack.importers import fit_radtan4, import_deepgyro, import_marslogger
-from blurtrack.session import load_session
-from blurtrack.shake import read_shake_trace
+from blurtrack.io.importers import fit_radtan4, import_deepgyro, import_marslogger
+from blurtrack.io.session import load_session
+from blurtrack.io.shake import read_shake_trace
 
 
 def test_deepgyro_import_and_overlays(shared_data: Path, tmp_path: Path, capsys) -> None:

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.camera import Camera
 from blurtrack.errors import BlurTrackError, ConfigError
-from blurtrack.rotation import is_rotation
-from blurtrack.yamlio import read_yaml, write_yaml
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.rotation import is_rotation
+from blurtrack.io.yamlio import read_yaml, write_yaml
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 A smooth hand-shake motion (sampled densely for the truth, at the gyro rate for the
 measurement), random laser-dot directions per frame, true streak endpoints from
-:meth:`blurtrack.trajectory.BlurModel.streak_endpoints`, then endpoint and gyro noise. Used by
+:meth:`blurtrack.geometry.blur_model.BlurModel.streak_endpoints`, then endpoint and gyro noise.
+Used by
 tests and benchmarks to check the solver independently of the simulator and detector.
 """
 
@@ -13,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.calibration import Calibration
-from blurtrack.camera import Camera
-from blurtrack.gyro import GyroTrace
-from blurtrack.rotation import so3_exp
-from blurtrack.trajectory import BlurModel
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.rotation import so3_exp
+from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, centre_points
 
 #: Sampling rate of the "continuous" true motion behind the truth endpoints.
