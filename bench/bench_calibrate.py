@@ -39,15 +39,34 @@ from calib.problem import ResidualModel, choose_substeps
 
 REPO = Path(__file__).resolve().parents[1]
 SHAKE = REPO.parent / "shared" / "data" / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
-TARGETS = {"timeshift_s": 1e-4, "fx_rel": 1e-3, "fy_rel": 1e-3, "cx": 0.5, "cy": 0.5,
-           "readout_s": 2e-4, "bias_radps": 2e-4, "rotation_deg": 0.1}
+TARGETS = {
+    "timeshift_s": 1e-4,
+    "fx_rel": 1e-3,
+    "fy_rel": 1e-3,
+    "cx": 0.5,
+    "cy": 0.5,
+    "readout_s": 2e-4,
+    "bias_radps": 2e-4,
+    "rotation_deg": 0.1,
+}
 
 
 def simulate(out: Path, preset: str, seed: int, frames: int) -> Path:
     if (out / "truth.yaml").is_file():
         return out
-    cmd = [sys.executable, "-m", "blurtrack", "simulate", str(out), "--preset", preset,
-           "--frames", str(frames), "--seed", str(seed)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "blurtrack",
+        "simulate",
+        str(out),
+        "--preset",
+        preset,
+        "--frames",
+        str(frames),
+        "--seed",
+        str(seed),
+    ]
     if SHAKE.is_file():
         cmd += ["--shake", str(SHAKE)]
     subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
@@ -61,8 +80,12 @@ def detect(session_dir: Path) -> tuple[Path, float]:
     if out.is_file():
         return out, 0.0
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "blurtrack", "detect", str(session_dir), "--out",
-                    str(out)], check=True, capture_output=True, cwd=REPO)
+    subprocess.run(
+        [sys.executable, "-m", "blurtrack", "detect", str(session_dir), "--out", str(out)],
+        check=True,
+        capture_output=True,
+        cwd=REPO,
+    )
     return out, time.perf_counter() - t0
 
 
@@ -70,45 +93,61 @@ def effective_rotation(truth: dict, R_true: np.ndarray) -> np.ndarray:
     """The camera–IMU rotation the gyro data define: ``R_true Qᵀ`` with ``M = P Q`` the polar
     decomposition of the simulator's gyro scale/cross-axis matrix (``ω_meas = M R_trueᵀ ω``).
     A rotation of the gyro's own axes cannot be told apart from the mounting rotation."""
-    M = np.array(((truth.get("simulator") or {}).get("gyro") or {}).get("scale_matrix",
-                                                                         np.eye(3)), float)
+    M = np.array(
+        ((truth.get("simulator") or {}).get("gyro") or {}).get("scale_matrix", np.eye(3)), float
+    )
     U, _, Vt = np.linalg.svd(M)
     return R_true @ (U @ Vt).T
 
 
-def _errors(cal: Calibration, truth: Calibration,
-            R_eff: np.ndarray | None = None) -> dict[str, float]:
+def _errors(
+    cal: Calibration, truth: Calibration, R_eff: np.ndarray | None = None
+) -> dict[str, float]:
     t, e = theta_from(truth), theta_from(cal)
     R_ref = truth.R_cam_imu if R_eff is None else R_eff
-    return {"timeshift_s": e[0] - t[0], "fx_rel": e[1] / t[1] - 1, "fy_rel": e[2] / t[2] - 1,
-            "cx": e[3] - t[3], "cy": e[4] - t[4], "readout_s": e[5] - t[5],
-            "bias_radps": float(np.max(np.abs(e[6:9] - t[6:9]))),
-            "rotation_deg": float(rotation_angle_deg(cal.R_cam_imu, R_ref)),
-            "rotation_vs_stated_truth_deg": float(rotation_angle_deg(cal.R_cam_imu,
-                                                                     truth.R_cam_imu))}
+    return {
+        "timeshift_s": e[0] - t[0],
+        "fx_rel": e[1] / t[1] - 1,
+        "fy_rel": e[2] / t[2] - 1,
+        "cx": e[3] - t[3],
+        "cy": e[4] - t[4],
+        "readout_s": e[5] - t[5],
+        "bias_radps": float(np.max(np.abs(e[6:9] - t[6:9]))),
+        "rotation_deg": float(rotation_angle_deg(cal.R_cam_imu, R_ref)),
+        "rotation_vs_stated_truth_deg": float(rotation_angle_deg(cal.R_cam_imu, truth.R_cam_imu)),
+    }
 
 
 def _z_scores(res, truth: Calibration, initial: Calibration) -> dict[str, float]:
     """|error| / sigma of every estimated scalar with a known truth (not rotation or scale)."""
     t = theta_from(truth)
     names = ("timeshift_s", "fx", "fy", "cx", "cy", "readout_s", "bias_x", "bias_y", "bias_z")
-    return {n: abs(res.values[n] - t[i]) / res.sigma[n] for i, n in enumerate(names)
-            if n in res.sigma and res.sigma[n] > 0}
+    return {
+        n: abs(res.values[n] - t[i]) / res.sigma[n]
+        for i, n in enumerate(names)
+        if n in res.sigma and res.sigma[n] > 0
+    }
 
 
 def _sigmas(res, truth: Calibration) -> dict[str, float]:
     """1-sigma in the units of :data:`TARGETS` (focal lengths relative, bias the largest axis)."""
     s = res.sigma
     fx, fy = truth.camera.intrinsics[:2]
-    out = {"timeshift_s": s.get("timeshift_s"), "fx_rel": s.get("fx", np.nan) / fx,
-           "fy_rel": s.get("fy", np.nan) / fy, "cx": s.get("cx"), "cy": s.get("cy"),
-           "readout_s": s.get("readout_s"),
-           "bias_radps": max(s.get(f"bias_{a}", np.nan) for a in "xyz")}
+    out = {
+        "timeshift_s": s.get("timeshift_s"),
+        "fx_rel": s.get("fx", np.nan) / fx,
+        "fy_rel": s.get("fy", np.nan) / fy,
+        "cx": s.get("cx"),
+        "cy": s.get("cy"),
+        "readout_s": s.get("readout_s"),
+        "bias_radps": max(s.get(f"bias_{a}", np.nan) for a in "xyz"),
+    }
     return {k: float(np.nan if v is None else v) for k, v in out.items()}
 
 
-def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0,
-            source: str = "truth") -> dict:
+def run_one(
+    session_dir: Path, options: FitOptions, frame_fraction: float = 1.0, source: str = "truth"
+) -> dict:
     from calib.centreline import CENTRE_POINTS
 
     session = load_session(session_dir)
@@ -121,15 +160,21 @@ def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0,
     if frame_fraction < 1.0:
         nf = round(len(session.frames) * frame_fraction)
         table = table[table["frame"] < nf]
-    streaks = streaks_from_table(table, session.frames,
-                                 centre_k=CENTRE_POINTS if options.centreline else 0)
+    streaks = streaks_from_table(
+        table, session.frames, centre_k=CENTRE_POINTS if options.centreline else 0
+    )
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     initial = session.initial_calibration()
     gyro = session.gyro()
     # Baseline: one numpy residual evaluation over all streaks (the fit's unit of work).
     g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
-    model = ResidualModel(g, initial.R_cam_imu, (), initial.camera.height,
-                          choose_substeps(streaks, initial.camera.height, 0.05))
+    model = ResidualModel(
+        g,
+        initial.R_cam_imu,
+        (),
+        initial.camera.height,
+        choose_substeps(streaks, initial.camera.height, 0.05),
+    )
     t0 = time.process_time()
     r0 = model.residual_np(theta_from(initial), streaks)
     base_cpu = time.process_time() - t0
@@ -139,19 +184,34 @@ def run_one(session_dir: Path, options: FitOptions, frame_fraction: float = 1.0,
     err = _errors(res.calibration, truth, effective_rotation(session.truth, truth.R_cam_imu))
     ok = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}
     z = _z_scores(res, truth, initial)
-    return {"sigma": _sigmas(res, truth), "streaks": source, "detect_wall_s": detect_wall,
-        "n_flipped": res.n_flipped, "session": session_dir.name, "n_streaks": len(streaks),
+    return {
+        "sigma": _sigmas(res, truth),
+        "streaks": source,
+        "detect_wall_s": detect_wall,
+        "n_flipped": res.n_flipped,
+        "session": session_dir.name,
+        "n_streaks": len(streaks),
         "n_frames": streaks.n_frames,
-        "status": res.status, "iterations": res.iterations, "cpu_s": cpu, "wall_s": wall,
-        "baseline_residual_cpu_s": base_cpu, "cpu_over_baseline": cpu / max(base_cpu, 1e-9),
-        "error": err, "within_target": ok, "all_within_target": all(ok.values()),
+        "status": res.status,
+        "iterations": res.iterations,
+        "cpu_s": cpu,
+        "wall_s": wall,
+        "baseline_residual_cpu_s": base_cpu,
+        "cpu_over_baseline": cpu / max(base_cpu, 1e-9),
+        "error": err,
+        "within_target": ok,
+        "all_within_target": all(ok.values()),
         "initial_error": _errors(initial, truth),
         "initial_mean_endpoint_error_px": float(np.mean(np.linalg.norm(r0, axis=1))),
-        "holdout_mean_px": res.holdout.mean_px, "holdout_median_px": res.holdout.median_px,
-        "holdout_p95_px": res.holdout.p95_px, "train_mean_px": res.train.mean_px,
-        "z_scores": z, "max_z": max(z.values()) if z else None,
+        "holdout_mean_px": res.holdout.mean_px,
+        "holdout_median_px": res.holdout.median_px,
+        "holdout_p95_px": res.holdout.p95_px,
+        "train_mean_px": res.train.mean_px,
+        "z_scores": z,
+        "max_z": max(z.values()) if z else None,
         "within_3sigma": all(v <= 3 for v in z.values()),
-        "n_outliers": res.n_outliers, "warnings": list(res.warnings),
+        "n_outliers": res.n_outliers,
+        "warnings": list(res.warnings),
     }
 
 
@@ -159,20 +219,35 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="clean,realistic")
     ap.add_argument("--seeds", default="0,1,2")
-    ap.add_argument("--frames", default="100",
-                    help="recording length(s) in frames, comma-separated (default 100)")
+    ap.add_argument(
+        "--frames",
+        default="100",
+        help="recording length(s) in frames, comma-separated (default 100)",
+    )
     ap.add_argument("--fit", default=DEFAULT_FIT)
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_calib"))
     ap.add_argument("--no-scaling", action="store_true", help="skip time vs streak count")
     ap.add_argument("--centreline", action="store_true", help="centre-line residuals too")
     ap.add_argument("--frame-noise", action="store_true", help="frame-noise GLS refinement")
-    ap.add_argument("--residuals", choices=RESIDUALS, default=FitOptions().residuals,
-                    help="final-stage residuals (endpoints, tracks or both)")
-    ap.add_argument("--streaks", choices=("truth", "detected"), default="truth",
-                    help="calibrate from the simulator's true streaks or from blurtrack detect")
+    ap.add_argument(
+        "--residuals",
+        choices=RESIDUALS,
+        default=FitOptions().residuals,
+        help="final-stage residuals (endpoints, tracks or both)",
+    )
+    ap.add_argument(
+        "--streaks",
+        choices=("truth", "detected"),
+        default="truth",
+        help="calibrate from the simulator's true streaks or from blurtrack detect",
+    )
     args = ap.parse_args()
-    opts = FitOptions(fit=args.fit, centreline=args.centreline, frame_noise=args.frame_noise,
-                      residuals=args.residuals)
+    opts = FitOptions(
+        fit=args.fit,
+        centreline=args.centreline,
+        frame_noise=args.frame_noise,
+        residuals=args.residuals,
+    )
     runs = []
     lengths = [int(f) for f in args.frames.split(",")]
     for preset in args.presets.split(","):
@@ -182,17 +257,26 @@ def main() -> int:
                 run = run_one(d, opts, source=args.streaks)
                 run.update(preset=preset, seed=seed, frames=frames)
                 runs.append(run)
-                print(f"# {preset} {frames} frames seed {seed}: {run['status']}, "
-                      f"{run['cpu_s']:.1f} s cpu, hold-out {run['holdout_mean_px']:.3f} px, "
-                      f"max z {run['max_z']:.2f}", file=sys.stderr)
+                print(
+                    f"# {preset} {frames} frames seed {seed}: {run['status']}, "
+                    f"{run['cpu_s']:.1f} s cpu, hold-out {run['holdout_mean_px']:.3f} px, "
+                    f"max z {run['max_z']:.2f}",
+                    file=sys.stderr,
+                )
     scaling = []
     if not args.no_scaling and runs:
         first = args.work / runs[0]["session"]
         for frac in (0.25, 0.5, 1.0):
             r = run_one(first, opts, frac, source=args.streaks)
-            scaling.append({"frames": r["n_frames"], "n_streaks": r["n_streaks"],
-                            "cpu_s": r["cpu_s"], "wall_s": r["wall_s"],
-                            "cpu_over_baseline": r["cpu_over_baseline"]})
+            scaling.append(
+                {
+                    "frames": r["n_frames"],
+                    "n_streaks": r["n_streaks"],
+                    "cpu_s": r["cpu_s"],
+                    "wall_s": r["wall_s"],
+                    "cpu_over_baseline": r["cpu_over_baseline"],
+                }
+            )
     by_preset = {}
     for key in sorted({(r["preset"], r["frames"]) for r in runs}):
         rs = [r for r in runs if (r["preset"], r["frames"]) == key]
@@ -203,23 +287,41 @@ def main() -> int:
             "median_holdout_mean_px": float(np.median([r["holdout_mean_px"] for r in rs])),
             "median_cpu_s": float(np.median([r["cpu_s"] for r in rs])),
             "max_abs_error": {k: float(max(abs(r["error"][k]) for r in rs)) for k in TARGETS},
-            "median_sigma": {k: float(np.median([r["sigma"][k] for r in rs]))
-                             for k in rs[0]["sigma"]},
+            "median_sigma": {
+                k: float(np.median([r["sigma"][k] for r in rs])) for k in rs[0]["sigma"]
+            },
             "max_z": float(max(r["max_z"] or 0.0 for r in rs)),
             "median_cpu_over_baseline": float(np.median([r["cpu_over_baseline"] for r in rs])),
-            "median_initial_endpoint_error_px": float(np.median(
-                [r["initial_mean_endpoint_error_px"] for r in rs])),
+            "median_initial_endpoint_error_px": float(
+                np.median([r["initial_mean_endpoint_error_px"] for r in rs])
+            ),
         }
     z_all = [v for r in runs for v in r["z_scores"].values()]
-    print(json.dumps({"fit": args.fit, "streaks": args.streaks, "residuals": args.residuals,
-                      "centreline": args.centreline,
-                      "frame_noise": args.frame_noise, "targets": TARGETS,
-                      "by_preset": by_preset,
-                      "fraction_of_estimates_within_3sigma":
-                          float(np.mean(np.array(z_all) <= 3)) if z_all else None,
-                      "fraction_of_runs_all_within_3sigma":
-                          float(np.mean([r["within_3sigma"] for r in runs])) if runs else None,
-                      "scaling": scaling, "runs": runs}, indent=1, default=float))
+    print(
+        json.dumps(
+            {
+                "fit": args.fit,
+                "streaks": args.streaks,
+                "residuals": args.residuals,
+                "centreline": args.centreline,
+                "frame_noise": args.frame_noise,
+                "targets": TARGETS,
+                "by_preset": by_preset,
+                "fraction_of_estimates_within_3sigma": float(np.mean(np.array(z_all) <= 3))
+                if z_all
+                else None,
+                "fraction_of_runs_all_within_3sigma": float(
+                    np.mean([r["within_3sigma"] for r in runs])
+                )
+                if runs
+                else None,
+                "scaling": scaling,
+                "runs": runs,
+            },
+            indent=1,
+            default=float,
+        )
+    )
     return 0
 
 

@@ -40,20 +40,31 @@ MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
 def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
     folder = out / f"{preset}-s{seed}-f{frames}"
     if not (folder / "truth.yaml").is_file():
-        cmd = [sys.executable, "-m", "blurtrack", "simulate", str(folder), "--preset", preset,
-               "--frames", str(frames), "--seed", str(seed)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "blurtrack",
+            "simulate",
+            str(folder),
+            "--preset",
+            preset,
+            "--frames",
+            str(frames),
+            "--seed",
+            str(seed),
+        ]
         subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True)
     return folder
 
 
-def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                   np.ndarray]:
+def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     st = frame.get("streaks") or []
     S = np.array([s["start"] for s in st], float).reshape(-1, 2)
     E = np.array([s["end"] for s in st], float).reshape(-1, 2)
     inside = np.array([bool(s.get("inside", True)) for s in st], bool)
-    length = np.array([float(s.get("length_px", np.linalg.norm(np.subtract(s["end"],
-                       s["start"])))) for s in st])
+    length = np.array(
+        [float(s.get("length_px", np.linalg.norm(np.subtract(s["end"], s["start"])))) for s in st]
+    )
     return S, E, inside, length
 
 
@@ -69,18 +80,23 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
         s = d[["start_x", "start_y"]].to_numpy(float)
         e = d[["end_x", "end_y"]].to_numpy(float)
         m = d[["mid_x", "mid_y"]].to_numpy(float)
-        M = np.array([st.get("mid", [np.nan, np.nan]) for st in fr.get("streaks") or []],
-                     float).reshape(-1, 2)
+        M = np.array(
+            [st.get("mid", [np.nan, np.nan]) for st in fr.get("streaks") or []], float
+        ).reshape(-1, 2)
         clipped = d["clipped"].to_numpy(bool)
         saturated = d["saturated"].to_numpy(bool)
         n_inside += int(inside.sum())
         n_det_unclipped += int((~clipped).sum())
         if len(d) == 0 or len(S) == 0:
             continue
-        same = (np.linalg.norm(s[:, None] - S[None], axis=2)
-                + np.linalg.norm(e[:, None] - E[None], axis=2)) / 2
-        swap = (np.linalg.norm(s[:, None] - E[None], axis=2)
-                + np.linalg.norm(e[:, None] - S[None], axis=2)) / 2
+        same = (
+            np.linalg.norm(s[:, None] - S[None], axis=2)
+            + np.linalg.norm(e[:, None] - E[None], axis=2)
+        ) / 2
+        swap = (
+            np.linalg.norm(s[:, None] - E[None], axis=2)
+            + np.linalg.norm(e[:, None] - S[None], axis=2)
+        ) / 2
         cost = np.minimum(same, swap)
         rows, cols = linear_sum_assignment(np.where(cost < MATCH_GATE_PX, cost, 1e6))
         ok = cost[rows, cols] < MATCH_GATE_PX
@@ -116,6 +132,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
 
 def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[str, float]:
     cv2.setNumThreads(1)
+
     def base(img: np.ndarray) -> None:
         g = cv2.GaussianBlur(img, (0, 0), 1.0)
         thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
@@ -133,8 +150,13 @@ def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[s
             t_base.append(t1 - t0)
             t_det.append(t2 - t1)
     det, bas = float(np.median(t_det)), float(np.median(t_base))
-    return {"detect_fps": 1.0 / det, "baseline_fps": 1.0 / bas, "time_ratio": det / bas,
-            "detect_ms_median": det * 1e3, "baseline_ms_median": bas * 1e3}
+    return {
+        "detect_fps": 1.0 / det,
+        "baseline_fps": 1.0 / bas,
+        "time_ratio": det / bas,
+        "detect_ms_median": det * 1e3,
+        "baseline_ms_median": bas * 1e3,
+    }
 
 
 def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
@@ -146,10 +168,16 @@ def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
     out = evaluate(res.table, session.truth or {"frames": []})
     frames = [session.read_image(i) for i in range(len(session.frames))]
     out.update(speed(frames, params, repeat))
-    out.update({"session_wall_s": wall, "frames": len(frames), "streaks": len(res.table),
-                "orientation_sources": res.summary["orientation_sources"],
-                "flags": res.summary["flags"],
-                "gyro_timeshift_s": res.summary.get("gyro_timeshift_s")})
+    out.update(
+        {
+            "session_wall_s": wall,
+            "frames": len(frames),
+            "streaks": len(res.table),
+            "orientation_sources": res.summary["orientation_sources"],
+            "flags": res.summary["flags"],
+            "gyro_timeshift_s": res.summary.get("gyro_timeshift_s"),
+        }
+    )
     return out
 
 
@@ -176,21 +204,44 @@ def main() -> int:
                 folder = simulate(args.work, preset, args.frames, seed)
                 r = run_one(folder, args.gyro, args.repeat)
                 results["runs"].append({"preset": preset, "seed": seed, **r})
-                print(json.dumps({"preset": preset, "seed": seed, **{
-                    k: r[k] for k in ("endpoint_error_median_px", "endpoint_error_p95_px",
-                                      "orientation_correct", "recall_inside",
-                                      "precision_unclipped", "time_ratio", "detect_fps")}}),
-                      file=sys.stderr)
+                print(
+                    json.dumps(
+                        {
+                            "preset": preset,
+                            "seed": seed,
+                            **{
+                                k: r[k]
+                                for k in (
+                                    "endpoint_error_median_px",
+                                    "endpoint_error_p95_px",
+                                    "orientation_correct",
+                                    "recall_inside",
+                                    "precision_unclipped",
+                                    "time_ratio",
+                                    "detect_fps",
+                                )
+                            },
+                        }
+                    ),
+                    file=sys.stderr,
+                )
         summary = {}
         for preset in args.presets:
             rs = [r for r in results["runs"] if r["preset"] == preset]
-            keys = ("endpoint_error_median_px", "endpoint_error_p95_px", "mid_error_median_px",
-                    "mid_error_p95_px", "orientation_correct",
-                    "recall_inside", "precision_unclipped", "detect_fps", "baseline_fps",
-                    "time_ratio")
+            keys = (
+                "endpoint_error_median_px",
+                "endpoint_error_p95_px",
+                "mid_error_median_px",
+                "mid_error_p95_px",
+                "orientation_correct",
+                "recall_inside",
+                "precision_unclipped",
+                "detect_fps",
+                "baseline_fps",
+                "time_ratio",
+            )
             summary[preset] = {k: float(np.median([r[k] for r in rs])) for k in keys}
-            summary[preset]["worst_orientation_correct"] = min(r["orientation_correct"]
-                                                               for r in rs)
+            summary[preset]["worst_orientation_correct"] = min(r["orientation_correct"] for r in rs)
             # Pooled over the seeds: every matched endpoint and every streak counts once.
             err = np.concatenate([r["_errors"] for r in rs])
             c = np.sum([r["_counts"] for r in rs], axis=0)

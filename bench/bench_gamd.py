@@ -38,8 +38,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=REPO / "bench_out" / "gamd")
     p.add_argument("--shared", type=Path, default=REPO.parent / "shared" / "data")
-    p.add_argument("--dataset", type=Path, default=None,
-                   help="use this dataset (train/test splits) instead of synthesising one")
+    p.add_argument(
+        "--dataset",
+        type=Path,
+        default=None,
+        help="use this dataset (train/test splits) instead of synthesising one",
+    )
     p.add_argument("--nets", default=",".join(NETS))
     p.add_argument("--preset", default="tiny")
     p.add_argument("--steps", type=int, default=6000, help="training steps per network")
@@ -54,16 +58,26 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--count-train", type=int, default=400, help="triplets from bsds500/train")
     p.add_argument("--count-val", type=int, default=200, help="triplets from bsds500/val")
     p.add_argument("--count-test", type=int, default=200, help="triplets from bsds500/test")
-    p.add_argument("--focal-px", type=float, default=600.0,
-                   help="focal length of the synthetic camera at --size (sets the blur length)")
+    p.add_argument(
+        "--focal-px",
+        type=float,
+        default=600.0,
+        help="focal length of the synthetic camera at --size (sets the blur length)",
+    )
     p.add_argument("--workers", type=int, default=1, help="synth --workers")
     p.add_argument("--synth-cmd", default=f"{shlex.quote(sys.executable)} -m blurtrack synth")
     p.add_argument("--synth-extra", default="", help="extra arguments for every synth call")
-    p.add_argument("--perturb-flag", default="--robust",
-                   help="synth option whose value perturbs the calibration behind the heat maps "
-                        "only (blur from the true calibration)")
-    p.add_argument("--perturbations", default="timeshift_ms=2;timeshift_ms=5;gyro_noise=0.02",
-                   help="';'-separated values of --perturb-flag, one evaluation each")
+    p.add_argument(
+        "--perturb-flag",
+        default="--robust",
+        help="synth option whose value perturbs the calibration behind the heat maps "
+        "only (blur from the true calibration)",
+    )
+    p.add_argument(
+        "--perturbations",
+        default="timeshift_ms=2;timeshift_ms=5;gyro_noise=0.02",
+        help="';'-separated values of --perturb-flag, one evaluation each",
+    )
     p.add_argument("--eval-limit", type=int, default=None)
     p.add_argument("--time-repeats", type=int, default=3)
     p.add_argument("--time-paper", action="store_true", help="also time the paper-size nets")
@@ -80,12 +94,32 @@ def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Non
     Calibration(camera=cam).to_yaml(path)
 
 
-def run_synth(args: argparse.Namespace, calib: Path, images: Path, out: Path, count: int | None,
-              extra: list[str]) -> None:
+def run_synth(
+    args: argparse.Namespace,
+    calib: Path,
+    images: Path,
+    out: Path,
+    count: int | None,
+    extra: list[str],
+) -> None:
     gyro = args.shared / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
-    cmd = [*shlex.split(args.synth_cmd), "--calib", str(calib), "--gyro", str(gyro),
-           "--images", str(images), "--out", str(out), "--size", args.size,
-           "--seed", str(args.seed), "--workers", str(args.workers)]
+    cmd = [
+        *shlex.split(args.synth_cmd),
+        "--calib",
+        str(calib),
+        "--gyro",
+        str(gyro),
+        "--images",
+        str(images),
+        "--out",
+        str(out),
+        "--size",
+        args.size,
+        "--seed",
+        str(args.seed),
+        "--workers",
+        str(args.workers),
+    ]
     if count is not None:
         cmd += ["--count", str(count)]
     cmd += shlex.split(args.synth_extra) + extra
@@ -103,7 +137,7 @@ def link_groups(src: Path, dst_split: Path, tag: str, what: str = "") -> int:
         g = group.parent
         dst = dst_split / f"{tag}_{g.parent.name}_{g.name}"
         dst.mkdir(parents=True, exist_ok=True)
-        for sub in (("blur", "sharp", "heat") if not what else (what,)):
+        for sub in ("blur", "sharp", "heat") if not what else (what,):
             link = dst / sub
             if (g / sub).is_dir() and not link.exists():
                 link.symlink_to((g / sub).resolve(), target_is_directory=True)
@@ -135,8 +169,11 @@ def blur_lengths(dataset: Path) -> dict:
             maxima.append(bl["max"])
     if not medians:
         return {}
-    return {"median_of_medians_px": statistics.median(medians),
-            "median_of_maxima_px": statistics.median(maxima), "triplets": len(medians)}
+    return {
+        "median_of_medians_px": statistics.median(medians),
+        "median_of_maxima_px": statistics.median(maxima),
+        "triplets": len(medians),
+    }
 
 
 def same_blur(a: Path, b: Path) -> bool:
@@ -154,8 +191,11 @@ def build_dataset(args: argparse.Namespace) -> tuple[Path, dict[str, Path | str]
     calib = args.out / "calib_true.yaml"
     args.out.mkdir(parents=True, exist_ok=True)
     write_calibration(calib, size, args.focal_px)
-    for folder, count in (("train", args.count_train), ("val", args.count_val),
-                          ("test", args.count_test)):
+    for folder, count in (
+        ("train", args.count_train),
+        ("val", args.count_val),
+        ("test", args.count_test),
+    ):
         run_synth(args, calib, bg / folder, synth_dir / folder, count, [])
     link_groups(synth_dir / "train", data / "train", "train")
     link_groups(synth_dir / "val", data / "train", "val")
@@ -200,42 +240,79 @@ def main(argv: list[str] | None = None) -> int:
         data, perturbed = build_dataset(args)
     synth_s = time.perf_counter() - t0
     nets = [n for n in args.nets.split(",") if n]
-    milestones = ([int(m) for m in args.milestones.split(",") if m] if args.milestones
-                  else [max(1, 2 * args.steps // 3)])
-    results: dict = {"config": {k: str(v) for k, v in vars(args).items()},
-                     "synth_seconds": synth_s, "nets": {},
-                     "test_blur_length": blur_lengths(args.out / "synth" / "test")}
+    milestones = (
+        [int(m) for m in args.milestones.split(",") if m]
+        if args.milestones
+        else [max(1, 2 * args.steps // 3)]
+    )
+    results: dict = {
+        "config": {k: str(v) for k, v in vars(args).items()},
+        "synth_seconds": synth_s,
+        "nets": {},
+        "test_blur_length": blur_lengths(args.out / "synth" / "test"),
+    }
     evals, evals_perturbed = {}, {}
     for name in nets:
-        cfg = RunConfig.from_dict({
-            "model": {"name": name, "preset": args.preset},
-            "data": {"root": str(data), "crop": args.crop, "heat_scale_px": args.heat_scale_px},
-            "train": {"out_dir": str(args.out / "runs" / name), "steps": args.steps,
-                      "batch_size": args.batch, "lr": args.lr, "milestones": milestones,
-                      "seed": args.seed, "threads": args.threads,
-                      "checkpoint_every": max(1, args.steps // 4), "progress": False}})
+        cfg = RunConfig.from_dict(
+            {
+                "model": {"name": name, "preset": args.preset},
+                "data": {"root": str(data), "crop": args.crop, "heat_scale_px": args.heat_scale_px},
+                "train": {
+                    "out_dir": str(args.out / "runs" / name),
+                    "steps": args.steps,
+                    "batch_size": args.batch,
+                    "lr": args.lr,
+                    "milestones": milestones,
+                    "seed": args.seed,
+                    "threads": args.threads,
+                    "checkpoint_every": max(1, args.steps // 4),
+                    "progress": False,
+                },
+            }
+        )
         res = train(cfg, resume="auto")
         model, _, _ = load_model(args.out / "runs" / name / "checkpoints" / "last.pt")
-        test = DeblurDataset(data, "test", crop=None, augment=False,
-                             heat_scale_px=args.heat_scale_px, require_heat=model.uses_heat)
+        test = DeblurDataset(
+            data,
+            "test",
+            crop=None,
+            augment=False,
+            heat_scale_px=args.heat_scale_px,
+            require_heat=model.uses_heat,
+        )
         ev = evaluate(model, test, out_dir=args.out / "eval" / name, limit=args.eval_limit)
         evals[name] = ev
-        entry = {"train_seconds": res.seconds, "final_loss_mean100":
-                 sum(res.losses[-100:]) / max(1, len(res.losses[-100:])), **ev.summary()}
+        entry = {
+            "train_seconds": res.seconds,
+            "final_loss_mean100": sum(res.losses[-100:]) / max(1, len(res.losses[-100:])),
+            **ev.summary(),
+        }
         entry["tiny" if args.preset == "tiny" else args.preset] = profile(
-            model, [(256, 256), (720, 1280)], repeats=args.time_repeats)
-        entry["paper"] = profile(build_model(name, "paper"), [(256, 256), (720, 1280)],
-                                 repeats=1, time_it=args.time_paper)
+            model, [(256, 256), (720, 1280)], repeats=args.time_repeats
+        )
+        entry["paper"] = profile(
+            build_model(name, "paper"),
+            [(256, 256), (720, 1280)],
+            repeats=1,
+            time_it=args.time_paper,
+        )
         if model.uses_heat:
             entry["perturbed"] = {}
             for pname, root in perturbed.items():
                 if isinstance(root, str):
                     entry["perturbed"][pname] = root
                     continue
-                pt = DeblurDataset(data, "test", crop=None, augment=False, heat_root=root,
-                                   heat_scale_px=args.heat_scale_px)
-                pev = evaluate(model, pt, out_dir=args.out / "eval" / f"{name}_{pname}",
-                               limit=args.eval_limit)
+                pt = DeblurDataset(
+                    data,
+                    "test",
+                    crop=None,
+                    augment=False,
+                    heat_root=root,
+                    heat_scale_px=args.heat_scale_px,
+                )
+                pev = evaluate(
+                    model, pt, out_dir=args.out / "eval" / f"{name}_{pname}", limit=args.eval_limit
+                )
                 evals_perturbed[f"{name} ({pname})"] = pev
                 entry["perturbed"][pname] = pev.summary()
         results["nets"][name] = entry
@@ -277,8 +354,10 @@ def surviving_gain(nets: dict) -> dict:
             if isinstance(s, dict):
                 g = s["psnr_db"] - nets[plain]["psnr_db"]
                 # a share of a gain within the noise means nothing: only above 0.05 dB
-                out[heat_net][pname] = {"gain_db": g,
-                                        "fraction": g / gain if gain > MIN_GAIN_DB else None}
+                out[heat_net][pname] = {
+                    "gain_db": g,
+                    "fraction": g / gain if gain > MIN_GAIN_DB else None,
+                }
     return out
 
 

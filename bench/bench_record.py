@@ -51,15 +51,23 @@ def child(mode: str, duration_s: float) -> dict:
     out: dict = {"mode": mode, "cpu": cpu}
     if mode == "record":
         with tempfile.TemporaryDirectory() as d:
-            rec = Recorder(Path(d) / "bench.mcap", imu, cam, {},
-                           RecorderConfig(duration_s=duration_s))
+            rec = Recorder(
+                Path(d) / "bench.mcap", imu, cam, {}, RecorderConfig(duration_s=duration_s)
+            )
             res = rec.run()
             out["log_mb_per_s"] = res.status.log_bytes / 1e6 / res.status.elapsed_s
         s = res.status
-        out.update(imu_samples=s.imu_samples, frames=s.frames, imu_dropped=s.imu_dropped,
-                   imu_crc_errors=s.imu_crc_errors, camera_dropped=s.camera_dropped,
-                   error=res.error, imu_rate_hz=s.imu_rate_hz, fps=s.fps,
-                   recording_s=s.elapsed_s)
+        out.update(
+            imu_samples=s.imu_samples,
+            frames=s.frames,
+            imu_dropped=s.imu_dropped,
+            imu_crc_errors=s.imu_crc_errors,
+            camera_dropped=s.camera_dropped,
+            error=res.error,
+            imu_rate_hz=s.imu_rate_hz,
+            fps=s.fps,
+            recording_s=s.elapsed_s,
+        )
     else:
         stop = threading.Event()
         counts = {"imu": 0, "frames": 0}
@@ -76,17 +84,23 @@ def child(mode: str, duration_s: float) -> dict:
                 counts["frames"] += 1
         stop.set()
         t.join()
-        out.update(imu_samples=counts["imu"], frames=counts["frames"],
-                   imu_dropped=imu.stats["dropped"], imu_crc_errors=imu.stats["crc_errors"],
-                   camera_dropped=cam.frames_dropped, error=None)
+        out.update(
+            imu_samples=counts["imu"],
+            frames=counts["frames"],
+            imu_dropped=imu.stats["dropped"],
+            imu_crc_errors=imu.stats["crc_errors"],
+            camera_dropped=cam.frames_dropped,
+            error=None,
+        )
     wall, cpu_used = time.monotonic() - wall0, _cpu_s() - cpu0
     produced = imu.device.sent_index.size if imu.device is not None else 0
     imu.close()
     cam.close()
     out.setdefault("imu_rate_hz", out["imu_samples"] / wall)
     out.setdefault("fps", out["frames"] / wall)
-    out.update(wall_s=wall, cpu_s=cpu_used, cpu_fraction=cpu_used / wall,
-               imu_produced=int(produced))
+    out.update(
+        wall_s=wall, cpu_s=cpu_used, cpu_fraction=cpu_used / wall, imu_produced=int(produced)
+    )
     return out
 
 
@@ -109,9 +123,14 @@ def png_encode_ms(n: int = 10) -> float:
 
 def run_child(mode: str, duration_s: float) -> dict:
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.run([sys.executable, __file__, "--child", mode, "--duration",
-                           str(duration_s)], capture_output=True, text=True, env=env,
-                          timeout=duration_s * 10 + 120, check=True)
+    proc = subprocess.run(
+        [sys.executable, __file__, "--child", mode, "--duration", str(duration_s)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=duration_s * 10 + 120,
+        check=True,
+    )
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
@@ -128,8 +147,13 @@ def main() -> None:
     for _ in range(args.reps):  # interleaved, so that machine load hits both alike
         for mode in runs:
             runs[mode].append(run_child(mode, args.duration))
-    report: dict = {"imu_url": IMU_URL, "camera_url": CAM_URL, "duration_s": args.duration,
-                    "reps": args.reps, "load_avg_1min": os.getloadavg()[0]}
+    report: dict = {
+        "imu_url": IMU_URL,
+        "camera_url": CAM_URL,
+        "duration_s": args.duration,
+        "reps": args.reps,
+        "load_avg_1min": os.getloadavg()[0],
+    }
     for mode, rs in runs.items():
         report[mode] = {
             "cpu_fraction_median": statistics.median(r["cpu_fraction"] for r in rs),
@@ -142,11 +166,13 @@ def main() -> None:
         }
     report["png_encode_ms_per_frame_median"] = png_encode_ms()
     base, rec = report["devices"], report["record"]
-    report["recorder_cpu_overhead_fraction"] = (rec["cpu_fraction_median"]
-                                                - base["cpu_fraction_median"])
-    report["record_over_devices_cpu_ratio"] = (rec["cpu_fraction_median"]
-                                               / base["cpu_fraction_median"])
-    report["no_drops"] = (rec["imu_dropped_total"] == 0 and rec["camera_dropped_total"] == 0)
+    report["recorder_cpu_overhead_fraction"] = (
+        rec["cpu_fraction_median"] - base["cpu_fraction_median"]
+    )
+    report["record_over_devices_cpu_ratio"] = (
+        rec["cpu_fraction_median"] / base["cpu_fraction_median"]
+    )
+    report["no_drops"] = rec["imu_dropped_total"] == 0 and rec["camera_dropped_total"] == 0
     print(json.dumps(report, indent=2))
 
 

@@ -41,8 +41,7 @@ def baseline(frames: int) -> float:
     img = np.random.default_rng(0).integers(0, 40, (720, 1280), dtype=np.uint8)
     t = time.perf_counter()
     for _ in range(frames):
-        cv2.imencode(".png", cv2.GaussianBlur(img, (7, 7), 1.5),
-                     [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        cv2.imencode(".png", cv2.GaussianBlur(img, (7, 7), 1.5), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     return time.perf_counter() - t
 
 
@@ -56,13 +55,20 @@ def endpoint_errors(preset: SimPreset, seed: int, frames: int = 10) -> dict[str,
         fr = rig.frame_truth(i)
         st = [x for x in fr["streaks"] if x["inside"]]
         start, end, _, _ = model.streak_endpoints(
-            np.array([x["ref"] for x in st]), fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9,
-            fr["exposure_ns"] * 1e-9)
+            np.array([x["ref"] for x in st]),
+            fr["t_ref_ns"] * 1e-9,
+            fr["timestamp_ns"] * 1e-9,
+            fr["exposure_ns"] * 1e-9,
+        )
         errs.append(np.linalg.norm(start - [x["start"] for x in st], axis=1))
         errs.append(np.linalg.norm(end - [x["end"] for x in st], axis=1))
     e = np.concatenate(errs)
-    return {"mean_px": round(float(e.mean()), 5), "median_px": round(float(np.median(e)), 5),
-            "max_px": round(float(e.max()), 5), "endpoints": int(e.size)}
+    return {
+        "mean_px": round(float(e.mean()), 5),
+        "median_px": round(float(np.median(e)), 5),
+        "max_px": round(float(e.max()), 5),
+        "endpoints": int(e.size),
+    }
 
 
 def main() -> None:
@@ -91,10 +97,12 @@ def main() -> None:
             rig.render_frame(int(ts) * 1e-9)
             per.append(time.perf_counter() - t)
         base.append(baseline(args.frames))
-        ideal = preset.replace(gyro_noise_radps=0.0, gyro_bias_radps=0.0, gyro_scale_error=0.0,
-                               imu_rate_hz=1000.0)
+        ideal = preset.replace(
+            gyro_noise_radps=0.0, gyro_bias_radps=0.0, gyro_scale_error=0.0, imu_rate_hz=1000.0
+        )
         results[name] = {
-            "motion": preset.motion, "frames": args.frames,
+            "motion": preset.motion,
+            "frames": args.frames,
             "resolution": [preset.width, preset.height],
             "total_s": round(total, 3),
             "render_s": round(summary["seconds"]["render"], 3),
@@ -104,15 +112,25 @@ def main() -> None:
             "median_streak_px": round(summary["streak_length_px"]["median"], 2),
             "true_calibration_endpoint_error": {
                 "ideal_1khz_gyro": endpoint_errors(ideal, args.seed),
-                "preset_gyro": endpoint_errors(preset, args.seed)},
+                "preset_gyro": endpoint_errors(preset, args.seed),
+            },
         }
     b = statistics.median(base)
     for r in results.values():
         r["ratio_to_baseline"] = round(r["total_s"] / b, 2)
-    print(json.dumps({"benchmark": "simulate", "single_core": True,
-                      "baseline_png_s_median": round(b, 3), "baseline_runs": len(base),
-                      "target": "well under 60 s per 100 frames at 1280x720",
-                      "presets": results}, indent=2))
+    print(
+        json.dumps(
+            {
+                "benchmark": "simulate",
+                "single_core": True,
+                "baseline_png_s_median": round(b, 3),
+                "baseline_runs": len(base),
+                "target": "well under 60 s per 100 frames at 1280x720",
+                "presets": results,
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":

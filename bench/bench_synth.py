@@ -42,8 +42,7 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CALIB = Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))
 
 
-def floor_time(n: int, size: tuple[int, int], rng: np.random.Generator,
-               channels: int = 3) -> float:
+def floor_time(n: int, size: tuple[int, int], rng: np.random.Generator, channels: int = 3) -> float:
     """Seconds of ``n`` float32 ``cv2.warpPerspective`` calls (the issue's floor: 3 channels;
     with 4, the vectorised kernel the renderer itself uses)."""
     W, H = size
@@ -51,8 +50,13 @@ def floor_time(n: int, size: tuple[int, int], rng: np.random.Generator,
     M = np.array([[1.0, 0.002, 1.3], [-0.002, 1.0, 0.7], [1e-6, -1e-6, 1.0]])
     t0 = time.perf_counter()
     for _ in range(n):
-        cv2.warpPerspective(img, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                            borderMode=cv2.BORDER_REFLECT_101)
+        cv2.warpPerspective(
+            img,
+            M,
+            (W, H),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REFLECT_101,
+        )
     return time.perf_counter() - t0
 
 
@@ -69,8 +73,9 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
         exact_t.append(time.perf_counter() - t0)
         exact_cpu.append(time.process_time() - c0)
         t0 = time.perf_counter()
-        pp = make_triplet(img, CALIB, src, TripletParams(size=size, mode="paper"),
-                          triplet_rng(1, i))
+        pp = make_triplet(
+            img, CALIB, src, TripletParams(size=size, mode="paper"), triplet_rng(1, i)
+        )
         paper_t.append(time.perf_counter() - t0)
         both = tr.valid & pp.valid
         img_diff.append(float(np.mean(np.abs(tr.blur.astype(float) - pp.blur)[both])))
@@ -81,7 +86,9 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
         fits.append(tr.info["bezier_fit"]["within_0.5px"])
     ratio = [e / f for e, f in zip(exact_t, floor_t, strict=True)]
     return {
-        "size": list(size), "triplets": n, "median_samples": statistics.median(samples),
+        "size": list(size),
+        "triplets": n,
+        "median_samples": statistics.median(samples),
         "exact_triplets_per_s": 1 / statistics.median(exact_t),
         "exact_cpu_s_median": statistics.median(exact_cpu),
         "paper_triplets_per_s": 1 / statistics.median(paper_t),
@@ -89,9 +96,11 @@ def bench_size(size: tuple[int, int], n: int, gyro: str, images: Path) -> dict:
         "floor_4ch_triplets_per_s": 1 / statistics.median(floor4_t),
         "exact_over_floor_median": statistics.median(ratio),
         "exact_over_floor_4ch_median": statistics.median(
-            [e / f for e, f in zip(exact_t, floor4_t, strict=True)]),
+            [e / f for e, f in zip(exact_t, floor4_t, strict=True)]
+        ),
         "paper_over_floor_median": statistics.median(
-            [p / f for p, f in zip(paper_t, floor_t, strict=True)]),
+            [p / f for p, f in zip(paper_t, floor_t, strict=True)]
+        ),
         "paper_vs_exact_blur_mean_abs_8bit": statistics.median(img_diff),
         "paper_vs_exact_heat_p99_px": statistics.median(heat_diff),
         "bezier_fit_within_0.5px_mean": float(np.mean(fits)),
@@ -128,25 +137,48 @@ def fit_share(gyro: str, n: int) -> dict:
         for i in range(n):
             seg = src.segment(triplet_rng(9, i), cam.readout_s + exp_ms * 1e-3, 0.05)
             _, err = BlurModel(Calibration(cam), seg.trace).heat_maps(
-                seg.frame_t_s, exp_ms * 1e-3, 16, None, 8)
+                seg.frame_t_s, exp_ms * 1e-3, 16, None, 8
+            )
             shares.append(float(np.mean(err <= 0.5)))
-        out[f"exposure_{exp_ms:g}ms"] = {"mean": float(np.mean(shares)),
-                                         "p05": float(np.percentile(shares, 5)),
-                                         "min": float(np.min(shares))}
+        out[f"exposure_{exp_ms:g}ms"] = {
+            "mean": float(np.mean(shares)),
+            "p05": float(np.percentile(shares, 5)),
+            "min": float(np.min(shares)),
+        }
     return out
 
 
-def cli_build(size: tuple[int, int], count: int, workers: int, gyro: str, images: Path,
-              tmp: Path) -> dict:
+def cli_build(
+    size: tuple[int, int], count: int, workers: int, gyro: str, images: Path, tmp: Path
+) -> dict:
     """``blurtrack synth --workers K`` end to end in a subprocess: wall time (start-up
     included), the steady rate between the 2nd and the last finished triplet (from the heat
     files' modification times) and the CPU seconds of the command and its workers."""
     calib = tmp / f"calib{size[0]}.yaml"
     CALIB.to_yaml(calib)
     out = tmp / f"cli{size[0]}"
-    cmd = [sys.executable, "-m", "blurtrack", "synth", "--calib", str(calib), "--gyro", gyro,
-           "--images", str(images), "--out", str(out), "--count", str(count), "--seed", "3",
-           "--size", f"{size[0]}x{size[1]}", "--workers", str(workers)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "blurtrack",
+        "synth",
+        "--calib",
+        str(calib),
+        "--gyro",
+        gyro,
+        "--images",
+        str(images),
+        "--out",
+        str(out),
+        "--count",
+        str(count),
+        "--seed",
+        "3",
+        "--size",
+        f"{size[0]}x{size[1]}",
+        "--workers",
+        str(workers),
+    ]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -156,18 +188,30 @@ def cli_build(size: tuple[int, int], count: int, workers: int, gyro: str, images
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     done = sorted(p.stat().st_mtime for p in out.glob("*/*/heat/*.npy"))
     steady = (len(done) - 2) / (done[-1] - done[1]) if len(done) > 3 else None
-    return {"size": list(size), "workers": workers, "triplets": len(done), "wall_s": wall,
-            "triplets_per_s": len(done) / wall, "steady_triplets_per_s": steady,
-            "cpu_s_per_triplet_incl_startup": cpu / len(done)}
+    return {
+        "size": list(size),
+        "workers": workers,
+        "triplets": len(done),
+        "wall_s": wall,
+        "triplets_per_s": len(done) / wall,
+        "steady_triplets_per_s": steady,
+        "cpu_s_per_triplet_incl_startup": cpu / len(done),
+    }
 
 
-def inprocess_cpu(size: tuple[int, int], count: int, gyro: str, images: Path,
-                  tmp: Path) -> float:
+def inprocess_cpu(size: tuple[int, int], count: int, gyro: str, images: Path, tmp: Path) -> float:
     """CPU seconds per triplet of an in-process (1 worker) build, files written; the machine
     is shared, so CPU seconds say more than wall seconds about an idle 2-core machine."""
+
     def mk(n: int, seed: int) -> DatasetSpec:
-        return DatasetSpec(calib=CALIB.to_dict(), gyro=gyro, images=str(images), count=n,
-                           seed=seed, params=TripletParams(size=size))
+        return DatasetSpec(
+            calib=CALIB.to_dict(),
+            gyro=gyro,
+            images=str(images),
+            count=n,
+            seed=seed,
+            params=TripletParams(size=size),
+        )
 
     build(mk(1, 5), tmp / f"warm{size[0]}", workers=1)  # imports, shake file, caches
     c0 = time.process_time()
@@ -179,8 +223,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=8, help="triplets per size")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--build-count", type=int, default=40,
-                    help="triplets of the 1280x720 builds (twice as many at 640x360)")
+    ap.add_argument(
+        "--build-count",
+        type=int,
+        default=40,
+        help="triplets of the 1280x720 builds (twice as many at 640x360)",
+    )
     ap.add_argument("--fit-segments", type=int, default=50)
     args = ap.parse_args()
     cv2.setNumThreads(1)
@@ -189,28 +237,38 @@ def main() -> None:
     images = DATA / "backgrounds" / "bsds500"
     if not images.is_dir():
         raise SystemExit(f"backgrounds not found at {images}")
-    result = {"gyro": Path(gyro).name, "calibration": "1280x720 f=1000 px readout 20 ms",
-              "exposure_ms": [10, 30], "load_average_1min_start": os.getloadavg()[0]}
-    result["sizes"] = [bench_size((1280, 720), args.n, gyro, images),
-                       bench_size((640, 360), 2 * args.n, gyro, images)]
+    result = {
+        "gyro": Path(gyro).name,
+        "calibration": "1280x720 f=1000 px readout 20 ms",
+        "exposure_ms": [10, 30],
+        "load_average_1min_start": os.getloadavg()[0],
+    }
+    result["sizes"] = [
+        bench_size((1280, 720), args.n, gyro, images),
+        bench_size((640, 360), 2 * args.n, gyro, images),
+    ]
     result["heat_stride_error_vs_stride_1"] = {
-        f"{w}x{h}": stride_error(gyro, (w, h)) for w, h in ((1280, 720), (640, 360))}
+        f"{w}x{h}": stride_error(gyro, (w, h)) for w, h in ((1280, 720), (640, 360))
+    }
     result["bezier_fit_within_0.5px_1280x720"] = fit_share(gyro, args.fit_segments)
     builds = []
     with tempfile.TemporaryDirectory() as tmp:
         for size, count in (((1280, 720), args.build_count), ((640, 360), 2 * args.build_count)):
             b = cli_build(size, count, args.workers, gyro, images, Path(tmp))
             cpu = inprocess_cpu(size, max(4, count // 2), gyro, images, Path(tmp))
-            b.update({"cpu_s_per_triplet_in_process": cpu,
-                      "estimated_idle_2core_triplets_per_s": 2.0 / cpu})
+            b.update(
+                {
+                    "cpu_s_per_triplet_in_process": cpu,
+                    "estimated_idle_2core_triplets_per_s": 2.0 / cpu,
+                }
+            )
             builds.append(b)
     result["builds"] = builds
     big, big_build = result["sizes"][0], builds[0]
     result["targets"] = {
         "exact_within_3x_of_floor_1280x720": big["exact_over_floor_median"] <= 3.0,
         "build_5_triplets_per_s_1280x720": big_build["triplets_per_s"] >= 5.0,
-        "build_steady_5_triplets_per_s_1280x720": (big_build["steady_triplets_per_s"] or 0)
-        >= 5.0,
+        "build_steady_5_triplets_per_s_1280x720": (big_build["steady_triplets_per_s"] or 0) >= 5.0,
         "estimated_idle_2core_5_triplets_per_s": big_build["estimated_idle_2core_triplets_per_s"]
         >= 5.0,
         "load_average_1min_end": os.getloadavg()[0],

@@ -13,8 +13,9 @@ from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import Session
 
 
-def trajectory_grid(model: BlurModel, frame_t_s: float, exposure_s: float, nx: int = 9,
-                    ny: int = 6, n_t: int = 24) -> np.ndarray:
+def trajectory_grid(
+    model: BlurModel, frame_t_s: float, exposure_s: float, nx: int = 9, ny: int = 6, n_t: int = 24
+) -> np.ndarray:
     """Image paths ``(nx*ny, n_t, 2)`` of a grid of scene points over one exposure.
 
     Each point is placed on the grid at the frame's reference time (mid-exposure of the centre
@@ -42,13 +43,15 @@ def draw_tracks(image: np.ndarray, tracks: np.ndarray, thickness: int = 2) -> np
     for tr in tracks:
         pts = np.round(tr * scale).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(out, [pts], False, (0, 255, 0), thickness, cv2.LINE_AA, shift=4)
-        cv2.circle(out, tuple(int(v) for v in pts[0, 0]), 3 * scale, (0, 0, 255), -1,
-                   cv2.LINE_AA, shift=4)
+        cv2.circle(
+            out, tuple(int(v) for v in pts[0, 0]), 3 * scale, (0, 0, 255), -1, cv2.LINE_AA, shift=4
+        )
     return out
 
 
-def draw_session_overlays(session: Session, calib: Calibration, out_dir: str | Path,
-                          frames: list[int] | None = None) -> dict[str, object]:
+def draw_session_overlays(
+    session: Session, calib: Calibration, out_dir: str | Path, frames: list[int] | None = None
+) -> dict[str, object]:
     """Write ``overlay_<i>.png`` for the chosen frames; frames the gyro does not cover are
     listed under ``skipped`` with the reason, not drawn."""
     out = Path(out_dir)

@@ -43,8 +43,9 @@ def centre_factors(streaks: StreakSet) -> np.ndarray:
     if streaks.centre is None:
         return np.zeros(len(streaks))
     k = streaks.centre.shape[1]
-    ok = (streaks.length_px >= MIN_CENTRE_LENGTH_PX) & np.all(np.isfinite(streaks.centre),
-                                                              axis=(1, 2))
+    ok = (streaks.length_px >= MIN_CENTRE_LENGTH_PX) & np.all(
+        np.isfinite(streaks.centre), axis=(1, 2)
+    )
     return np.where(ok, np.sqrt(CENTRE_WEIGHT / k), 0.0)
 
 
@@ -70,20 +71,29 @@ def perpendicular(ax: Any, ay: Any, bx: Any, by: Any, px: Any, py: Any, ops: Any
     return (dx * (py - ay) - dy * (px - ax)) / ops.sqrt(dx * dx + dy * dy + SEGMENT_EPS_PX**2)
 
 
-def centre_residual_np(us: np.ndarray, vs: np.ndarray, centre: np.ndarray, seg: np.ndarray,
-                       factor: np.ndarray) -> np.ndarray:
+def centre_residual_np(
+    us: np.ndarray, vs: np.ndarray, centre: np.ndarray, seg: np.ndarray, factor: np.ndarray
+) -> np.ndarray:
     """Weighted centre-line residuals ``(N, K)`` for a fixed association ``seg`` ``(N, K)``."""
     from blurtrack.geometry.kernels import NUMPY_OPS
 
     rows = np.arange(us.shape[0])[:, None]
     c = np.nan_to_num(centre)
-    r = perpendicular(us[rows, seg], vs[rows, seg], us[rows, seg + 1], vs[rows, seg + 1],
-                      c[..., 0], c[..., 1], NUMPY_OPS)
+    r = perpendicular(
+        us[rows, seg],
+        vs[rows, seg],
+        us[rows, seg + 1],
+        vs[rows, seg + 1],
+        c[..., 0],
+        c[..., 1],
+        NUMPY_OPS,
+    )
     return r * factor[:, None]
 
 
-def centre_residual_sx(us: list[Any], vs: list[Any], data: Any, base: int, k: int,
-                       ops: Any) -> list[Any]:
+def centre_residual_sx(
+    us: list[Any], vs: list[Any], data: Any, base: int, k: int, ops: Any
+) -> list[Any]:
     """The same residuals in a per-streak CasADi graph.
 
     ``data[base:]`` holds, per point, ``x, y`` and a one-hot vector over the ``n_sub``
@@ -104,8 +114,7 @@ def centre_residual_sx(us: list[Any], vs: list[Any], data: Any, base: int, k: in
     return out
 
 
-def centre_data(centre: np.ndarray, seg: np.ndarray, factor: np.ndarray,
-                n_sub: int) -> np.ndarray:
+def centre_data(centre: np.ndarray, seg: np.ndarray, factor: np.ndarray, n_sub: int) -> np.ndarray:
     """``(N, K (2 + n_sub) + 1)`` data of :func:`centre_residual_sx`."""
     n, k, _ = centre.shape
     hot = np.zeros((n, k, n_sub))

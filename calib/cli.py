@@ -11,41 +11,71 @@ from typing import Any
 from calib.params import DEFAULT_FIT
 
 #: Display scale and unit of each parameter in the printed table.
-_SHOW = {"timeshift_s": (1e3, "ms"), "readout_s": (1e3, "ms"), "fx": (1, "px"), "fy": (1, "px"),
-         "cx": (1, "px"), "cy": (1, "px"), "bias_x": (1e3, "mrad/s"), "bias_y": (1e3, "mrad/s"),
-         "bias_z": (1e3, "mrad/s"), "rot_x": (57.29577951308232, "deg"),
-         "rot_y": (57.29577951308232, "deg"), "rot_z": (57.29577951308232, "deg"),
-         **{f"scale_{a}": (1e3, "1e-3") for a in ("xx", "yy", "zz", "xy", "xz", "yz")}}
+_SHOW = {
+    "timeshift_s": (1e3, "ms"),
+    "readout_s": (1e3, "ms"),
+    "fx": (1, "px"),
+    "fy": (1, "px"),
+    "cx": (1, "px"),
+    "cy": (1, "px"),
+    "bias_x": (1e3, "mrad/s"),
+    "bias_y": (1e3, "mrad/s"),
+    "bias_z": (1e3, "mrad/s"),
+    "rot_x": (57.29577951308232, "deg"),
+    "rot_y": (57.29577951308232, "deg"),
+    "rot_z": (57.29577951308232, "deg"),
+    **{f"scale_{a}": (1e3, "1e-3") for a in ("xx", "yy", "zz", "xy", "xz", "yz")},
+}
 
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("calibrate", help="fit the gyro blur model to a session's streaks")
     p.add_argument("session", help="session folder")
     p.add_argument("--out", required=True, help="calibration YAML to write (Kalibr keys)")
-    p.add_argument("--fit", default=DEFAULT_FIT,
-                   help="comma-separated parameter groups to estimate, from timeshift, fx, fy, "
-                        "cx, cy, readout, bias, rotation, scale (the gyro's symmetric scale / "
-                        "cross-axis error, written as gyro_scale_matrix; without it a score "
-                        f"test warns when the data ask for one); default: {DEFAULT_FIT}")
+    p.add_argument(
+        "--fit",
+        default=DEFAULT_FIT,
+        help="comma-separated parameter groups to estimate, from timeshift, fx, fy, "
+        "cx, cy, readout, bias, rotation, scale (the gyro's symmetric scale / "
+        "cross-axis error, written as gyro_scale_matrix; without it a score "
+        f"test warns when the data ask for one); default: {DEFAULT_FIT}",
+    )
     _streak_args(p)
-    p.add_argument("--holdout", type=float, default=0.2,
-                   help="fraction of frames held out for evaluation (default 0.2)")
-    p.add_argument("--shift-window-ms", type=float, default=60.0,
-                   help="half-width of the initial time-shift search (default 60 ms)")
-    p.add_argument("--centreline", action="store_true",
-                   help="also fit the streaks' centre lines (point-to-track distances of a few "
-                        "points per streak, together weighing as one endpoint coordinate)")
-    p.add_argument("--frame-noise", action="store_true",
-                   help="refine by generalised least squares under a per-frame gyro-noise "
-                        "model (rate offset and drift per frame): sharper principal point and "
-                        "focal lengths when gyro noise dominates, about 1.5x the time")
-    p.add_argument("--residuals", choices=("auto", "endpoints", "tracks", "both"),
-                   default="auto",
-                   help="what the final stage fits: each streak's end predicted from its "
-                        "start (endpoints), each dot's time midpoint carried to the next frame "
-                        "(tracks: insensitive to biased streak ends), or both; auto (default): "
-                        "tracks where the streak table has midpoints and consecutive frames "
-                        "see the same dots, else endpoints with a warning")
+    p.add_argument(
+        "--holdout",
+        type=float,
+        default=0.2,
+        help="fraction of frames held out for evaluation (default 0.2)",
+    )
+    p.add_argument(
+        "--shift-window-ms",
+        type=float,
+        default=60.0,
+        help="half-width of the initial time-shift search (default 60 ms)",
+    )
+    p.add_argument(
+        "--centreline",
+        action="store_true",
+        help="also fit the streaks' centre lines (point-to-track distances of a few "
+        "points per streak, together weighing as one endpoint coordinate)",
+    )
+    p.add_argument(
+        "--frame-noise",
+        action="store_true",
+        help="refine by generalised least squares under a per-frame gyro-noise "
+        "model (rate offset and drift per frame): sharper principal point and "
+        "focal lengths when gyro noise dominates, about 1.5x the time",
+    )
+    p.add_argument(
+        "--residuals",
+        choices=("auto", "endpoints", "tracks", "both"),
+        default="auto",
+        help="what the final stage fits: each streak's end predicted from its "
+        "start (endpoints), each dot's time midpoint carried to the next frame "
+        "(tracks: insensitive to biased streak ends), or both; auto (default): "
+        "tracks where the streak table has midpoints and consecutive frames "
+        "see the same dots, else endpoints with a warning",
+    )
     p.set_defaults(func=run_calibrate)
 
     r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
@@ -53,8 +83,11 @@ def register(subparsers: Any) -> None:
     r.add_argument("--calib", required=True, help="calibration YAML to evaluate")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--before", help="calibration to compare with (default: session.yaml)")
-    r.add_argument("--fit-summary", help="summary JSON of the fit (default: the one written "
-                                         "next to --calib by calibrate, if present)")
+    r.add_argument(
+        "--fit-summary",
+        help="summary JSON of the fit (default: the one written "
+        "next to --calib by calibrate, if present)",
+    )
     r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
     _streak_args(r)
     r.set_defaults(func=run_report)
@@ -63,8 +96,11 @@ def register(subparsers: Any) -> None:
 def _streak_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--streaks", help="streak table (default: SESSION/streaks.parquet)")
-    g.add_argument("--from-truth", action="store_true",
-                   help="use the simulator's true streaks (truth.yaml) instead of detections")
+    g.add_argument(
+        "--from-truth",
+        action="store_true",
+        help="use the simulator's true streaks (truth.yaml) instead of detections",
+    )
 
 
 def _load(args: argparse.Namespace):
@@ -127,12 +163,18 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.result import named
 
     session, table = _load(args)
-    streaks = streaks_from_table(table, session.frames,
-                                 centre_k=CENTRE_POINTS if args.centreline else 0)
+    streaks = streaks_from_table(
+        table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
+    )
     initial = session.initial_calibration()
-    options = FitOptions(fit=args.fit, holdout_fraction=args.holdout,
-                         shift_window_s=args.shift_window_ms * 1e-3, centreline=args.centreline,
-                         frame_noise=args.frame_noise, residuals=args.residuals)
+    options = FitOptions(
+        fit=args.fit,
+        holdout_fraction=args.holdout,
+        shift_window_s=args.shift_window_ms * 1e-3,
+        centreline=args.centreline,
+        frame_noise=args.frame_noise,
+        residuals=args.residuals,
+    )
     res = calibrate(streaks, session.gyro(), initial, options)
     summary = res.to_dict()
     summary["options"] = dataclasses.asdict(options)
@@ -145,8 +187,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
     write_text_atomic(summary_path(out), json.dumps(summary, indent=2, default=float))
     _print_table(res, summary.get("initial", {}), truth)
     if res.status == "failed":
-        raise CalibError("calibration failed: " + "; ".join(res.warnings)
-                         + f" (details in {summary_path(out)}; no calibration written)")
+        raise CalibError(
+            "calibration failed: "
+            + "; ".join(res.warnings)
+            + f" (details in {summary_path(out)}; no calibration written)"
+        )
     write_calibration(res, out)
     write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
     write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
@@ -160,13 +205,17 @@ def write_calibration(res: Any, path: Path) -> None:
 
 
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
-    print(f"calibration {res.status}: {res.iterations} iterations, "
-          f"{res.train.n} inlier streaks, {res.n_outliers} outliers "
-          f"({res.n_flipped} wrongly oriented), {res.timings_s.get('total', 0):.1f} s")
+    print(
+        f"calibration {res.status}: {res.iterations} iterations, "
+        f"{res.train.n} inlier streaks, {res.n_outliers} outliers "
+        f"({res.n_flipped} wrongly oriented), {res.timings_s.get('total', 0):.1f} s"
+    )
     if res.tracks is not None:
-        print(f"fitted {res.residuals}: {res.n_tracks} inter-frame tracks "
-              f"({res.n_track_outliers} outliers), track error mean {res.tracks.mean_px:.3f} "
-              f"px, median {res.tracks.median_px:.3f}, p95 {res.tracks.p95_px:.3f}")
+        print(
+            f"fitted {res.residuals}: {res.n_tracks} inter-frame tracks "
+            f"({res.n_track_outliers} outliers), track error mean {res.tracks.mean_px:.3f} "
+            f"px, median {res.tracks.median_px:.3f}, p95 {res.tracks.p95_px:.3f}"
+        )
     else:
         print(f"fitted {res.residuals}")
     head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>10}"
@@ -176,17 +225,23 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
             continue
         s, unit = _SHOW[k]
         sig = res.sigma.get(k)
-        line = (f"{k:<12}{unit:>8}{initial.get(k, float('nan')) * s:>12.4f}{v * s:>12.4f}"
-                f"{(sig * s if sig is not None else float('nan')):>10.4f}")
+        line = (
+            f"{k:<12}{unit:>8}{initial.get(k, float('nan')) * s:>12.4f}{v * s:>12.4f}"
+            f"{(sig * s if sig is not None else float('nan')):>10.4f}"
+        )
         if truth:
             line += f"{truth[k] * s:>12.4f}{(v - truth[k]) * s:>10.4f}"
         print(line)
-    print(f"train endpoint error: mean {res.train.mean_px:.3f} px, median "
-          f"{res.train.median_px:.3f}, p95 {res.train.p95_px:.3f}")
+    print(
+        f"train endpoint error: mean {res.train.mean_px:.3f} px, median "
+        f"{res.train.median_px:.3f}, p95 {res.train.p95_px:.3f}"
+    )
     if res.holdout.n:
-        print(f"hold-out endpoint error: mean {res.holdout.mean_px:.3f} px, median "
-              f"{res.holdout.median_px:.3f}, p95 {res.holdout.p95_px:.3f} ({res.holdout.n} "
-              f"streaks)")
+        print(
+            f"hold-out endpoint error: mean {res.holdout.mean_px:.3f} px, median "
+            f"{res.holdout.median_px:.3f}, p95 {res.holdout.p95_px:.3f} ({res.holdout.n} "
+            f"streaks)"
+        )
     for w in res.warnings:
         print(f"warning: {w}")
 
@@ -210,12 +265,15 @@ def run_report(args: argparse.Namespace) -> int:
             raise CalibError(f"fit summary {fs_path} is not a JSON object")
     elif args.fit_summary:
         raise CalibError(f"fit summary not found: {fs_path}")
-    summary = build_report(session, table, before, after, args.out, fit_summary=fit,
-                           n_overlays=args.overlays)
+    summary = build_report(
+        session, table, before, after, args.out, fit_summary=fit, n_overlays=args.overlays
+    )
     for k in ("before", "after"):
         s = summary["overall"][k]
-        print(f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "
-              f"p95 {s['p95_px']:.3f} ({s['n']} streaks)")
+        print(
+            f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "
+            f"p95 {s['p95_px']:.3f} ({s['n']} streaks)"
+        )
     for k, s in summary["motion_models"].items():
         print(f"  {summary['motion_model_labels'][k]}: mean {s['mean_px']:.3f} px")
     for w in summary["warnings"]:
@@ -235,6 +293,7 @@ def demo_argv(session: str | Path, out: str | Path, from_truth: bool = True) -> 
     """
     src = ["--from-truth"] if from_truth else []
     calib = str(Path(out) / "calib.yaml")
-    return [["calibrate", str(session), "--out", calib, *src],
-            ["report", str(session), "--calib", calib, "--out", str(Path(out) / "report"),
-             *src]]
+    return [
+        ["calibrate", str(session), "--out", calib, *src],
+        ["report", str(session), "--calib", calib, "--out", str(Path(out) / "report"), *src],
+    ]

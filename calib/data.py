@@ -66,8 +66,9 @@ class StreakSet:
             c = np.asarray(self.centre, dtype=float)
             if c.ndim != 3 or c.shape[0] != n or c.shape[2] != 2 or c.shape[1] < 1:
                 raise CalibError(f"streak centre points must have shape ({n}, K, 2)")
-            if np.any(np.isinf(c)) or np.any(np.isnan(c).any(axis=(1, 2))
-                                             != np.isnan(c).all(axis=(1, 2))):
+            if np.any(np.isinf(c)) or np.any(
+                np.isnan(c).any(axis=(1, 2)) != np.isnan(c).all(axis=(1, 2))
+            ):
                 raise CalibError("streak centre points must be finite (or a whole row NaN)")
             object.__setattr__(self, "centre", c)
         for name in ("start", "end"):
@@ -83,8 +84,9 @@ class StreakSet:
         if np.any(self.exposure_s <= 0):
             raise CalibError("streak exposures must be positive")
         object.__setattr__(self, "frame", np.asarray(self.frame, dtype=np.int64).reshape(-1))
-        object.__setattr__(self, "streak_id",
-                           np.asarray(self.streak_id, dtype=np.int64).reshape(-1))
+        object.__setattr__(
+            self, "streak_id", np.asarray(self.streak_id, dtype=np.int64).reshape(-1)
+        )
 
     def __len__(self) -> int:
         return int(self.frame.size)
@@ -106,18 +108,28 @@ class StreakSet:
 
     def subset(self, mask: np.ndarray) -> StreakSet:
         m = np.asarray(mask)
-        return replace(self, start=self.start[m], end=self.end[m], frame_t_s=self.frame_t_s[m],
-                       exposure_s=self.exposure_s[m], frame=self.frame[m],
-                       streak_id=self.streak_id[m],
-                       centre=None if self.centre is None else self.centre[m],
-                       time_row=None if self.time_row is None else self.time_row[m],
-                       mid=None if self.mid is None else self.mid[m])
+        return replace(
+            self,
+            start=self.start[m],
+            end=self.end[m],
+            frame_t_s=self.frame_t_s[m],
+            exposure_s=self.exposure_s[m],
+            frame=self.frame[m],
+            streak_id=self.streak_id[m],
+            centre=None if self.centre is None else self.centre[m],
+            time_row=None if self.time_row is None else self.time_row[m],
+            mid=None if self.mid is None else self.mid[m],
+        )
 
     def flipped(self) -> StreakSet:
         """The same streaks with start and end swapped (centre points reversed)."""
-        return replace(self, start=self.end, end=self.start,
-                       centre=None if self.centre is None else self.centre[:, ::-1],
-                       time_row=None if self.time_row is None else self.time_row[:, ::-1])
+        return replace(
+            self,
+            start=self.end,
+            end=self.start,
+            centre=None if self.centre is None else self.centre[:, ::-1],
+            time_row=None if self.time_row is None else self.time_row[:, ::-1],
+        )
 
     def reoriented(self, mask: np.ndarray) -> StreakSet:
         """Start and end swapped where ``mask`` (N,) is true."""
@@ -128,8 +140,13 @@ class StreakSet:
         tr = self.time_row
         if tr is not None:
             tr = np.where(m, tr[:, ::-1], tr)
-        return replace(self, start=np.where(m, self.end, self.start),
-                       end=np.where(m, self.start, self.end), centre=c, time_row=tr)
+        return replace(
+            self,
+            start=np.where(m, self.end, self.start),
+            end=np.where(m, self.start, self.end),
+            centre=c,
+            time_row=tr,
+        )
 
 
 def centre_points(polyline: object, k: int) -> np.ndarray:
@@ -155,8 +172,9 @@ def centre_points(polyline: object, k: int) -> np.ndarray:
     return np.stack([np.interp(s, arc, P[:, 0]), np.interp(s, arc, P[:, 1])], axis=1)
 
 
-def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
-                       drop_flagged: bool = True, centre_k: int = 0) -> StreakSet:
+def streaks_from_table(
+    table: pd.DataFrame, frames: pd.DataFrame, drop_flagged: bool = True, centre_k: int = 0
+) -> StreakSet:
     """A :class:`StreakSet` from a validated streak table and the session's frame table.
 
     ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). Streaks
@@ -189,8 +207,11 @@ def streaks_from_table(table: pd.DataFrame, frames: pd.DataFrame,
         frame=idx,
         streak_id=df["streak_id"].to_numpy(np.int64),
         t0_s=t0_ns * 1e-9,
-        centre=(np.stack([centre_points(c, centre_k) for c in df["centerline"]])
-                if centre_k > 0 and len(df) else None),
+        centre=(
+            np.stack([centre_points(c, centre_k) for c in df["centerline"]])
+            if centre_k > 0 and len(df)
+            else None
+        ),
         mid=mid,
     )
 
@@ -200,8 +221,9 @@ def relative_gyro(gyro: GyroTrace, t0_s: float) -> GyroTrace:
     return GyroTrace(gyro.t_s - t0_s, gyro.omega_radps, gyro.max_gap_s)
 
 
-def covered_mask(streaks: StreakSet, gyro: GyroTrace, camera: Camera, shift_s: float,
-                 margin_s: float) -> np.ndarray:
+def covered_mask(
+    streaks: StreakSet, gyro: GyroTrace, camera: Camera, shift_s: float, margin_s: float
+) -> np.ndarray:
     """Streaks whose whole exposure (± ``margin_s`` of time-shift search) the gyro covers."""
     lo = streaks.frame_t_s + shift_s - margin_s
     hi = streaks.frame_t_s + camera.readout_s + streaks.exposure_s + shift_s + margin_s

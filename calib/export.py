@@ -68,10 +68,16 @@ def camera_info_dict(calib: Calibration, camera_name: str = "cam0") -> dict[str,
         "camera_matrix": {"rows": 3, "cols": 3, "data": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]},
         "distortion_model": "plumb_bob",
         "distortion_coefficients": {"rows": 1, "cols": 5, "data": [float(v) for v in d]},
-        "rectification_matrix": {"rows": 3, "cols": 3,
-                                 "data": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]},
-        "projection_matrix": {"rows": 3, "cols": 4,
-                              "data": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]},
+        "rectification_matrix": {
+            "rows": 3,
+            "cols": 3,
+            "data": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        },
+        "projection_matrix": {
+            "rows": 3,
+            "cols": 4,
+            "data": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        },
     }
 
 
@@ -80,5 +86,9 @@ def write_openvins(calib: Calibration, path: str | Path) -> None:
 
 
 def write_camera_info(calib: Calibration, path: str | Path, camera_name: str = "cam0") -> None:
-    write_text_atomic(path, yaml.safe_dump(camera_info_dict(calib, camera_name),
-                                           sort_keys=False, default_flow_style=None))
+    write_text_atomic(
+        path,
+        yaml.safe_dump(
+            camera_info_dict(calib, camera_name), sort_keys=False, default_flow_style=None
+        ),
+    )

@@ -97,11 +97,14 @@ class FitOptions:
 
     def __post_init__(self) -> None:
         if self.residuals not in RESIDUALS:
-            raise CalibError(f"residuals must be one of {', '.join(RESIDUALS)}, got "
-                             f"{self.residuals!r}")
+            raise CalibError(
+                f"residuals must be one of {', '.join(RESIDUALS)}, got {self.residuals!r}"
+            )
         if self.residuals in ("tracks", "both") and (self.centreline or self.frame_noise):
-            raise CalibError("centre-line residuals and the frame-noise refinement work on "
-                             "endpoint residuals only (--residuals endpoints)")
+            raise CalibError(
+                "centre-line residuals and the frame-noise refinement work on "
+                "endpoint residuals only (--residuals endpoints)"
+            )
 
 
 def _rayleigh_sigma(rho: np.ndarray) -> float:
@@ -114,8 +117,9 @@ def _outlier_threshold(rho_inliers: np.ndarray) -> float:
     return max(OUTLIER_SIGMAS * _rayleigh_sigma(rho_inliers), MIN_OUTLIER_PX)
 
 
-def classify(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
-             threshold_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def classify(
+    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, threshold_px: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Endpoint errors ``(N,)``, outlier mask and wrongly-oriented mask at ``theta``."""
     rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
     out = rho > threshold_px
@@ -126,8 +130,9 @@ def classify(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
     return rho, out, flipped
 
 
-def _reorient(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
-              threshold_px: float) -> tuple[StreakSet, np.ndarray, np.ndarray]:
+def _reorient(
+    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, threshold_px: float
+) -> tuple[StreakSet, np.ndarray, np.ndarray]:
     """Swap start and end of the streaks that only fit reversed (orientation resolved wrongly
     by detection). Returns the corrected set, its endpoint errors and the swapped mask."""
     _, _, flip = classify(model, theta, streaks, threshold_px)
@@ -137,8 +142,13 @@ def _reorient(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
     return streaks, rho, flip
 
 
-def scale_check(ev: JacobianEvaluator, theta: np.ndarray, streaks: StreakSet,
-                weights: np.ndarray, free: tuple[int, ...]) -> list[str]:
+def scale_check(
+    ev: JacobianEvaluator,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    weights: np.ndarray,
+    free: tuple[int, ...],
+) -> list[str]:
     """Warn when the data ask for a gyro scale / cross-axis error that is not being fitted.
 
     One Gauss–Newton step from the optimum with the scale entries freed (the score test):
@@ -164,15 +174,21 @@ def scale_check(ev: JacobianEvaluator, theta: np.ndarray, streaks: StreakSet,
     if not big:
         return []
     worst = max(big, key=lambda k: abs(big[k]))
-    return [f"the gyro shows a scale/cross-axis error that is not fitted ({worst} "
-            f"{step[full.index(THETA_NAMES.index(worst))]:+.2e}, {abs(big[worst]):.0f} sigma): "
-            f"focal lengths and rotation absorb it and their sigma are optimistic; "
-            f"refit with --fit ...,scale"]
+    return [
+        f"the gyro shows a scale/cross-axis error that is not fitted ({worst} "
+        f"{step[full.index(THETA_NAMES.index(worst))]:+.2e}, {abs(big[worst]):.0f} sigma): "
+        f"focal lengths and rotation absorb it and their sigma are optimistic; "
+        f"refit with --fit ...,scale"
+    ]
 
 
-def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
-              options: FitOptions = FitOptions(),
-              clock: Callable[[], float] = time.perf_counter) -> CalibResult:
+def calibrate(
+    streaks: StreakSet,
+    gyro: GyroTrace,
+    initial: Calibration,
+    options: FitOptions = FitOptions(),
+    clock: Callable[[], float] = time.perf_counter,
+) -> CalibResult:
     """Fit the blur model to measured streak endpoints (see the module docstring).
 
     Args:
@@ -187,26 +203,32 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     initial = symmetric_scale_form(initial)
     cam = initial.camera
     if options.centreline and streaks.centre is None:
-        raise CalibError("centre-line residuals asked for, but the streaks carry no centre "
-                         "lines")
+        raise CalibError("centre-line residuals asked for, but the streaks carry no centre lines")
     if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
-        raise CalibError(f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
-                         f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames")
+        raise CalibError(
+            f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
+            f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames"
+        )
     g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
     cov = covered_mask(streaks, g, cam, initial.timeshift_cam_imu_s, options.shift_window_s)
     if not np.all(cov):
         bad = np.unique(streaks.frame[~cov])
         if np.count_nonzero(cov) < MIN_STREAKS or np.unique(streaks.frame[cov]).size < MIN_FRAMES:
-            raise CalibError(f"the gyro does not cover the exposures (± the "
-                             f"{options.shift_window_s * 1e3:.0f} ms shift search) of "
-                             f"{bad.size} of {streaks.n_frames} frames; too few remain")
-        warnings.append(f"{bad.size} frame(s) not covered by the gyro were left out "
-                        f"(first: {int(bad[0])})")
+            raise CalibError(
+                f"the gyro does not cover the exposures (± the "
+                f"{options.shift_window_s * 1e3:.0f} ms shift search) of "
+                f"{bad.size} of {streaks.n_frames} frames; too few remain"
+            )
+        warnings.append(
+            f"{bad.size} frame(s) not covered by the gyro were left out (first: {int(bad[0])})"
+        )
         streaks = streaks.subset(cov)
     med_len = float(np.median(streaks.length_px))
     if med_len < 1.0:
-        raise CalibError(f"no motion: the median streak is {med_len:.2f} px long; the blur "
-                         f"model cannot be calibrated from static frames")
+        raise CalibError(
+            f"no motion: the median streak is {med_len:.2f} px long; the blur "
+            f"model cannot be calibrated from static frames"
+        )
     held = holdout_mask(streaks.frame, options.holdout_fraction)
     train, test = streaks.subset(~held), streaks.subset(held)
     if len(train) < MIN_STREAKS:
@@ -214,12 +236,23 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
 
     theta0 = theta_from(initial)
     readout_bound = max(2 * cam.readout_s, 0.05)
-    model = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
-                          choose_substeps(train, cam.height, readout_bound))
-    coarse = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
-                           choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S))
-    ini = init_mod.initialise(coarse, train, theta0, 0 in free, 1 in free or 2 in free,
-                              options.shift_window_s)
+    model = ResidualModel(
+        g,
+        initial.R_cam_imu,
+        cam.dist,
+        cam.height,
+        choose_substeps(train, cam.height, readout_bound),
+    )
+    coarse = ResidualModel(
+        g,
+        initial.R_cam_imu,
+        cam.dist,
+        cam.height,
+        choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S),
+    )
+    ini = init_mod.initialise(
+        coarse, train, theta0, 0 in free, 1 in free or 2 in free, options.shift_window_s
+    )
     theta = ini.theta
     timings["init"] = clock() - t_start
 
@@ -237,12 +270,12 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         theta, iters = lm.theta, iters + lm.iterations
     lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
     theta, iters = lm.theta, iters + lm.iterations
-    dropped = uncertainty.unobservable(uncertainty.information(lm.jacobian, lm.weights, free),
-                                       free)
+    dropped = uncertainty.unobservable(uncertainty.information(lm.jacobian, lm.weights, free), free)
     if dropped:
         names = [THETA_NAMES[i] for i in dropped]
-        warnings.append(f"not observable from this motion, kept at the initial value: "
-                        f"{', '.join(names)}")
+        warnings.append(
+            f"not observable from this motion, kept at the initial value: {', '.join(names)}"
+        )
         theta[dropped] = theta0[dropped]
         free = tuple(i for i in free if i not in dropped)
         lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
@@ -255,8 +288,10 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         if options.centreline or options.frame_noise:
             pass  # both work on endpoint residuals only
         elif train.mid is None:
-            warnings.append("the streaks carry no time midpoints (mid_x, mid_y): fitted "
-                            "endpoints, which a detector's length bias moves")
+            warnings.append(
+                "the streaks carry no time midpoints (mid_x, mid_y): fitted "
+                "endpoints, which a detector's length bias moves"
+            )
         else:
             mode = "tracks"
     use_ep = mode in ("endpoints", "both")
@@ -264,24 +299,35 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     if mode != "endpoints":
         tracks, _ = build_tracks(model, theta, train)
         if len(tracks) < MIN_STREAKS and options.residuals == "auto":
-            warnings.append(f"only {len(tracks)} inter-frame tracks paired up (consecutive "
-                            f"frames must see the same dots): fitted endpoints instead")
+            warnings.append(
+                f"only {len(tracks)} inter-frame tracks paired up (consecutive "
+                f"frames must see the same dots): fitted endpoints instead"
+            )
             mode, use_ep, tracks = "endpoints", True, None
         elif options.residuals == "auto" and len(tracks) < MIN_TRACK_SHARE * len(train):
-            warnings.append(f"only {len(tracks)} inter-frame tracks for {len(train)} "
-                            f"streaks (few dots unflagged in consecutive frames): the fit uses "
-                            f"the tracks only; --residuals both would use every streak but "
-                            f"take in the detected ends' biases")
+            warnings.append(
+                f"only {len(tracks)} inter-frame tracks for {len(train)} "
+                f"streaks (few dots unflagged in consecutive frames): the fit uses "
+                f"the tracks only; --residuals both would use every streak but "
+                f"take in the detected ends' biases"
+            )
         elif len(tracks) < MIN_STREAKS:
-            raise CalibError(f"only {len(tracks)} inter-frame tracks found (need "
-                             f"{MIN_STREAKS}): consecutive frames must see the same dots")
+            raise CalibError(
+                f"only {len(tracks)} inter-frame tracks found (need "
+                f"{MIN_STREAKS}): consecutive frames must see the same dots"
+            )
     if tracks is not None:
         both = concat([train, tracks])
-        model = ResidualModel(g, initial.R_cam_imu, cam.dist, cam.height,
-                              choose_substeps(both, cam.height, readout_bound))
+        model = ResidualModel(
+            g,
+            initial.R_cam_imu,
+            cam.dist,
+            cam.height,
+            choose_substeps(both, cam.height, readout_bound),
+        )
     ev_fine = JacobianEvaluator(
-        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None
-        else 0)
+        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None else 0
+    )
     inl = np.ones(len(train), dtype=bool)
     tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
@@ -306,8 +352,9 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
             break  # the inlier sets have settled
         inl, tinl = new_inl, new_tinl
         if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
-            raise CalibError(f"only {np.count_nonzero(inl)} streaks agree with the model: "
-                             f"the data contradict it")
+            raise CalibError(
+                f"only {np.count_nonzero(inl)} streaks agree with the model: the data contradict it"
+            )
         parts, errors = [], []
         if use_ep:
             parts.append(train.subset(inl))
@@ -317,10 +364,16 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
             errors.append(rho_t[tinl])
         fitset = parts[0] if len(parts) == 1 else concat(parts)
         sig_fit = _rayleigh_sigma(np.concatenate(errors))
-        lm = levenberg_marquardt(ev_fine, fitset, theta, free,
-                                 max(FINE_DELTA_SIGMAS * sig_fit, 1e-3),
-                                 max_iter=options.max_iter, step_tol=max(0.1 * sig_fit, 1e-5),
-                                 lam0=1e-6)
+        lm = levenberg_marquardt(
+            ev_fine,
+            fitset,
+            theta,
+            free,
+            max(FINE_DELTA_SIGMAS * sig_fit, 1e-3),
+            max_iter=options.max_iter,
+            step_tol=max(0.1 * sig_fit, 1e-5),
+            lam0=1e-6,
+        )
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         timings[f"fine{round_}_iterations"] = lm.iterations
     if not use_ep:
@@ -342,11 +395,20 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
         from calib.framenoise import gls_refine
 
         try:
-            gls = gls_refine(ev_fine, train.subset(inl), theta, free, lm.weights, cam.height,
-                             float(theta[5]), start=(lm.residual, lm.jacobian))
+            gls = gls_refine(
+                ev_fine,
+                train.subset(inl),
+                theta,
+                free,
+                lm.weights,
+                cam.height,
+                float(theta[5]),
+                start=(lm.residual, lm.jacobian),
+            )
         except CalibError as exc:
-            warnings.append(f"frame-noise refinement skipped ({exc}); the estimate is the "
-                            f"plain robust fit")
+            warnings.append(
+                f"frame-noise refinement skipped ({exc}); the estimate is the plain robust fit"
+            )
         else:
             theta, iters = gls.theta, iters + gls.iterations
             converged = converged and gls.converged
@@ -361,8 +423,10 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     warnings.extend(scale_check(ev_fine, theta, fitset, lm.weights, free))
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
     R = apply_theta(initial, theta).R_cam_imu
-    w_cam = np.stack(omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]),
-                                  theta[0])(t_mid), axis=1)
+    w_cam = np.stack(
+        omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]), theta[0])(t_mid),
+        axis=1,
+    )
     warnings.extend(uncertainty.excitation_warnings(w_cam))
 
     if len(test):
@@ -374,12 +438,16 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     n_in = int(np.count_nonzero(~out))
     status = "ok"
     if n_in < MIN_INLIER_FRACTION * len(train):
-        warnings.append(f"only {n_in} of {len(train)} streaks agree with the model: the data "
-                        f"contradict it (wrong session, gyro or initial rotation?)")
+        warnings.append(
+            f"only {n_in} of {len(train)} streaks agree with the model: the data "
+            f"contradict it (wrong session, gyro or initial rotation?)"
+        )
         status = "failed"
     if sig > MAX_RESIDUAL_SIGMA_PX:
-        warnings.append(f"endpoint residuals are large (robust sigma {sig:.2f} px): the data "
-                        f"contradict the model")
+        warnings.append(
+            f"endpoint residuals are large (robust sigma {sig:.2f} px): the data "
+            f"contradict the model"
+        )
         status = "failed"
     if not converged:
         warnings.append("the solver did not converge within its iteration limit")
@@ -389,20 +457,39 @@ def calibrate(streaks: StreakSet, gyro: GyroTrace, initial: Calibration,
     track_stats: dict = {"residuals": mode}
     if tracks is not None:
         rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
-        track_stats.update(tracks=ErrorStats.of(rho_t[tinl]), n_tracks=len(tracks),
-                           n_track_outliers=int(np.count_nonzero(~tinl)))
+        track_stats.update(
+            tracks=ErrorStats.of(rho_t[tinl]),
+            n_tracks=len(tracks),
+            n_track_outliers=int(np.count_nonzero(~tinl)),
+        )
     sigma = named(sigma_vec, free)
     calib = apply_theta(initial, theta)
     calib = calib.with_(sigma=sigma_block(sigma))
-    corr = {THETA_NAMES[a]: {THETA_NAMES[b]: float(corr_mat[i, j])
-                             for j, b in enumerate(free)} for i, a in enumerate(free)}
+    corr = {
+        THETA_NAMES[a]: {THETA_NAMES[b]: float(corr_mat[i, j]) for j, b in enumerate(free)}
+        for i, a in enumerate(free)
+    }
     timings["total"] = clock() - t_start
     return CalibResult(
-        status=status, calibration=calib, initial=initial, values=named(theta), sigma=sigma,
-        correlation=corr, fitted=tuple(THETA_NAMES[i] for i in free),
-        fixed_unobservable=tuple(THETA_NAMES[i] for i in dropped), iterations=iters,
-        converged=converged, train=ErrorStats.of(rho[~out]), train_all=ErrorStats.of(rho),
-        holdout=holdout, holdout_all=holdout_all, n_outliers=int(np.count_nonzero(out)),
-        n_flipped=int(np.count_nonzero(reoriented)), residual_sigma_px=sig,
-        init_shift_curve=ini.shift_curve, warnings=tuple(warnings), timings_s=timings,
-        **track_stats)
+        status=status,
+        calibration=calib,
+        initial=initial,
+        values=named(theta),
+        sigma=sigma,
+        correlation=corr,
+        fitted=tuple(THETA_NAMES[i] for i in free),
+        fixed_unobservable=tuple(THETA_NAMES[i] for i in dropped),
+        iterations=iters,
+        converged=converged,
+        train=ErrorStats.of(rho[~out]),
+        train_all=ErrorStats.of(rho),
+        holdout=holdout,
+        holdout_all=holdout_all,
+        n_outliers=int(np.count_nonzero(out)),
+        n_flipped=int(np.count_nonzero(reoriented)),
+        residual_sigma_px=sig,
+        init_shift_curve=ini.shift_curve,
+        warnings=tuple(warnings),
+        timings_s=timings,
+        **track_stats,
+    )

@@ -43,8 +43,12 @@ PRIOR_SCALES = (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e6)
 MIN_DRIFT_READOUT = 0.1
 
 
-def nuisance_columns(J: np.ndarray, streaks: StreakSet, height: int, readout_s: float,
-                     ) -> np.ndarray:
+def nuisance_columns(
+    J: np.ndarray,
+    streaks: StreakSet,
+    height: int,
+    readout_s: float,
+) -> np.ndarray:
     """``(N, m, 6)``: rate-offset columns and drift columns (offset times the streak's
     normalised time in its frame's exposure window, in [-1/2, 1/2]). ``(N, m, 3)`` (offset
     only) when the readout is under :data:`MIN_DRIFT_READOUT` of the exposure: then the rows
@@ -69,8 +73,9 @@ class FrameModel:
     sigma2: float  # per-coordinate noise variance after the frame effects
 
     @classmethod
-    def estimate(cls, r: np.ndarray, B: np.ndarray, frames: np.ndarray,
-                 d: np.ndarray) -> FrameModel:
+    def estimate(
+        cls, r: np.ndarray, B: np.ndarray, frames: np.ndarray, d: np.ndarray
+    ) -> FrameModel:
         _, inv = np.unique(frames, return_inverse=True)
         groups = tuple(np.flatnonzero(inv == k) for k in range(inv.max() + 1))
         nus, diag_inv, ss, dof = [], [], 0.0, 0
@@ -93,8 +98,12 @@ class FrameModel:
         prior = sigma2 / np.maximum(var_nu, 1e-6 * np.mean(np.square(nus), axis=0) + 1e-30)
         return cls(groups, B, d, prior, sigma2)
 
-    def normal_equations(self, J: np.ndarray, r: np.ndarray, free: tuple[int, ...],
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    def normal_equations(
+        self,
+        J: np.ndarray,
+        r: np.ndarray,
+        free: tuple[int, ...],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """``A (p, p)``, ``g (p,)``, per-frame scores ``G (F, p)`` and cost of the GLS weight."""
         p = len(free)
         A = np.zeros((p, p))
@@ -127,8 +136,12 @@ def _flat(a: np.ndarray) -> np.ndarray:
     return a.reshape(a.shape[0] * a.shape[1], -1) if a.ndim == 3 else a.reshape(-1)
 
 
-def sandwich(fm: FrameModel, J: np.ndarray, r: np.ndarray, free: tuple[int, ...],
-             ) -> tuple[np.ndarray, np.ndarray]:
+def sandwich(
+    fm: FrameModel,
+    J: np.ndarray,
+    r: np.ndarray,
+    free: tuple[int, ...],
+) -> tuple[np.ndarray, np.ndarray]:
     """Frame-clustered sandwich covariance ``(p, p)`` and sigma ``(p,)`` (never below the
     plain ``σ² A⁻¹``, ``σ`` at least the model's own accuracy
     :data:`calib.uncertainty.MODEL_FLOOR_PX`) of the weighted estimate."""
@@ -141,8 +154,12 @@ def sandwich(fm: FrameModel, J: np.ndarray, r: np.ndarray, free: tuple[int, ...]
     return cov, np.sqrt(np.maximum(np.diag(cov), s2 * np.diag(Ainv)))
 
 
-def choose_prior(fm: FrameModel, J: np.ndarray, r: np.ndarray, free: tuple[int, ...],
-                 ) -> tuple[FrameModel, float]:
+def choose_prior(
+    fm: FrameModel,
+    J: np.ndarray,
+    r: np.ndarray,
+    free: tuple[int, ...],
+) -> tuple[FrameModel, float]:
     """The model with the prior factor of :data:`PRIOR_SCALES` of least ``Σ log σ_i``."""
     best: tuple[float, float, FrameModel] | None = None
     for k in PRIOR_SCALES:
@@ -165,10 +182,18 @@ class GLSResult:
     prior_scale: float
 
 
-def gls_refine(ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray,
-               free: tuple[int, ...], weights: np.ndarray, height: int, readout_s: float,
-               start: tuple[np.ndarray, np.ndarray] | None = None, max_iter: int = 10,
-               step_tol: float = 0.02) -> GLSResult:
+def gls_refine(
+    ev: JacobianEvaluator,
+    streaks: StreakSet,
+    theta0: np.ndarray,
+    free: tuple[int, ...],
+    weights: np.ndarray,
+    height: int,
+    readout_s: float,
+    start: tuple[np.ndarray, np.ndarray] | None = None,
+    max_iter: int = 10,
+    step_tol: float = 0.02,
+) -> GLSResult:
     """Refine an (ordinary robust) optimum under the frame-noise weighting.
 
     Levenberg–Marquardt on the GLS cost with the noise model estimated at the start point and
@@ -179,13 +204,13 @@ def gls_refine(ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray,
     :func:`calib.solve.levenberg_marquardt` does).
     """
     if not all(i in free for i in BIAS):
-        raise CalibError("the frame-noise model needs the gyro bias among the fitted "
-                         "parameters")
+        raise CalibError("the frame-noise model needs the gyro bias among the fitted parameters")
     theta = np.asarray(theta0, float).copy()
     fr = np.asarray(free)
     r, J = start if start is not None else ev.evaluate(theta, streaks, free)
-    fm = FrameModel.estimate(r, nuisance_columns(J, streaks, height, readout_s), streaks.frame,
-                             weights)
+    fm = FrameModel.estimate(
+        r, nuisance_columns(J, streaks, height, readout_s), streaks.frame, weights
+    )
     fm, scale = choose_prior(fm, J, r, free)
     lam, converged, it = 1e-6, False, 0
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
@@ -204,8 +229,9 @@ def gls_refine(ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray,
             c_try = fm.cost(r_try)
             if np.isfinite(c_try) and c_try <= cost:
                 theta, improved = trial, True
-                small = bool(np.all(np.abs(step_s) < step_tol * max(np.sqrt(fm.sigma2),
-                                                                     MODEL_FLOOR_PX)))
+                small = bool(
+                    np.all(np.abs(step_s) < step_tol * max(np.sqrt(fm.sigma2), MODEL_FLOOR_PX))
+                )
                 lam = max(lam / 10, 1e-9)
                 break
             lam *= 10
@@ -216,10 +242,12 @@ def gls_refine(ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray,
             r, converged = r_try, True
             break
         r, J = ev.evaluate(theta, streaks, free)
-        fm = FrameModel(fm.groups, nuisance_columns(J, streaks, height, readout_s), fm.d,
-                        fm.prior, fm.sigma2)
+        fm = FrameModel(
+            fm.groups, nuisance_columns(J, streaks, height, readout_s), fm.d, fm.prior, fm.sigma2
+        )
     if not np.all(np.isfinite(theta)):
-        raise CalibError("frame-noise refinement diverged: "
-                         + ", ".join(THETA_NAMES[i] for i in free))
+        raise CalibError(
+            "frame-noise refinement diverged: " + ", ".join(THETA_NAMES[i] for i in free)
+        )
     cov, sig = sandwich(fm, J, r, free)
     return GLSResult(theta, it, converged, sig, cov, fm, scale)

@@ -34,8 +34,9 @@ def _score(model: ResidualModel, theta: np.ndarray, streaks: StreakSet) -> float
     return float(np.median(np.linalg.norm(r, axis=1)))
 
 
-def moving_subsample(streaks: StreakSet, n_max: int, seed: int = 0,
-                     min_length_px: float = 2.0) -> np.ndarray:
+def moving_subsample(
+    streaks: StreakSet, n_max: int, seed: int = 0, min_length_px: float = 2.0
+) -> np.ndarray:
     """Indices of at most ``n_max`` streaks longer than ``min_length_px`` (all if too few)."""
     idx = np.flatnonzero(streaks.length_px >= min_length_px)
     if idx.size < 20:
@@ -45,8 +46,14 @@ def moving_subsample(streaks: StreakSet, n_max: int, seed: int = 0,
     return idx
 
 
-def initialise(model: ResidualModel, streaks: StreakSet, theta0: np.ndarray,
-               search_shift: bool, search_focal: bool, window_s: float = 0.06) -> InitResult:
+def initialise(
+    model: ResidualModel,
+    streaks: StreakSet,
+    theta0: np.ndarray,
+    search_shift: bool,
+    search_focal: bool,
+    window_s: float = 0.06,
+) -> InitResult:
     """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale."""
     sub = streaks.subset(moving_subsample(streaks, MAX_INIT_STREAKS))
     theta = np.asarray(theta0, float).copy()

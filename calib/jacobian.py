@@ -67,13 +67,20 @@ class JacobianEvaluator:
         th = [self._th[i] for i in range(N_THETA)]
         cols = [d[j] for j in range(N_COLS)]
         if centre_k:
-            us, vs = predicted_track(th, cols, omega_local, model.R0_cam_imu, model.dist,
-                                     model.height, ns, CA_OPS)
-            res = [us[-1] - d[2], vs[-1] - d[3],
-                   *centre_residual_sx(us, vs, d, n_local, centre_k, CA_OPS)]
+            us, vs = predicted_track(
+                th, cols, omega_local, model.R0_cam_imu, model.dist, model.height, ns, CA_OPS
+            )
+            res = [
+                us[-1] - d[2],
+                vs[-1] - d[3],
+                *centre_residual_sx(us, vs, d, n_local, centre_k, CA_OPS),
+            ]
         else:
-            res = list(endpoint_residual(th, cols, omega_local, model.R0_cam_imu, model.dist,
-                                         model.height, ns, CA_OPS))
+            res = list(
+                endpoint_residual(
+                    th, cols, omega_local, model.R0_cam_imu, model.dist, model.height, ns, CA_OPS
+                )
+            )
         if calls[0] != ns:
             raise CalibError(f"the model asked the gyro {calls[0]} times, expected {ns}")
         self._r = ca.vertcat(*res)
@@ -87,11 +94,20 @@ class JacobianEvaluator:
         """Residual values per streak (2 + centre-line points)."""
         return self._m
 
-    def _track(self, theta: np.ndarray, streaks: StreakSet,
-               gyro_at: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def _track(
+        self, theta: np.ndarray, streaks: StreakSet, gyro_at: Any
+    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
         m = self.model
-        return predicted_track(list(np.asarray(theta, float)), list(m.data_matrix(streaks).T),
-                               gyro_at, m.R0_cam_imu, m.dist, m.height, m.n_sub, NUMPY_OPS)
+        return predicted_track(
+            list(np.asarray(theta, float)),
+            list(m.data_matrix(streaks).T),
+            gyro_at,
+            m.R0_cam_imu,
+            m.dist,
+            m.height,
+            m.n_sub,
+            NUMPY_OPS,
+        )
 
     def _local_data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
         """``(N_COLS + 7 n_sub [+ centre data], N)``: streak columns, then per sub-step ``t_k, ω_k
@@ -107,9 +123,16 @@ class JacobianEvaluator:
         if self.centre_k:
             us, vs = self._track(theta, streaks, recorder)
         else:
-            endpoint_residual(list(np.asarray(theta, float)), list(cols.T), recorder,
-                              self.model.R0_cam_imu, self.model.dist, self.model.height,
-                              self.model.n_sub, NUMPY_OPS)
+            endpoint_residual(
+                list(np.asarray(theta, float)),
+                list(cols.T),
+                recorder,
+                self.model.R0_cam_imu,
+                self.model.dist,
+                self.model.height,
+                self.model.n_sub,
+                NUMPY_OPS,
+            )
         T = np.stack(times, axis=1)  # (N, n_sub)
         W = g.omega_at(T.reshape(-1)).reshape(*T.shape, 3)
         S = _slopes(g.t_s, g.omega_radps, T)
@@ -124,8 +147,7 @@ class JacobianEvaluator:
 
     def _centre(self, streaks: StreakSet) -> np.ndarray:
         if streaks.centre is None or streaks.centre.shape[1] != self.centre_k:
-            raise CalibError(f"centre-line residuals need {self.centre_k} centre points per "
-                             f"streak")
+            raise CalibError(f"centre-line residuals need {self.centre_k} centre points per streak")
         return streaks.centre
 
     def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
@@ -139,8 +161,10 @@ class JacobianEvaluator:
         if self._assoc is None or self._assoc[0] != len(streaks):
             self._assoc = (len(streaks), associate(U, V, centre))
         rc = centre_residual_np(U, V, centre, self._assoc[1], centre_factors(streaks))
-        return np.concatenate([np.stack([U[:, -1] - streaks.end[:, 0],
-                                         V[:, -1] - streaks.end[:, 1]], axis=1), rc], axis=1)
+        return np.concatenate(
+            [np.stack([U[:, -1] - streaks.end[:, 0], V[:, -1] - streaks.end[:, 1]], axis=1), rc],
+            axis=1,
+        )
 
     def _map(self, free: tuple[int, ...], n: int) -> ca.Function:
         if free not in self._funcs:
@@ -151,8 +175,9 @@ class JacobianEvaluator:
             self._maps[key] = self._funcs[free].map(n, "serial")
         return self._maps[key]
 
-    def evaluate(self, theta: np.ndarray, streaks: StreakSet,
-                 free: tuple[int, ...] = tuple(range(N_THETA))) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate(
+        self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...] = tuple(range(N_THETA))
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = len(streaks)
         data = self._local_data(theta, streaks)
         th = np.tile(np.asarray(theta, float)[:, None], (1, n))

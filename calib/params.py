@@ -24,16 +24,38 @@ from calib.errors import CalibError
 
 #: Scalar parameter names in ``theta`` order.
 THETA_NAMES: tuple[str, ...] = (
-    "timeshift_s", "fx", "fy", "cx", "cy", "readout_s",
-    "bias_x", "bias_y", "bias_z", "rot_x", "rot_y", "rot_z",
-    "scale_xx", "scale_yy", "scale_zz", "scale_xy", "scale_xz", "scale_yz",
+    "timeshift_s",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "readout_s",
+    "bias_x",
+    "bias_y",
+    "bias_z",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "scale_xx",
+    "scale_yy",
+    "scale_zz",
+    "scale_xy",
+    "scale_xz",
+    "scale_yz",
 )
 N_THETA = len(THETA_NAMES)
 
 #: ``--fit`` groups and the theta entries each selects.
 GROUPS: dict[str, tuple[int, ...]] = {
-    "timeshift": (0,), "fx": (1,), "fy": (2,), "cx": (3,), "cy": (4,), "readout": (5,),
-    "bias": (6, 7, 8), "rotation": (9, 10, 11), "scale": (12, 13, 14, 15, 16, 17),
+    "timeshift": (0,),
+    "fx": (1,),
+    "fy": (2,),
+    "cx": (3,),
+    "cy": (4,),
+    "readout": (5,),
+    "bias": (6, 7, 8),
+    "rotation": (9, 10, 11),
+    "scale": (12, 13, 14, 15, 16, 17),
 }
 #: Every group. ``scale`` is in: ``gyro_scale_matrix`` is part of the calibration file and the
 #: blur model, and an unmodelled scale error biases the focal lengths (docs/calibration.md).
@@ -44,9 +66,18 @@ MAX_SCALE_ERROR = 0.1
 
 #: Typical magnitude of each parameter's uncertainty, used to scale steps and report units.
 THETA_UNITS: dict[str, str] = {
-    "timeshift_s": "s", "fx": "px", "fy": "px", "cx": "px", "cy": "px", "readout_s": "s",
-    "bias_x": "rad/s", "bias_y": "rad/s", "bias_z": "rad/s",
-    "rot_x": "rad", "rot_y": "rad", "rot_z": "rad",
+    "timeshift_s": "s",
+    "fx": "px",
+    "fy": "px",
+    "cx": "px",
+    "cy": "px",
+    "readout_s": "s",
+    "bias_x": "rad/s",
+    "bias_y": "rad/s",
+    "bias_z": "rad/s",
+    "rot_x": "rad",
+    "rot_y": "rad",
+    "rot_z": "rad",
     **{f"scale_{a}": "1" for a in ("xx", "yy", "zz", "xy", "xz", "yz")},
 }
 
@@ -77,9 +108,24 @@ def theta_from(calib: Calibration) -> np.ndarray:
     cam = calib.camera
     M = np.asarray(calib.gyro_scale_matrix, dtype=float)
     S = (M + M.T) / 2 - np.eye(3)
-    return np.array([calib.timeshift_cam_imu_s, *cam.intrinsics, cam.readout_s,
-                     *calib.gyro_bias_radps, 0.0, 0.0, 0.0,
-                     S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]], dtype=float)
+    return np.array(
+        [
+            calib.timeshift_cam_imu_s,
+            *cam.intrinsics,
+            cam.readout_s,
+            *calib.gyro_bias_radps,
+            0.0,
+            0.0,
+            0.0,
+            S[0, 0],
+            S[1, 1],
+            S[2, 2],
+            S[0, 1],
+            S[0, 2],
+            S[1, 2],
+        ],
+        dtype=float,
+    )
 
 
 def symmetric_scale_form(calib: Calibration) -> Calibration:
@@ -126,12 +172,19 @@ def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
         raise CalibError(f"fit diverged: readout {readout * 1e3:.3f} ms is outside [0, 1000) ms")
     S = scale_matrix(th) - np.eye(3)
     if np.max(np.abs(S)) > MAX_SCALE_ERROR:
-        raise CalibError(f"fit diverged: gyro scale/cross-axis error of "
-                         f"{np.max(np.abs(S)) * 100:.0f} % (the data contradict the model)")
+        raise CalibError(
+            f"fit diverged: gyro scale/cross-axis error of "
+            f"{np.max(np.abs(S)) * 100:.0f} % (the data contradict the model)"
+        )
     R = so3_exp(th[9:12]) @ base.R_cam_imu
-    return base.with_(intrinsics=tuple(float(v) for v in th[1:5]), readout_s=readout,
-                      timeshift_cam_imu_s=float(th[0]), gyro_bias_radps=th[6:9].copy(),
-                      R_cam_imu=R, gyro_scale_matrix=scale_matrix(th))
+    return base.with_(
+        intrinsics=tuple(float(v) for v in th[1:5]),
+        readout_s=readout,
+        timeshift_cam_imu_s=float(th[0]),
+        gyro_bias_radps=th[6:9].copy(),
+        R_cam_imu=R,
+        gyro_scale_matrix=scale_matrix(th),
+    )
 
 
 def rotation_error_rad(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:

@@ -45,9 +45,14 @@ from calib.params import N_THETA
 CA_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, sqrt=ca.sqrt)
 
 
-def _streak_motion(theta: Sequence[Any], cols: Sequence[Any],
-                   omega_imu_at: Callable[[Any], tuple], R0_cam_imu: np.ndarray, height: int,
-                   ops: Any) -> tuple:
+def _streak_motion(
+    theta: Sequence[Any],
+    cols: Sequence[Any],
+    omega_imu_at: Callable[[Any], tuple],
+    R0_cam_imu: np.ndarray,
+    height: int,
+    ops: Any,
+) -> tuple:
     """Camera-frame ω function, intrinsics and the warp interval ``(t_s, t_e)`` of streaks."""
     shift, fx, fy, cx, cy, readout = theta[0:6]
     bias = (theta[6], theta[7], theta[8])
@@ -65,8 +70,14 @@ def _streak_motion(theta: Sequence[Any], cols: Sequence[Any],
 
 
 def endpoint_residual(
-    theta: Sequence[Any], cols: Sequence[Any], omega_imu_at: Callable[[Any], tuple],
-    R0_cam_imu: np.ndarray, dist: Sequence[float], height: int, n_sub: int, ops: Any,
+    theta: Sequence[Any],
+    cols: Sequence[Any],
+    omega_imu_at: Callable[[Any], tuple],
+    R0_cam_imu: np.ndarray,
+    dist: Sequence[float],
+    height: int,
+    n_sub: int,
+    ops: Any,
 ) -> tuple[Any, Any]:
     """Residual ``(r_x, r_y)`` of a batch of streaks (see the module docstring).
 
@@ -88,8 +99,14 @@ def endpoint_residual(
 
 
 def predicted_track(
-    theta: Sequence[Any], cols: Sequence[Any], omega_imu_at: Callable[[Any], tuple],
-    R0_cam_imu: np.ndarray, dist: Sequence[float], height: int, n_sub: int, ops: Any,
+    theta: Sequence[Any],
+    cols: Sequence[Any],
+    omega_imu_at: Callable[[Any], tuple],
+    R0_cam_imu: np.ndarray,
+    dist: Sequence[float],
+    height: int,
+    n_sub: int,
+    ops: Any,
 ) -> tuple[list[Any], list[Any]]:
     """The predicted point track from the measured start over the warp interval.
 
@@ -117,8 +134,9 @@ def predicted_track(
     return us, vs
 
 
-def choose_substeps(streaks: StreakSet, height: int, readout_bound_s: float,
-                    max_substep_s: float = 1e-3) -> int:
+def choose_substeps(
+    streaks: StreakSet, height: int, readout_bound_s: float, max_substep_s: float = 1e-3
+) -> int:
     """Sub-steps so that no streak's warp interval exceeds ``max_substep_s`` per step."""
     if len(streaks) == 0:
         return 1
@@ -134,8 +152,16 @@ N_COLS = 8
 
 def _columns(streaks: StreakSet) -> list[np.ndarray]:
     rows = streaks.rows
-    return [streaks.start[:, 0], streaks.start[:, 1], streaks.end[:, 0], streaks.end[:, 1],
-            streaks.frame_t_s, streaks.exposure_s, rows[:, 0], rows[:, 1]]
+    return [
+        streaks.start[:, 0],
+        streaks.start[:, 1],
+        streaks.end[:, 0],
+        streaks.end[:, 1],
+        streaks.frame_t_s,
+        streaks.exposure_s,
+        rows[:, 0],
+        rows[:, 1],
+    ]
 
 
 @dataclass(frozen=True)
@@ -150,9 +176,16 @@ class ResidualModel:
 
     def residual_np(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
         """Residuals ``(N, 2)`` in pixels, evaluated with numpy."""
-        rx, ry = endpoint_residual(list(np.asarray(theta, float)), _columns(streaks),
-                                   self.gyro.omega_components, self.R0_cam_imu, self.dist,
-                                   self.height, self.n_sub, NUMPY_OPS)
+        rx, ry = endpoint_residual(
+            list(np.asarray(theta, float)),
+            _columns(streaks),
+            self.gyro.omega_components,
+            self.R0_cam_imu,
+            self.dist,
+            self.height,
+            self.n_sub,
+            NUMPY_OPS,
+        )
         return np.stack([rx, ry], axis=1)
 
     def casadi_functions(self, n: int) -> tuple[ca.Function, ca.Function]:
@@ -163,16 +196,19 @@ class ResidualModel:
         """
         theta = ca.MX.sym("theta", N_THETA)
         D = ca.MX.sym("D", n, N_COLS)
-        interp = [ca.interpolant(f"omega_{k}", "linear", [self.gyro.t_s],
-                                 self.gyro.omega_radps[:, k]) for k in range(3)]
+        interp = [
+            ca.interpolant(f"omega_{k}", "linear", [self.gyro.t_s], self.gyro.omega_radps[:, k])
+            for k in range(3)
+        ]
 
         def omega_imu_at(t: Any) -> tuple:
             return tuple(f(t) for f in interp)
 
         cols = [D[:, j] for j in range(N_COLS)]
         th = [theta[i] for i in range(N_THETA)]
-        rx, ry = endpoint_residual(th, cols, omega_imu_at, self.R0_cam_imu, self.dist,
-                                   self.height, self.n_sub, CA_OPS)
+        rx, ry = endpoint_residual(
+            th, cols, omega_imu_at, self.R0_cam_imu, self.dist, self.height, self.n_sub, CA_OPS
+        )
         r = ca.vertcat(rx, ry)
         res = ca.Function("calib_residual", [theta, D], [r])
         jac = ca.Function("calib_jacobian", [theta, D], [r, ca.jacobian(r, theta)])

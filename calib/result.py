@@ -28,12 +28,24 @@ class ErrorStats:
         if e.size == 0:
             nan = float("nan")
             return cls(0, nan, nan, nan, nan, nan)
-        return cls(int(e.size), float(e.mean()), float(np.median(e)),
-                   float(np.percentile(e, 95)), float(np.sqrt(np.mean(e**2))), float(e.max()))
+        return cls(
+            int(e.size),
+            float(e.mean()),
+            float(np.median(e)),
+            float(np.percentile(e, 95)),
+            float(np.sqrt(np.mean(e**2))),
+            float(e.max()),
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"n": self.n, "mean_px": self.mean_px, "median_px": self.median_px,
-                "p95_px": self.p95_px, "rms_px": self.rms_px, "max_px": self.max_px}
+        return {
+            "n": self.n,
+            "mean_px": self.mean_px,
+            "median_px": self.median_px,
+            "p95_px": self.p95_px,
+            "rms_px": self.rms_px,
+            "max_px": self.max_px,
+        }
 
 
 @dataclass(frozen=True)
@@ -79,24 +91,34 @@ class CalibResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "status": self.status, "converged": self.converged, "iterations": self.iterations,
-            "fitted": list(self.fitted), "fixed_unobservable": list(self.fixed_unobservable),
-            "values": dict(self.values), "sigma": dict(self.sigma),
+            "status": self.status,
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "fitted": list(self.fitted),
+            "fixed_unobservable": list(self.fixed_unobservable),
+            "values": dict(self.values),
+            "sigma": dict(self.sigma),
             "correlation": self.correlation,
-            "train_inliers": self.train.to_dict(), "train_all": self.train_all.to_dict(),
-            "holdout_inliers": self.holdout.to_dict(), "holdout_all": self.holdout_all.to_dict(),
-            "n_outliers": self.n_outliers, "n_flipped": self.n_flipped,
+            "train_inliers": self.train.to_dict(),
+            "train_all": self.train_all.to_dict(),
+            "holdout_inliers": self.holdout.to_dict(),
+            "holdout_all": self.holdout_all.to_dict(),
+            "n_outliers": self.n_outliers,
+            "n_flipped": self.n_flipped,
             "residual_sigma_px": self.residual_sigma_px,
-            "residuals": self.residuals, "n_tracks": self.n_tracks,
+            "residuals": self.residuals,
+            "n_tracks": self.n_tracks,
             "n_track_outliers": self.n_track_outliers,
             "tracks_inliers": None if self.tracks is None else self.tracks.to_dict(),
-            "warnings": list(self.warnings), "timings_s": dict(self.timings_s),
+            "warnings": list(self.warnings),
+            "timings_s": dict(self.timings_s),
             "calibration": self.calibration.to_dict(),
         }
 
 
 def sigma_block(sigma: dict[str, float]) -> dict[str, Any]:
     """The calibration file's ``sigma`` entry (DESIGN keys; ``null`` where not estimated)."""
+
     def get(name: str) -> float | None:
         return float(sigma[name]) if name in sigma else None
 

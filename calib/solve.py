@@ -40,8 +40,14 @@ class LMResult:
 
 
 def levenberg_marquardt(
-    ev: JacobianEvaluator, streaks: StreakSet, theta0: np.ndarray, free: tuple[int, ...],
-    delta_px: float, max_iter: int = 30, step_tol: float = 1e-6, rel_tol: float = 1e-8,
+    ev: JacobianEvaluator,
+    streaks: StreakSet,
+    theta0: np.ndarray,
+    free: tuple[int, ...],
+    delta_px: float,
+    max_iter: int = 30,
+    step_tol: float = 1e-6,
+    rel_tol: float = 1e-8,
     lam0: float = 1e-3,
 ) -> LMResult:
     """Minimise the pseudo-Huber endpoint cost over the ``free`` entries of theta.
@@ -109,6 +115,7 @@ def levenberg_marquardt(
         cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
     w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
     if not np.all(np.isfinite(theta)):
-        raise CalibError("fit diverged to non-finite parameters: "
-                         + ", ".join(THETA_NAMES[i] for i in free))
+        raise CalibError(
+            "fit diverged to non-finite parameters: " + ", ".join(THETA_NAMES[i] for i in free)
+        )
     return LMResult(theta, it, converged, cost, r, J, w)

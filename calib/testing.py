@@ -33,8 +33,9 @@ class SyntheticProblem:
     initial: Calibration
 
 
-def shake_function(rng: np.random.Generator, amp_radps: float = 1.0,
-                   roll: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
+def shake_function(
+    rng: np.random.Generator, amp_radps: float = 1.0, roll: float = 1.0
+) -> Callable[[np.ndarray], np.ndarray]:
     """Smooth angular velocity ``t (N,) -> (N, 3)``: sums of random 1–8 Hz sinusoids per axis."""
     freq = rng.uniform(1.0, 8.0, (3, 5))
     amp = rng.normal(0, amp_radps / 2, (3, 5)) * np.array([[1.0], [1.0], [roll]])
@@ -47,13 +48,24 @@ def shake_function(rng: np.random.Generator, amp_radps: float = 1.0,
     return omega
 
 
-def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
-                 endpoint_noise_px: float = 0.1, gyro_noise_radps: float = 0.0,
-                 roll: float = 1.0, amp_radps: float = 1.0, rate_hz: float = 200.0,
-                 shift_error_s: float = 0.03, focal_error: float = 0.05,
-                 gyro_scale: np.ndarray | None = None, centre_k: int = 0,
-                 centre_noise_px: float = 0.0, readout_s: float = 0.025,
-                 tracked: bool = False, end_bias_px: float = 0.0) -> SyntheticProblem:
+def make_problem(
+    seed: int = 0,
+    n_frames: int = 40,
+    dots_per_frame: int = 60,
+    endpoint_noise_px: float = 0.1,
+    gyro_noise_radps: float = 0.0,
+    roll: float = 1.0,
+    amp_radps: float = 1.0,
+    rate_hz: float = 200.0,
+    shift_error_s: float = 0.03,
+    focal_error: float = 0.05,
+    gyro_scale: np.ndarray | None = None,
+    centre_k: int = 0,
+    centre_noise_px: float = 0.0,
+    readout_s: float = 0.025,
+    tracked: bool = False,
+    end_bias_px: float = 0.0,
+) -> SyntheticProblem:
     """A known-truth problem; the initial guess is off by ``shift_error_s`` and ``focal_error``.
 
     ``gyro_scale``: the ``I + S`` (3, 3) of ``ω_meas = (I + S) ω_true + bias + noise``.
@@ -68,12 +80,17 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     outwards along the streak by this much (a detector's length bias; midpoints unaffected).
     """
     rng = np.random.default_rng(seed)
-    cam = Camera(resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0),
-                 readout_s=readout_s)
+    cam = Camera(
+        resolution=(1280, 720), intrinsics=(1000.0, 1004.0, 645.0, 355.0), readout_s=readout_s
+    )
     R0 = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     R_true = so3_exp(np.array([0.01, -0.015, 0.02])) @ R0
-    truth = Calibration(camera=cam, R_cam_imu=R_true, timeshift_cam_imu_s=0.0123,
-                        gyro_bias_radps=np.array([0.004, -0.006, 0.002]))
+    truth = Calibration(
+        camera=cam,
+        R_cam_imu=R_true,
+        timeshift_cam_imu_s=0.0123,
+        gyro_bias_radps=np.array([0.004, -0.006, 0.002]),
+    )
     period, exposure = 0.05, 0.02
     frame_t = 100.0 + period * np.arange(n_frames)
     omega = shake_function(rng, amp_radps, roll)
@@ -104,14 +121,17 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
         s, e, ts, te = model.streak_endpoints(px, t_ref, ft, exposure)
         ok = np.all((s > 3) & (e > 3) & (s < [1276, 716]) & (e < [1276, 716]), axis=1)
         if tracked:
-            mids.append(model.point_track(px[ok], np.full(ok.sum(), t_ref),
-                                          ((ts + te) / 2)[ok, None])[:, 0])
+            mids.append(
+                model.point_track(px[ok], np.full(ok.sum(), t_ref), ((ts + te) / 2)[ok, None])[:, 0]
+            )
         if centre_k:
             tau = np.linspace(0.0, 1.0, 33)
-            path = model.point_track(px[ok], np.full(ok.sum(), t_ref),
-                                     ts[ok, None] + (te - ts)[ok, None] * tau)
-            centres.append(np.array([centre_points(q, centre_k) for q in path]).reshape(
-                -1, centre_k, 2))
+            path = model.point_track(
+                px[ok], np.full(ok.sum(), t_ref), ts[ok, None] + (te - ts)[ok, None] * tau
+            )
+            centres.append(
+                np.array([centre_points(q, centre_k) for q in path]).reshape(-1, centre_k, 2)
+            )
         starts.append(s[ok])
         ends.append(e[ok])
         fts.append(np.full(ok.sum(), ft))
@@ -132,16 +152,28 @@ def make_problem(seed: int = 0, n_frames: int = 40, dots_per_frame: int = 60,
     if centre_k:
         centre = np.concatenate(centres)
         centre = centre + rng.normal(0, centre_noise_px, centre.shape)
-    streaks = StreakSet(start, end, ft_all - frame_t[0], np.full(ft_all.size, exposure),
-                        np.concatenate(frames), np.concatenate(ids), t0_s=float(frame_t[0]),
-                        centre=centre, mid=mid)
+    streaks = StreakSet(
+        start,
+        end,
+        ft_all - frame_t[0],
+        np.full(ft_all.size, exposure),
+        np.concatenate(frames),
+        np.concatenate(ids),
+        t0_s=float(frame_t[0]),
+        centre=centre,
+        mid=mid,
+    )
     M = np.eye(3) if gyro_scale is None else np.asarray(gyro_scale, float)
-    w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps,
-                                                                 w_true.shape)
+    w_meas = w_true @ M.T + truth.gyro_bias_radps + rng.normal(0, gyro_noise_radps, w_true.shape)
     gyro = GyroTrace(t_imu, w_meas)
     fx, fy = cam.intrinsics[:2]
     initial = Calibration(
-        camera=Camera(cam.resolution, (fx * (1 + focal_error), fy * (1 + focal_error),
-                                       639.5, 359.5), readout_s=0.02 if readout_s else 0.0),
-        R_cam_imu=R0, timeshift_cam_imu_s=truth.timeshift_cam_imu_s + shift_error_s)
+        camera=Camera(
+            cam.resolution,
+            (fx * (1 + focal_error), fy * (1 + focal_error), 639.5, 359.5),
+            readout_s=0.02 if readout_s else 0.0,
+        ),
+        R_cam_imu=R0,
+        timeshift_cam_imu_s=truth.timeshift_cam_imu_s + shift_error_s,
+    )
     return SyntheticProblem(streaks, gyro, truth, initial)

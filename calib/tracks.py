@@ -50,20 +50,29 @@ def mean_rows(streaks: StreakSet) -> np.ndarray:
     return (streaks.start[:, 1] + streaks.end[:, 1]) / 2
 
 
-def _pseudo(streaks: StreakSet, a: np.ndarray, b: np.ndarray, end: np.ndarray,
-            row_b: np.ndarray) -> StreakSet:
+def _pseudo(
+    streaks: StreakSet, a: np.ndarray, b: np.ndarray, end: np.ndarray, row_b: np.ndarray
+) -> StreakSet:
     """Pseudo-streaks from midpoints ``a`` to frames ``b`` (see the module docstring)."""
     assert streaks.mid is not None
     ft = streaks.frame_t_s[a] + streaks.exposure_s[a] / 2
     ft_b = streaks.frame_t_s[b] + streaks.exposure_s[b] / 2
     rows = np.stack([mean_rows(streaks)[a], row_b], axis=1)
-    return StreakSet(start=streaks.mid[a], end=end, frame_t_s=ft, exposure_s=ft_b - ft,
-                     frame=streaks.frame[a], streak_id=streaks.streak_id[a], t0_s=streaks.t0_s,
-                     time_row=rows)
+    return StreakSet(
+        start=streaks.mid[a],
+        end=end,
+        frame_t_s=ft,
+        exposure_s=ft_b - ft,
+        frame=streaks.frame[a],
+        streak_id=streaks.streak_id[a],
+        t0_s=streaks.t0_s,
+        time_row=rows,
+    )
 
 
-def build_tracks(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
-                 gate_px: float = GATE_PX) -> tuple[StreakSet, np.ndarray]:
+def build_tracks(
+    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, gate_px: float = GATE_PX
+) -> tuple[StreakSet, np.ndarray]:
     """Pair midpoints of consecutive frames under ``theta`` (see the module docstring).
 
     Returns the tracks as pseudo-streaks and ``(T, 2)`` indices into ``streaks`` of each
@@ -71,12 +80,15 @@ def build_tracks(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
     midpoints.
     """
     if streaks.mid is None:
-        raise CalibError("inter-frame tracks need the streaks' time midpoints (the mid_x, "
-                         "mid_y columns that blurtrack detect writes)")
+        raise CalibError(
+            "inter-frame tracks need the streaks' time midpoints (the mid_x, "
+            "mid_y columns that blurtrack detect writes)"
+        )
     frames = np.unique(streaks.frame)
     by_frame = {int(f): np.flatnonzero(streaks.frame == f) for f in frames}
-    steps = [(by_frame[int(f)], by_frame[int(g)]) for f, g in pairwise(frames)
-             if g - f <= MAX_FRAME_GAP]
+    steps = [
+        (by_frame[int(f)], by_frame[int(g)]) for f, g in pairwise(frames) if g - f <= MAX_FRAME_GAP
+    ]
     src: list[np.ndarray] = []
     dst: list[np.ndarray] = []
     if steps:
@@ -93,7 +105,7 @@ def build_tracks(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
             row = pred[:, 1]
         off = 0
         for idx_a, idx_b in steps:
-            p = pred[off:off + idx_a.size]
+            p = pred[off : off + idx_a.size]
             off += idx_a.size
             ok = np.all(np.isfinite(p), axis=1)
             if not np.any(ok):
@@ -106,11 +118,13 @@ def build_tracks(model: ResidualModel, theta: np.ndarray, streaks: StreakSet,
             _, first = np.unique(claimed, return_index=True)
             src.append(idx_a[ok][hit][order][first])
             dst.append(claimed[first])
-    P = (np.stack([np.concatenate(src), np.concatenate(dst)], axis=1).astype(np.int64)
-         if src else np.zeros((0, 2), dtype=np.int64))
+    P = (
+        np.stack([np.concatenate(src), np.concatenate(dst)], axis=1).astype(np.int64)
+        if src
+        else np.zeros((0, 2), dtype=np.int64)
+    )
     P = P[np.lexsort((P[:, 0], streaks.frame[P[:, 0]]))]
-    tracks = _pseudo(streaks, P[:, 0], P[:, 1], streaks.mid[P[:, 1]],
-                     mean_rows(streaks)[P[:, 1]])
+    tracks = _pseudo(streaks, P[:, 0], P[:, 1], streaks.mid[P[:, 1]], mean_rows(streaks)[P[:, 1]])
     return tracks, P
 
 
@@ -122,11 +136,13 @@ def concat(parts: list[StreakSet]) -> StreakSet:
         raise CalibError("nothing to fit: no streaks and no tracks")
     if len(parts) == 1:
         return replace(parts[0], centre=None, mid=None, time_row=parts[0].rows)
-    return StreakSet(start=np.concatenate([p.start for p in parts]),
-                     end=np.concatenate([p.end for p in parts]),
-                     frame_t_s=np.concatenate([p.frame_t_s for p in parts]),
-                     exposure_s=np.concatenate([p.exposure_s for p in parts]),
-                     frame=np.concatenate([p.frame for p in parts]),
-                     streak_id=np.concatenate([p.streak_id for p in parts]),
-                     t0_s=parts[0].t0_s,
-                     time_row=np.concatenate([p.rows for p in parts]))
+    return StreakSet(
+        start=np.concatenate([p.start for p in parts]),
+        end=np.concatenate([p.end for p in parts]),
+        frame_t_s=np.concatenate([p.frame_t_s for p in parts]),
+        exposure_s=np.concatenate([p.exposure_s for p in parts]),
+        frame=np.concatenate([p.frame for p in parts]),
+        streak_id=np.concatenate([p.streak_id for p in parts]),
+        t0_s=parts[0].t0_s,
+        time_row=np.concatenate([p.rows for p in parts]),
+    )

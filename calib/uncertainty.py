@@ -28,10 +28,21 @@ UNOBSERVABLE_EIG = 1e-9
 #: Correlation above which a pair of parameters is reported as hard to separate.
 HIGH_CORRELATION = 0.98
 #: 1-sigma above which a parameter is reported as weakly determined (theta units).
-WEAK_SIGMA = {"timeshift_s": 1e-3, "fx": 5.0, "fy": 5.0, "cx": 5.0, "cy": 5.0,
-              "readout_s": 2e-3, "bias_x": 2e-3, "bias_y": 2e-3, "bias_z": 2e-3,
-              "rot_x": 0.0087, "rot_y": 0.0087, "rot_z": 0.0087,
-              **{f"scale_{a}": 5e-3 for a in ("xx", "yy", "zz", "xy", "xz", "yz")}}
+WEAK_SIGMA = {
+    "timeshift_s": 1e-3,
+    "fx": 5.0,
+    "fy": 5.0,
+    "cx": 5.0,
+    "cy": 5.0,
+    "readout_s": 2e-3,
+    "bias_x": 2e-3,
+    "bias_y": 2e-3,
+    "bias_z": 2e-3,
+    "rot_x": 0.0087,
+    "rot_y": 0.0087,
+    "rot_z": 0.0087,
+    **{f"scale_{a}": 5e-3 for a in ("xx", "yy", "zz", "xy", "xz", "yz")},
+}
 
 
 @dataclass(frozen=True)
@@ -60,8 +71,9 @@ def unobservable(A: np.ndarray, free: tuple[int, ...]) -> list[int]:
     return sorted(set(out) | set(zero))
 
 
-def estimate(J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray,
-             free: tuple[int, ...]) -> Uncertainty:
+def estimate(
+    J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray, free: tuple[int, ...]
+) -> Uncertainty:
     """Covariance of the free parameters at the optimum (see the module docstring).
 
     Args:
@@ -96,12 +108,16 @@ def estimate(J: np.ndarray, r: np.ndarray, w: np.ndarray, frames: np.ndarray,
     for a in range(p):
         name = THETA_NAMES[fr[a]]
         if sig[a] > WEAK_SIGMA[name]:
-            warns.append(f"{name} is weakly determined by this motion "
-                         f"(1-sigma {sig[a]:.3g} > {WEAK_SIGMA[name]:.3g})")
+            warns.append(
+                f"{name} is weakly determined by this motion "
+                f"(1-sigma {sig[a]:.3g} > {WEAK_SIGMA[name]:.3g})"
+            )
         for b in range(a + 1, p):
             if abs(corr[a, b]) > HIGH_CORRELATION:
-                warns.append(f"{name} and {THETA_NAMES[fr[b]]} are strongly correlated "
-                             f"({corr[a, b]:+.3f}); the motion hardly separates them")
+                warns.append(
+                    f"{name} and {THETA_NAMES[fr[b]]} are strongly correlated "
+                    f"({corr[a, b]:+.3f}); the motion hardly separates them"
+                )
     return Uncertainty(tuple(free), cov, sig, corr, float(np.sqrt(s2)), tuple(warns))
 
 
@@ -111,9 +127,13 @@ def excitation_warnings(omega_cam: np.ndarray) -> list[str]:
     out = []
     pan = float(np.hypot(rms[0], rms[1]))
     if pan < 1e-3:
-        out.append(f"almost no pan/tilt motion (rms {pan:.2g} rad/s): time shift, focal lengths "
-                   f"and readout are weakly observed")
+        out.append(
+            f"almost no pan/tilt motion (rms {pan:.2g} rad/s): time shift, focal lengths "
+            f"and readout are weakly observed"
+        )
     elif rms[2] < 0.15 * pan:
-        out.append(f"little roll about the optical axis (rms {rms[2]:.3g} rad/s vs pan/tilt "
-                   f"{pan:.3g} rad/s): readout and principal point are weakly observed")
+        out.append(
+            f"little roll about the optical axis (rms {rms[2]:.3g} rad/s vs pan/tilt "
+            f"{pan:.3g} rad/s): readout and principal point are weakly observed"
+        )
     return out

@@ -58,7 +58,8 @@ def load_model(path: str | Path) -> tuple[DeblurNet, RunConfig, int]:
     try:
         model.load_state_dict(state["model"])
     except (RuntimeError, KeyError) as exc:
-        raise CheckpointError(f"{path}: weights do not fit {config.model.name}: "
-                              f"{str(exc).splitlines()[0]}") from exc
+        raise CheckpointError(
+            f"{path}: weights do not fit {config.model.name}: {str(exc).splitlines()[0]}"
+        ) from exc
     model.eval()
     return model, config, int(state["step"])

@@ -40,12 +40,19 @@ def _train(args: argparse.Namespace) -> int:
     if res.checkpoint is not None:
         tail = res.losses[-10:]
         mean = sum(tail) / len(tail) if tail else float("nan")
-        print(f"gamd train: {config.model.name} steps {res.start_step}->{res.end_step} "
-              f"in {res.seconds:.1f} s, last-10 mean loss {mean:.4f}, "
-              f"checkpoint {res.checkpoint}")
-        summary = {"model": config.model.name, "start_step": res.start_step,
-                   "end_step": res.end_step, "seconds": res.seconds,
-                   "final_loss_mean10": mean, "checkpoint": str(res.checkpoint)}
+        print(
+            f"gamd train: {config.model.name} steps {res.start_step}->{res.end_step} "
+            f"in {res.seconds:.1f} s, last-10 mean loss {mean:.4f}, "
+            f"checkpoint {res.checkpoint}"
+        )
+        summary = {
+            "model": config.model.name,
+            "start_step": res.start_step,
+            "end_step": res.end_step,
+            "seconds": res.seconds,
+            "final_loss_mean10": mean,
+            "checkpoint": str(res.checkpoint),
+        }
         (Path(config.train.out_dir) / "summary.json").write_text(json.dumps(summary, indent=2))
     return 0
 
@@ -56,11 +63,18 @@ def _eval(args: argparse.Namespace) -> int:
     from gamd.evaluate import evaluate, summary_table
 
     model, config, step = load_model(args.checkpoint)
-    dataset = DeblurDataset(args.data, args.split, crop=None, augment=False,
-                            heat_scale_px=config.data.heat_scale_px,
-                            require_heat=model.uses_heat, heat_root=args.heat_root)
-    res = evaluate(model, dataset, out_dir=args.out, limit=args.limit,
-                   progress=not args.no_progress)
+    dataset = DeblurDataset(
+        args.data,
+        args.split,
+        crop=None,
+        augment=False,
+        heat_scale_px=config.data.heat_scale_px,
+        require_heat=model.uses_heat,
+        heat_root=args.heat_root,
+    )
+    res = evaluate(
+        model, dataset, out_dir=args.out, limit=args.limit, progress=not args.no_progress
+    )
     print(summary_table({f"{config.model.name}@{step}": res}))
     print(f"conventions: {res.conventions}")
     print(f"gamd eval: per-image CSV and summary.json in {args.out}")
@@ -70,23 +84,37 @@ def _eval(args: argparse.Namespace) -> int:
 def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
-    s = deblur_session(args.checkpoint, args.session, args.heat, args.out, limit=args.limit,
-                       skip_missing=args.skip_missing)
+    s = deblur_session(
+        args.checkpoint,
+        args.session,
+        args.heat,
+        args.out,
+        limit=args.limit,
+        skip_missing=args.skip_missing,
+    )
     skipped = f", {len(s.skipped)} skipped (no heat map)" if s.skipped else ""
-    print(f"gamd deblur: {len(s.frames)} frames of {args.session} restored by {s.model} "
-          f"into {s.out_dir}{skipped}")
+    print(
+        f"gamd deblur: {len(s.frames)} frames of {args.session} restored by {s.model} "
+        f"into {s.out_dir}{skipped}"
+    )
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gamd", description="Train, evaluate and apply GAMD "
-                                     "and its baselines (MIMO-UNet, MIMO-Pro, Only Net).")
+    parser = argparse.ArgumentParser(
+        prog="gamd",
+        description="Train, evaluate and apply GAMD "
+        "and its baselines (MIMO-UNet, MIMO-Pro, Only Net).",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     p = sub.add_parser("train", help="train a network from a YAML config")
     p.add_argument("--config", required=True, help="YAML with model, data, train sections")
-    p.add_argument("--resume", default=None,
-                   help="checkpoint to resume from exactly, or 'auto' (OUT/checkpoints/last.pt)")
+    p.add_argument(
+        "--resume",
+        default=None,
+        help="checkpoint to resume from exactly, or 'auto' (OUT/checkpoints/last.pt)",
+    )
     p.add_argument("--steps", type=int, default=None, help="override train.steps")
     p.add_argument("--out", default=None, help="override train.out_dir")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -95,8 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--data", required=True, help="dataset root (blurtrack synth or GoPro layout)")
     p.add_argument("--split", default="test")
-    p.add_argument("--heat-root", default=None,
-                   help="take heat maps from this dataset root instead (e.g. perturbed calib)")
+    p.add_argument(
+        "--heat-root",
+        default=None,
+        help="take heat maps from this dataset root instead (e.g. perturbed calib)",
+    )
     p.add_argument("--out", required=True, help="folder for per_image.csv and summary.json")
     p.add_argument("--limit", type=int, default=None, help="only the first N images")
     p.add_argument("--no-progress", action="store_true")
@@ -107,8 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heat", default=None, help="output folder of blurtrack predict")
     p.add_argument("--out", required=True)
     p.add_argument("--limit", type=int, default=None)
-    p.add_argument("--skip-missing", action="store_true",
-                   help="skip frames without a heat map (predict --skip-uncovered)")
+    p.add_argument(
+        "--skip-missing",
+        action="store_true",
+        help="skip frames without a heat map (predict --skip-uncovered)",
+    )
     p.set_defaults(func=_deblur)
     return parser
 

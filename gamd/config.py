@@ -66,8 +66,9 @@ class DataConfig:
             raise GamdConfigError("data.root is required")
         if not (isinstance(self.heat_scale_px, (int, float)) and self.heat_scale_px > 0):
             raise GamdConfigError(f"data.heat_scale_px must be > 0, got {self.heat_scale_px!r}")
-        if self.crop is not None and (not isinstance(self.crop, int) or self.crop < 8
-                                      or self.crop % 4):
+        if self.crop is not None and (
+            not isinstance(self.crop, int) or self.crop < 8 or self.crop % 4
+        ):
             raise GamdConfigError(f"data.crop must be a multiple of 4 >= 8, got {self.crop!r}")
 
 
@@ -101,10 +102,10 @@ class TrainConfig:
                 raise GamdConfigError(f"train.{name} must be a positive int, got {value!r}")
         if not self.lr > 0 or not 0 < self.gamma <= 1:
             raise GamdConfigError("train.lr must be > 0 and train.gamma in (0, 1]")
-        if list(self.milestones) != sorted(self.milestones) or any(m < 1 for m in
-                                                                    self.milestones):
-            raise GamdConfigError(f"train.milestones must be increasing steps >= 1, got "
-                                  f"{list(self.milestones)}")
+        if list(self.milestones) != sorted(self.milestones) or any(m < 1 for m in self.milestones):
+            raise GamdConfigError(
+                f"train.milestones must be increasing steps >= 1, got {list(self.milestones)}"
+            )
         if self.loss != "auto" and self.loss not in LOSSES:
             raise GamdConfigError(f"train.loss must be auto or one of {sorted(LOSSES)}")
         if self.num_workers < 0:
@@ -152,9 +153,11 @@ class RunConfig:
         for s in ("model", "data", "train"):
             if not isinstance(d.get(s), dict):
                 raise GamdConfigError(f"config section {s!r} is missing or not a mapping")
-        return cls(model=ModelConfig.from_dict(d["model"]),
-                   data=_build(DataConfig, "data", d["data"]),
-                   train=_build(TrainConfig, "train", d["train"]))
+        return cls(
+            model=ModelConfig.from_dict(d["model"]),
+            data=_build(DataConfig, "data", d["data"]),
+            train=_build(TrainConfig, "train", d["train"]),
+        )
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> RunConfig:

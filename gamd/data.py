@@ -73,8 +73,9 @@ def read_heat(path: Path, shape_hw: tuple[int, int]) -> np.ndarray:
     return heat
 
 
-def find_triplets(root: Path, split: str, need_sharp: bool = True,
-                  heat_root: Path | None = None) -> list[Triplet]:
+def find_triplets(
+    root: Path, split: str, need_sharp: bool = True, heat_root: Path | None = None
+) -> list[Triplet]:
     """All triplets of ``root/split`` in sorted order; heat maps from ``heat_root`` (same
     layout) instead of ``root`` when given (e.g. heat maps of a perturbed calibration)."""
     base = Path(root) / split
@@ -88,9 +89,14 @@ def find_triplets(root: Path, split: str, need_sharp: bool = True,
         heat = heat_group / "heat" / (blur.stem + ".npy")
         if need_sharp and not sharp.is_file():
             raise GamdDataError(f"missing sharp image for {blur}")
-        triplets.append(Triplet(name=f"{group.name}/{blur.stem}", blur=blur,
-                                sharp=sharp if sharp.is_file() else None,
-                                heat=heat if heat.is_file() else None))
+        triplets.append(
+            Triplet(
+                name=f"{group.name}/{blur.stem}",
+                blur=blur,
+                sharp=sharp if sharp.is_file() else None,
+                heat=heat if heat.is_file() else None,
+            )
+        )
     if not triplets:
         raise GamdDataError(f"no <name>/blur/*.png images under {base}")
     return triplets
@@ -110,19 +116,29 @@ class DeblurDataset(Dataset):
     normalised (zeros when the set has no heat maps and ``require_heat`` is False), ``index``.
     """
 
-    def __init__(self, root: str | Path, split: str = "train", crop: int | None = 128,
-                 augment: bool = True, heat_scale_px: float = DEFAULT_HEAT_SCALE_PX,
-                 require_heat: bool = True, heat_root: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "train",
+        crop: int | None = 128,
+        augment: bool = True,
+        heat_scale_px: float = DEFAULT_HEAT_SCALE_PX,
+        require_heat: bool = True,
+        heat_root: str | Path | None = None,
+    ) -> None:
         if crop is not None and (not isinstance(crop, int) or crop < 8 or crop % 4):
             raise GamdDataError(f"crop must be a multiple of 4 >= 8, got {crop!r}")
         self.root, self.split, self.crop = Path(root), split, crop
         self.augment, self.heat_scale_px, self.require_heat = augment, heat_scale_px, require_heat
-        self.triplets = find_triplets(self.root, split,
-                                      heat_root=None if heat_root is None else Path(heat_root))
+        self.triplets = find_triplets(
+            self.root, split, heat_root=None if heat_root is None else Path(heat_root)
+        )
         missing = [t.name for t in self.triplets if t.heat is None]
         if require_heat and missing:
-            raise GamdDataError(f"{len(missing)} examples of {self.root / split} have no heat "
-                                f"map (first: {missing[0]}); this network needs them")
+            raise GamdDataError(
+                f"{len(missing)} examples of {self.root / split} have no heat "
+                f"map (first: {missing[0]}); this network needs them"
+            )
 
     def __len__(self) -> int:
         return len(self.triplets)
@@ -152,8 +168,9 @@ class DeblurDataset(Dataset):
         h, w = blur.shape[-2:]
         if self.crop is not None:
             if h < self.crop or w < self.crop:
-                raise GamdDataError(f"{self.triplets[index].name}: image {w}x{h} smaller than "
-                                    f"crop {self.crop}")
+                raise GamdDataError(
+                    f"{self.triplets[index].name}: image {w}x{h} smaller than crop {self.crop}"
+                )
             y0 = int(rng.integers(0, h - self.crop + 1))
             x0 = int(rng.integers(0, w - self.crop + 1))
             sl = (slice(None), slice(y0, y0 + self.crop), slice(x0, x0 + self.crop))
@@ -163,8 +180,12 @@ class DeblurDataset(Dataset):
             square = blur.shape[-1] == blur.shape[-2]
             turns = int(rng.integers(4)) if square else 2 * int(rng.integers(2))
             (blur, sharp), heat = augment([blur, sharp], heat, flip_h, flip_v, turns)
-        return {"blur": blur.contiguous(), "sharp": sharp.contiguous(),
-                "heat": heat.contiguous(), "index": index}
+        return {
+            "blur": blur.contiguous(),
+            "sharp": sharp.contiguous(),
+            "heat": heat.contiguous(),
+            "index": index,
+        }
 
 
 class StepBatchSampler(Sampler[list[tuple[int, int]]]):
@@ -176,8 +197,16 @@ class StepBatchSampler(Sampler[list[tuple[int, int]]]):
     ``(seed, s, slot)``.
     """
 
-    def __init__(self, num_items: int, batch_size: int, steps: int, seed: int,
-                 start_step: int = 0, rank: int = 0, world_size: int = 1) -> None:
+    def __init__(
+        self,
+        num_items: int,
+        batch_size: int,
+        steps: int,
+        seed: int,
+        start_step: int = 0,
+        rank: int = 0,
+        world_size: int = 1,
+    ) -> None:
         if num_items < 1 or batch_size < 1 or world_size < 1 or not 0 <= rank < world_size:
             raise GamdDataError("invalid sampler arguments")
         self.n, self.bs, self.steps, self.seed = num_items, batch_size, steps, seed
@@ -186,8 +215,9 @@ class StepBatchSampler(Sampler[list[tuple[int, int]]]):
 
     def _perm(self, epoch: int) -> np.ndarray:
         if epoch not in self._perm_cache:
-            self._perm_cache = {epoch: np.random.default_rng([self.seed, epoch]).permutation(
-                self.n)}
+            self._perm_cache = {
+                epoch: np.random.default_rng([self.seed, epoch]).permutation(self.n)
+            }
         return self._perm_cache[epoch]
 
     def batch(self, step: int) -> list[tuple[int, int]]:

@@ -25,10 +25,12 @@ from tqdm import tqdm
 from gamd.data import DeblurDataset
 from gamd.nets import DeblurNet
 
-CONVENTIONS = ("RGB float in [0,1], outputs clipped, no quantisation; skimage "
-               "peak_signal_noise_ratio(data_range=1); skimage structural_similarity("
-               "data_range=1, channel_axis=-1, gaussian_weights=True, sigma=1.5, "
-               "use_sample_covariance=False); full image, no border crop")
+CONVENTIONS = (
+    "RGB float in [0,1], outputs clipped, no quantisation; skimage "
+    "peak_signal_noise_ratio(data_range=1); skimage structural_similarity("
+    "data_range=1, channel_axis=-1, gaussian_weights=True, sigma=1.5, "
+    "use_sample_covariance=False); full image, no border crop"
+)
 
 
 def psnr_ssim(pred_hwc: np.ndarray, sharp_hwc: np.ndarray) -> tuple[float, float]:
@@ -39,9 +41,17 @@ def psnr_ssim(pred_hwc: np.ndarray, sharp_hwc: np.ndarray) -> tuple[float, float
     20.0
     """
     psnr = float(peak_signal_noise_ratio(sharp_hwc, pred_hwc, data_range=1.0))
-    ssim = float(structural_similarity(sharp_hwc, pred_hwc, data_range=1.0, channel_axis=-1,
-                                       gaussian_weights=True, sigma=1.5,
-                                       use_sample_covariance=False))
+    ssim = float(
+        structural_similarity(
+            sharp_hwc,
+            pred_hwc,
+            data_range=1.0,
+            channel_axis=-1,
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=False,
+        )
+    )
     return psnr, ssim
 
 
@@ -73,8 +83,13 @@ class EvalResult:
         return d
 
 
-def evaluate(model: DeblurNet, dataset: DeblurDataset, out_dir: str | Path | None = None,
-             limit: int | None = None, progress: bool = False) -> EvalResult:
+def evaluate(
+    model: DeblurNet,
+    dataset: DeblurDataset,
+    out_dir: str | Path | None = None,
+    limit: int | None = None,
+    progress: bool = False,
+) -> EvalResult:
     """Score ``model`` on every image of ``dataset`` (full size); write ``per_image.csv`` and
     ``summary.json`` to ``out_dir`` if given."""
     model.eval()
@@ -86,17 +101,27 @@ def evaluate(model: DeblurNet, dataset: DeblurDataset, out_dir: str | Path | Non
         sharp = item["sharp"].permute(1, 2, 0).numpy()
         p, s = psnr_ssim(pred.permute(1, 2, 0).numpy(), sharp)
         bp, bs = psnr_ssim(item["blur"].permute(1, 2, 0).numpy(), sharp)
-        rows.append({"name": dataset.triplets[i].name, "psnr_db": p, "ssim": s,
-                     "blur_psnr_db": bp, "blur_ssim": bs})
-    means = {k: float(np.mean([r[k] for r in rows])) if rows else math.nan
-             for k in ("psnr_db", "ssim", "blur_psnr_db", "blur_ssim")}
+        rows.append(
+            {
+                "name": dataset.triplets[i].name,
+                "psnr_db": p,
+                "ssim": s,
+                "blur_psnr_db": bp,
+                "blur_ssim": bs,
+            }
+        )
+    means = {
+        k: float(np.mean([r[k] for r in rows])) if rows else math.nan
+        for k in ("psnr_db", "ssim", "blur_psnr_db", "blur_ssim")
+    }
     result = EvalResult(rows=rows, **means)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         with (out / "per_image.csv").open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=["name", "psnr_db", "ssim", "blur_psnr_db",
-                                              "blur_ssim"])
+            w = csv.DictWriter(
+                f, fieldnames=["name", "psnr_db", "ssim", "blur_psnr_db", "blur_ssim"]
+            )
             w.writeheader()
             w.writerows(rows)
         (out / "summary.json").write_text(json.dumps(result.summary(), indent=2))
@@ -105,9 +130,13 @@ def evaluate(model: DeblurNet, dataset: DeblurDataset, out_dir: str | Path | Non
 
 def summary_table(results: dict[str, EvalResult]) -> str:
     """A Markdown table of mean PSNR/SSIM per model name."""
-    lines = ["| model | PSNR (dB) | SSIM | input PSNR | input SSIM | images |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| model | PSNR (dB) | SSIM | input PSNR | input SSIM | images |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for name, r in results.items():
-        lines.append(f"| {name} | {r.psnr_db:.2f} | {r.ssim:.4f} | {r.blur_psnr_db:.2f} | "
-                     f"{r.blur_ssim:.4f} | {len(r.rows)} |")
+        lines.append(
+            f"| {name} | {r.psnr_db:.2f} | {r.ssim:.4f} | {r.blur_psnr_db:.2f} | "
+            f"{r.blur_ssim:.4f} | {len(r.rows)} |"
+        )
     return "\n".join(lines)

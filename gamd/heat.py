@@ -34,8 +34,9 @@ def normalise_heat(heat_px: torch.Tensor, scale_px: float) -> torch.Tensor:
     return heat_px / float(scale_px)
 
 
-def hflip(image: torch.Tensor, heat: torch.Tensor | None = None
-          ) -> tuple[torch.Tensor, torch.Tensor | None]:
+def hflip(
+    image: torch.Tensor, heat: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Mirror left-right; heat x components change sign."""
     image = torch.flip(image, dims=(-1,))
     if heat is not None:
@@ -44,8 +45,9 @@ def hflip(image: torch.Tensor, heat: torch.Tensor | None = None
     return image, heat
 
 
-def vflip(image: torch.Tensor, heat: torch.Tensor | None = None
-          ) -> tuple[torch.Tensor, torch.Tensor | None]:
+def vflip(
+    image: torch.Tensor, heat: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Mirror top-bottom; heat y components change sign."""
     image = torch.flip(image, dims=(-2,))
     if heat is not None:
@@ -54,8 +56,9 @@ def vflip(image: torch.Tensor, heat: torch.Tensor | None = None
     return image, heat
 
 
-def rot90(image: torch.Tensor, heat: torch.Tensor | None = None, k: int = 1
-          ) -> tuple[torch.Tensor, torch.Tensor | None]:
+def rot90(
+    image: torch.Tensor, heat: torch.Tensor | None = None, k: int = 1
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Rotate by ``k`` quarter turns as ``np.rot90``; displacements ``(dx, dy) -> (dy, -dx)``
     per quarter turn."""
     k = k % 4
@@ -71,8 +74,13 @@ def rot90(image: torch.Tensor, heat: torch.Tensor | None = None, k: int = 1
     return image, heat
 
 
-def augment(images: list[torch.Tensor], heat: torch.Tensor | None, flip_h: bool, flip_v: bool,
-            quarter_turns: int) -> tuple[list[torch.Tensor], torch.Tensor | None]:
+def augment(
+    images: list[torch.Tensor],
+    heat: torch.Tensor | None,
+    flip_h: bool,
+    flip_v: bool,
+    quarter_turns: int,
+) -> tuple[list[torch.Tensor], torch.Tensor | None]:
     """Apply the same flips and rotation to every image and, consistently, to the heat maps."""
     if not images:
         raise GamdConfigError("augment needs at least one image")

@@ -43,8 +43,9 @@ def write_rgb(path: Path, rgb: np.ndarray) -> None:
         raise GamdDataError(f"cannot write {path}")
 
 
-def deblur_array(model: torch.nn.Module, rgb: np.ndarray, heat_px: np.ndarray | None,
-                 heat_scale_px: float) -> np.ndarray:
+def deblur_array(
+    model: torch.nn.Module, rgb: np.ndarray, heat_px: np.ndarray | None, heat_scale_px: float
+) -> np.ndarray:
     """Deblur one ``(H, W, 3)`` RGB image given its ``(6, H, W)`` heat maps in pixels."""
     heat = None
     if model.uses_heat:
@@ -70,9 +71,14 @@ class DeblurSummary:
         return json.dumps(asdict(self), indent=2)
 
 
-def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | Path | None,
-                   out_dir: str | Path, limit: int | None = None,
-                   skip_missing: bool = False) -> DeblurSummary:
+def deblur_session(
+    checkpoint: str | Path,
+    session: str | Path,
+    heat_dir: str | Path | None,
+    out_dir: str | Path,
+    limit: int | None = None,
+    skip_missing: bool = False,
+) -> DeblurSummary:
     """Deblur the frames of ``session`` into ``out_dir/<timestamp_ns>.png``.
 
     ``heat_dir`` is ``blurtrack predict``'s output folder (or its ``heat`` subfolder); every
@@ -90,8 +96,9 @@ def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | 
         if not heat_root.is_dir():
             raise GamdDataError(f"heat-map folder not found: {heat_root}")
     elif model.uses_heat:
-        raise GamdDataError(f"{config.model.name} needs heat maps: pass the folder written by "
-                            "blurtrack predict")
+        raise GamdDataError(
+            f"{config.model.name} needs heat maps: pass the folder written by blurtrack predict"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done: list[int] = []
@@ -107,20 +114,27 @@ def deblur_session(checkpoint: str | Path, session: str | Path, heat_dir: str | 
                 if skip_missing:
                     skipped.append(ts)
                     continue
-                raise GamdDataError(f"no heat map for frame {ts} in {heat_root} "
-                                    "(--skip-missing skips such frames)")
+                raise GamdDataError(
+                    f"no heat map for frame {ts} in {heat_root} (--skip-missing skips such frames)"
+                )
             heat = read_heat(path, rgb.shape[:2])
         write_rgb(out / f"{ts}.png", deblur_array(model, rgb, heat, config.data.heat_scale_px))
         done.append(ts)
-    summary = DeblurSummary(out_dir=str(out), checkpoint=str(checkpoint),
-                            model=config.model.name, frames=done, skipped=skipped,
-                            heat_scale_px=config.data.heat_scale_px)
+    summary = DeblurSummary(
+        out_dir=str(out),
+        checkpoint=str(checkpoint),
+        model=config.model.name,
+        frames=done,
+        skipped=skipped,
+        heat_scale_px=config.data.heat_scale_px,
+    )
     (out / "summary.json").write_text(summary.to_json())
     return summary
 
 
-def side_by_side(before: np.ndarray, after: np.ndarray, sharp: np.ndarray | None = None
-                 ) -> np.ndarray:
+def side_by_side(
+    before: np.ndarray, after: np.ndarray, sharp: np.ndarray | None = None
+) -> np.ndarray:
     """Horizontal montage (blurred | restored | sharp) with 4-px white gaps."""
     parts = [before, after] + ([sharp] if sharp is not None else [])
     gap = np.ones((before.shape[0], 4, 3), np.float32)

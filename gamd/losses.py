@@ -24,13 +24,16 @@ from gamd.nets.blocks import downsample
 def _target(sharp: torch.Tensor, like: torch.Tensor, factor: int) -> torch.Tensor:
     target = downsample(sharp, factor)
     if target.shape != like.shape:
-        raise GamdConfigError(f"output {tuple(like.shape)} does not match the sharp image at "
-                              f"scale 1/{factor} {tuple(target.shape)}; use crops divisible by 4")
+        raise GamdConfigError(
+            f"output {tuple(like.shape)} does not match the sharp image at "
+            f"scale 1/{factor} {tuple(target.shape)}; use crops divisible by 4"
+        )
     return target
 
 
-def gamd_loss(outputs: Sequence[torch.Tensor], sharp: torch.Tensor, scales: Sequence[int],
-              omega: float = 0.6) -> torch.Tensor:
+def gamd_loss(
+    outputs: Sequence[torch.Tensor], sharp: torch.Tensor, scales: Sequence[int], omega: float = 0.6
+) -> torch.Tensor:
     """The paper's loss on the outputs at scale factors 1 and 4 (levels 1 and 3)."""
     by_scale = dict(zip(scales, outputs, strict=True))
     if 1 not in by_scale or 4 not in by_scale:
@@ -40,8 +43,12 @@ def gamd_loss(outputs: Sequence[torch.Tensor], sharp: torch.Tensor, scales: Sequ
     return l1 + omega * l3
 
 
-def mimo_loss(outputs: Sequence[torch.Tensor], sharp: torch.Tensor, scales: Sequence[int],
-              fft_weight: float = 0.1) -> torch.Tensor:
+def mimo_loss(
+    outputs: Sequence[torch.Tensor],
+    sharp: torch.Tensor,
+    scales: Sequence[int],
+    fft_weight: float = 0.1,
+) -> torch.Tensor:
     """MIMO-UNet's content + 0.1 × frequency loss over all its outputs."""
     content = sharp.new_zeros(())
     freq = sharp.new_zeros(())

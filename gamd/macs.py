@@ -17,8 +17,7 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
-def _layer_macs(module: nn.Module, inputs: tuple[torch.Tensor, ...],
-                output: torch.Tensor) -> int:
+def _layer_macs(module: nn.Module, inputs: tuple[torch.Tensor, ...], output: torch.Tensor) -> int:
     if isinstance(module, nn.ConvTranspose2d):
         # every input element is multiplied into (C_out / groups) · kh · kw outputs
         kh, kw = module.kernel_size
@@ -39,8 +38,11 @@ def count_macs(model: nn.Module, *inputs: torch.Tensor | None) -> int:
         nonlocal total
         total += _layer_macs(module, args, output)
 
-    handles = [m.register_forward_hook(hook) for m in model.modules()
-               if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear))]
+    handles = [
+        m.register_forward_hook(hook)
+        for m in model.modules()
+        if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear))
+    ]
     try:
         with torch.inference_mode():
             model(*inputs)

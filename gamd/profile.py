@@ -13,8 +13,13 @@ from gamd.nets import DeblurNet
 
 
 @torch.inference_mode()
-def forward_ms(model: DeblurNet, height: int, width: int, repeats: int = 3,
-               clock: Callable[[], float] = time.perf_counter) -> list[float]:
+def forward_ms(
+    model: DeblurNet,
+    height: int,
+    width: int,
+    repeats: int = 3,
+    clock: Callable[[], float] = time.perf_counter,
+) -> list[float]:
     """Wall-clock milliseconds of ``repeats`` forward passes on ``(1, 3, H, W)`` (after one
     warm-up pass), on the model's device."""
     device = next(model.parameters()).device
@@ -32,8 +37,9 @@ def forward_ms(model: DeblurNet, height: int, width: int, repeats: int = 3,
     return times
 
 
-def profile(model: DeblurNet, sizes: Sequence[tuple[int, int]], repeats: int = 3,
-            time_it: bool = True) -> dict:
+def profile(
+    model: DeblurNet, sizes: Sequence[tuple[int, int]], repeats: int = 3, time_it: bool = True
+) -> dict:
     """``{"params": n, "macs": {"HxW": n}, "cpu_ms_median": {"HxW": ms}}`` (sizes as (H, W))."""
     out: dict = {"params": count_parameters(model), "macs": {}, "cpu_ms_median": {}}
     for h, w in sizes:

@@ -87,10 +87,14 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     torch.manual_seed(tc.seed)
     model = build_model(config.model.name, config.model.preset, **config.model.kwargs)
     model.to(device)
-    dataset = DeblurDataset(config.data.root, config.data.split, crop=config.data.crop,
-                            augment=config.data.augment,
-                            heat_scale_px=config.data.heat_scale_px,
-                            require_heat=model.uses_heat)
+    dataset = DeblurDataset(
+        config.data.root,
+        config.data.split,
+        crop=config.data.crop,
+        augment=config.data.augment,
+        heat_scale_px=config.data.heat_scale_px,
+        require_heat=model.uses_heat,
+    )
     optimizer = torch.optim.Adam(model.parameters(), lr=tc.lr)
     scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)
 
@@ -100,9 +104,11 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     if resume is not None:
         state = load_checkpoint(resume)
         if state["config"]["model"] != config.model.to_dict():
-            raise CheckpointError(f"{resume}: checkpoint was trained with model "
-                                  f"{state['config']['model']}, config asks for "
-                                  f"{config.model.to_dict()}")
+            raise CheckpointError(
+                f"{resume}: checkpoint was trained with model "
+                f"{state['config']['model']}, config asks for "
+                f"{config.model.to_dict()}"
+            )
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
@@ -116,14 +122,22 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     net: torch.nn.Module = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(
-            model, device_ids=[device.index] if device.type == "cuda" else None)
-    sampler = StepBatchSampler(len(dataset), tc.batch_size, tc.steps, tc.seed, start_step=start,
-                               rank=rank, world_size=world)
-    loader = DataLoader(dataset, batch_sampler=sampler, num_workers=tc.num_workers,
-                        pin_memory=device.type == "cuda")
+            model, device_ids=[device.index] if device.type == "cuda" else None
+        )
+    sampler = StepBatchSampler(
+        len(dataset),
+        tc.batch_size,
+        tc.steps,
+        tc.seed,
+        start_step=start,
+        rank=rank,
+        world_size=world,
+    )
+    loader = DataLoader(
+        dataset, batch_sampler=sampler, num_workers=tc.num_workers, pin_memory=device.type == "cuda"
+    )
     loss_fn = LOSSES[config.loss_name]
-    loss_kw = {"omega": tc.omega} if config.loss_name == "gamd" else {"fft_weight":
-                                                                        tc.fft_weight}
+    loss_kw = {"omega": tc.omega} if config.loss_name == "gamd" else {"fft_weight": tc.fft_weight}
 
     writer = log_file = log_writer = None
     if rank == 0:
@@ -137,12 +151,18 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
         log_writer.writerows(kept)
         if tc.tensorboard:
             from torch.utils.tensorboard import SummaryWriter
+
             writer = SummaryWriter(str(out_dir / "tensorboard"), purge_step=start + 1)
 
     def save(step: int) -> Path:
-        state = {"config": config.to_dict(), "model": model.state_dict(),
-                 "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                 "step": step, "rng_cpu": torch.get_rng_state()}
+        state = {
+            "config": config.to_dict(),
+            "model": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(),
+            "step": step,
+            "rng_cpu": torch.get_rng_state(),
+        }
         if device.type == "cuda":
             state["rng_cuda"] = torch.cuda.get_rng_state(device)
         path = save_checkpoint(checkpoint_path(out_dir), state)
@@ -152,8 +172,14 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     losses: list[float] = []
     last_ckpt = None
     t0 = time.perf_counter()
-    bar = tqdm(total=tc.steps, initial=start, disable=not tc.progress or rank != 0,
-               desc=f"train {config.model.name}", unit="step", dynamic_ncols=True)
+    bar = tqdm(
+        total=tc.steps,
+        initial=start,
+        disable=not tc.progress or rank != 0,
+        desc=f"train {config.model.name}",
+        unit="step",
+        dynamic_ncols=True,
+    )
     try:
         model.train()
         for step, batch in enumerate(loader, start=start + 1):
@@ -176,8 +202,14 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
             losses.append(float(value))
             bar.update(1)
             if rank == 0:
-                log_writer.writerow({"step": step, "loss": f"{losses[-1]:.8g}", "lr": f"{lr:.6g}",
-                                     "seconds": f"{time.perf_counter() - t0:.3f}"})
+                log_writer.writerow(
+                    {
+                        "step": step,
+                        "loss": f"{losses[-1]:.8g}",
+                        "lr": f"{lr:.6g}",
+                        "seconds": f"{time.perf_counter() - t0:.3f}",
+                    }
+                )
                 if step % tc.log_every == 0:
                     log_file.flush()
                     bar.set_postfix(loss=f"{losses[-1]:.4f}")
@@ -196,9 +228,15 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
         last_ckpt = checkpoint_path(out_dir)
     if world > 1:
         dist.barrier()
-    return TrainResult(out_dir=out_dir, start_step=start, end_step=tc.steps, losses=losses,
-                       checkpoint=last_ckpt, seconds=time.perf_counter() - t0,
-                       model=model)
+    return TrainResult(
+        out_dir=out_dir,
+        start_step=start,
+        end_step=tc.steps,
+        losses=losses,
+        checkpoint=last_ckpt,
+        seconds=time.perf_counter() - t0,
+        model=model,
+    )
 
 
 def mean_loss(losses: list[float]) -> float:

@@ -28,8 +28,15 @@ _DRIVER_STAMP_TOLERANCE_NS = 1_000_000_000
 class OpenCvCamera:
     """A ``cv2.VideoCapture`` with timestamps, exposure and gap-based drop counting."""
 
-    def __init__(self, capture: Any, url: str, kind: str, clock: Clock | None = None,
-                 exposure_ns: int | None = None, realtime: bool = False) -> None:
+    def __init__(
+        self,
+        capture: Any,
+        url: str,
+        kind: str,
+        clock: Clock | None = None,
+        exposure_ns: int | None = None,
+        realtime: bool = False,
+    ) -> None:
         import cv2
 
         self._cv2 = cv2
@@ -98,8 +105,9 @@ def _open_cv(u: DeviceUrl, clock: Clock | None) -> OpenCvCamera:
         cap = cv2.VideoCapture(u.target)
         if not cap.isOpened():
             raise DeviceError(f"cannot open video file {u.target}")
-        return OpenCvCamera(cap, u.url, "file", clock, exposure_ns,
-                            realtime=u.get_int("realtime", 0, 0, 1) == 1)
+        return OpenCvCamera(
+            cap, u.url, "file", clock, exposure_ns, realtime=u.get_int("realtime", 0, 0, 1) == 1
+        )
     try:
         index = int(u.target)
     except ValueError:
@@ -108,8 +116,11 @@ def _open_cv(u: DeviceUrl, clock: Clock | None) -> OpenCvCamera:
     cap = cv2.VideoCapture(index, api)
     if not cap.isOpened():
         raise DeviceError(f"cannot open camera {u.url}")
-    for key, prop in (("width", cv2.CAP_PROP_FRAME_WIDTH), ("height", cv2.CAP_PROP_FRAME_HEIGHT),
-                      ("fps", cv2.CAP_PROP_FPS)):
+    for key, prop in (
+        ("width", cv2.CAP_PROP_FRAME_WIDTH),
+        ("height", cv2.CAP_PROP_FRAME_HEIGHT),
+        ("fps", cv2.CAP_PROP_FPS),
+    ):
         if key in u.params:
             cap.set(prop, u.get_float(key, 0.0, 1.0, 100_000.0))
     return OpenCvCamera(cap, u.url, u.scheme, clock, exposure_ns)
@@ -125,15 +136,19 @@ def _open_rig_camera(u: DeviceUrl, clock: Clock | None) -> VirtualCamera:
 
     u.check_keys({"rig", "seed", "frames", "realtime"})
     shared = rig_from_params(u.url, u.params, clock)
-    cfg = VirtualCameraConfig(fps=shared.fps, exposure_s=shared.exposure_s,
-                              n_frames=int(shared.rig.n_frames),
-                              realtime=u.get_int("realtime", 0, 0, 1) == 1,
-                              origin_ns=shared.origin_ns)
+    cfg = VirtualCameraConfig(
+        fps=shared.fps,
+        exposure_s=shared.exposure_s,
+        n_frames=int(shared.rig.n_frames),
+        realtime=u.get_int("realtime", 0, 0, 1) == 1,
+        origin_ns=shared.origin_ns,
+    )
     return VirtualCamera(shared.render, cfg, clock, u.url)
 
 
-def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = None
-                ) -> CameraSource:
+def open_camera(
+    url: str, clock: Clock | None = None, render: RenderFn | None = None
+) -> CameraSource:
     """Open the camera named by ``url``; ``render`` drives ``sim://camera`` (default: dots)."""
     u = parse_device_url(url)
     if u.scheme in ("v4l2", "opencv", "file"):
@@ -143,8 +158,9 @@ def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = 
             raise DeviceUrlError(f"{url}: the simulated camera is sim://camera")
         if "rig" in u.params:
             return _open_rig_camera(u, clock)
-        u.check_keys({"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise",
-                      "seed"})
+        u.check_keys(
+            {"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise", "seed"}
+        )
         frames = u.get_int("frames", -1, -1, 10**9)
         try:
             cfg = VirtualCameraConfig(
@@ -156,10 +172,11 @@ def open_camera(url: str, clock: Clock | None = None, render: RenderFn | None = 
         except ValueError as exc:
             raise DeviceUrlError(f"{url}: {exc}") from None
         if render is None:
-            render = dot_grid_renderer(u.get_int("width", 640, 16, 8192),
-                                       u.get_int("height", 480, 16, 8192),
-                                       noise=u.get_float("noise", 0.0, 0.0, 100.0),
-                                       seed=u.get_int("seed", 0, 0, 2**31))
+            render = dot_grid_renderer(
+                u.get_int("width", 640, 16, 8192),
+                u.get_int("height", 480, 16, 8192),
+                noise=u.get_float("noise", 0.0, 0.0, 100.0),
+                seed=u.get_int("seed", 0, 0, 2**31),
+            )
         return VirtualCamera(render, cfg, clock, url)
     raise DeviceUrlError(f"{url}: unknown camera scheme {u.scheme!r} (v4l2, opencv, file, sim)")
-

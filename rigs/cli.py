@@ -23,42 +23,68 @@ def _floats4(text: str) -> tuple[float, float, float, float]:
 
 def _add_session_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("session initial guesses")
-    g.add_argument("--intrinsics", type=_floats4, default=None, metavar="FX,FY,CX,CY",
-                   help="camera intrinsics guess (default: fx = fy = width, image centre)")
-    g.add_argument("--readout-s", type=float, default=None,
-                   help="rolling-shutter readout guess (s; default 0)")
-    g.add_argument("--exposure-ms", type=float, default=None,
-                   help="exposure to assume where the camera does not report one")
+    g.add_argument(
+        "--intrinsics",
+        type=_floats4,
+        default=None,
+        metavar="FX,FY,CX,CY",
+        help="camera intrinsics guess (default: fx = fy = width, image centre)",
+    )
+    g.add_argument(
+        "--readout-s", type=float, default=None, help="rolling-shutter readout guess (s; default 0)"
+    )
+    g.add_argument(
+        "--exposure-ms",
+        type=float,
+        default=None,
+        help="exposure to assume where the camera does not report one",
+    )
     g.add_argument("--target", choices=("laser-grid", "natural"), default="laser-grid")
 
 
 def register(subparsers: Any) -> None:
     rec = subparsers.add_parser(
-        "record", help="record an IMU and a camera into a crash-safe log and a session folder",
+        "record",
+        help="record an IMU and a camera into a crash-safe log and a session folder",
         description="Record IMU samples and camera frames with timestamps. Device URLs: "
-                    "serial:///dev/ttyUSB0?baud=921600&protocol=binary|ascii, loop://, "
-                    "sim://imu?rate=1000&flip=0.01...; v4l2://0, opencv://0, "
-                    "file:///path/video.mp4, sim://camera?fps=30&width=1280&height=720. "
-                    "Ctrl-C stops cleanly.")
+        "serial:///dev/ttyUSB0?baud=921600&protocol=binary|ascii, loop://, "
+        "sim://imu?rate=1000&flip=0.01...; v4l2://0, opencv://0, "
+        "file:///path/video.mp4, sim://camera?fps=30&width=1280&height=720. "
+        "Ctrl-C stops cleanly.",
+    )
     rec.add_argument("--imu", metavar="URL", help="IMU device URL")
     rec.add_argument("--camera", metavar="URL", help="camera device URL")
     rec.add_argument("--out", required=True, type=Path, help="session folder to create")
-    rec.add_argument("--log", type=Path, default=None,
-                     help="recorder log (MCAP); default: OUT.mcap next to the session folder")
+    rec.add_argument(
+        "--log",
+        type=Path,
+        default=None,
+        help="recorder log (MCAP); default: OUT.mcap next to the session folder",
+    )
     rec.add_argument("--duration", type=float, default=None, help="stop after this many s")
-    rec.add_argument("--flush-interval", type=float, default=0.25,
-                     help="seconds between log chunk flushes (the most a crash can lose)")
+    rec.add_argument(
+        "--flush-interval",
+        type=float,
+        default=0.25,
+        help="seconds between log chunk flushes (the most a crash can lose)",
+    )
     rec.add_argument("--no-convert", action="store_true", help="write the log only")
     _add_session_options(rec)
     rec.set_defaults(func=run_record)
 
     recov = subparsers.add_parser(
-        "recover", help="salvage a recorder log cut short (crash, SIGKILL, full disk)",
+        "recover",
+        help="salvage a recorder log cut short (crash, SIGKILL, full disk)",
         description="Copy every intact message of LOG into a finished log and, with "
-                    "--session, convert it to a session folder.")
+        "--session, convert it to a session folder.",
+    )
     recov.add_argument("log", type=Path, metavar="LOG")
-    recov.add_argument("--out", type=Path, default=None,
-                       help="repaired log (default: LOG with suffix .recovered.mcap)")
+    recov.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="repaired log (default: LOG with suffix .recovered.mcap)",
+    )
     recov.add_argument("--session", type=Path, default=None, help="also write this session")
     _add_session_options(recov)
     recov.set_defaults(func=run_recover)
@@ -71,8 +97,12 @@ def _options(args: argparse.Namespace) -> Any:  # rigs.convert.ConvertOptions (l
     if args.exposure_ms is not None and not args.exposure_ms > 0:
         raise RigError("--exposure-ms must be positive")
     exposure_ns = None if args.exposure_ms is None else round(args.exposure_ms * 1e6)
-    return ConvertOptions(intrinsics=args.intrinsics, readout_s=args.readout_s,
-                          target_kind=args.target, exposure_ns=exposure_ns)
+    return ConvertOptions(
+        intrinsics=args.intrinsics,
+        readout_s=args.readout_s,
+        target_kind=args.target,
+        exposure_ns=exposure_ns,
+    )
 
 
 def _check_new_folder(folder: Path) -> None:
@@ -83,8 +113,9 @@ def _check_new_folder(folder: Path) -> None:
 
 
 def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n",
-                                         encoding="utf-8")
+    (folder / "summary.json").write_text(
+        json.dumps(summary, indent=2, default=str) + "\n", encoding="utf-8"
+    )
 
 
 def run_record(args: argparse.Namespace) -> int:
@@ -123,12 +154,16 @@ def run_record(args: argparse.Namespace) -> int:
         else:
             print(status.line(), flush=True)
 
-    metadata = {"imu_url": args.imu or "", "camera_url": args.camera or "",
-                "imu_min_latency_s": repr(imu.min_latency_s if imu is not None else 0.0)}
+    metadata = {
+        "imu_url": args.imu or "",
+        "camera_url": args.camera or "",
+        "imu_min_latency_s": repr(imu.min_latency_s if imu is not None else 0.0),
+    }
     guess = rig_guess_for_urls(args.imu, args.camera)
     if guess is not None:
         metadata["rig_guess"] = json.dumps(guess)
     recorder = Recorder(log_path, imu, camera, metadata, config, on_status=show)
+
     def on_signal(signum: int, _frame: Any) -> None:
         # first Ctrl-C or SIGTERM: stop cleanly (never interrupt a half-written record);
         # a second Ctrl-C interrupts for real
@@ -147,13 +182,17 @@ def run_record(args: argparse.Namespace) -> int:
             if dev is not None:
                 dev.close()
     s = result.status
-    print(f"recorded {s.imu_samples} IMU samples and {s.frames} frames in {s.elapsed_s:.1f} s "
-          f"into {log_path} (stopped by {result.stopped_by})")
+    print(
+        f"recorded {s.imu_samples} IMU samples and {s.frames} frames in {s.elapsed_s:.1f} s "
+        f"into {log_path} (stopped by {result.stopped_by})"
+    )
     if result.imu_stats:
         st = result.imu_stats
-        print(f"IMU link: {st['crc_errors']} CRC errors, {st['dropped']} samples dropped in "
-              f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
-              f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps")
+        print(
+            f"IMU link: {st['crc_errors']} CRC errors, {st['dropped']} samples dropped in "
+            f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
+            f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps"
+        )
     summary: dict[str, Any] = {"command": "record", "recording": result.as_dict()}
     if not args.no_convert:
         try:
@@ -161,15 +200,22 @@ def run_record(args: argparse.Namespace) -> int:
         except RigError as exc:
             if result.error is None:
                 raise
-            raise RigError(f"recording ended early: {result.error}; no session written "
-                           f"({exc}); the log {log_path} keeps what was recorded") from None
+            raise RigError(
+                f"recording ended early: {result.error}; no session written "
+                f"({exc}); the log {log_path} keeps what was recorded"
+            ) from None
         summary["session"] = conv.as_dict()
         _write_summary(out, summary)
-        print(f"session {out}: {conv.frames} frames, {conv.imu_samples} IMU samples"
-              + "".join(f"; {n}" for n in conv.notes))
+        print(
+            f"session {out}: {conv.frames} frames, {conv.imu_samples} IMU samples"
+            + "".join(f"; {n}" for n in conv.notes)
+        )
     if result.error is not None:
-        where = f"; the session in {out} holds everything recorded before" \
-            if not args.no_convert else f"; the log {log_path} holds everything before"
+        where = (
+            f"; the session in {out} holds everything recorded before"
+            if not args.no_convert
+            else f"; the log {log_path} holds everything before"
+        )
         raise RigError(f"recording ended early: {result.error}{where}")
     return 0
 
@@ -188,9 +234,16 @@ def run_recover(args: argparse.Namespace) -> int:
     print(f"{log} {state}; kept {res.imu_samples} IMU samples and {res.frames} frames in {out}")
     if args.session is not None:
         conv = log_to_session(out, args.session, options)
-        _write_summary(args.session, {"command": "recover", "log": str(log),
-                                      "recovered_log": str(out), "was_complete":
-                                      res.was_complete, "damage": res.damage,
-                                      "session": conv.as_dict()})
+        _write_summary(
+            args.session,
+            {
+                "command": "recover",
+                "log": str(log),
+                "recovered_log": str(out),
+                "was_complete": res.was_complete,
+                "damage": res.damage,
+                "session": conv.as_dict(),
+            },
+        )
         print(f"session {args.session}: {conv.frames} frames, {conv.imu_samples} IMU samples")
     return 0

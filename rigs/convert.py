@@ -47,8 +47,11 @@ class ConvertOptions:
             raise RecorderLogError("the fallback exposure must be positive")
         if self.R_cam_imu is not None:
             R = np.asarray(self.R_cam_imu, dtype=float)
-            if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or \
-                    np.linalg.det(R) < 0:
+            if (
+                R.shape != (3, 3)
+                or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+                or np.linalg.det(R) < 0
+            ):
                 raise RecorderLogError("R_cam_imu must be a 3x3 rotation matrix")
 
 
@@ -67,11 +70,17 @@ class ConvertResult:
     notes: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"session": str(self.folder), "frames": self.frames,
-                "imu_samples": self.imu_samples, "log_complete": self.log_complete,
-                "damage": self.damage, "clock_map": self.clock_map,
-                "skipped_frames": self.skipped_frames, "skipped_imu": self.skipped_imu,
-                "notes": self.notes}
+        return {
+            "session": str(self.folder),
+            "frames": self.frames,
+            "imu_samples": self.imu_samples,
+            "log_complete": self.log_complete,
+            "damage": self.damage,
+            "clock_map": self.clock_map,
+            "skipped_frames": self.skipped_frames,
+            "skipped_imu": self.skipped_imu,
+            "notes": self.notes,
+        }
 
 
 def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, np.ndarray]:
@@ -85,8 +94,7 @@ def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, n
     if n < 2:
         raise RecorderLogError("the log holds a single IMU sample; cannot map device time")
     min_latency = float(scan.metadata.get("imu_min_latency_s", "0") or 0.0)
-    cmap = fit_clock_map_windowed(dev_ns[keep], scan.imu_host_ns[keep], min_latency,
-                                  CLOCK_WINDOW_S)
+    cmap = fit_clock_map_windowed(dev_ns[keep], scan.imu_host_ns[keep], min_latency, CLOCK_WINDOW_S)
     result.clock_map = cmap.as_dict()
     result.skipped_imu = int(n - np.count_nonzero(keep))
     return cmap.to_host_ns(dev_ns[keep]), keep
@@ -107,27 +115,33 @@ def _rig_guess(metadata: dict[str, str]) -> dict[str, Any]:
         if "readout_s" in guess:
             out["readout_s"] = float(guess["readout_s"])
         if "R_cam_imu" in guess:
-            out["R_cam_imu"] = ConvertOptions(R_cam_imu=tuple(
-                tuple(float(v) for v in row) for row in guess["R_cam_imu"])).R_cam_imu
+            out["R_cam_imu"] = ConvertOptions(
+                R_cam_imu=tuple(tuple(float(v) for v in row) for row in guess["R_cam_imu"])
+            ).R_cam_imu
         return out
     except (ValueError, TypeError, KeyError) as exc:
         raise RecorderLogError(f"the log's rig_guess metadata is malformed ({exc})") from None
 
 
-def log_to_session(log_path: str | Path, folder: str | Path,
-                   options: ConvertOptions | None = None) -> ConvertResult:
+def log_to_session(
+    log_path: str | Path, folder: str | Path, options: ConvertOptions | None = None
+) -> ConvertResult:
     """Write the session folder ``folder`` (must not exist or be empty) from a recorder log."""
     options = options or ConvertOptions()
     log_path, folder = Path(log_path), Path(folder)
     scan = scan_log(log_path)
     result = ConvertResult(folder, 0, 0, scan.complete, scan.damage)
     if scan.frame_timestamps_ns.size == 0:
-        raise RecorderLogError(f"{log_path} holds no camera frames; a session needs a camera "
-                               "(record IMU-only logs with --no-convert)")
+        raise RecorderLogError(
+            f"{log_path} holds no camera frames; a session needs a camera "
+            "(record IMU-only logs with --no-convert)"
+        )
     unknown_exposure = bool(np.any(scan.frame_exposures_ns <= 0))
     if unknown_exposure and options.exposure_ns is None:
-        raise RecorderLogError("the camera reported no exposure time for some frames; "
-                               "give the exposure explicitly (--exposure-ms)")
+        raise RecorderLogError(
+            "the camera reported no exposure time for some frames; "
+            "give the exposure explicitly (--exposure-ms)"
+        )
     imu_t_ns, keep = _imu_host_times(scan, result)
     image = next(iter_frames(log_path)).image()
     h, w = image.shape[:2]
@@ -137,26 +151,35 @@ def log_to_session(log_path: str | Path, folder: str | Path,
     if intrinsics is None:
         intrinsics = (float(w), float(w), (w - 1) / 2.0, (h - 1) / 2.0)
         result.notes.append("intrinsics are a guess (fx = fy = width); calibrate them")
-    readout_s = options.readout_s if options.readout_s is not None else \
-        float(guess.get("readout_s", 0.0))
+    readout_s = (
+        options.readout_s if options.readout_s is not None else float(guess.get("readout_s", 0.0))
+    )
     T_cam_imu = np.eye(4)
     R = options.R_cam_imu if options.R_cam_imu is not None else guess.get("R_cam_imu")
     if R is not None:
         T_cam_imu[:3, :3] = np.asarray(R, dtype=float)
     if unknown_exposure:
-        result.notes.append(f"exposure not reported by the camera; {options.exposure_ns} ns "
-                            "assumed as given")
+        result.notes.append(
+            f"exposure not reported by the camera; {options.exposure_ns} ns assumed as given"
+        )
     imu_rate = rate_of(scan.imu_t_dev_us * 1000) if keep.any() else 0.0
     recording = {k: v for k, v in scan.metadata.items() if k != "format"}
-    recording.update({"log": log_path.name, "log_complete": scan.complete,
-                      "damage": scan.damage, "clock_map": result.clock_map,
-                      "imu_stats": scan.last_stats.get("imu", {}),
-                      "camera_dropped": scan.last_stats.get("camera_dropped", 0),
-                      "intrinsics_guessed": guessed})
+    recording.update(
+        {
+            "log": log_path.name,
+            "log_complete": scan.complete,
+            "damage": scan.damage,
+            "clock_map": result.clock_map,
+            "imu_stats": scan.last_stats.get("imu", {}),
+            "camera_dropped": scan.last_stats.get("camera_dropped", 0),
+            "intrinsics_guessed": guessed,
+        }
+    )
     try:
         meta = SessionMeta(
-            camera=CameraConfig(resolution=(w, h), intrinsics=tuple(intrinsics),
-                                readout_s=readout_s),
+            camera=CameraConfig(
+                resolution=(w, h), intrinsics=tuple(intrinsics), readout_s=readout_s
+            ),
             imu=ImuConfig(rate_hz=imu_rate if imu_rate > 0 else 200.0, T_cam_imu=T_cam_imu),
             target_kind=options.target_kind,
             extra={"recording": recording},

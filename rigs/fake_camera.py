@@ -23,8 +23,13 @@ RenderFn = Callable[[float], np.ndarray]
 
 
 def dot_grid_renderer(
-    width: int, height: int, spacing_px: int = 40, amplitude_px: float = 6.0,
-    freq_hz: float = 1.1, noise: float = 0.0, seed: int = 0,
+    width: int,
+    height: int,
+    spacing_px: int = 40,
+    amplitude_px: float = 6.0,
+    freq_hz: float = 1.1,
+    noise: float = 0.0,
+    seed: int = 0,
 ) -> RenderFn:
     """A grid of bright dots on a dark background that sways sinusoidally (uint8, (H, W)).
 
@@ -37,8 +42,11 @@ def dot_grid_renderer(
     dy = (yy % spacing_px) - spacing_px / 2
     base = (20 + 220 * np.exp(-(dx * dx + dy * dy) / 8.0)).astype(np.uint8)
     rng = np.random.default_rng(seed)
-    noise_frames = [np.clip(rng.normal(noise, noise, base.shape), 0, 255).astype(np.uint8)
-                    for _ in range(4)] if noise > 0 else []
+    noise_frames = (
+        [np.clip(rng.normal(noise, noise, base.shape), 0, 255).astype(np.uint8) for _ in range(4)]
+        if noise > 0
+        else []
+    )
     count = [0]
 
     def render(t_start_s: float) -> np.ndarray:
@@ -47,8 +55,11 @@ def dot_grid_renderer(
         image = np.roll(base, (sy, sx), axis=(0, 1))
         if noise_frames:
             count[0] += 1
-            image = np.add(image, noise_frames[count[0] % len(noise_frames)],
-                           dtype=np.uint16).clip(0, 255).astype(np.uint8)
+            image = (
+                np.add(image, noise_frames[count[0] % len(noise_frames)], dtype=np.uint16)
+                .clip(0, 255)
+                .astype(np.uint8)
+            )
         return image
 
     return render
@@ -82,15 +93,19 @@ class VirtualCamera:
     """``read()`` returns the next frame, or None after ``n_frames``."""
 
     def __init__(
-        self, render: RenderFn, config: VirtualCameraConfig | None = None,
-        clock: Clock | None = None, url: str = "sim://camera",
+        self,
+        render: RenderFn,
+        config: VirtualCameraConfig | None = None,
+        clock: Clock | None = None,
+        url: str = "sim://camera",
     ) -> None:
         self.render = render
         self.config = config or VirtualCameraConfig()
         self.clock = clock or MonotonicClock()
         self.url = url
-        self._t0_ns = self.clock.now_ns() if self.config.origin_ns is None \
-            else self.config.origin_ns
+        self._t0_ns = (
+            self.clock.now_ns() if self.config.origin_ns is None else self.config.origin_ns
+        )
         self._next = 0
         self.frames_dropped = 0
         self._stop = threading.Event()
@@ -125,8 +140,9 @@ class VirtualCamera:
         self._next += 1
         t_ns = self._due_ns(i)
         image = np.asarray(self.render((t_ns - self._t0_ns) * 1e-9))
-        return CameraFrame(i, image, t_ns, round(cfg.exposure_s * 1e9), self.clock.now_ns(),
-                           "driver")
+        return CameraFrame(
+            i, image, t_ns, round(cfg.exposure_s * 1e9), self.clock.now_ns(), "driver"
+        )
 
     def close(self) -> None:
         self._stop.set()

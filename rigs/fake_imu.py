@@ -213,8 +213,9 @@ class VirtualImu:
             gyro = omega
         return k, t_us, counts, gyro
 
-    def _encode(self, k: np.ndarray, t_us: np.ndarray, counts: np.ndarray, gyro: np.ndarray
-                ) -> bytes:
+    def _encode(
+        self, k: np.ndarray, t_us: np.ndarray, counts: np.ndarray, gyro: np.ndarray
+    ) -> bytes:
         cfg = self.config
         accel_counts = (0, 0, round(GRAVITY_MPS2 / ACCEL_SCALE_MPS2)) if cfg.accel else None
         accel = (0.0, 0.0, GRAVITY_MPS2) if cfg.accel else None
@@ -222,8 +223,11 @@ class VirtualImu:
         f = cfg.faults
         for i in range(k.size):
             if cfg.protocol == "binary":
-                frame = bytearray(encode_binary(
-                    int(k[i]) + cfg.counter_start, int(t_us[i]), tuple(counts[i]), accel_counts))
+                frame = bytearray(
+                    encode_binary(
+                        int(k[i]) + cfg.counter_start, int(t_us[i]), tuple(counts[i]), accel_counts
+                    )
+                )
             else:
                 frame = bytearray(encode_ascii(int(t_us[i]), tuple(gyro[i]), accel))
             damaged = False
@@ -296,8 +300,12 @@ class VirtualImu:
                     return
                 self._stop.wait(0.002)
                 continue
-            if cfg.realtime and not paused and f.pause_at_s is not None and (
-                    due / cfg.rate_hz >= f.pause_at_s):
+            if (
+                cfg.realtime
+                and not paused
+                and f.pause_at_s is not None
+                and (due / cfg.rate_hz >= f.pause_at_s)
+            ):
                 paused = True
                 self.pauses += 1
                 self._stop.wait(f.pause_s)  # the board stalls; its samples come out late

@@ -108,8 +108,25 @@ class ImuDriver:
 
 
 def _sim_config(u: DeviceUrl) -> VirtualImuConfig:
-    u.check_keys({"rate", "protocol", "seed", "flip", "drop", "garbage", "pause", "unplug",
-                  "drift_ppm", "noise", "realtime", "samples", "accel", "counter_start", "t0_us"})
+    u.check_keys(
+        {
+            "rate",
+            "protocol",
+            "seed",
+            "flip",
+            "drop",
+            "garbage",
+            "pause",
+            "unplug",
+            "drift_ppm",
+            "noise",
+            "realtime",
+            "samples",
+            "accel",
+            "counter_start",
+            "t0_us",
+        }
+    )
     pause_at, pause_s = None, 0.0
     if "pause" in u.params:  # pause=AT:SECONDS
         try:

@@ -41,8 +41,15 @@ LOG_FORMAT = "blurtrack-reclog/1"
 FRAME_HEADER = struct.Struct("<qqqqBBHHBB")
 ENCODINGS = {"png": 0, "raw": 1}
 MAX_FRAME_PIXELS = 1 << 26  # refuse absurd sizes from a damaged header before allocating
-_READ_ERRORS = (McapError, ValueError, struct.error, EOFError, UnicodeDecodeError, KeyError,
-                IndexError)
+_READ_ERRORS = (
+    McapError,
+    ValueError,
+    struct.error,
+    EOFError,
+    UnicodeDecodeError,
+    KeyError,
+    IndexError,
+)
 _JSON_SCHEMA = {
     "/imu": {"type": "object", "title": "blurtrack.ImuBatch"},
     "/stats": {"type": "object", "title": "blurtrack.Stats"},
@@ -69,8 +76,9 @@ class RecLogWriter:
         self._w.start(profile="", library="blurtrack-rigs")
         self._channels: dict[str, int] = {}
         for topic, schema in _JSON_SCHEMA.items():
-            sid = self._w.register_schema(schema["title"], "jsonschema",
-                                          json.dumps(schema).encode())
+            sid = self._w.register_schema(
+                schema["title"], "jsonschema", json.dumps(schema).encode()
+            )
             self._channels[topic] = self._w.register_channel(topic, "json", sid)
         fsid = self._w.register_schema("blurtrack.Frame", "", b"")
         self._channels["/cam0"] = self._w.register_channel("/cam0", "blurtrack-frame/1", fsid)
@@ -87,29 +95,54 @@ class RecLogWriter:
 
     def _add(self, topic: str, t_ns: int, data: bytes) -> None:
         self._seq += 1
-        self._w.add_message(self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
-                            sequence=self._seq)
+        self._w.add_message(
+            self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq
+        )
 
     def _json(self, topic: str, t_ns: int, obj: dict[str, Any]) -> None:
         self._add(topic, t_ns, json.dumps(obj, allow_nan=False).encode())
 
-    def write_imu(self, t_ns: int, index: np.ndarray, t_dev_us: np.ndarray, host_ns: np.ndarray,
-                  gyro_radps: np.ndarray, accel_mps2: np.ndarray | None) -> None:
+    def write_imu(
+        self,
+        t_ns: int,
+        index: np.ndarray,
+        t_dev_us: np.ndarray,
+        host_ns: np.ndarray,
+        gyro_radps: np.ndarray,
+        accel_mps2: np.ndarray | None,
+    ) -> None:
         accel = None
         if accel_mps2 is not None and np.all(np.isfinite(accel_mps2)):
             accel = accel_mps2.tolist()
-        self._json("/imu", t_ns, {"index": index.tolist(), "t_dev_us": t_dev_us.tolist(),
-                                  "host_ns": host_ns.tolist(), "gyro_radps": gyro_radps.tolist(),
-                                  "accel_mps2": accel})
+        self._json(
+            "/imu",
+            t_ns,
+            {
+                "index": index.tolist(),
+                "t_dev_us": t_dev_us.tolist(),
+                "host_ns": host_ns.tolist(),
+                "gyro_radps": gyro_radps.tolist(),
+                "accel_mps2": accel,
+            },
+        )
 
     def write_frame(self, frame: CameraFrame, data: bytes, encoding: str = "raw") -> None:
         """Log a frame; ``data`` is the PNG file (``png``) or ``frame.image.tobytes()``."""
         img = frame.image
         h, w = img.shape[:2]
         channels = 1 if img.ndim == 2 else img.shape[2]
-        header = FRAME_HEADER.pack(frame.index, frame.timestamp_ns, frame.exposure_ns,
-                                   frame.host_ns, 1 if frame.stamp_source == "driver" else 0,
-                                   ENCODINGS[encoding], h, w, channels, img.dtype.itemsize)
+        header = FRAME_HEADER.pack(
+            frame.index,
+            frame.timestamp_ns,
+            frame.exposure_ns,
+            frame.host_ns,
+            1 if frame.stamp_source == "driver" else 0,
+            ENCODINGS[encoding],
+            h,
+            w,
+            channels,
+            img.dtype.itemsize,
+        )
         self._add("/cam0", frame.host_ns, header + data)
 
     def write_stats(self, t_ns: int, stats: dict[str, Any]) -> None:
@@ -160,8 +193,9 @@ class FrameRecord:
         if self.encoding != ENCODINGS["raw"] or self.itemsize not in (1, 2):
             raise RecorderLogError(f"frame {self.index} has an unknown encoding")
         if h * w * c > MAX_FRAME_PIXELS or len(self.data) != h * w * c * self.itemsize:
-            raise RecorderLogError(f"frame {self.index}: {len(self.data)} bytes do not make a "
-                                   f"{w}x{h}x{c} image")
+            raise RecorderLogError(
+                f"frame {self.index}: {len(self.data)} bytes do not make a {w}x{h}x{c} image"
+            )
         dtype = np.uint8 if self.itemsize == 1 else np.dtype("<u2")
         img = np.frombuffer(self.data, dtype=dtype).reshape((h, w, c) if c > 1 else (h, w))
         return img.astype(np.uint16) if self.itemsize == 2 else img
@@ -202,8 +236,11 @@ def _records(path: Path) -> Iterator[tuple[str, Any]]:
             for rec in reader.records:
                 yield "record", rec
         except _READ_ERRORS as exc:
-            yield "end", f"log ends in a damaged or cut-off record near byte {f.tell()} " \
-                         f"({type(exc).__name__}: {exc})"
+            yield (
+                "end",
+                f"log ends in a damaged or cut-off record near byte {f.tell()} "
+                f"({type(exc).__name__}: {exc})",
+            )
             return
     yield "end", ""
 
@@ -218,13 +255,15 @@ def _walk(path: Path) -> Iterator[tuple[str, Any]]:
             if not seen_meta:
                 raise RecorderLogError(
                     f"{path} is not a BlurTrack recorder log (no '{LOG_FORMAT}' metadata)"
-                    + (f"; {rec}" if rec else ""))
+                    + (f"; {rec}" if rec else "")
+                )
             yield "", rec
             return
         if isinstance(rec, Metadata) and rec.name == "recording":
             if rec.metadata.get("format") != LOG_FORMAT:
-                raise RecorderLogError(f"{path}: unsupported log format "
-                                       f"{rec.metadata.get('format')!r}")
+                raise RecorderLogError(
+                    f"{path}: unsupported log format {rec.metadata.get('format')!r}"
+                )
             seen_meta = True
             yield "meta", rec
         elif isinstance(rec, Channel):
@@ -277,7 +316,11 @@ def scan_log(path: str | Path) -> LogScan:
         accel_mps2=None if m == 0 or np.isnan(acc).any() else acc,
         frame_timestamps_ns=np.asarray(frame_ts, dtype=np.int64),
         frame_exposures_ns=np.asarray(frame_exp, dtype=np.int64),
-        stats=stats, events=events, complete=not damage, damage=damage, messages=n,
+        stats=stats,
+        events=events,
+        complete=not damage,
+        damage=damage,
+        messages=n,
     )
 
 
@@ -286,8 +329,17 @@ def iter_frames(path: str | Path) -> Iterator[FrameRecord]:
     for topic, rec in _walk(Path(path)):
         if topic == "/cam0":
             index, ts, exp, host, src, enc, h, w, c, size = FRAME_HEADER.unpack_from(rec.data)
-            yield FrameRecord(index, ts, exp, host, "driver" if src else "host", enc, (h, w, c),
-                              size, bytes(rec.data[FRAME_HEADER.size:]))
+            yield FrameRecord(
+                index,
+                ts,
+                exp,
+                host,
+                "driver" if src else "host",
+                enc,
+                (h, w, c),
+                size,
+                bytes(rec.data[FRAME_HEADER.size :]),
+            )
 
 
 @dataclass(frozen=True)

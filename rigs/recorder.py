@@ -77,11 +77,13 @@ class RecorderStatus:
     log_bytes: int = 0
 
     def line(self) -> str:
-        return (f"{self.elapsed_s:7.1f} s  imu {self.imu_samples} ({self.imu_rate_hz:.0f} Hz, "
-                f"dropped {self.imu_dropped}, crc {self.imu_crc_errors}, resync "
-                f"{self.imu_resyncs})  cam {self.frames} ({self.fps:.1f} fps, dropped "
-                f"{self.camera_dropped})  flushed imu {self.flushed_imu_samples} frames "
-                f"{self.flushed_frames}  {self.log_bytes / 1e6:.1f} MB")
+        return (
+            f"{self.elapsed_s:7.1f} s  imu {self.imu_samples} ({self.imu_rate_hz:.0f} Hz, "
+            f"dropped {self.imu_dropped}, crc {self.imu_crc_errors}, resync "
+            f"{self.imu_resyncs})  cam {self.frames} ({self.fps:.1f} fps, dropped "
+            f"{self.camera_dropped})  flushed imu {self.flushed_imu_samples} frames "
+            f"{self.flushed_frames}  {self.log_bytes / 1e6:.1f} MB"
+        )
 
 
 @dataclass
@@ -95,8 +97,13 @@ class RecordResult:
     error: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"log": str(self.log_path), "status": asdict(self.status),
-                "imu_stats": self.imu_stats, "stopped_by": self.stopped_by, "error": self.error}
+        return {
+            "log": str(self.log_path),
+            "status": asdict(self.status),
+            "imu_stats": self.imu_stats,
+            "stopped_by": self.stopped_by,
+            "error": self.error,
+        }
 
 
 class Recorder:
@@ -175,8 +182,9 @@ class Recorder:
     def _write(self, log: RecLogWriter, kind: str, payload: Any, counts: dict[str, int]) -> None:
         if kind == "imu":
             b: ImuBatch = payload
-            log.write_imu(int(b.host_ns[-1]), b.index, b.t_dev_us, b.host_ns, b.gyro_radps,
-                          b.accel_mps2)
+            log.write_imu(
+                int(b.host_ns[-1]), b.index, b.t_dev_us, b.host_ns, b.gyro_radps, b.accel_mps2
+            )
             counts["imu"] += len(b)
         elif kind == "frame":
             frame, data = payload
@@ -185,8 +193,14 @@ class Recorder:
             self._frame_slots.release()
             counts["frames"] += 1
 
-    def _snapshot(self, t_ns: int, start_ns: int, counts: dict[str, int],
-                  flushed: dict[str, int], log: RecLogWriter) -> RecorderStatus:
+    def _snapshot(
+        self,
+        t_ns: int,
+        start_ns: int,
+        counts: dict[str, int],
+        flushed: dict[str, int],
+        log: RecLogWriter,
+    ) -> RecorderStatus:
         s = self.status
         elapsed = (t_ns - start_ns) * 1e-9
         s.elapsed_s = elapsed
@@ -196,7 +210,10 @@ class Recorder:
         if self.imu is not None:
             st = self.imu.stats
             s.imu_crc_errors, s.imu_dropped, s.imu_resyncs = (
-                st["crc_errors"], st["dropped"], st["resyncs"])
+                st["crc_errors"],
+                st["dropped"],
+                st["resyncs"],
+            )
         if self.camera is not None:
             s.camera_dropped = int(self.camera.frames_dropped)
         s.flushed_imu_samples, s.flushed_frames = flushed["imu"], flushed["frames"]
@@ -211,8 +228,7 @@ class Recorder:
         if self.imu is not None:
             threads.append(threading.Thread(target=self._imu_loop, name="rec-imu", daemon=True))
         if self.camera is not None:
-            threads.append(threading.Thread(target=self._camera_loop, name="rec-cam",
-                                            daemon=True))
+            threads.append(threading.Thread(target=self._camera_loop, name="rec-cam", daemon=True))
         start_ns = self.clock.now_ns()
         log.write_event(start_ns, "info", "recording started")
         for t in threads:
@@ -287,8 +303,14 @@ class Recorder:
             return False  # a finite virtual board: wait for its last sample
         return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
 
-    def _flush(self, log: RecLogWriter, now: int, start_ns: int, counts: dict[str, int],
-               flushed: dict[str, int]) -> None:
+    def _flush(
+        self,
+        log: RecLogWriter,
+        now: int,
+        start_ns: int,
+        counts: dict[str, int],
+        flushed: dict[str, int],
+    ) -> None:
         stats: dict[str, Any] = {"imu_samples": counts["imu"], "frames": counts["frames"]}
         if self.imu is not None:
             stats["imu"] = self.imu.stats

@@ -82,9 +82,7 @@ def lower_hull(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.asarray(hull, dtype=np.int64)
 
 
-def fit_clock_map(
-    dev_ns: np.ndarray, host_ns: np.ndarray, min_latency_s: float = 0.0
-) -> ClockMap:
+def fit_clock_map(dev_ns: np.ndarray, host_ns: np.ndarray, min_latency_s: float = 0.0) -> ClockMap:
     """Fit the lower envelope of host-minus-device delay against device time.
 
     dev_ns: (N,) int64 device times of samples (unwrapped), ns. host_ns: (N,) int64 host times
@@ -160,11 +158,16 @@ class PiecewiseClockMap:
         if len(self.windows) == 1:
             return self.windows[0].to_host_ns(dev_ns)
         c = self.centres_dev_ns
-        delay_c = np.array([int(w.to_host_ns(c[k:k + 1])[0] - c[k])
-                            for k, w in enumerate(self.windows)], dtype=np.int64)
+        delay_c = np.array(
+            [int(w.to_host_ns(c[k : k + 1])[0] - c[k]) for k, w in enumerate(self.windows)],
+            dtype=np.int64,
+        )
         # interpolate relative to the first centre's delay, so float64 keeps ns resolution
-        rel = np.interp((dev_ns - c[0]).astype(np.float64), (c - c[0]).astype(np.float64),
-                        (delay_c - delay_c[0]).astype(np.float64))
+        rel = np.interp(
+            (dev_ns - c[0]).astype(np.float64),
+            (c - c[0]).astype(np.float64),
+            (delay_c - delay_c[0]).astype(np.float64),
+        )
         out = dev_ns + delay_c[0] + np.rint(rel).astype(np.int64)
         lo, hi = dev_ns < c[0], dev_ns > c[-1]
         out[lo] = self.windows[0].to_host_ns(dev_ns[lo])
@@ -181,14 +184,18 @@ class PiecewiseClockMap:
             "min_latency_s": self.windows[0].min_latency_s,
             "n_points": int(sum(w.n_points for w in self.windows)),
             "delay_above_envelope_median_s": float(
-                np.median([w.delay_above_envelope_median_s for w in self.windows])),
+                np.median([w.delay_above_envelope_median_s for w in self.windows])
+            ),
             "delay_above_envelope_p99_s": float(
-                max(w.delay_above_envelope_p99_s for w in self.windows)),
+                max(w.delay_above_envelope_p99_s for w in self.windows)
+            ),
         }
 
 
 def fit_clock_map_windowed(
-    dev_ns: np.ndarray, host_ns: np.ndarray, min_latency_s: float = 0.0,
+    dev_ns: np.ndarray,
+    host_ns: np.ndarray,
+    min_latency_s: float = 0.0,
     window_s: float = 60.0,
 ) -> PiecewiseClockMap:
     """:func:`fit_clock_map` per ``window_s`` of device time (one window for short recordings;

@@ -22,8 +22,12 @@ DEFAULT_DATA = REPO.parent / "shared" / "data"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the whole pipeline on the simulated rig")
     p.add_argument("--out", type=Path, default=Path("demo_out"))
-    p.add_argument("--data", type=Path, default=DEFAULT_DATA,
-                   help="the shared real data (default: ../shared/data beside the repository)")
+    p.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help="the shared real data (default: ../shared/data beside the repository)",
+    )
     p.add_argument("--frames", type=int, default=40, help="simulated frames")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--train-steps", type=int, default=150)
@@ -55,26 +59,76 @@ def run(args: argparse.Namespace) -> int:
     sim = out / "sim"
     t_start = time.perf_counter()
 
-    _step("simulate a laser-grid session (realistic preset)", lambda: bt(
-        ["simulate", str(sim), "--preset", "realistic", "--frames", str(args.frames),
-         "--seed", str(args.seed)]))
-    _step("detect the streaks", lambda: bt(
-        ["detect", str(sim), "--out", str(sim / "streaks.parquet"),
-         "--overlay", str(out / "detect.png")]))
-    _step("calibrate with CasADi", lambda: bt(
-        ["calibrate", str(sim), "--out", str(out / "calib.yaml")]))
-    _step("endpoint-error report", lambda: bt(
-        ["report", str(sim), "--calib", str(out / "calib.yaml"), "--out", str(out / "report")]))
+    _step(
+        "simulate a laser-grid session (realistic preset)",
+        lambda: bt(
+            [
+                "simulate",
+                str(sim),
+                "--preset",
+                "realistic",
+                "--frames",
+                str(args.frames),
+                "--seed",
+                str(args.seed),
+            ]
+        ),
+    )
+    _step(
+        "detect the streaks",
+        lambda: bt(
+            [
+                "detect",
+                str(sim),
+                "--out",
+                str(sim / "streaks.parquet"),
+                "--overlay",
+                str(out / "detect.png"),
+            ]
+        ),
+    )
+    _step(
+        "calibrate with CasADi",
+        lambda: bt(["calibrate", str(sim), "--out", str(out / "calib.yaml")]),
+    )
+    _step(
+        "endpoint-error report",
+        lambda: bt(
+            ["report", str(sim), "--calib", str(out / "calib.yaml"), "--out", str(out / "report")]
+        ),
+    )
     real = data / "real"
-    _step("import the DeepGyro recording (predicted trajectories drawn)", lambda: bt(
-        ["import", "deepgyro", str(real / "deepgyro-shield"), str(out / "deepgyro"),
-         "--overlays", "7"]))
-    _step("import the MARS logger recording (predicted trajectories drawn)", lambda: bt(
-        ["import", "marslogger", str(real / "marslogger-phone"), str(out / "marslogger"),
-         "--overlays", "10"]))
+    _step(
+        "import the DeepGyro recording (predicted trajectories drawn)",
+        lambda: bt(
+            [
+                "import",
+                "deepgyro",
+                str(real / "deepgyro-shield"),
+                str(out / "deepgyro"),
+                "--overlays",
+                "7",
+            ]
+        ),
+    )
+    _step(
+        "import the MARS logger recording (predicted trajectories drawn)",
+        lambda: bt(
+            [
+                "import",
+                "marslogger",
+                str(real / "marslogger-phone"),
+                str(out / "marslogger"),
+                "--overlays",
+                "10",
+            ]
+        ),
+    )
     _step("synthesise calibrated training triplets", lambda: _synth(out, data))
-    _step("train GAMD briefly and deblur a test image",
-          lambda: _gamd(out, args.train_steps, sys.stderr.isatty()))
+    _step(
+        "train GAMD briefly and deblur a test image",
+        lambda: _gamd(out, args.train_steps, sys.stderr.isatty()),
+    )
     print(f"\ndemo finished in {time.perf_counter() - t_start:.0f} s; outputs:")
     for name, what in [
         ("sim/", "simulated session with truth.yaml"),
@@ -104,8 +158,10 @@ def _gamd(out: Path, steps: int, progress: bool) -> int:
     from gamd.demo import demo_train
 
     res = demo_train(out / "dataset", out / "gamd", steps=steps, progress=progress)
-    print(f"   {steps} training steps; test image {res['image']}: blurred "
-          f"{res['blurred_psnr_db']:.2f} dB / SSIM {res['blurred_ssim']:.4f}, restored "
-          f"{res['restored_psnr_db']:.2f} dB / SSIM {res['restored_ssim']:.4f} "
-          f"(a short CPU run; see the README for the trained benchmark)")
+    print(
+        f"   {steps} training steps; test image {res['image']}: blurred "
+        f"{res['blurred_psnr_db']:.2f} dB / SSIM {res['blurred_ssim']:.4f}, restored "
+        f"{res['restored_psnr_db']:.2f} dB / SSIM {res['restored_ssim']:.4f} "
+        f"(a short CPU run; see the README for the trained benchmark)"
+    )
     return 0

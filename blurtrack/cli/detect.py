@@ -17,17 +17,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "with the gyro (initial guesses), continuity and brightness.",
     )
     p.add_argument("session", type=Path, help="session folder")
-    p.add_argument("--out", type=Path, default=Path("streaks.parquet"),
-                   help="output table (Parquet; default ./streaks.parquet); a summary is "
-                   "written beside it as <stem>.summary.json")
-    p.add_argument("--gyro", choices=("auto", "on", "off"), default="auto",
-                   help="use the gyro to tell start from end: auto (where it covers the "
-                   "frame), on (required), off (image only)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("streaks.parquet"),
+        help="output table (Parquet; default ./streaks.parquet); a summary is "
+        "written beside it as <stem>.summary.json",
+    )
+    p.add_argument(
+        "--gyro",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="use the gyro to tell start from end: auto (where it covers the "
+        "frame), on (required), off (image only)",
+    )
     p.add_argument("--params", type=Path, default=None, help="detection parameters (YAML)")
-    p.add_argument("--frames", default=None, metavar="A:B",
-                   help="only frames A..B-1 (Python slice syntax)")
-    p.add_argument("--overlay", type=Path, default=None, metavar="PNG",
-                   help="also draw the detected streaks over the first frame with streaks")
+    p.add_argument(
+        "--frames", default=None, metavar="A:B", help="only frames A..B-1 (Python slice syntax)"
+    )
+    p.add_argument(
+        "--overlay",
+        type=Path,
+        default=None,
+        metavar="PNG",
+        help="also draw the detected streaks over the first frame with streaks",
+    )
     p.set_defaults(func=run)
 
 
@@ -71,13 +85,21 @@ def run(args: argparse.Namespace) -> int:
     summary_path.write_text(json.dumps(summary, indent=2))
     s = result.summary
     print(f"detect: {s['streaks']} streaks in {s['frames']} frames -> {args.out}")
-    print(f"  orientation: {s['orientation_sources']}, median confidence "
-          f"{s['orientation_confidence_median']:.3f}")
+    print(
+        f"  orientation: {s['orientation_sources']}, median confidence "
+        f"{s['orientation_confidence_median']:.3f}"
+    )
     print(f"  flags: {s['flags']}")
     if s["frames_without_streaks"]:
-        print(f"  warning: {len(s['frames_without_streaks'])} frame(s) without streaks: "
-              f"{s['frames_without_streaks'][:10]}", file=sys.stderr)
+        print(
+            f"  warning: {len(s['frames_without_streaks'])} frame(s) without streaks: "
+            f"{s['frames_without_streaks'][:10]}",
+            file=sys.stderr,
+        )
     if s["frames_without_gyro"]:
-        print(f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "
-              "their orientation is image-only", file=sys.stderr)
+        print(
+            f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "
+            "their orientation is image-only",
+            file=sys.stderr,
+        )
     return 0

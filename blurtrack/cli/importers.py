@@ -12,8 +12,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("kind", choices=["deepgyro", "marslogger"], help="source format")
     p.add_argument("src", type=Path, help="source folder")
     p.add_argument("out", type=Path, help="new session folder (must not exist or be empty)")
-    p.add_argument("--overlays", type=int, default=0, metavar="N",
-                   help="also draw predicted trajectories over the first N frames")
+    p.add_argument(
+        "--overlays",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also draw predicted trajectories over the first N frames",
+    )
     p.set_defaults(func=run)
 
 
@@ -26,11 +31,14 @@ def run(args: argparse.Namespace) -> int:
     session = load_session(args.out)
     if args.overlays:
         n = min(args.overlays, len(session.frames))
-        summary["overlays"] = draw_session_overlays(session, session.initial_calibration(),
-                                                    args.out / "overlays", list(range(n)))
+        summary["overlays"] = draw_session_overlays(
+            session, session.initial_calibration(), args.out / "overlays", list(range(n))
+        )
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"imported {summary['frames']} frames and {summary['gyro_samples']} gyro samples "
-          f"from {args.src} into {args.out}")
+    print(
+        f"imported {summary['frames']} frames and {summary['gyro_samples']} gyro samples "
+        f"from {args.src} into {args.out}"
+    )
     for key, text in summary["assumptions"].items():
         print(f"  assumed {key}: {text}")
     if args.overlays:

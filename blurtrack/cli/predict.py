@@ -10,18 +10,23 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
-        "predict", help="per-frame blur heat maps and trajectories of a recording",
+        "predict",
+        help="per-frame blur heat maps and trajectories of a recording",
         description="Predict every frame's blur trajectories from the session's gyro and a "
-                    "calibration: DIR/heat/<timestamp_ns>.npy (6, H, W) float32, "
-                    "DIR/trajectories.parquet, DIR/summary.json.")
+        "calibration: DIR/heat/<timestamp_ns>.npy (6, H, W) float32, "
+        "DIR/trajectories.parquet, DIR/summary.json.",
+    )
     p.add_argument("session", help="session folder")
     p.add_argument("--calib", required=True, help="calibration file")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--stride", type=int, default=8, help="heat-map evaluation stride (px)")
     p.add_argument("--samples", type=int, default=16, help="trajectory samples per pixel")
     p.add_argument("--grid", default="16x9", help="trajectory table grid, NXxNY nodes")
-    p.add_argument("--skip-uncovered", action="store_true",
-                   help="skip frames the gyro does not cover instead of refusing")
+    p.add_argument(
+        "--skip-uncovered",
+        action="store_true",
+        help="skip frames the gyro does not cover instead of refusing",
+    )
     p.set_defaults(func=run)
 
 
@@ -50,17 +55,32 @@ def run(args: argparse.Namespace) -> int:
         bars[0].update(done - bars[0].n)
 
     try:
-        res = predict_session(session, calib, args.out, args.stride, args.samples, (gx, gy),
-                              args.skip_uncovered, progress)
+        res = predict_session(
+            session,
+            calib,
+            args.out,
+            args.stride,
+            args.samples,
+            (gx, gy),
+            args.skip_uncovered,
+            progress,
+        )
     finally:
         for b in bars:
             b.close()
-    summary = {"command": "predict", "session": str(args.session), "calib": str(args.calib),
-               **res.stats, "skipped_timestamps_ns": res.skipped}
+    summary = {
+        "command": "predict",
+        "session": str(args.session),
+        "calib": str(args.calib),
+        **res.stats,
+        "skipped_timestamps_ns": res.skipped,
+    }
     write_text_atomic(Path(args.out) / "summary.json", json.dumps(summary, indent=2) + "\n")
     fit = res.stats["bezier_fit_within_0.5px"]
-    print(f"predict: {len(res.written)} of {res.stats['frames']} frames -> {args.out} "
-          f"(Bezier fit within 0.5 px: {100 * fit:.2f} %"
-          + (f", {len(res.skipped)} skipped: gyro does not cover them" if res.skipped else "")
-          + ")")
+    print(
+        f"predict: {len(res.written)} of {res.stats['frames']} frames -> {args.out} "
+        f"(Bezier fit within 0.5 px: {100 * fit:.2f} %"
+        + (f", {len(res.skipped)} skipped: gyro does not cover them" if res.skipped else "")
+        + ")"
+    )
     return 0

@@ -11,23 +11,43 @@ from blurtrack.errors import BlurTrackError
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "simulate", help="render a simulated laser-grid session (with truth.yaml)",
+        "simulate",
+        help="render a simulated laser-grid session (with truth.yaml)",
         description="Render a simulated laser-grid recording: frames, gyro, session.yaml (the "
-                    "rig's nominal guesses) and truth.yaml (true calibration and streaks).")
+        "rig's nominal guesses) and truth.yaml (true calibration and streaks).",
+    )
     p.add_argument("out", type=Path, help="session folder to create (must not exist or be empty)")
-    p.add_argument("--preset", default="realistic",
-                   help="built-in preset: clean, realistic (default) or hard")
-    p.add_argument("--preset-file", type=Path, default=None,
-                   help="YAML preset (all keys optional; 'base: NAME' starts from a built-in)")
+    p.add_argument(
+        "--preset", default="realistic", help="built-in preset: clean, realistic (default) or hard"
+    )
+    p.add_argument(
+        "--preset-file",
+        type=Path,
+        default=None,
+        help="YAML preset (all keys optional; 'base: NAME' starts from a built-in)",
+    )
     p.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--shake", type=Path, default=None,
-                   help="GyroDeblurNet shake trace for 'motion: shake' presets (default: "
-                        "../shared/data/real/gyrodeblurnet-shake/gyro_train.txt)")
-    p.add_argument("--motion", choices=("synthetic", "shake"), default=None,
-                   help="override the preset's motion source")
-    p.add_argument("--bit-depth", type=int, choices=(8, 16), default=None,
-                   help="override the preset's output bit depth")
+    p.add_argument(
+        "--shake",
+        type=Path,
+        default=None,
+        help="GyroDeblurNet shake trace for 'motion: shake' presets (default: "
+        "../shared/data/real/gyrodeblurnet-shake/gyro_train.txt)",
+    )
+    p.add_argument(
+        "--motion",
+        choices=("synthetic", "shake"),
+        default=None,
+        help="override the preset's motion source",
+    )
+    p.add_argument(
+        "--bit-depth",
+        type=int,
+        choices=(8, 16),
+        default=None,
+        help="override the preset's output bit depth",
+    )
     p.add_argument("--imu-rate", type=float, default=None, help="override the gyro rate (Hz)")
     p.set_defaults(func=run)
 
@@ -37,10 +57,16 @@ def run(args: argparse.Namespace) -> int:
     from rigs.sim.rig import SimRig
     from rigs.sim.writer import write_session
 
-    preset = SimPreset.from_yaml(args.preset_file) if args.preset_file else \
-        get_preset(args.preset)
-    changes = {k: v for k, v in (("motion", args.motion), ("bit_depth", args.bit_depth),
-                                 ("imu_rate_hz", args.imu_rate)) if v is not None}
+    preset = SimPreset.from_yaml(args.preset_file) if args.preset_file else get_preset(args.preset)
+    changes = {
+        k: v
+        for k, v in (
+            ("motion", args.motion),
+            ("bit_depth", args.bit_depth),
+            ("imu_rate_hz", args.imu_rate),
+        )
+        if v is not None
+    }
     if changes:
         preset = preset.replace(**changes)
     out = Path(args.out)
@@ -51,10 +77,14 @@ def run(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")
-    print(f"  streaks: {summary['streaks']} ({summary['streaks_inside']} inside), median "
-          f"length {summary['streak_length_px']['median']:.1f} px, max "
-          f"{summary['streak_length_px']['max']:.1f} px")
-    print(f"  true fx {t['intrinsics'][0]:.2f} px, readout {1e3 * t['readout_s']:.2f} ms, "
-          f"offset {1e3 * t['timeshift_cam_imu_s']:+.2f} ms, gyro {summary['imu_samples']} "
-          f"samples; {summary['seconds']['total']:.1f} s")
+    print(
+        f"  streaks: {summary['streaks']} ({summary['streaks_inside']} inside), median "
+        f"length {summary['streak_length_px']['median']:.1f} px, max "
+        f"{summary['streak_length_px']['max']:.1f} px"
+    )
+    print(
+        f"  true fx {t['intrinsics'][0]:.2f} px, readout {1e3 * t['readout_s']:.2f} ms, "
+        f"offset {1e3 * t['timeshift_cam_imu_s']:+.2f} ms, gyro {summary['imu_samples']} "
+        f"samples; {summary['seconds']['total']:.1f} s"
+    )
     return 0

@@ -10,14 +10,19 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
-        "synth", help="synthesise calibrated training triplets (sharp, blur, heat maps)",
+        "synth",
+        help="synthesise calibrated training triplets (sharp, blur, heat maps)",
         description="Blur sharp photographs along the calibrated gyro-driven trajectories and "
-                    "write a GoPro-style dataset with heat maps and a manifest "
-                    "(docs/synthesis.md). Resumable, deterministic by seed, shardable.")
+        "write a GoPro-style dataset with heat maps and a manifest "
+        "(docs/synthesis.md). Resumable, deterministic by seed, shardable.",
+    )
     p.add_argument("--calib", required=True, help="calibration file (Kalibr layout)")
-    p.add_argument("--gyro", required=True,
-                   help="gyro source: a session folder, a shake file (or its folder), or "
-                        "synthetic[:RMS_RADPS]")
+    p.add_argument(
+        "--gyro",
+        required=True,
+        help="gyro source: a session folder, a shake file (or its folder), or "
+        "synthetic[:RMS_RADPS]",
+    )
     p.add_argument("--images", required=True, help="folder of sharp photographs")
     p.add_argument("--out", required=True, help="dataset folder")
     p.add_argument("--count", type=int, default=100, help="number of triplets (default 100)")
@@ -27,34 +32,62 @@ def register(subparsers: Any) -> None:
     p.add_argument("--workers", type=int, default=1, help="worker processes")
     p.add_argument("--mode", choices=("exact", "paper"), default="exact")
     p.add_argument("--exposure-ms", default="10:30", help="exposure, LO:HI range or a value")
-    p.add_argument("--readout-ms", type=float, default=None,
-                   help="rolling-shutter readout (default: the calibration's)")
+    p.add_argument(
+        "--readout-ms",
+        type=float,
+        default=None,
+        help="rolling-shutter readout (default: the calibration's)",
+    )
     p.add_argument("--noise", default="0,0", help="Poisson scale and read-noise sigma (linear)")
-    p.add_argument("--saturation", default="1,0.9",
-                   help="largest highlight gain and its linear threshold (gain 1: off)")
+    p.add_argument(
+        "--saturation",
+        default="1,0.9",
+        help="largest highlight gain and its linear threshold (gain 1: off)",
+    )
     p.add_argument("--jpeg", type=int, default=0, help="JPEG quality of the blur (0: off)")
-    p.add_argument("--srgb-average", action="store_true",
-                   help="average in sRGB values instead of linear light (ablation)")
-    p.add_argument("--robust", default="",
-                   help="heat maps from a perturbed model: timeshift_ms=,gyro_noise=,"
-                        "gyro_bias=,focal_rel=,principal_px=,readout_rel= (1-sigma)")
-    p.add_argument("--heat-stride", type=int, default=16,
-                   help="heat-map evaluation stride (px; 16 adds < 0.01 px)")
+    p.add_argument(
+        "--srgb-average",
+        action="store_true",
+        help="average in sRGB values instead of linear light (ablation)",
+    )
+    p.add_argument(
+        "--robust",
+        default="",
+        help="heat maps from a perturbed model: timeshift_ms=,gyro_noise=,"
+        "gyro_bias=,focal_rel=,principal_px=,readout_rel= (1-sigma)",
+    )
+    p.add_argument(
+        "--heat-stride",
+        type=int,
+        default=16,
+        help="heat-map evaluation stride (px; 16 adds < 0.01 px)",
+    )
     p.add_argument("--heat-samples", type=int, default=16, help="trajectory samples per pixel")
     p.add_argument("--max-step-px", type=float, default=0.5)
     p.add_argument("--grid-px", type=int, default=16)
     p.add_argument("--border", choices=("reflect", "constant"), default="reflect")
     p.add_argument("--no-upscale", action="store_true", help="refuse photos smaller than --size")
-    p.add_argument("--extras", action="store_true",
-                   help="also write mask/<stem>.png (validity) and fit/<stem>.npy (fit error)")
-    p.add_argument("--png-compression", type=int, default=0, metavar="LEVEL",
-                   help="PNG deflate level 0-9 of sharp/blur (0: fastest, default)")
+    p.add_argument(
+        "--extras",
+        action="store_true",
+        help="also write mask/<stem>.png (validity) and fit/<stem>.npy (fit error)",
+    )
+    p.add_argument(
+        "--png-compression",
+        type=int,
+        default=0,
+        metavar="LEVEL",
+        help="PNG deflate level 0-9 of sharp/blur (0: fastest, default)",
+    )
     p.add_argument("--group", type=int, default=100, help="triplets per <name> folder")
     p.set_defaults(func=run)
 
-    m = subparsers.add_parser("synth-merge", help="combine dataset shards into one manifest",
-                              description="Merge manifest-shard*.jsonl of DATASET and move the "
-                                          "triplets of other shard folders into it.")
+    m = subparsers.add_parser(
+        "synth-merge",
+        help="combine dataset shards into one manifest",
+        description="Merge manifest-shard*.jsonl of DATASET and move the "
+        "triplets of other shard folders into it.",
+    )
     m.add_argument("dataset")
     m.add_argument("shards", nargs="*", help="shard folders built elsewhere")
     m.set_defaults(func=run_merge)
@@ -88,24 +121,44 @@ def spec_from_args(args: argparse.Namespace):
     except ValueError:
         raise SynthesisError(f"--size must be WxH, got {args.size!r}") from None
     shot, read = _floats(args.noise, 2, "--noise")
-    gain, thresh = _floats(args.saturation, 2, "--saturation") if "," in args.saturation \
+    gain, thresh = (
+        _floats(args.saturation, 2, "--saturation")
+        if "," in args.saturation
         else (float(args.saturation), 0.9)
+    )
     params = TripletParams(
-        size=(w, h), exposure_ms=tuple(_floats(args.exposure_ms, 2, "--exposure-ms")),
+        size=(w, h),
+        exposure_ms=tuple(_floats(args.exposure_ms, 2, "--exposure-ms")),
         mode=args.mode,
-        photometry=Photometry(linear=not args.srgb_average, saturation_threshold=thresh,
-                              saturation_gain=gain, noise_shot=shot, noise_read=read,
-                              jpeg_quality=args.jpeg),
+        photometry=Photometry(
+            linear=not args.srgb_average,
+            saturation_threshold=thresh,
+            saturation_gain=gain,
+            noise_shot=shot,
+            noise_read=read,
+            jpeg_quality=args.jpeg,
+        ),
         perturbation=Perturbation.parse(args.robust),
-        render=RenderSettings(max_step_px=args.max_step_px, grid_px=args.grid_px,
-                              border=args.border),
-        heat_stride=args.heat_stride, heat_n_t=args.heat_samples, upscale=not args.no_upscale,
-        readout_ms=args.readout_ms)
+        render=RenderSettings(
+            max_step_px=args.max_step_px, grid_px=args.grid_px, border=args.border
+        ),
+        heat_stride=args.heat_stride,
+        heat_n_t=args.heat_samples,
+        upscale=not args.no_upscale,
+        readout_ms=args.readout_ms,
+    )
     calib = Calibration.from_yaml(args.calib)
     gyro = args.gyro if args.gyro.startswith("synthetic") else str(Path(args.gyro).resolve())
-    return DatasetSpec(calib=calib.to_dict(), gyro=gyro, images=str(Path(args.images).resolve()),
-                       count=args.count, seed=args.seed, params=params, group=args.group,
-                       extras=args.extras)
+    return DatasetSpec(
+        calib=calib.to_dict(),
+        gyro=gyro,
+        images=str(Path(args.images).resolve()),
+        count=args.count,
+        seed=args.seed,
+        params=params,
+        group=args.group,
+        extras=args.extras,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,14 +184,23 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for b in bars:
             b.close()
-    summary = {"command": "synth", "shard": list(shard), "count": spec.count,
-               "mode": spec.params.mode, "size": list(spec.params.size), **result.to_dict()}
+    summary = {
+        "command": "synth",
+        "shard": list(shard),
+        "count": spec.count,
+        "mode": spec.params.mode,
+        "size": list(spec.params.size),
+        **result.to_dict(),
+    }
     name = "summary.json" if shard[1] == 1 else f"summary-shard{shard[0]}.json"
     write_text_atomic(Path(args.out) / name, json.dumps(summary, indent=2) + "\n")
     rate = summary["triplets_per_s"]
-    print(f"synth: {result.made} made, {result.skipped} already done, of {result.planned} in "
-          f"shard {shard[0]}/{shard[1]}" + (f" ({rate:.2f} triplets/s)" if rate else "")
-          + f" -> {args.out}")
+    print(
+        f"synth: {result.made} made, {result.skipped} already done, of {result.planned} in "
+        f"shard {shard[0]}/{shard[1]}"
+        + (f" ({rate:.2f} triplets/s)" if rate else "")
+        + f" -> {args.out}"
+    )
     return 0
 
 
@@ -148,6 +210,8 @@ def run_merge(args: argparse.Namespace) -> int:
 
     summary = {"command": "synth-merge", **merge(args.dataset, args.shards)}
     write_text_atomic(Path(args.dataset) / "summary.json", json.dumps(summary, indent=2) + "\n")
-    print(f"synth-merge: {summary['triplets']} of {summary['count']} triplets in "
-          f"{args.dataset}" + (f", {summary['missing']} missing" if summary["missing"] else ""))
+    print(
+        f"synth-merge: {summary['triplets']} of {summary['count']} triplets in "
+        f"{args.dataset}" + (f", {summary['missing']} missing" if summary["missing"] else "")
+    )
     return 0

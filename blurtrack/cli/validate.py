@@ -9,8 +9,12 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="check a session folder thoroughly")
     p.add_argument("session", type=Path)
-    p.add_argument("--max-gyro-gap-ms", type=float, default=None,
-                   help="longest gyro gap that counts as covered (default: 5 sample intervals)")
+    p.add_argument(
+        "--max-gyro-gap-ms",
+        type=float,
+        default=None,
+        help="longest gyro gap that counts as covered (default: 5 sample intervals)",
+    )
     p.set_defaults(func=run)
 
 
@@ -20,8 +24,10 @@ def run(args: argparse.Namespace) -> int:
     gap = None if args.max_gyro_gap_ms is None else args.max_gyro_gap_ms * 1e-3
     rep = validate_session(args.session, gap)
     s = rep.session
-    print(f"{args.session}: {len(s.frames)} frames, {s.imu_t_ns.size} gyro samples, "
-          f"{rep.frames_covered} frames covered by the gyro")
+    print(
+        f"{args.session}: {len(s.frames)} frames, {s.imu_t_ns.size} gyro samples, "
+        f"{rep.frames_covered} frames covered by the gyro"
+    )
     for w in rep.warnings:
         print(f"  warning: {w}")
     for e in rep.errors:

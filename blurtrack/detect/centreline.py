@@ -46,8 +46,7 @@ class RefinedLines:
     step: np.ndarray
 
 
-def _cross_samples(image: np.ndarray, r: Ragged, half: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _cross_samples(image: np.ndarray, r: Ragged, half: int) -> tuple[np.ndarray, np.ndarray]:
     """Normals ``(M, 2)`` and samples ``(M, 2 half + 1)`` across every line point."""
     tan = ragged.tangents(r)
     nrm = np.stack([-tan[:, 1], tan[:, 0]], axis=1)
@@ -118,8 +117,12 @@ def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)
 
 
-def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray] | Ragged, sigma_c: float,
-                 ceiling: float | None = None) -> RefinedLines:
+def refine_lines(
+    smooth: np.ndarray,
+    polylines: list[np.ndarray] | Ragged,
+    sigma_c: float,
+    ceiling: float | None = None,
+) -> RefinedLines:
     """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image.
 
     ``ceiling``: the saturation level (signal units); cross-sections reaching half of it
@@ -168,8 +171,9 @@ def refine_lines(smooth: np.ndarray, polylines: list[np.ndarray] | Ragged, sigma
         counts = np.bincount(lg, minlength=r.sizes.size)
         first = np.concatenate(([0], np.cumsum(counts)[:-1]))
         has = counts > 0
-        width[has] = 0.5 * (sg[first[has] + (counts[has] - 1) // 2]
-                            + sg[first[has] + counts[has] // 2])
+        width[has] = 0.5 * (
+            sg[first[has] + (counts[has] - 1) // 2] + sg[first[has] + counts[has] // 2]
+        )
     _, total = ragged.arc_lengths(r)
     return RefinedLines(lines=r, profile=prof, width=width, step=total / (r.sizes - 1))
 
@@ -196,8 +200,13 @@ class TrimmedLines:
 CENTROID_MARGIN_SIGMAS = 3.0
 
 
-def blur_corrected_mid(q_half: np.ndarray, centroid: np.ndarray, pos_a: np.ndarray,
-                       pos_b: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+def blur_corrected_mid(
+    q_half: np.ndarray,
+    centroid: np.ndarray,
+    pos_a: np.ndarray,
+    pos_b: np.ndarray,
+    sigma: np.ndarray,
+) -> np.ndarray:
     """Time midpoint (sample index) of the *unblurred* density from the halving point
     ``q_half`` of the whole blurred profile (tails past the ends included).
 
@@ -217,8 +226,9 @@ def blur_corrected_mid(q_half: np.ndarray, centroid: np.ndarray, pos_a: np.ndarr
     return q_half + 0.5 * k * sigma**2
 
 
-def _light_moments(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray,
-                   sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _light_moments(
+    ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray, sigma: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Halving point and centroid (sample indices) of each line's light within its ends +- the
     moment margin (equal at both ends, so that clipped noise in the tails adds the same light
     on both sides and leaves the halving point alone)."""
@@ -258,8 +268,9 @@ def _lerp(A: np.ndarray, g: np.ndarray, last: np.ndarray) -> np.ndarray:
     return A[i0] * (1 - f) + A[i1] * f
 
 
-def trim_lines(ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray,
-               sigma: np.ndarray) -> TrimmedLines:
+def trim_lines(
+    ref: RefinedLines, pos_a: np.ndarray, pos_b: np.ndarray, sigma: np.ndarray
+) -> TrimmedLines:
     """Cut refined lines between fractional sample indices ``pos_a <= pos_b`` (``(N,)``).
 
     ``sigma`` (``(N,)``, samples): the profiles' blur along the line. The time midpoint is the

@@ -22,8 +22,9 @@ from blurtrack.errors import DetectionError
 from blurtrack.io.session import load_session
 
 
-def detection_demo(session_folder: str | Path, out_dir: str | Path,
-                   crop: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
+def detection_demo(
+    session_folder: str | Path, out_dir: str | Path, crop: tuple[int, int, int, int] | None = None
+) -> dict[str, Any]:
     """Detect the streaks of a session and illustrate them.
 
     Writes ``out_dir/streaks.parquet``, ``out_dir/streaks_overlay.png`` (detected streaks over
@@ -53,7 +54,6 @@ def detection_demo(session_folder: str | Path, out_dir: str | Path,
     picture = out / "streaks_overlay.png"
     if not cv2.imwrite(str(picture), draw_streaks(image, rows, scale)):
         raise DetectionError(f"cannot write {picture}")
-    summary = dict(result.summary, table=str(table_path), overlay=str(picture),
-                   overlay_frame=first)
+    summary = dict(result.summary, table=str(table_path), overlay=str(picture), overlay_frame=first)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary

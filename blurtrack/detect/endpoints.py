@@ -62,8 +62,9 @@ def _at(A: np.ndarray, x: np.ndarray, lens: np.ndarray) -> np.ndarray:
     return A[rows, i0] * (1 - f) + A[rows, i1] * f
 
 
-def _first_crossing(A: np.ndarray, lens: np.ndarray, level: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def _first_crossing(
+    A: np.ndarray, lens: np.ndarray, level: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Fractional index where each row first rises through ``level``, and whether it does."""
     cols = np.arange(A.shape[1])[None, :]
     above = (level[:, None] <= A) & (cols < lens[:, None])
@@ -77,8 +78,9 @@ def _first_crossing(A: np.ndarray, lens: np.ndarray, level: np.ndarray
     return np.where(k > 0, km1 + f, 0.0), has
 
 
-def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _plateau(
+    A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares line through ``PLATEAU_WINDOW`` samples from ``s_in`` on, each divided by
     the edge's remaining rise ``rise (N, PLATEAU_WINDOW)``: value at ``s_in``, slope, whether
     the window fits inside the row, and the divided samples ``(N, PLATEAU_WINDOW)``."""
@@ -91,8 +93,9 @@ def _plateau(A: np.ndarray, lens: np.ndarray, s_in: np.ndarray, rise: np.ndarray
     return value, slope, ok, v
 
 
-def _time_law_density(v: np.ndarray, value: np.ndarray, slope: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _time_law_density(
+    v: np.ndarray, value: np.ndarray, slope: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plateau as the density of a dot under constant acceleration: brightness is
     ``1 / speed`` and ``speed**2`` is linear in position, so ``1 / density**2`` is a line.
     Fitted to the window samples ``v (N, W)`` (baseline removed): ``alpha``, ``beta`` of
@@ -131,8 +134,9 @@ def _integral_to(A: np.ndarray, C: np.ndarray, x: np.ndarray, lens: np.ndarray) 
     return C[rows, i0] + f * (a0 + 0.5 * f * (a1 - a0))
 
 
-def rising_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, guess: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rising_edges(
+    A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, guess: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Endpoint (fractional index), plateau level and validity of the rising edge at the
     START of every row of ``A (N, L)``. ``guess``: a first plateau level per row.
 
@@ -198,8 +202,9 @@ _BETA = np.linspace(1.0, -1.0, 201)  # skewness increases along this table
 _SKEW = _skew_of_slope(_BETA)
 
 
-def linear_density_segment(mean: np.ndarray, var: np.ndarray, mu3: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def linear_density_segment(
+    mean: np.ndarray, var: np.ndarray, mu3: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The segment ``[lo, hi]`` carrying a linearly varying density with the given mean,
     variance and third central moment (moments of the profile with the blur's variance
     removed; a Gaussian blur adds nothing to the third moment). Brightness is proportional
@@ -293,8 +298,9 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
         cols_c = np.minimum(first[:, None] + np.arange(width)[None, :], A.shape[1] - 1)
         y = np.take_along_axis(A[sel] - base[sel, None], cols_c, axis=1)
         w_c = np.take_along_axis(inside[sel], cols_c, axis=1).astype(np.float64)
-        a_fit, L_fit, c0 = fit_short(y * w_c, w_c, sigma[sel], s_lo[sel] - first,
-                                     s_hi[sel] - s_lo[sel])
+        a_fit, L_fit, c0 = fit_short(
+            y * w_c, w_c, sigma[sel], s_lo[sel] - first, s_hi[sel] - s_lo[sel]
+        )
         s_lo[sel], s_hi[sel], level[sel] = a_fit + first, a_fit + first + L_fit, c0
     pos_a = np.where(short, s_lo, pa)
     pos_b = np.where(short, s_hi, pb)
@@ -310,8 +316,13 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
         plateau_b=np.where(short, level, Pb),
         short=short,
         # An endpoint must lie on the sampled (extended) line; anything else is a failed fit.
-        valid=valid & np.isfinite(pos_a) & np.isfinite(pos_b) & (N > 0)
-        & (pos_a >= 0) & (pos_b <= lens - 1) & (pos_b >= pos_a),
+        valid=valid
+        & np.isfinite(pos_a)
+        & np.isfinite(pos_b)
+        & (N > 0)
+        & (pos_a >= 0)
+        & (pos_b <= lens - 1)
+        & (pos_b >= pos_a),
     )
 
 

@@ -78,9 +78,22 @@ def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarra
 
 def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:
     z2 = np.zeros((0, 2))
-    return FrameStreaks(shape, z2, z2.copy(), z2.copy(), z2.copy(), np.zeros(0), np.zeros(0),
-                        np.zeros(0), [], [], {k: np.zeros(0, bool) for k in FLAG_NAMES},
-                        sigma_c, noise, hot)
+    return FrameStreaks(
+        shape,
+        z2,
+        z2.copy(),
+        z2.copy(),
+        z2.copy(),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros(0),
+        [],
+        [],
+        {k: np.zeros(0, bool) for k in FLAG_NAMES},
+        sigma_c,
+        noise,
+        hot,
+    )
 
 
 def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> FrameStreaks:
@@ -138,8 +151,9 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
                 lines.append(path.points + np.array([x - 1.0, y - 1.0]))
                 crossing.append(path.shares_junction or len(paths) > 1)
                 looped.append(path.self_crossing)
-    ref = refine_lines(prep.smooth, line_input, sigma_c,
-                       prep.saturation if prep.saturated.any() else None)
+    ref = refine_lines(
+        prep.smooth, line_input, sigma_c, prep.saturation if prep.saturated.any() else None
+    )
     ref, parent = split_at_gaps(ref)
     owner = [owner[k] for k in parent]
     crossing = [crossing[k] for k in parent]
@@ -170,8 +184,9 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             raw = to_matrix(raw_profiles(prep.signal, sat_lines, sigma_c), sat_lines.sizes)
             A[line_sat, : raw.shape[1]] = unclip_profiles(raw, prep.saturation, sigma_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
-    edge_sigma = np.where(line_sat, np.sqrt(sigma_raw**2 + 1.0 / 6.0) if line_sat.any()
-                          else sigma_c, sigma_c)
+    edge_sigma = np.where(
+        line_sat, np.sqrt(sigma_raw**2 + 1.0 / 6.0) if line_sat.any() else sigma_c, sigma_c
+    )
     fit = fit_edges(A, lens, edge_sigma / ref.step)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
@@ -184,16 +199,25 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     end_b = trimmed.end_b[keep]
     ends = np.stack([end_a, end_b], axis=1)
     m_px = p.border_margin_px
-    near = (ends[..., 0] < m_px) | (ends[..., 0] > W - 1 - m_px) | \
-           (ends[..., 1] < m_px) | (ends[..., 1] > H - 1 - m_px)
+    near = (
+        (ends[..., 0] < m_px)
+        | (ends[..., 0] > W - 1 - m_px)
+        | (ends[..., 1] < m_px)
+        | (ends[..., 1] > H - 1 - m_px)
+    )
     width = ref.width[keep]
     flags = {
         "clipped": near.any(axis=1),
         "saturated": line_sat[keep],
         "crossing": np.asarray(crossing, bool)[keep],
         "merged": np.isfinite(width) & (width > 1.5 * sigma_c),
-        "looped": np.array([looped[k] or (folded[owner[k]] and _self_crossing(
-            trimmed.points[k], 4.0 * sigma_c)) for k in keep], bool),
+        "looped": np.array(
+            [
+                looped[k] or (folded[owner[k]] and _self_crossing(trimmed.points[k], 4.0 * sigma_c))
+                for k in keep
+            ],
+            bool,
+        ),
         "faint": comps.peaks[own] < p.faint_snr * prep.noise_smooth,
     }
     plateau = np.stack([fit.plateau_a, fit.plateau_b], axis=1)[keep]

@@ -40,8 +40,9 @@ def split_at_gaps(ref: RefinedLines) -> tuple[RefinedLines, np.ndarray]:
     last = A.shape[1] - 1 - np.argmax(lit[:, ::-1], axis=1)
     extent = np.where(has, (last - first) * ref.step, 0.0)
     typical = float(np.median(extent[has])) if np.any(has) else 0.0
-    gap = valid & (GAP_LEVEL * level[:, None] > A) & (cols > first[:, None]) \
-        & (cols < last[:, None])
+    gap = (
+        valid & (GAP_LEVEL * level[:, None] > A) & (cols > first[:, None]) & (cols < last[:, None])
+    )
     rows = np.flatnonzero(has & (extent > LONG_FACTOR * typical) & gap.any(axis=1))
     if rows.size == 0:
         return ref, parent
@@ -60,8 +61,9 @@ def split_at_gaps(ref: RefinedLines) -> tuple[RefinedLines, np.ndarray]:
     parent = np.array([pc[0] for pc in pieces])
     size = np.array([pc[2] - pc[1] + 1 for pc in pieces])
     src0 = np.array([starts[pc[0]] + pc[1] for pc in pieces])
-    idx = np.repeat(src0 - np.concatenate(([0], np.cumsum(size)[:-1])), size) \
-        + np.arange(int(size.sum()))
+    idx = np.repeat(src0 - np.concatenate(([0], np.cumsum(size)[:-1])), size) + np.arange(
+        int(size.sum())
+    )
     new = RefinedLines(
         lines=Ragged(ref.lines.points[idx], size),
         profile=ref.profile[idx],

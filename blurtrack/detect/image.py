@@ -102,8 +102,9 @@ def background_and_noise(gray: np.ndarray) -> tuple[float, float]:
     return background, noise
 
 
-def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                      ) -> np.ndarray:
+def background_levels(
+    gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
+) -> np.ndarray:
     """Background level per block of ``block`` px, ``(by, bx)`` float32 (frame units): the
     mean of a sparse sample within ``4 noise + 1`` of the block's median (dots cover a small
     part of a block; the trimmed mean avoids the half-step bias of medians of integer data),
@@ -124,13 +125,11 @@ def background_levels(gray: np.ndarray, noise: float, block: int = BACKGROUND_BL
     return level.astype(np.float32)
 
 
-def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX
-                   ) -> np.ndarray:
+def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX) -> np.ndarray:
     """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
     ambient gradients): :func:`background_levels` upsampled bilinearly."""
     H, W = gray.shape
-    return cv2.resize(background_levels(gray, noise, block), (W, H),
-                      interpolation=cv2.INTER_LINEAR)
+    return cv2.resize(background_levels(gray, noise, block), (W, H), interpolation=cv2.INTER_LINEAR)
 
 
 def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -149,8 +148,9 @@ def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]
     return idx // mask.shape[1], idx % mask.shape[1]
 
 
-def remove_hot_pixels(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float,
-                      raw_floor: float | None = None) -> int:
+def remove_hot_pixels(
+    raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float, raw_floor: float | None = None
+) -> int:
     """Replace isolated hot pixels of ``signal`` in place; return how many were replaced.
 
     A hot pixel (not on the frame border) is a local maximum of ``raw`` (at least as bright as
@@ -211,8 +211,9 @@ def prepare_frame(
     floor = 5.0 * noise
     # Bilinear upsampling stays within the block levels: their minimum bounds the map's (the
     # margin covers float32 rounding of the signal, far below 0.01 raw units).
-    hot = remove_hot_pixels(raw, signal, hot_pixel_ratio, floor,
-                            floor * top + float(bg_level.min()) - 0.01)
+    hot = remove_hot_pixels(
+        raw, signal, hot_pixel_ratio, floor, floor * top + float(bg_level.min()) - 0.01
+    )
     k = 2 * int(np.ceil(3.0 * smooth_sigma_px)) + 1  # +-3 sigma (OpenCV's float default: 4)
     smooth = cv2.GaussianBlur(signal, (k, k), smooth_sigma_px, borderType=cv2.BORDER_REPLICATE)
     # Noise of white noise after a Gaussian blur of sigma s: sigma / (2 sqrt(pi) s).

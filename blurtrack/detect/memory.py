@@ -39,7 +39,9 @@ def keep_frame_buffers(trim_bytes: int = 256 * 1024 * 1024) -> bool:
         if mallopt is not None:
             mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
             mallopt.restype = ctypes.c_int
-            ok = (mallopt(_M_MMAP_THRESHOLD, _MMAP_MAX_BYTES) == 1
-                  and mallopt(_M_TRIM_THRESHOLD, int(trim_bytes)) == 1)
+            ok = (
+                mallopt(_M_MMAP_THRESHOLD, _MMAP_MAX_BYTES) == 1
+                and mallopt(_M_TRIM_THRESHOLD, int(trim_bytes)) == 1
+            )
     _state["done"] = ok
     return ok

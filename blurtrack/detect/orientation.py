@@ -60,8 +60,9 @@ class Orientation:
     llr: np.ndarray
 
 
-def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object,
-              sigma_rel: float = GYRO_SIGMA_REL) -> np.ndarray:
+def gyro_cues(
+    fs: FrameStreaks, timing: FrameTiming, model: object, sigma_rel: float = GYRO_SIGMA_REL
+) -> np.ndarray:
     """``(N, 2)`` LLRs of the gyro and profile cues for one frame.
 
     ``model`` is a :class:`blurtrack.geometry.blur_model.BlurModel` (camera clock); it must cover
@@ -78,7 +79,8 @@ def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object,
     row_t = timing.t_s + cam.readout_s * np.clip(mid[:, 1], 0, cam.height - 1) / cam.height
     t_ref = row_t + 0.5 * timing.exposure_s
     start, end, t_s, t_e = model.streak_endpoints(  # type: ignore[attr-defined]
-        mid, t_ref, timing.t_s, timing.exposure_s)
+        mid, t_ref, timing.t_s, timing.exposure_s
+    )
     A, B = fs.end_a, fs.end_b
     cost_a = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
     cost_b = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
@@ -97,8 +99,9 @@ def gyro_cues(fs: FrameStreaks, timing: FrameTiming, model: object,
     return np.clip(out, -MAX_CUE_LLR, MAX_CUE_LLR)
 
 
-def _extrapolated_ends(fs: FrameStreaks, timing: FrameTiming, gap_s: float
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _extrapolated_ends(
+    fs: FrameStreaks, timing: FrameTiming, gap_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ends A and B pushed outwards over ``gap_s`` at the speed their brightness implies, and
     the per-streak uncertainty (px) of that extrapolation."""
     N = len(fs)
@@ -122,8 +125,11 @@ def _extrapolated_ends(fs: FrameStreaks, timing: FrameTiming, gap_s: float
     return ext_a, ext_b, unc
 
 
-def continuity_cues(frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming],
-                    swaps: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+def continuity_cues(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    swaps: Sequence[np.ndarray] | None = None,
+) -> list[np.ndarray]:
     """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence).
 
     Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
@@ -174,7 +180,6 @@ def combine(llr: np.ndarray) -> Orientation:
     agree = np.where(swap[:, None], -llr, llr)
     best = np.argmax(agree, axis=1)
     source = [
-        CUE_NAMES[b] if agree[i, b] > 0 and total[i] != 0 else "none"
-        for i, b in enumerate(best)
+        CUE_NAMES[b] if agree[i, b] > 0 and total[i] != 0 else "none" for i, b in enumerate(best)
     ]
     return Orientation(swap=swap, confidence=confidence, source=source, llr=llr)

@@ -41,10 +41,19 @@ def draw_streaks(image: np.ndarray, rows: pd.DataFrame, scale: int = 2) -> np.nd
         pts = np.asarray(r["centerline"], dtype=float).reshape(-1, 2)
         flagged = bool(any(r[c] for c in flag_cols))
         if len(pts) >= 2:
-            cv2.polylines(img, [fix(pts).reshape(-1, 1, 2)], False, FLAGGED if flagged else LINE,
-                          1, cv2.LINE_AA, shift)
-        cv2.circle(img, tuple(fix([r["start_x"], r["start_y"]])), 3 << shift, START, -1,
-                   cv2.LINE_AA, shift)
-        cv2.circle(img, tuple(fix([r["end_x"], r["end_y"]])), 3 << shift, END, -1,
-                   cv2.LINE_AA, shift)
+            cv2.polylines(
+                img,
+                [fix(pts).reshape(-1, 1, 2)],
+                False,
+                FLAGGED if flagged else LINE,
+                1,
+                cv2.LINE_AA,
+                shift,
+            )
+        cv2.circle(
+            img, tuple(fix([r["start_x"], r["start_y"]])), 3 << shift, START, -1, cv2.LINE_AA, shift
+        )
+        cv2.circle(
+            img, tuple(fix([r["end_x"], r["end_y"]])), 3 << shift, END, -1, cv2.LINE_AA, shift
+        )
     return img

@@ -47,8 +47,10 @@ class Ragged:
 
     @staticmethod
     def from_list(lines: list[np.ndarray]) -> Ragged:
-        return Ragged(np.concatenate(lines).astype(np.float64),
-                      np.array([len(p) for p in lines], dtype=np.int64))
+        return Ragged(
+            np.concatenate(lines).astype(np.float64),
+            np.array([len(p) for p in lines], dtype=np.int64),
+        )
 
 
 def _norms(d: np.ndarray) -> np.ndarray:

@@ -8,8 +8,9 @@ import numpy as np
 _ROW = 1024  # remap wants both map dimensions below 32767: sample in rows of this length
 
 
-def sample_image(image: np.ndarray, x: np.ndarray, y: np.ndarray, cubic: bool = False
-                 ) -> np.ndarray:
+def sample_image(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray, cubic: bool = False
+) -> np.ndarray:
     """Samples of ``image`` (float32 ``(H, W)``) at float coordinates of any shape, bilinear or
     bicubic (bicubic keeps narrow peaks sharper: unbiased widths, slower).
 

@@ -107,7 +107,8 @@ def detect_session(
                 continue
             try:
                 llrs[k][:, 0:2] = gyro_cues(
-                    fs, tm, model, GYRO_SIGMA_REL_REFINED if shift is not None else GYRO_SIGMA_REL)
+                    fs, tm, model, GYRO_SIGMA_REL_REFINED if shift is not None else GYRO_SIGMA_REL
+                )
             except CoverageError as exc:
                 if gyro == "on":
                     raise CoverageError(f"frame {idx[k]}: {exc}") from None
@@ -125,8 +126,7 @@ def detect_session(
     for k, fs in enumerate(found):
         ori = combine(llrs[k])
         fs.reverse(ori.swap)
-        parts.append(frame_rows(idx[k], int(session.frames["timestamp_ns"].iloc[idx[k]]), fs,
-                                ori))
+        parts.append(frame_rows(idx[k], int(session.frames["timestamp_ns"].iloc[idx[k]]), fs, ori))
         for s in ori.source:
             sources[s] = sources.get(s, 0) + 1
         conf.append(ori.confidence)
@@ -141,14 +141,17 @@ def detect_session(
         "frames_without_streaks": empty,
         "frames_without_gyro": uncovered,
         "gyro": "off" if model is None else gyro,
-        "gyro_timeshift_initial_s": None if inputs is None else
-        float(inputs[0].timeshift_cam_imu_s),
+        "gyro_timeshift_initial_s": None
+        if inputs is None
+        else float(inputs[0].timeshift_cam_imu_s),
         "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),
-        "flags": {c: int(table[c].sum()) for c in
-                  ("clipped", "saturated", "merged", "crossing", "looped", "faint")},
+        "flags": {
+            c: int(table[c].sum())
+            for c in ("clipped", "saturated", "merged", "crossing", "looped", "faint")
+        },
         "hot_pixels": int(sum(fs.hot_pixels for fs in found)),
         "median_length_px": float(table["length_px"].median()),
         "params": p.to_dict(),

@@ -34,8 +34,13 @@ import numpy as np
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
 #: Abramowitz & Stegun 7.1.26 (|error of erf| <= 1.5e-7): ``erfc(x) = t P(t) exp(-x**2)``.
 _AS_P = 0.3275911 / np.sqrt(2.0)
-_AS_A = (0.254829592, -0.284496736, 1.421413741, -1.453152027,
-         1.0 - (0.254829592 - 0.284496736 + 1.421413741 - 1.453152027))  # erfc(0) = 1 exactly
+_AS_A = (
+    0.254829592,
+    -0.284496736,
+    1.421413741,
+    -1.453152027,
+    1.0 - (0.254829592 - 0.284496736 + 1.421413741 - 1.453152027),
+)  # erfc(0) = 1 exactly
 
 
 def _phi(u: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -46,13 +51,15 @@ def _phi(u: np.ndarray, e: np.ndarray) -> np.ndarray:
     a0, a1, a2, a3, a4 = _AS_A
     half_tail = (0.5 * e) * t * (a0 + t * (a1 + t * (a2 + t * (a3 + t * a4))))
     return np.where(u >= 0, 1.0 - half_tail, half_tail)
+
+
 #: Shortest segment (in blur sigmas) whose density curvature is fitted.
 QUADRATIC_MIN_SIGMAS = 5.0
 
 
-def _basis(s: np.ndarray, a: np.ndarray, L: np.ndarray, sigma: np.ndarray,
-           quadratic: bool = True
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+def _basis(
+    s: np.ndarray, a: np.ndarray, L: np.ndarray, sigma: np.ndarray, quadratic: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """``F0``, ``F1``, ``F2`` (``None`` unless ``quadratic``) of shape ``(N, S)`` for rows of
     sample positions ``s``, and the Gaussian densities ``ga = g(s - a)``, ``gb = g(s - b)``
     (their derivatives' building blocks)."""
@@ -90,8 +97,9 @@ class _State:
 
     def rows(self, sel: np.ndarray) -> _State:
         """The rows ``sel`` (index or mask) of this state."""
-        return _State(*(None if getattr(self, f) is None else getattr(self, f)[sel]
-                        for f in _FIELDS))
+        return _State(
+            *(None if getattr(self, f) is None else getattr(self, f)[sel] for f in _FIELDS)
+        )
 
 
 _FIELDS = ("F0", "F1", "F2", "ga", "gb", "c0", "c1", "c2", "res", "cost")
@@ -101,8 +109,9 @@ def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum("...j,...j->...", u, v)
 
 
-def _project_linear(m00: np.ndarray, m01: np.ndarray, m11: np.ndarray, r0: np.ndarray,
-                    r1: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _project_linear(
+    m00: np.ndarray, m01: np.ndarray, m11: np.ndarray, r0: np.ndarray, r1: np.ndarray, L: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """``c0, c1`` of the linear density (``(..., N)``) from the normal equations' entries."""
     det = m00 * m11 - m01 * m01
     ok = det > 1e-9 * m00 * m11
@@ -116,9 +125,14 @@ def _project_linear(m00: np.ndarray, m01: np.ndarray, m11: np.ndarray, r0: np.nd
     return c0, c1_new
 
 
-def _project(F0: np.ndarray, F1: np.ndarray, F2: np.ndarray | None, y: np.ndarray,
-             L: np.ndarray, l_quad: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _project(
+    F0: np.ndarray,
+    F1: np.ndarray,
+    F2: np.ndarray | None,
+    y: np.ndarray,
+    L: np.ndarray,
+    l_quad: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Exact linear solve for ``c0, c1, c2`` given the basis ``(..., N, S)`` (zero outside the
     fit window, like ``y``): residuals of that shape and the amplitudes ``(..., N)`` (leading
     axes batch several trial bases). ``F2 is None``, or rows with ``L < l_quad (N,)``: a linear
@@ -142,8 +156,9 @@ def _project(F0: np.ndarray, F1: np.ndarray, F2: np.ndarray | None, y: np.ndarra
     # convex, at the vertex (clipped into the segment).
     h = 0.5 * L
     u = np.clip(-q1 / np.where(q2 > 0, 2.0 * q2, np.inf), -h, h)
-    low = np.minimum(np.minimum(q0 - h * (q1 - q2 * h), q0 + h * (q1 + q2 * h)),
-                     q0 + u * (q1 + q2 * u))
+    low = np.minimum(
+        np.minimum(q0 - h * (q1 - q2 * h), q0 + h * (q1 + q2 * h)), q0 + u * (q1 + q2 * u)
+    )
     quad = (inv != 0) & (l_quad <= L) & (low >= 0) & (q0 > 0)
     c0 = np.where(quad, q0, l0)
     c1 = np.where(quad, q1, l1)
@@ -152,8 +167,15 @@ def _project(F0: np.ndarray, F1: np.ndarray, F2: np.ndarray | None, y: np.ndarra
     return res, c0, c1, c2
 
 
-def _residual(y: np.ndarray, w: np.ndarray, s: np.ndarray, a: np.ndarray, L: np.ndarray,
-              sigma: np.ndarray, quadratic: bool) -> _State:
+def _residual(
+    y: np.ndarray,
+    w: np.ndarray,
+    s: np.ndarray,
+    a: np.ndarray,
+    L: np.ndarray,
+    sigma: np.ndarray,
+    quadratic: bool,
+) -> _State:
     """Residuals after the exact linear solve for the amplitudes, with the basis (all masked
     by the 0/1 window ``w``; ``y`` must be zero outside it)."""
     F0, F1, F2, ga, gb = _basis(s, a, L, sigma, quadratic)
@@ -167,8 +189,9 @@ def _residual(y: np.ndarray, w: np.ndarray, s: np.ndarray, a: np.ndarray, L: np.
     return _State(F0, F1, F2, ga, gb, c0, c1, c2, res, np.einsum("ij,ij->i", res, res))
 
 
-def _jacobian(st: _State, y: np.ndarray, L: np.ndarray, sigma: np.ndarray, h: float
-              ) -> tuple[np.ndarray, np.ndarray]:
+def _jacobian(
+    st: _State, y: np.ndarray, L: np.ndarray, sigma: np.ndarray, h: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Forward differences (step ``h``) of the projected residuals with respect to ``a`` (at
     fixed ``L``) and ``L``, the basis moved by its analytic derivative (exact to ``O(h**2)``).
     With ``F_k = ∫_a^b (u - mid)**k g(s - u) du``: ``dF_k/da = (L/2)**k gb - (-L/2)**k ga
@@ -176,18 +199,35 @@ def _jacobian(st: _State, y: np.ndarray, L: np.ndarray, sigma: np.ndarray, h: fl
     F0, F1, F2, ga, gb = st.F0, st.F1, st.F2, st.ga, st.gb
     hl = 0.5 * L[:, None]
     # Both perturbations in one batched solve (the cost here is per numpy call).
-    P2 = None if F2 is None else np.stack([F2 + h * (hl * hl * (gb - ga) - 2.0 * F1),
-                                           F2 + h * (hl * hl * gb - F1)])
+    P2 = (
+        None
+        if F2 is None
+        else np.stack([F2 + h * (hl * hl * (gb - ga) - 2.0 * F1), F2 + h * (hl * hl * gb - F1)])
+    )
     r2, _, _, _ = _project(
         np.stack([F0 + h * (gb - ga), F0 + h * gb]),
         np.stack([F1 + h * (hl * (ga + gb) - F0), F1 + h * (hl * gb - 0.5 * F0)]),
-        P2, y, np.stack([L, L + h]), QUADRATIC_MIN_SIGMAS * sigma)
+        P2,
+        y,
+        np.stack([L, L + h]),
+        QUADRATIC_MIN_SIGMAS * sigma,
+    )
     return (r2[0] - st.res) / h, (r2[1] - st.res) / h
 
 
-def _steps(y: np.ndarray, w: np.ndarray, s: np.ndarray, sigma: np.ndarray, a: np.ndarray,
-           L: np.ndarray, c0: np.ndarray, act: np.ndarray, iterations: int, tol: float,
-           quadratic: bool) -> None:
+def _steps(
+    y: np.ndarray,
+    w: np.ndarray,
+    s: np.ndarray,
+    sigma: np.ndarray,
+    a: np.ndarray,
+    L: np.ndarray,
+    c0: np.ndarray,
+    act: np.ndarray,
+    iterations: int,
+    tol: float,
+    quadratic: bool,
+) -> None:
     """Gauss-Newton steps on the rows ``act`` of ``a``, ``L`` and the mean density ``c0``
     (updated in place)."""
     top = y.shape[1] - 1.0
@@ -235,9 +275,15 @@ def _steps(y: np.ndarray, w: np.ndarray, s: np.ndarray, sigma: np.ndarray, a: np
         st = trial.rows(keep)
 
 
-def fit_short(y: np.ndarray, w: np.ndarray, sigma: np.ndarray, a0: np.ndarray,
-              L0: np.ndarray, iterations: int = 2, tol: float = 1e-2
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fit_short(
+    y: np.ndarray,
+    w: np.ndarray,
+    sigma: np.ndarray,
+    a0: np.ndarray,
+    L0: np.ndarray,
+    iterations: int = 2,
+    tol: float = 1e-2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``(a, L)`` to profiles ``y (N, S)`` sampled at indices ``0..S-1`` with 0/1 weights
     ``w`` (the fit window), known ``sigma (N,)``, from the start ``a0``, ``L0``.
 

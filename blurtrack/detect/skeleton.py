@@ -45,8 +45,14 @@ def _neighbours(skel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.stack([ys, xs], axis=1), nb, crossings
 
 
-def _walk(start: int, first: int, nb: list[list[int]], is_node: list[bool],
-          visited: list[bool], yx: list[tuple[int, int]]) -> list[int]:
+def _walk(
+    start: int,
+    first: int,
+    nb: list[list[int]],
+    is_node: list[bool],
+    visited: list[bool],
+    yx: list[tuple[int, int]],
+) -> list[int]:
     """Follow the skeleton from node pixel ``start`` through ``first`` to the next node pixel.
 
     Plain Python lists and ints on purpose: per-pixel numpy calls would cost far more."""
@@ -129,8 +135,9 @@ def trace_paths(mask: np.ndarray, spur_px: float, merge_px: float) -> list[Trace
     return _chain(edges, node_of, yx, spur_px, merge_px)
 
 
-def _chain(edges: list[list[int]], node_of: np.ndarray, yx: np.ndarray, spur_px: float,
-           merge_px: float) -> list[TracedPath]:
+def _chain(
+    edges: list[list[int]], node_of: np.ndarray, yx: np.ndarray, spur_px: float, merge_px: float
+) -> list[TracedPath]:
     """Prune spurs, merge close junctions, pair edge ends at junctions and chain the edges."""
     ends = [[int(node_of[e[0]]), int(node_of[e[-1]])] for e in edges]
     lengths = [float(np.sum(np.linalg.norm(np.diff(yx[e], axis=0), axis=1))) for e in edges]
@@ -147,8 +154,13 @@ def _chain(edges: list[list[int]], node_of: np.ndarray, yx: np.ndarray, spur_px:
     for _ in range(2):  # prune spurs: short edges hanging off a junction
         deg = degrees()
         for i, (a, b) in enumerate(ends):
-            if alive[i] and lengths[i] < spur_px and a != b and min(deg[a], deg[b]) == 1 \
-                    and max(deg[a], deg[b]) >= 3:
+            if (
+                alive[i]
+                and lengths[i] < spur_px
+                and a != b
+                and min(deg[a], deg[b]) == 1
+                and max(deg[a], deg[b]) >= 3
+            ):
                 alive[i] = False
                 deg[a] -= 1
                 deg[b] -= 1
@@ -183,7 +195,8 @@ def _chain(edges: list[list[int]], node_of: np.ndarray, yx: np.ndarray, spur_px:
     for items in incident.values():
         pairs = sorted(
             (float(items[a][2] @ items[b][2]), a, b)
-            for a in range(len(items)) for b in range(a + 1, len(items))
+            for a in range(len(items))
+            for b in range(a + 1, len(items))
         )
         used: set[int] = set()
         for cos, a, b in pairs:

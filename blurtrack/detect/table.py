@@ -21,15 +21,21 @@ from blurtrack.detect.orientation import Orientation
 from blurtrack.io import streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
-    "crossing": "bool", "looped": "bool", "snr": "float64", "width_px": "float64",
-    "start_brightness": "float64", "end_brightness": "float64",
-    "mid_x": "float64", "mid_y": "float64",
-    "llr_gyro": "float64", "llr_profile": "float64", "llr_continuity": "float64",
+    "crossing": "bool",
+    "looped": "bool",
+    "snr": "float64",
+    "width_px": "float64",
+    "start_brightness": "float64",
+    "end_brightness": "float64",
+    "mid_x": "float64",
+    "mid_y": "float64",
+    "llr_gyro": "float64",
+    "llr_profile": "float64",
+    "llr_continuity": "float64",
 }
 
 
-def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
-               ) -> pd.DataFrame:
+def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation) -> pd.DataFrame:
     """The rows of one frame, ``fs`` already oriented (end A = start)."""
     N = len(fs)
     pts = [np.round(p, 4).tolist() for p in fs.points]
@@ -37,8 +43,10 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
         "frame": np.full(N, frame, np.int64),
         "timestamp_ns": np.full(N, timestamp_ns, np.int64),
         "streak_id": np.arange(N, dtype=np.int64),
-        "start_x": fs.end_a[:, 0], "start_y": fs.end_a[:, 1],
-        "end_x": fs.end_b[:, 0], "end_y": fs.end_b[:, 1],
+        "start_x": fs.end_a[:, 0],
+        "start_y": fs.end_a[:, 1],
+        "end_x": fs.end_b[:, 0],
+        "end_y": fs.end_b[:, 1],
         "length_px": fs.length_px,
         "centerline": pts,
         "profile": [np.round(p, 6).tolist() for p in fs.profile],
@@ -52,8 +60,10 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
         "looped": fs.flags["looped"],
         "snr": fs.snr,
         "width_px": fs.width_px,
-        "start_brightness": fs.plateau[:, 0], "end_brightness": fs.plateau[:, 1],
-        "mid_x": fs.time_mid[:, 0], "mid_y": fs.time_mid[:, 1],
+        "start_brightness": fs.plateau[:, 0],
+        "end_brightness": fs.plateau[:, 1],
+        "mid_x": fs.time_mid[:, 0],
+        "mid_y": fs.time_mid[:, 1],
     }
     # Evidence for the recorded orientation (the LLRs were for the unswapped end A).
     signed = np.where(ori.swap[:, None], -ori.llr, ori.llr) if N else np.zeros((0, 3))

@@ -51,10 +51,14 @@ class _Batch:
 def _cost(model: object, b: _Batch) -> float:
     """Orientation-free endpoint mismatch (robust: each streak capped at 25)."""
     cam = model.camera  # type: ignore[attr-defined]
-    t_ref = b.frame_t_s + cam.readout_s * np.clip(b.mid[:, 1], 0, cam.height - 1) / cam.height \
+    t_ref = (
+        b.frame_t_s
+        + cam.readout_s * np.clip(b.mid[:, 1], 0, cam.height - 1) / cam.height
         + 0.5 * b.exposure_s
+    )
     start, end, _, _ = model.streak_endpoints(  # type: ignore[attr-defined]
-        b.mid, t_ref, b.frame_t_s, b.exposure_s)
+        b.mid, t_ref, b.frame_t_s, b.exposure_s
+    )
     ca = np.sum((b.end_a - start) ** 2, axis=1) + np.sum((b.end_b - end) ** 2, axis=1)
     cb = np.sum((b.end_b - start) ** 2, axis=1) + np.sum((b.end_a - end) ** 2, axis=1)
     return float(np.sum(np.minimum(np.minimum(ca, cb) / b.sig2, 25.0)))
@@ -81,21 +85,30 @@ def estimate_timeshift(
     t_lo = float(gyro.t_s[0]) + search_s  # type: ignore[attr-defined]
     t_hi = float(gyro.t_s[-1]) - search_s  # type: ignore[attr-defined]
     readout = float(calib.camera.readout_s)  # type: ignore[attr-defined]
-    usable = [k for k, (fs, tm) in enumerate(zip(frames, timings, strict=True))
-              if len(fs) and t_lo <= tm.t_s + initial
-              and tm.t_s + initial + tm.exposure_s + readout <= t_hi]
+    usable = [
+        k
+        for k, (fs, tm) in enumerate(zip(frames, timings, strict=True))
+        if len(fs)
+        and t_lo <= tm.t_s + initial
+        and tm.t_s + initial + tm.exposure_s + readout <= t_hi
+    ]
     if not usable:
         return None
     pick = np.unique(np.linspace(0, len(usable) - 1, min(MAX_FRAMES, len(usable))).round())
     parts = []
     for k in (usable[int(i)] for i in pick):
         fs = frames[k]
-        long = np.flatnonzero((fs.length_px > MIN_LENGTH_PX) & ~fs.flags["clipped"]
-                              & ~fs.flags["merged"])
+        long = np.flatnonzero(
+            (fs.length_px > MIN_LENGTH_PX) & ~fs.flags["clipped"] & ~fs.flags["merged"]
+        )
         if long.size:
-            sel = np.unique(long[np.linspace(0, long.size - 1,
-                                             min(MAX_STREAKS_PER_FRAME, long.size))
-                                 .round().astype(int)])
+            sel = np.unique(
+                long[
+                    np.linspace(0, long.size - 1, min(MAX_STREAKS_PER_FRAME, long.size))
+                    .round()
+                    .astype(int)
+                ]
+            )
             parts.append((fs, sel, timings[k]))
     n = sum(len(p[1]) for p in parts)
     if n < 5:
@@ -104,8 +117,9 @@ def estimate_timeshift(
         mid=np.concatenate([fs.time_mid[sel] for fs, sel, _ in parts]),
         end_a=np.concatenate([fs.end_a[sel] for fs, sel, _ in parts]),
         end_b=np.concatenate([fs.end_b[sel] for fs, sel, _ in parts]),
-        sig2=np.concatenate([(GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2
-                             for fs, sel, _ in parts]),
+        sig2=np.concatenate(
+            [(GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2 for fs, sel, _ in parts]
+        ),
         frame_t_s=np.concatenate([np.full(len(sel), tm.t_s) for _, sel, tm in parts]),
         exposure_s=np.concatenate([np.full(len(sel), tm.exposure_s) for _, sel, tm in parts]),
     )
@@ -125,6 +139,10 @@ def estimate_timeshift(
     fine = best + np.arange(-step_s, step_s + 1e-12, step_s / 4)
     fine_cost = np.array([cost_at(s) for s in fine])
     best = float(fine[int(np.argmin(fine_cost))])
-    return TimeshiftEstimate(timeshift_s=best, initial_s=initial,
-                             grid_s=np.concatenate([grid, fine]),
-                             cost=np.concatenate([cost, fine_cost]), n_streaks=n)
+    return TimeshiftEstimate(
+        timeshift_s=best,
+        initial_s=initial,
+        grid_s=np.concatenate([grid, fine]),
+        cost=np.concatenate([cost, fine_cost]),
+        n_streaks=n,
+    )

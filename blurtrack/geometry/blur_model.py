@@ -69,11 +69,21 @@ class BlurModel:
         if self.gyro_upsample > 1:
             object.__setattr__(self, "gyro", self.gyro.upsampled(self.gyro_upsample))
         M = self.calib.gyro_scale_matrix
-        A = self.calib.R_cam_imu if np.allclose(M, np.eye(3), atol=0, rtol=0) \
+        A = (
+            self.calib.R_cam_imu
+            if np.allclose(M, np.eye(3), atol=0, rtol=0)
             else self.calib.R_cam_imu @ np.linalg.inv(M)
-        object.__setattr__(self, "_omega_fn", omega_cam_fn(
-            self.gyro.omega_components, constant_mat3(A), tuple(self.calib.gyro_bias_radps),
-            self.calib.timeshift_cam_imu_s))
+        )
+        object.__setattr__(
+            self,
+            "_omega_fn",
+            omega_cam_fn(
+                self.gyro.omega_components,
+                constant_mat3(A),
+                tuple(self.calib.gyro_bias_radps),
+                self.calib.timeshift_cam_imu_s,
+            ),
+        )
         if self.rotation_model not in ROTATION_MODELS:
             raise GeometryError(f"rotation_model must be one of {sorted(ROTATION_MODELS)}")
         if not self.max_substep_s > 0:
@@ -106,8 +116,9 @@ class BlurModel:
         t0, t1 = np.broadcast_arrays(np.asarray(t_from_s, float), np.asarray(t_to_s, float))
         t0, t1 = t0.reshape(-1), t1.reshape(-1)
         self._check(t0, t1)
-        R = ROTATION_MODELS[self.rotation_model](t0, t1, self.omega_cam_at, self._nsub(t0, t1),
-                                                 NUMPY_OPS)
+        R = ROTATION_MODELS[self.rotation_model](
+            t0, t1, self.omega_cam_at, self._nsub(t0, t1), NUMPY_OPS
+        )
         return np.stack(R, axis=-1).reshape(-1, 3, 3)
 
     def warp(self, pixels: np.ndarray, t_from_s: np.ndarray, t_to_s: np.ndarray) -> np.ndarray:
@@ -121,12 +132,23 @@ class BlurModel:
         t1 = np.broadcast_to(t1, px.shape[:1]).astype(float)
         self._check(t0, t1)
         cam = self.camera
-        u, v = warp_c(px[:, 0], px[:, 1], t0, t1, self.omega_cam_at, cam.intrinsics, cam.dist,
-                      self._nsub(t0, t1), NUMPY_OPS, ROTATION_MODELS[self.rotation_model])
+        u, v = warp_c(
+            px[:, 0],
+            px[:, 1],
+            t0,
+            t1,
+            self.omega_cam_at,
+            cam.intrinsics,
+            cam.dist,
+            self._nsub(t0, t1),
+            NUMPY_OPS,
+            ROTATION_MODELS[self.rotation_model],
+        )
         return np.stack([u, v], axis=1)
 
-    def point_track(self, pixels: np.ndarray, t_ref_s: np.ndarray,
-                    times_s: np.ndarray) -> np.ndarray:
+    def point_track(
+        self, pixels: np.ndarray, t_ref_s: np.ndarray, times_s: np.ndarray
+    ) -> np.ndarray:
         """Image positions ``(N, T, 2)`` at ``times_s (N, T)`` of points seen at ``pixels (N, 2)``
         at ``t_ref_s (N,)``."""
         px = _pixels(pixels)
@@ -139,7 +161,10 @@ class BlurModel:
         return flat.reshape(n, t, 2)
 
     def streak_endpoints(
-        self, pixels_ref: np.ndarray, t_ref_s: np.ndarray, frame_t_s: float | np.ndarray,
+        self,
+        pixels_ref: np.ndarray,
+        t_ref_s: np.ndarray,
+        frame_t_s: float | np.ndarray,
         exposure_s: float | np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Start and end of the streaks of points seen at ``pixels_ref (N, 2)`` at ``t_ref_s``.
@@ -158,13 +183,27 @@ class BlurModel:
         cam = self.camera
         span_lo, span_hi = ft, ft + cam.readout_s + exp
         self._check(span_lo, span_hi, tref)
-        nsub = n_substeps(float(np.max(np.maximum(np.abs(span_hi - tref), np.abs(tref - span_lo)),
-                                       initial=0.0)), self.max_substep_s)
+        nsub = n_substeps(
+            float(np.max(np.maximum(np.abs(span_hi - tref), np.abs(tref - span_lo)), initial=0.0)),
+            self.max_substep_s,
+        )
         out = []
         for offset in (0.0 * exp, exp):
-            u, v, t = rolling_endpoint_c(px[:, 0], px[:, 1], tref, ft, offset, cam.readout_s,
-                                         cam.height, self.omega_cam_at, cam.intrinsics, cam.dist,
-                                         nsub, NUMPY_OPS, ROTATION_MODELS[self.rotation_model])
+            u, v, t = rolling_endpoint_c(
+                px[:, 0],
+                px[:, 1],
+                tref,
+                ft,
+                offset,
+                cam.readout_s,
+                cam.height,
+                self.omega_cam_at,
+                cam.intrinsics,
+                cam.dist,
+                nsub,
+                NUMPY_OPS,
+                ROTATION_MODELS[self.rotation_model],
+            )
             out.append((np.stack([u, v], axis=1), t))
         (start, t_s), (end, t_e) = out
         return start, end, t_s, t_e
@@ -172,12 +211,16 @@ class BlurModel:
     def default_reference_time(self, frame_t_s: float, exposure_s: float) -> float:
         """Mid-exposure of the centre row: the default time of the sharp reference image."""
         cam = self.camera
-        return float(frame_t_s + cam.readout_s * (cam.height - 1) / 2 / cam.height
-                     + exposure_s / 2)
+        return float(frame_t_s + cam.readout_s * (cam.height - 1) / 2 / cam.height + exposure_s / 2)
 
     def heat_maps(
-        self, frame_t_s: float, exposure_s: float, n_t: int = 16,
-        t_ref_s: float | None = None, stride: int = 1, rows_per_chunk: int = 32,
+        self,
+        frame_t_s: float,
+        exposure_s: float,
+        n_t: int = 16,
+        t_ref_s: float | None = None,
+        stride: int = 1,
+        rows_per_chunk: int = 32,
     ) -> tuple[np.ndarray, np.ndarray]:
         """DESIGN heat maps of one frame: ``(6, H, W)`` float32 and Bézier fit error ``(H, W)``.
 
@@ -192,8 +235,11 @@ class BlurModel:
             raise GeometryError("stride must be >= 1")
         cam = self.camera
         W, H = cam.resolution
-        t_ref = self.default_reference_time(frame_t_s, exposure_s) if t_ref_s is None \
+        t_ref = (
+            self.default_reference_time(frame_t_s, exposure_s)
+            if t_ref_s is None
             else float(t_ref_s)
+        )
         self._check(np.array([frame_t_s, frame_t_s + cam.readout_s + exposure_s, t_ref]))
         xs = _grid(W, stride)
         ys = _grid(H, stride)
@@ -201,26 +247,27 @@ class BlurModel:
         rays_x, rays_y, _ = unproject_c(xs[None, :], ys[:, None], cam.intrinsics, cam.dist)
         rays_x = np.broadcast_to(rays_x, (ys.size, xs.size))
         rays_y = np.broadcast_to(rays_y, (ys.size, xs.size))
-        nsub = n_substeps(max(abs(t_ref - frame_t_s), abs(frame_t_s + cam.readout_s
-                                                          + exposure_s - t_ref)),
-                          self.max_substep_s)
+        nsub = n_substeps(
+            max(abs(t_ref - frame_t_s), abs(frame_t_s + cam.readout_s + exposure_s - t_ref)),
+            self.max_substep_s,
+        )
         rot = ROTATION_MODELS[self.rotation_model]
         maps = np.empty((6, ys.size, xs.size), dtype=np.float32)
         err = np.empty((ys.size, xs.size))
         for r0 in range(0, ys.size, rows_per_chunk):
-            rows = ys[r0:r0 + rows_per_chunk]
-            t = (cam.row_start_s(frame_t_s, rows)[:, None] + exposure_s * tau[None, :])
+            rows = ys[r0 : r0 + rows_per_chunk]
+            t = cam.row_start_s(frame_t_s, rows)[:, None] + exposure_s * tau[None, :]
             # R_c(t)^T R_c(t_ref): rotation taking the view at t to the view at t_ref.
             R = rot(t.reshape(-1), np.full(t.size, t_ref), self.omega_cam_at, nsub, NUMPY_OPS)
             R = [c.reshape(rows.size, 1, n_t) for c in R]
-            rx = rays_x[r0:r0 + rows.size, :, None]
-            ry = rays_y[r0:r0 + rows.size, :, None]
+            rx = rays_x[r0 : r0 + rows.size, :, None]
+            ry = rays_y[r0 : r0 + rows.size, :, None]
             X, Y, Z = matvec3(transpose3(tuple(R)), (rx, ry, 1.0 + 0 * rx))
             u, v = project_c(X, Y, Z, cam.intrinsics, cam.dist)
             q = np.stack([u - xs[None, :, None], v - rows[:, None, None]], axis=-1)
             m, e = heatmap.pack(q, tau)
-            maps[:, r0:r0 + rows.size] = m
-            err[r0:r0 + rows.size] = e
+            maps[:, r0 : r0 + rows.size] = m
+            err[r0 : r0 + rows.size] = e
         if stride > 1:
             up = _upsample(np.concatenate([maps, err[None].astype(np.float32)]), xs, ys, W, H)
             maps, err = up[:6], up[6].astype(float)

@@ -40,25 +40,33 @@ class Camera:
     def __post_init__(self) -> None:
         object.__setattr__(self, "resolution", tuple(int(v) for v in self.resolution))
         object.__setattr__(self, "intrinsics", tuple(float(v) for v in self.intrinsics))
-        object.__setattr__(self, "distortion_coeffs",
-                           tuple(float(v) for v in self.distortion_coeffs))
+        object.__setattr__(
+            self, "distortion_coeffs", tuple(float(v) for v in self.distortion_coeffs)
+        )
         object.__setattr__(self, "readout_s", float(self.readout_s))
         w, h = self.resolution if len(self.resolution) == 2 else (0, 0)
         if len(self.resolution) != 2 or w <= 0 or h <= 0:
-            raise GeometryError(f"camera resolution must be [width, height] > 0, got "
-                                f"{list(self.resolution)}")
+            raise GeometryError(
+                f"camera resolution must be [width, height] > 0, got {list(self.resolution)}"
+            )
         if len(self.intrinsics) != 4 or not all(math.isfinite(v) for v in self.intrinsics):
-            raise GeometryError(f"camera intrinsics must be 4 finite numbers [fx, fy, cx, cy], "
-                                f"got {list(self.intrinsics)}")
+            raise GeometryError(
+                f"camera intrinsics must be 4 finite numbers [fx, fy, cx, cy], "
+                f"got {list(self.intrinsics)}"
+            )
         if self.intrinsics[0] <= 0 or self.intrinsics[1] <= 0:
             raise GeometryError(f"focal lengths must be positive, got {self.intrinsics[:2]}")
         if self.distortion_model not in DISTORTION_MODELS:
-            raise GeometryError(f"distortion_model must be one of {DISTORTION_MODELS}, got "
-                                f"{self.distortion_model!r}")
+            raise GeometryError(
+                f"distortion_model must be one of {DISTORTION_MODELS}, got "
+                f"{self.distortion_model!r}"
+            )
         want = 0 if self.distortion_model == "none" else 4
         if len(self.distortion_coeffs) != want:
-            raise GeometryError(f"distortion_model {self.distortion_model} takes {want} "
-                                f"coefficients, got {len(self.distortion_coeffs)}")
+            raise GeometryError(
+                f"distortion_model {self.distortion_model} takes {want} "
+                f"coefficients, got {len(self.distortion_coeffs)}"
+            )
         if not all(math.isfinite(v) for v in self.distortion_coeffs):
             raise GeometryError("distortion coefficients must be finite")
         if not (math.isfinite(self.readout_s) and 0.0 <= self.readout_s < 1.0):
@@ -108,8 +116,12 @@ class Camera:
         w, h = self.resolution
         return Camera(
             resolution=(round(w * factor), round(h * factor)),
-            intrinsics=(fx * factor, fy * factor, (cx + 0.5) * factor - 0.5,
-                        (cy + 0.5) * factor - 0.5),
+            intrinsics=(
+                fx * factor,
+                fy * factor,
+                (cx + 0.5) * factor - 0.5,
+                (cy + 0.5) * factor - 0.5,
+            ),
             distortion_model=self.distortion_model,
             distortion_coeffs=self.distortion_coeffs,
             readout_s=self.readout_s,

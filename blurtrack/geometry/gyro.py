@@ -44,8 +44,9 @@ class GyroTrace:
         t = np.ascontiguousarray(self.t_s, dtype=float)
         w = np.ascontiguousarray(self.omega_radps, dtype=float)
         if t.ndim != 1 or w.shape != (t.size, 3):
-            raise GeometryError(f"gyro trace needs t (N,) and omega (N, 3), got {t.shape} and "
-                                f"{w.shape}")
+            raise GeometryError(
+                f"gyro trace needs t (N,) and omega (N, 3), got {t.shape} and {w.shape}"
+            )
         if t.size < 2:
             raise CoverageError(f"gyro trace has {t.size} sample(s); at least 2 are needed")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(w))):
@@ -66,8 +67,7 @@ class GyroTrace:
     def omega_at(self, t_s: np.ndarray) -> np.ndarray:
         """ω (rad/s, IMU frame) at IMU-clock times ``t_s (M,)`` -> ``(M, 3)``, no coverage check."""
         t = np.asarray(t_s, dtype=float)
-        return np.stack([np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3)],
-                        axis=-1)
+        return np.stack([np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3)], axis=-1)
 
     def omega_components(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Like :meth:`omega_at` but as the ``(wx, wy, wz)`` tuple the model functions take."""
@@ -87,14 +87,16 @@ class GyroTrace:
         if lo < self.t_s[0] or hi > self.t_s[-1]:
             raise CoverageError(
                 f"gyro covers [{self.t_s[0]:.6f}, {self.t_s[-1]:.6f}] s but "
-                f"[{lo:.6f}, {hi:.6f}] s is needed")
+                f"[{lo:.6f}, {hi:.6f}] s is needed"
+            )
         i = self._gap_starts
         bad = i[(self.t_s[i + 1] > lo) & (self.t_s[i] < hi)]
         if bad.size:
             k = int(bad[0])
             raise CoverageError(
                 f"gyro gap of {1e3 * (self.t_s[k + 1] - self.t_s[k]):.1f} ms at "
-                f"{self.t_s[k]:.6f} s inside the needed interval [{lo:.6f}, {hi:.6f}] s")
+                f"{self.t_s[k]:.6f} s inside the needed interval [{lo:.6f}, {hi:.6f}] s"
+            )
 
     def segment(self, t0_s: float, t1_s: float) -> GyroTrace:
         """Samples within ``[t0_s, t1_s]`` plus one on each side where available."""

@@ -34,8 +34,9 @@ def bezier_fit(q: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q = np.asarray(q, dtype=float)
     tau = np.asarray(tau, dtype=float)
     if q.ndim < 2 or q.shape[-1] != 2 or q.shape[-2] != tau.size or tau.size < 3:
-        raise GeometryError(f"bezier_fit needs q (..., T, 2) with T = len(tau) >= 3, got "
-                            f"{q.shape} and {tau.shape}")
+        raise GeometryError(
+            f"bezier_fit needs q (..., T, 2) with T = len(tau) >= 3, got {q.shape} and {tau.shape}"
+        )
     a = ((1 - tau) ** 2)[:, None]
     w = (2 * tau * (1 - tau))[:, None]
     c = (tau**2)[:, None]

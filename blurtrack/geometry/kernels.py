@@ -64,9 +64,15 @@ def so3_exp_c(wx: Any, wy: Any, wz: Any, ops: Any = NUMPY_OPS) -> Mat3:
     s = ops.sin(th / 2) / th
     b = 2 * s * s  # (1 - cos th) / th^2 without cancellation
     return (
-        1 - b * (wy * wy + wz * wz), b * wx * wy - a * wz, b * wx * wz + a * wy,
-        b * wx * wy + a * wz, 1 - b * (wx * wx + wz * wz), b * wy * wz - a * wx,
-        b * wx * wz - a * wy, b * wy * wz + a * wx, 1 - b * (wx * wx + wy * wy),
+        1 - b * (wy * wy + wz * wz),
+        b * wx * wy - a * wz,
+        b * wx * wz + a * wy,
+        b * wx * wy + a * wz,
+        1 - b * (wx * wx + wz * wz),
+        b * wy * wz - a * wx,
+        b * wx * wz - a * wy,
+        b * wy * wz + a * wx,
+        1 - b * (wx * wx + wy * wy),
     )
 
 
@@ -74,7 +80,8 @@ def matmul3(A: Mat3, B: Mat3) -> Mat3:
     """Product of two batches of 3x3 matrices given as row-major 9-tuples."""
     return tuple(
         A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j]
-        for i in range(3) for j in range(3)
+        for i in range(3)
+        for j in range(3)
     )  # type: ignore[return-value]
 
 
@@ -276,8 +283,9 @@ def rolling_endpoint_c(
     t = row_start_c(frame_t_s, v_ref, readout_s, height) + offset_s
     u, v = u_ref, v_ref
     for _ in range(ROW_TIME_ITERATIONS):
-        u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops,
-                      rotation)
+        u, v = warp_c(
+            u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops, rotation
+        )
         t = row_start_c(frame_t_s, v, readout_s, height) + offset_s
     u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops, rotation)
     return u, v, t

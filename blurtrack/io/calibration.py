@@ -73,8 +73,13 @@ class Calibration:
 
     def with_(self, **changes: Any) -> Calibration:
         """A copy with some fields replaced (``camera`` fields may be given by name too)."""
-        cam_keys = {"intrinsics", "resolution", "distortion_model", "distortion_coeffs",
-                    "readout_s"}
+        cam_keys = {
+            "intrinsics",
+            "resolution",
+            "distortion_model",
+            "distortion_coeffs",
+            "readout_s",
+        }
         cam_changes = {k: changes.pop(k) for k in list(changes) if k in cam_keys}
         cam = replace(self.camera, **cam_changes) if cam_changes else self.camera
         return replace(self, camera=cam, **changes)
@@ -107,8 +112,9 @@ class Calibration:
         try:
             model = c.get("camera_model", "pinhole")
             if model != "pinhole":
-                raise ConfigError(f"{source}: camera_model {model!r} is not supported "
-                                  f"(only pinhole)")
+                raise ConfigError(
+                    f"{source}: camera_model {model!r} is not supported (only pinhole)"
+                )
             camera = Camera(
                 resolution=tuple(c["resolution"]),
                 intrinsics=tuple(c["intrinsics"]),
@@ -126,8 +132,9 @@ class Calibration:
                 timeshift_cam_imu_s=float(c.get("timeshift_cam_imu", 0.0)),
                 gyro_bias_radps=np.array(c.get("gyro_bias_radps", [0.0, 0.0, 0.0]), float),
                 sigma=dict(c.get("sigma") or {}),
-                gyro_scale_matrix=np.array(c.get("gyro_scale_matrix", np.eye(3).tolist()),
-                                           dtype=float),
+                gyro_scale_matrix=np.array(
+                    c.get("gyro_scale_matrix", np.eye(3).tolist()), dtype=float
+                ),
             )
         except ConfigError:
             raise

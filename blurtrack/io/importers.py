@@ -78,8 +78,10 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
         try:
             ts, exp = int(parts[0]), int(parts[1])
         except (ValueError, IndexError):
-            raise ImportFormatError(f"{src}/images/images.txt line {n}: expected "
-                                    f"'timestamp_ns exposure_ns', got {line!r}") from None
+            raise ImportFormatError(
+                f"{src}/images/images.txt line {n}: expected "
+                f"'timestamp_ns exposure_ns', got {line!r}"
+            ) from None
         frames.append((ts, exp))
     gyro_t, gyro_w = [], []
     for n, line in enumerate(_text_lines(src / "imu" / "imu.txt"), start=1):
@@ -87,8 +89,9 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
         if not parts:
             continue
         if len(parts) != 5:
-            raise ImportFormatError(f"{src}/imu/imu.txt line {n}: expected 5 fields "
-                                    f"'type timestamp_ns x y z'")
+            raise ImportFormatError(
+                f"{src}/imu/imu.txt line {n}: expected 5 fields 'type timestamp_ns x y z'"
+            )
         try:
             kind, ts = int(parts[0]), int(parts[1])
             xyz = [float(v) for v in parts[2:]]
@@ -111,8 +114,10 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
     }
     meta = SessionMeta(
         camera=Camera((w, h), DEEPGYRO_INTRINSICS, readout_s=DEEPGYRO_READOUT_S),
-        imu=ImuConfig(rate_hz=float(1e9 / np.median(np.diff(np.sort(gyro_t)))),
-                      T_cam_imu=_T(DEEPGYRO_R_CAM_IMU)),
+        imu=ImuConfig(
+            rate_hz=float(1e9 / np.median(np.diff(np.sort(gyro_t)))),
+            T_cam_imu=_T(DEEPGYRO_R_CAM_IMU),
+        ),
         target_kind="natural",
         extra={"import": {"source": "deepgyro", "path": str(src), "assumptions": assumptions}},
     )
@@ -120,12 +125,18 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
         for i, (ts, exp) in enumerate(frames, start=1):
             img = first if i == 1 else _read_image(src / "images" / f"{i:04d}.jpg")
             if img.shape[:2] != (h, w):
-                raise ImportFormatError(f"{src}/images/{i:04d}.jpg is {img.shape[1]}x"
-                                        f"{img.shape[0]}, the first frame {w}x{h}")
+                raise ImportFormatError(
+                    f"{src}/images/{i:04d}.jpg is {img.shape[1]}x"
+                    f"{img.shape[0]}, the first frame {w}x{h}"
+                )
             wr.add_frame(ts, img, exp)
         wr.add_imu(np.asarray(gyro_t, np.int64)[order], np.asarray(gyro_w)[order])
-    return {"frames": len(frames), "gyro_samples": len(gyro_t), "resolution": [w, h],
-            "assumptions": assumptions}
+    return {
+        "frames": len(frames),
+        "gyro_samples": len(gyro_t),
+        "resolution": [w, h],
+        "assumptions": assumptions,
+    }
 
 
 def fit_radtan4(k: np.ndarray, r_max: float) -> tuple[tuple[float, float, float, float], float]:
@@ -155,8 +166,9 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     except ValueError as exc:
         raise ImportFormatError(f"{src}/movie_metadata.csv: missing column ({exc})") from None
     try:
-        meta_rows = [(int(r[i_ts]), int(r[i_exp]), int(r[i_ro]), float(r[i_fx]))
-                     for r in rows[1:] if r]
+        meta_rows = [
+            (int(r[i_ts]), int(r[i_exp]), int(r[i_ro]), float(r[i_fx])) for r in rows[1:] if r
+        ]
     except (ValueError, IndexError):
         raise ImportFormatError(f"{src}/movie_metadata.csv: malformed row") from None
     gyro = list(csv.reader(_text_lines(src / "gyro_accel.csv")))
@@ -194,14 +206,17 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
         r_max = float(np.hypot(w / 2 / fx, h / 2 / fy))
         if k.size >= 5:
             dist, err = fit_radtan4(k[:5], r_max)
-            assumptions["distortion"] = (f"k1 k2 refitted to the 5-coefficient chessboard model "
-                                         f"over the video's field of view (max radial error "
-                                         f"{err:.2e} normalised)")
+            assumptions["distortion"] = (
+                f"k1 k2 refitted to the 5-coefficient chessboard model "
+                f"over the video's field of view (max radial error "
+                f"{err:.2e} normalised)"
+            )
         else:
             dist = tuple(float(v) for v in k[:4])
         intr = (fx, fy, cx, cy)
-        assumptions["intrinsics"] = (f"calib.npz scaled by {s:.5f} with a {crop:.1f}-px crop "
-                                     f"of the still's short side")
+        assumptions["intrinsics"] = (
+            f"calib.npz scaled by {s:.5f} with a {crop:.1f}-px crop of the still's short side"
+        )
     else:
         fx = meta_rows[0][3] * long_side / 4032.0
         intr = (fx, fx, (w - 1) / 2.0, (h - 1) / 2.0)
@@ -209,8 +224,9 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     readout = meta_rows[0][2] * 1e-9
     meta = SessionMeta(
         camera=Camera((w, h), intr, "radtan" if dist else "none", dist, readout_s=readout),
-        imu=ImuConfig(rate_hz=float(1e9 / np.median(np.diff(t_ns))),
-                      T_cam_imu=_T(ANDROID_PORTRAIT_R_CAM_IMU)),
+        imu=ImuConfig(
+            rate_hz=float(1e9 / np.median(np.diff(t_ns))), T_cam_imu=_T(ANDROID_PORTRAIT_R_CAM_IMU)
+        ),
         target_kind="natural",
         extra={"import": {"source": "marslogger", "path": str(src), "assumptions": assumptions}},
     )
@@ -224,10 +240,17 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
             wr.add_frame(ts, img, exp)
         sel = order[keep]
         wr.add_imu(t_ns[sel], g[sel, 1:4], g[sel, 4:7])
-    covered = [bool(ts >= t_ns.min() and ts + exp + readout * 1e9 <= t_ns.max())
-               for ts, exp, _, _ in meta_rows]
-    return {"frames": len(meta_rows), "gyro_samples": int(sel.size), "resolution": [w, h],
-            "frames_covered_by_gyro": int(sum(covered)), "assumptions": assumptions}
+    covered = [
+        bool(ts >= t_ns.min() and ts + exp + readout * 1e9 <= t_ns.max())
+        for ts, exp, _, _ in meta_rows
+    ]
+    return {
+        "frames": len(meta_rows),
+        "gyro_samples": int(sel.size),
+        "resolution": [w, h],
+        "frames_covered_by_gyro": int(sum(covered)),
+        "assumptions": assumptions,
+    }
 
 
 IMPORTERS = {"deepgyro": import_deepgyro, "marslogger": import_marslogger}

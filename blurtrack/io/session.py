@@ -73,20 +73,26 @@ class SessionMeta:
 
     def __post_init__(self) -> None:
         if self.target_kind not in TARGET_KINDS:
-            raise SessionError(f"target.kind must be one of {TARGET_KINDS}, got "
-                               f"{self.target_kind!r}")
+            raise SessionError(
+                f"target.kind must be one of {TARGET_KINDS}, got {self.target_kind!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         c = self.camera
         d: dict[str, Any] = {
             "format": FORMAT,
             "camera": {
-                "resolution": list(c.resolution), "intrinsics": list(c.intrinsics),
+                "resolution": list(c.resolution),
+                "intrinsics": list(c.intrinsics),
                 "distortion_model": c.distortion_model,
-                "distortion_coeffs": list(c.distortion_coeffs), "readout_s": c.readout_s,
+                "distortion_coeffs": list(c.distortion_coeffs),
+                "readout_s": c.readout_s,
             },
-            "imu": {"rate_hz": self.imu.rate_hz, "T_cam_imu": self.imu.T_cam_imu.tolist(),
-                    "timeshift_cam_imu": self.imu.timeshift_cam_imu},
+            "imu": {
+                "rate_hz": self.imu.rate_hz,
+                "T_cam_imu": self.imu.T_cam_imu.tolist(),
+                "timeshift_cam_imu": self.imu.timeshift_cam_imu,
+            },
             "target": {"kind": self.target_kind},
         }
         d.update(self.extra)
@@ -100,13 +106,18 @@ class SessionMeta:
             raise SessionError(f"session.yaml: format must be {FORMAT!r}, got {d.get('format')!r}")
         try:
             c, i = d["camera"], d.get("imu") or {}
-            camera = Camera(resolution=tuple(c["resolution"]), intrinsics=tuple(c["intrinsics"]),
-                            distortion_model=c.get("distortion_model", "none"),
-                            distortion_coeffs=tuple(c.get("distortion_coeffs") or ()),
-                            readout_s=c.get("readout_s", 0.0))
-            imu = ImuConfig(rate_hz=i.get("rate_hz", 200.0),
-                            T_cam_imu=i.get("T_cam_imu", np.eye(4).tolist()),
-                            timeshift_cam_imu=i.get("timeshift_cam_imu", 0.0))
+            camera = Camera(
+                resolution=tuple(c["resolution"]),
+                intrinsics=tuple(c["intrinsics"]),
+                distortion_model=c.get("distortion_model", "none"),
+                distortion_coeffs=tuple(c.get("distortion_coeffs") or ()),
+                readout_s=c.get("readout_s", 0.0),
+            )
+            imu = ImuConfig(
+                rate_hz=i.get("rate_hz", 200.0),
+                T_cam_imu=i.get("T_cam_imu", np.eye(4).tolist()),
+                timeshift_cam_imu=i.get("timeshift_cam_imu", 0.0),
+            )
             kind = (d.get("target") or {}).get("kind", "laser-grid")
         except KeyError as exc:
             raise SessionError(f"session.yaml lacks the key {exc.args[0]!r}") from None
@@ -120,8 +131,14 @@ class SessionMeta:
 
 def safe_member(folder: Path, name: str) -> Path:
     """``folder / name`` for a plain file name; refuses paths, ``..`` and absolute names."""
-    if (not name or "/" in name or "\\" in name or name in (".", "..")
-            or os.path.isabs(name) or "\x00" in name):
+    if (
+        not name
+        or "/" in name
+        or "\\" in name
+        or name in (".", "..")
+        or os.path.isabs(name)
+        or "\x00" in name
+    ):
         raise SessionError(f"file name {name!r} must be a plain name inside {folder}")
     return folder / name
 
@@ -167,14 +184,16 @@ class SessionWriter:
         """Write ``cam0/data/<timestamp>.png`` (atomically) and its CSV row."""
         ts = int(timestamp_ns)
         if self._last_frame_ns is not None and ts <= self._last_frame_ns:
-            raise SessionError(f"frame timestamp {ts} is not after the previous "
-                               f"{self._last_frame_ns}")
+            raise SessionError(
+                f"frame timestamp {ts} is not after the previous {self._last_frame_ns}"
+            )
         if int(exposure_ns) <= 0:
             raise SessionError(f"frame {ts}: exposure must be positive, got {exposure_ns} ns")
         img = np.asarray(image)
         if img.dtype not in (np.uint8, np.uint16) or img.ndim not in (2, 3):
-            raise SessionError(f"frame {ts}: image must be uint8/uint16 gray or BGR, got "
-                               f"{img.dtype} {img.shape}")
+            raise SessionError(
+                f"frame {ts}: image must be uint8/uint16 gray or BGR, got {img.dtype} {img.shape}"
+            )
         name = f"{ts}.png"
         path = self.folder / "cam0" / "data" / name
         ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
@@ -188,8 +207,9 @@ class SessionWriter:
         self._last_frame_ns = ts
         self.n_frames += 1
 
-    def add_imu(self, t_ns: np.ndarray, omega_radps: np.ndarray,
-                accel_mps2: np.ndarray | None = None) -> None:
+    def add_imu(
+        self, t_ns: np.ndarray, omega_radps: np.ndarray, accel_mps2: np.ndarray | None = None
+    ) -> None:
         """Append gyro (and optionally accelerometer) samples ``(N,)``, ``(N, 3)``."""
         t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         w = np.asarray(omega_radps, dtype=float).reshape(-1, 3)
@@ -212,8 +232,11 @@ class SessionWriter:
         cols = [t[:, None].astype(object), w] + ([a] if a is not None else [])
         block = np.concatenate([np.asarray(c, dtype=object) for c in cols], axis=1)
         assert self._imu is not None
-        self._imu.write("".join(
-            f"{row[0]}," + ",".join(repr(float(v)) for v in row[1:]) + "\n" for row in block))
+        self._imu.write(
+            "".join(
+                f"{row[0]}," + ",".join(repr(float(v)) for v in row[1:]) + "\n" for row in block
+            )
+        )
         self._imu.flush()
         self._last_imu_ns = int(t[-1])
         self.n_imu += t.size
@@ -282,8 +305,9 @@ class Session:
             raise SessionError(f"image {path} does not decode")
         w, h = self.meta.camera.resolution
         if img.shape[:2] != (h, w):
-            raise SessionError(f"image {path} is {img.shape[1]}x{img.shape[0]}, session says "
-                               f"{w}x{h}")
+            raise SessionError(
+                f"image {path} is {img.shape[1]}x{img.shape[0]}, session says {w}x{h}"
+            )
         return img
 
     def gyro(self, max_gap_s: float | None = None):
@@ -298,9 +322,12 @@ class Session:
 
         T = self.meta.imu.T_cam_imu
         try:
-            return Calibration(camera=self.meta.camera, R_cam_imu=T[:3, :3],
-                               t_cam_imu_m=T[:3, 3],
-                               timeshift_cam_imu_s=self.meta.imu.timeshift_cam_imu)
+            return Calibration(
+                camera=self.meta.camera,
+                R_cam_imu=T[:3, :3],
+                t_cam_imu_m=T[:3, 3],
+                timeshift_cam_imu_s=self.meta.imu.timeshift_cam_imu,
+            )
         except ConfigError as exc:
             raise SessionError(f"session.yaml imu block: {exc}") from None
 
@@ -311,8 +338,16 @@ def _read_csv(path: Path, what: str, ncols: tuple[int, ...]) -> pd.DataFrame:
     if path.stat().st_size > MAX_CSV_BYTES:
         raise SessionError(f"{what} {path} is larger than {MAX_CSV_BYTES} bytes")
     try:
-        df = pd.read_csv(path, header=None, comment=None, dtype=str, skiprows=1,
-                         skipinitialspace=True, keep_default_na=False, on_bad_lines="error")
+        df = pd.read_csv(
+            path,
+            header=None,
+            comment=None,
+            dtype=str,
+            skiprows=1,
+            skipinitialspace=True,
+            keep_default_na=False,
+            on_bad_lines="error",
+        )
     except pd.errors.EmptyDataError:
         df = pd.DataFrame(columns=range(ncols[0]))
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
@@ -322,8 +357,9 @@ def _read_csv(path: Path, what: str, ncols: tuple[int, ...]) -> pd.DataFrame:
     if not header.startswith("#"):
         raise SessionError(f"{what} {path}: the first line must be a '#' header")
     if df.shape[1] not in ncols:
-        raise SessionError(f"{what} {path} has {df.shape[1]} columns, expected "
-                           f"{' or '.join(map(str, ncols))}")
+        raise SessionError(
+            f"{what} {path} has {df.shape[1]} columns, expected {' or '.join(map(str, ncols))}"
+        )
     return df
 
 
@@ -332,8 +368,10 @@ def _numeric(df: pd.DataFrame, col: int, path: Path, integer: bool) -> np.ndarra
     bad = s.isna() | ~np.isfinite(s.to_numpy(float, na_value=np.nan))
     if bad.any():
         line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
-        raise SessionError(f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
-                           f"is not a finite number")
+        raise SessionError(
+            f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
+            f"is not a finite number"
+        )
     if integer:
         return np.asarray([int(v) for v in df[col]], dtype=np.int64)
     return s.to_numpy(dtype=float)
@@ -367,8 +405,9 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
     exp = _numeric(cdf, 2, cam_csv, True)
     _strictly_increasing(ts, cam_csv)
     if np.any(exp <= 0):
-        raise SessionError(f"{cam_csv}: exposure must be positive (line "
-                           f"{int(np.flatnonzero(exp <= 0)[0]) + 2})")
+        raise SessionError(
+            f"{cam_csv}: exposure must be positive (line {int(np.flatnonzero(exp <= 0)[0]) + 2})"
+        )
     names = [str(n) for n in cdf[1]]
     data_dir = root / "cam0" / "data"
     for n in names:
@@ -378,12 +417,18 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
     imu_csv = root / "imu0" / "data.csv"
     idf = _read_csv(imu_csv, "IMU table", (4, 7))
     t_imu = _numeric(idf, 0, imu_csv, True)
-    omega = np.stack([_numeric(idf, k, imu_csv, False) for k in (1, 2, 3)], axis=1) \
-        if len(idf) else np.zeros((0, 3))
+    omega = (
+        np.stack([_numeric(idf, k, imu_csv, False) for k in (1, 2, 3)], axis=1)
+        if len(idf)
+        else np.zeros((0, 3))
+    )
     accel = None
     if idf.shape[1] == 7:
-        accel = np.stack([_numeric(idf, k, imu_csv, False) for k in (4, 5, 6)], axis=1) \
-            if len(idf) else np.zeros((0, 3))
+        accel = (
+            np.stack([_numeric(idf, k, imu_csv, False) for k in (4, 5, 6)], axis=1)
+            if len(idf)
+            else np.zeros((0, 3))
+        )
     _strictly_increasing(t_imu, imu_csv)
     session = Session(root, meta, frames, t_imu, omega, accel)
     if max_gyro_gap_s is not None and len(frames) and t_imu.size:
@@ -394,6 +439,8 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
         gaps = np.flatnonzero((np.diff(tt) > max_gyro_gap_s) & (tt[1:] > lo) & (tt[:-1] < hi))
         if gaps.size:
             k = int(gaps[0])
-            raise SessionError(f"{imu_csv}: gyro gap of {1e3 * (tt[k + 1] - tt[k]):.1f} ms after "
-                               f"timestamp {t_imu[k]} (limit {1e3 * max_gyro_gap_s:.1f} ms)")
+            raise SessionError(
+                f"{imu_csv}: gyro gap of {1e3 * (tt[k + 1] - tt[k]):.1f} ms after "
+                f"timestamp {t_imu[k]} (limit {1e3 * max_gyro_gap_s:.1f} ms)"
+            )
     return session

@@ -36,8 +36,9 @@ def read_shake_trace(path: str | Path) -> GyroTrace:
             if not parts or parts[0].startswith("#"):
                 continue
             if len(parts) != 4:
-                raise ImportFormatError(f"{p}: line {n} has {len(parts)} fields, expected 4 "
-                                        f"(timestamp_ns wx wy wz)")
+                raise ImportFormatError(
+                    f"{p}: line {n} has {len(parts)} fields, expected 4 (timestamp_ns wx wy wz)"
+                )
             try:
                 t_ns.append(int(parts[0]))
                 w = (float(parts[1]), float(parts[2]), float(parts[3]))

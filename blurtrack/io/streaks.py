@@ -33,11 +33,22 @@ import pandas as pd
 from blurtrack.errors import BlurTrackError
 
 COLUMNS: dict[str, str] = {
-    "frame": "int64", "timestamp_ns": "int64", "streak_id": "int64",
-    "start_x": "float64", "start_y": "float64", "end_x": "float64", "end_y": "float64",
-    "length_px": "float64", "centerline": "object", "profile": "object",
-    "orientation_confidence": "float64", "orientation_source": "object",
-    "clipped": "bool", "saturated": "bool", "merged": "bool", "faint": "bool",
+    "frame": "int64",
+    "timestamp_ns": "int64",
+    "streak_id": "int64",
+    "start_x": "float64",
+    "start_y": "float64",
+    "end_x": "float64",
+    "end_y": "float64",
+    "length_px": "float64",
+    "centerline": "object",
+    "profile": "object",
+    "orientation_confidence": "float64",
+    "orientation_source": "object",
+    "clipped": "bool",
+    "saturated": "bool",
+    "merged": "bool",
+    "faint": "bool",
 }
 FLAG_COLUMNS = ("clipped", "saturated", "merged", "faint")
 
@@ -80,8 +91,9 @@ def read(path: str | Path) -> pd.DataFrame:
     try:
         df = pd.read_parquet(p)
     except Exception as exc:  # pyarrow raises several unrelated types on corrupt files
-        raise StreakTableError(f"streak table {p} is not readable Parquet: "
-                               f"{str(exc).splitlines()[0]}") from None
+        raise StreakTableError(
+            f"streak table {p} is not readable Parquet: {str(exc).splitlines()[0]}"
+        ) from None
     return validate(df)
 
 
@@ -100,19 +112,28 @@ def from_truth(truth: dict[str, Any], inside_only: bool = True) -> pd.DataFrame:
                     continue
                 cl = [[float(x), float(y)] for x, y in s["centerline"]]
                 seg = np.diff(np.asarray(cl, float), axis=0) if len(cl) > 1 else np.zeros((0, 2))
-                rows.append({
-                    "frame": int(fr["index"]), "timestamp_ns": int(fr["timestamp_ns"]),
-                    "streak_id": int(s.get("dot", k)),
-                    "start_x": float(s["start"][0]), "start_y": float(s["start"][1]),
-                    "end_x": float(s["end"][0]), "end_y": float(s["end"][1]),
-                    "length_px": float(np.linalg.norm(seg, axis=1).sum()),
-                    "centerline": cl, "profile": [1.0] * len(cl),
-                    "orientation_confidence": 1.0, "orientation_source": "truth",
-                    "clipped": not s.get("inside", True), "saturated": False,
-                    "merged": False, "faint": False,
-                    "mid_x": float(s["mid"][0]) if "mid" in s else np.nan,
-                    "mid_y": float(s["mid"][1]) if "mid" in s else np.nan,
-                })
+                rows.append(
+                    {
+                        "frame": int(fr["index"]),
+                        "timestamp_ns": int(fr["timestamp_ns"]),
+                        "streak_id": int(s.get("dot", k)),
+                        "start_x": float(s["start"][0]),
+                        "start_y": float(s["start"][1]),
+                        "end_x": float(s["end"][0]),
+                        "end_y": float(s["end"][1]),
+                        "length_px": float(np.linalg.norm(seg, axis=1).sum()),
+                        "centerline": cl,
+                        "profile": [1.0] * len(cl),
+                        "orientation_confidence": 1.0,
+                        "orientation_source": "truth",
+                        "clipped": not s.get("inside", True),
+                        "saturated": False,
+                        "merged": False,
+                        "faint": False,
+                        "mid_x": float(s["mid"][0]) if "mid" in s else np.nan,
+                        "mid_y": float(s["mid"][1]) if "mid" in s else np.nan,
+                    }
+                )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise StreakTableError(f"truth.yaml has no usable streak truth ({exc!r})") from None
     return validate(pd.DataFrame(rows, columns=[*COLUMNS, "mid_x", "mid_y"])) if rows else empty()

@@ -57,6 +57,8 @@ def validate_session(folder: str | Path, max_gyro_gap_s: float | None = None) ->
     dt = np.diff(s.imu_times_s)
     if dt.size and dt.max() > 5 * np.median(dt):
         k = int(np.argmax(dt))
-        warnings.append(f"longest gyro gap {1e3 * dt[k]:.1f} ms after sample {k} "
-                        f"(median interval {1e3 * np.median(dt):.2f} ms)")
+        warnings.append(
+            f"longest gyro gap {1e3 * dt[k]:.1f} ms after sample {k} "
+            f"(median interval {1e3 * np.median(dt):.2f} ms)"
+        )
     return ValidationReport(s, errors, warnings, covered)

@@ -57,8 +57,9 @@ def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     ts = session.frames["timestamp_ns"].to_numpy(np.int64)
     exp_ns = session.frames["exposure_ns"].to_numpy(np.int64)
     t0 = int(ts[0])
-    model = BlurModel(calib, GyroTrace(g.t_s - t0 * 1e-9, g.omega_radps, g.max_gap_s),
-                      check_coverage=False)
+    model = BlurModel(
+        calib, GyroTrace(g.t_s - t0 * 1e-9, g.omega_radps, g.max_gap_s), check_coverage=False
+    )
     cam = calib.camera
 
     def track(df: pd.DataFrame) -> np.ndarray:
@@ -77,10 +78,15 @@ def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     return track
 
 
-def build_report(session: Session, table: pd.DataFrame, before: Calibration,
-                 after: Calibration, out_dir: str | Path,
-                 fit_summary: dict[str, Any] | None = None,
-                 n_overlays: int = N_OVERLAYS) -> dict[str, Any]:
+def build_report(
+    session: Session,
+    table: pd.DataFrame,
+    before: Calibration,
+    after: Calibration,
+    out_dir: str | Path,
+    fit_summary: dict[str, Any] | None = None,
+    n_overlays: int = N_OVERLAYS,
+) -> dict[str, Any]:
     """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
 
     The gyro is resampled as the blur model does (:data:`~blurtrack.geometry.gyro.GYRO_UPSAMPLE`,
@@ -93,15 +99,21 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
         raise ReportError("no streaks to report on")
     raw = gyro = session.gyro()
     frames = session.frames
-    errs = {"before": endpoint_errors(raw, table, frames, before),
-            "after": endpoint_errors(gyro, table, frames, after)}
-    models = {v.name: endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
-              for v in MOTION_VARIANTS}
+    errs = {
+        "before": endpoint_errors(raw, table, frames, before),
+        "after": endpoint_errors(gyro, table, frames, after),
+    }
+    models = {
+        v.name: endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
+        for v in MOTION_VARIANTS
+    }
     warnings: list[str] = []
     n_unc = int(np.count_nonzero(~errs["after"]["covered"]))
     if n_unc:
-        warnings.append(f"{n_unc} streak(s) lie in exposures the gyro does not cover; they are "
-                        f"left out of the statistics")
+        warnings.append(
+            f"{n_unc} streak(s) lie in exposures the gyro does not cover; they are "
+            f"left out of the statistics"
+        )
     if n_unc == len(table):
         raise ReportError("the gyro covers none of the exposures of the streak table")
     overall = {k: stats(v["error_px"].to_numpy()) for k, v in errs.items()}
@@ -111,31 +123,45 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
     if fit_summary:
         warnings.extend(f"fit: {w}" for w in fit_summary.get("warnings", []))
 
-    long = pd.concat([df.assign(variant=k) for k, df in {**errs, **models}.items()],
-                     ignore_index=True)
+    long = pd.concat(
+        [df.assign(variant=k) for k, df in {**errs, **models}.items()], ignore_index=True
+    )
     long.to_csv(out / "streak_errors.csv", index=False, float_format="%.6g")
     fstats = per_frame({**errs, **models})
     fstats.to_csv(out / "frame_errors.csv", index=False, float_format="%.6g")
     pd.DataFrame([{"variant": k, **v} for k, v in {**overall, **model_stats}.items()]).to_csv(
-        out / "overall_errors.csv", index=False, float_format="%.6g")
+        out / "overall_errors.csv", index=False, float_format="%.6g"
+    )
 
     w, h = after.camera.resolution
     figs: list[tuple[str, bytes]] = [
-        ("Endpoint error before and after calibration",
-         figures.histogram_cdf(errs, "before vs after calibration")),
-        ("Per-frame mean endpoint error",
-         figures.per_frame_plot(fstats[fstats["variant"].isin(["before", "after"])],
-                                "per frame")),
-        ("Endpoint error against image position (after)",
-         figures.error_vs_position(errs["after"], w, h, "after calibration")),
-        ("Endpoint error against angular speed",
-         figures.error_vs_speed(errs, "before vs after")),
-        ("Motion models on the same streaks (after calibration)",
-         figures.model_bars({v.label: model_stats[v.name] for v in MOTION_VARIANTS},
-                            "motion models")),
-        ("Motion models: error distributions",
-         figures.histogram_cdf({v.label: models[v.name] for v in MOTION_VARIANTS},
-                               "motion models")),
+        (
+            "Endpoint error before and after calibration",
+            figures.histogram_cdf(errs, "before vs after calibration"),
+        ),
+        (
+            "Per-frame mean endpoint error",
+            figures.per_frame_plot(
+                fstats[fstats["variant"].isin(["before", "after"])], "per frame"
+            ),
+        ),
+        (
+            "Endpoint error against image position (after)",
+            figures.error_vs_position(errs["after"], w, h, "after calibration"),
+        ),
+        ("Endpoint error against angular speed", figures.error_vs_speed(errs, "before vs after")),
+        (
+            "Motion models on the same streaks (after calibration)",
+            figures.model_bars(
+                {v.label: model_stats[v.name] for v in MOTION_VARIANTS}, "motion models"
+            ),
+        ),
+        (
+            "Motion models: error distributions",
+            figures.histogram_cdf(
+                {v.label: models[v.name] for v in MOTION_VARIANTS}, "motion models"
+            ),
+        ),
     ]
     covered = errs["after"][errs["after"]["covered"]]
     track = _track_fn(session, after, gyro)
@@ -147,20 +173,41 @@ def build_report(session: Session, table: pd.DataFrame, before: Calibration,
             warnings.append(f"frame {f}: image not drawn ({str(exc).splitlines()[0]})")
             continue
         sel = covered[covered["frame"] == f]
-        figs.append((f"Frame {f}: measured and predicted streaks",
-                     figures.overlay(img, sel, track, f"frame {f}, after calibration, mean "
-                                     f"error {sel['error_px'].mean():.3f} px")))
+        figs.append(
+            (
+                f"Frame {f}: measured and predicted streaks",
+                figures.overlay(
+                    img,
+                    sel,
+                    track,
+                    f"frame {f}, after calibration, mean error {sel['error_px'].mean():.3f} px",
+                ),
+            )
+        )
 
-    summary = _clean({
-        "n_streaks": len(table), "n_frames": int(table["frame"].nunique()),
-        "n_uncovered": n_unc, "overall": overall, "motion_models": model_stats,
-        "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
-        "calibration_before": before.to_dict(), "calibration_after": after.to_dict(),
-        "fit": fit_summary or {}, "warnings": warnings, "gyro_upsample": GYRO_UPSAMPLE,
-        "gyro_scale_matrix": after.gyro_scale_matrix,
-        "files": ["report.html", "streak_errors.csv", "frame_errors.csv", "overall_errors.csv",
-                  "summary.json"],
-    })
+    summary = _clean(
+        {
+            "n_streaks": len(table),
+            "n_frames": int(table["frame"].nunique()),
+            "n_uncovered": n_unc,
+            "overall": overall,
+            "motion_models": model_stats,
+            "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
+            "calibration_before": before.to_dict(),
+            "calibration_after": after.to_dict(),
+            "fit": fit_summary or {},
+            "warnings": warnings,
+            "gyro_upsample": GYRO_UPSAMPLE,
+            "gyro_scale_matrix": after.gyro_scale_matrix,
+            "files": [
+                "report.html",
+                "streak_errors.csv",
+                "frame_errors.csv",
+                "overall_errors.csv",
+                "summary.json",
+            ],
+        }
+    )
     write_text_atomic(out / "report.html", render(summary, figs, fstats))
     write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
     return summary

@@ -29,8 +29,9 @@ def _finite(df: pd.DataFrame) -> pd.DataFrame:
 def histogram_cdf(errors: dict[str, pd.DataFrame], title: str) -> bytes:
     """Histogram and empirical CDF of endpoint errors, one curve per label."""
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
-    allv = np.concatenate([_finite(d)["error_px"].to_numpy() for d in errors.values()] or
-                          [np.zeros(1)])
+    allv = np.concatenate(
+        [_finite(d)["error_px"].to_numpy() for d in errors.values()] or [np.zeros(1)]
+    )
     hi = float(np.percentile(allv, 99)) if allv.size else 1.0
     bins = np.linspace(0, max(hi, 1e-3), 60)
     for (label, df), c in zip(errors.items(), COLORS, strict=False):
@@ -112,8 +113,9 @@ def _stretch(img: np.ndarray) -> np.ndarray:
     return np.clip((g - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
 
 
-def overlay(image: np.ndarray, df: pd.DataFrame,
-            track: Callable[[pd.DataFrame], np.ndarray], title: str) -> bytes:
+def overlay(
+    image: np.ndarray, df: pd.DataFrame, track: Callable[[pd.DataFrame], np.ndarray], title: str
+) -> bytes:
     """A frame with measured streaks (green, start marked) and predicted tracks (red dashed),
     and a zoom on the longest streak.
 
@@ -121,8 +123,9 @@ def overlay(image: np.ndarray, df: pd.DataFrame,
     """
     img = _stretch(np.asarray(image))
     h, w = img.shape[:2]
-    fig, (ax, zx) = plt.subplots(1, 2, figsize=(13, 13 * h / w / 1.6),
-                                 gridspec_kw={"width_ratios": [1.6, 1]})
+    fig, (ax, zx) = plt.subplots(
+        1, 2, figsize=(13, 13 * h / w / 1.6), gridspec_kw={"width_ratios": [1.6, 1]}
+    )
     pts = track(df)
     for a in (ax, zx):
         a.imshow(img, cmap="gray", vmin=0, vmax=1)
@@ -151,8 +154,13 @@ def model_bars(summary: dict[str, dict[str, float]], title: str) -> bytes:
     x = np.arange(len(labels))
     fig, ax = plt.subplots(figsize=(8, 3.8))
     for k, (key, c) in enumerate(zip(("mean_px", "median_px", "p95_px"), COLORS, strict=False)):
-        ax.bar(x + (k - 1) * 0.27, [summary[lbl][key] for lbl in labels], 0.27, color=c,
-               label=key.replace("_px", ""))
+        ax.bar(
+            x + (k - 1) * 0.27,
+            [summary[lbl][key] for lbl in labels],
+            0.27,
+            color=c,
+            label=key.replace("_px", ""),
+        )
     ax.set_xticks(x, labels, fontsize=8)
     ax.set_ylabel("endpoint error (px)")
     ax.set_yscale("log")

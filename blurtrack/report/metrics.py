@@ -39,11 +39,13 @@ class MotionVariant:
 
 
 MOTION_VARIANTS = (
-    MotionVariant("paper_small_angle", "paper: per-axis small angles, global shutter",
-                  "small_angle", False),
+    MotionVariant(
+        "paper_small_angle", "paper: per-axis small angles, global shutter", "small_angle", False
+    ),
     MotionVariant("exact_global", "exact rotation, global shutter", "exact", False),
-    MotionVariant("small_angle_rolling", "per-axis small angles + rolling shutter",
-                  "small_angle", True),
+    MotionVariant(
+        "small_angle_rolling", "per-axis small angles + rolling shutter", "small_angle", True
+    ),
     MotionVariant("exact_rolling", "exact rotation + rolling shutter", "exact", True),
 )
 
@@ -52,8 +54,13 @@ def _relative(gyro: GyroTrace, t0_s: float) -> GyroTrace:
     return GyroTrace(gyro.t_s - t0_s, gyro.omega_radps, gyro.max_gap_s)
 
 
-def predict_end(model: BlurModel, start: np.ndarray, t_ref_s: np.ndarray, frame_t_s: np.ndarray,
-                exposure_s: np.ndarray) -> np.ndarray:
+def predict_end(
+    model: BlurModel,
+    start: np.ndarray,
+    t_ref_s: np.ndarray,
+    frame_t_s: np.ndarray,
+    exposure_s: np.ndarray,
+) -> np.ndarray:
     """End ``(N, 2)`` of the streaks that start at ``start (N, 2)`` at ``t_ref_s`` (camera clock).
 
     The same fixed-point row-time solve as :func:`blurtrack.geometry.kernels.rolling_endpoint_c`
@@ -69,9 +76,14 @@ def predict_end(model: BlurModel, start: np.ndarray, t_ref_s: np.ndarray, frame_
     return model.warp(start, t_ref_s, t)
 
 
-def endpoint_errors(gyro: GyroTrace, table: pd.DataFrame, frames: pd.DataFrame,
-                    calib: Calibration, rotation_model: str = "exact",
-                    rolling: bool = True) -> pd.DataFrame:
+def endpoint_errors(
+    gyro: GyroTrace,
+    table: pd.DataFrame,
+    frames: pd.DataFrame,
+    calib: Calibration,
+    rotation_model: str = "exact",
+    rolling: bool = True,
+) -> pd.DataFrame:
     """Per-streak predicted end and endpoint error.
 
     Args:
@@ -116,12 +128,22 @@ def endpoint_errors(gyro: GyroTrace, table: pd.DataFrame, frames: pd.DataFrame,
         w = np.stack(model.omega_cam_at(t_ref + exp[c] / 2), axis=1)
         speed[c] = np.linalg.norm(w, axis=1)
     err = np.linalg.norm(pred - end, axis=1)
-    return pd.DataFrame({
-        "frame": idx, "timestamp_ns": ts[idx], "streak_id": table["streak_id"].to_numpy(np.int64),
-        "start_x": start[:, 0], "start_y": start[:, 1], "end_x": end[:, 0], "end_y": end[:, 1],
-        "pred_end_x": pred[:, 0], "pred_end_y": pred[:, 1], "error_px": err,
-        "omega_radps": speed, "covered": covered,
-    })
+    return pd.DataFrame(
+        {
+            "frame": idx,
+            "timestamp_ns": ts[idx],
+            "streak_id": table["streak_id"].to_numpy(np.int64),
+            "start_x": start[:, 0],
+            "start_y": start[:, 1],
+            "end_x": end[:, 0],
+            "end_y": end[:, 1],
+            "pred_end_x": pred[:, 0],
+            "pred_end_y": pred[:, 1],
+            "error_px": err,
+            "omega_radps": speed,
+            "covered": covered,
+        }
+    )
 
 
 def stats(errors_px: np.ndarray) -> dict[str, float]:
@@ -129,10 +151,20 @@ def stats(errors_px: np.ndarray) -> dict[str, float]:
     e = np.asarray(errors_px, float)
     e = e[np.isfinite(e)]
     if e.size == 0:
-        return {"n": 0, "mean_px": float("nan"), "median_px": float("nan"),
-                "p95_px": float("nan"), "rms_px": float("nan")}
-    return {"n": int(e.size), "mean_px": float(e.mean()), "median_px": float(np.median(e)),
-            "p95_px": float(np.percentile(e, 95)), "rms_px": float(np.sqrt(np.mean(e**2)))}
+        return {
+            "n": 0,
+            "mean_px": float("nan"),
+            "median_px": float("nan"),
+            "p95_px": float("nan"),
+            "rms_px": float("nan"),
+        }
+    return {
+        "n": int(e.size),
+        "mean_px": float(e.mean()),
+        "median_px": float(np.median(e)),
+        "p95_px": float(np.percentile(e, 95)),
+        "rms_px": float(np.sqrt(np.mean(e**2))),
+    }
 
 
 def per_frame(errors: dict[str, pd.DataFrame]) -> pd.DataFrame:
@@ -140,6 +172,12 @@ def per_frame(errors: dict[str, pd.DataFrame]) -> pd.DataFrame:
     rows = []
     for label, df in errors.items():
         for (frame, ts), grp in df.groupby(["frame", "timestamp_ns"], sort=True):
-            rows.append({"variant": label, "frame": int(frame), "timestamp_ns": int(ts),
-                         **stats(grp["error_px"].to_numpy())})
+            rows.append(
+                {
+                    "variant": label,
+                    "frame": int(frame),
+                    "timestamp_ns": int(ts),
+                    **stats(grp["error_px"].to_numpy()),
+                }
+            )
     return pd.DataFrame(rows)

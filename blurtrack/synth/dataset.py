@@ -68,14 +68,22 @@ class DatasetSpec:
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.count) <= MAX_COUNT or int(self.group) < 1:
-            raise SynthesisError(f"count must be in [1, {MAX_COUNT}] and group >= 1, got "
-                                 f"{self.count}")
+            raise SynthesisError(
+                f"count must be in [1, {MAX_COUNT}] and group >= 1, got {self.count}"
+            )
         Calibration.from_dict(self.calib)  # validates
 
     def to_dict(self) -> dict[str, Any]:
-        return {"calib": self.calib, "gyro": self.gyro, "images": self.images,
-                "count": int(self.count), "seed": int(self.seed), "group": int(self.group),
-                "extras": bool(self.extras), "params": self.params.to_dict()}
+        return {
+            "calib": self.calib,
+            "gyro": self.gyro,
+            "images": self.images,
+            "count": int(self.count),
+            "seed": int(self.seed),
+            "group": int(self.group),
+            "extras": bool(self.extras),
+            "params": self.params.to_dict(),
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DatasetSpec:
@@ -101,8 +109,9 @@ class Job:
 
 def plan(spec: DatasetSpec, images: list[str], tag: str) -> list[Job]:
     """Every triplet of the dataset, in index order."""
-    perm = np.random.default_rng(np.random.SeedSequence([int(spec.seed), 2**32 - 1])) \
-        .permutation(len(images))
+    perm = np.random.default_rng(np.random.SeedSequence([int(spec.seed), 2**32 - 1])).permutation(
+        len(images)
+    )
     jobs = []
     for i in range(int(spec.count)):
         img = images[int(perm[i % len(images)])]
@@ -176,12 +185,19 @@ def _png(img: np.ndarray, level: int = 0) -> bytes:
 _STATE: dict[str, Any] = {}
 
 
-def _init_worker(spec_dict: dict[str, Any], out: str, tag: str = "s0of1",
-                 png_level: int = DEFAULT_PNG_LEVEL) -> None:
+def _init_worker(
+    spec_dict: dict[str, Any], out: str, tag: str = "s0of1", png_level: int = DEFAULT_PNG_LEVEL
+) -> None:
     cv2.setNumThreads(1)
     spec = DatasetSpec.from_dict(spec_dict)
-    _STATE.update(spec=spec, out=Path(out), tag=tag, png=png_level,
-                  calib=Calibration.from_dict(spec.calib), source=open_source(spec.gyro))
+    _STATE.update(
+        spec=spec,
+        out=Path(out),
+        tag=tag,
+        png=png_level,
+        calib=Calibration.from_dict(spec.calib),
+        source=open_source(spec.gyro),
+    )
 
 
 def _work(job: Job) -> dict[str, Any]:
@@ -189,8 +205,9 @@ def _work(job: Job) -> dict[str, Any]:
     out: Path = _STATE["out"]
     try:
         image = load_image(spec.images, job.image)
-        tr = make_triplet(image, _STATE["calib"], _STATE["source"], spec.params,
-                          triplet_rng(spec.seed, job.index))
+        tr = make_triplet(
+            image, _STATE["calib"], _STATE["source"], spec.params, triplet_rng(spec.seed, job.index)
+        )
     except BlurTrackError as exc:
         raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
     paths = job.paths(out, spec.extras)
@@ -202,10 +219,17 @@ def _work(job: Job) -> dict[str, Any]:
         _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255, 1), tag)
         _write_atomic(paths["fit"], tr.fit_error.astype(np.float32), tag)
     info = dict(tr.info)
-    return {"index": job.index, "split": job.split, "name": job.name, "stem": job.stem,
-            "source_image": job.image, "gyro_segment": info.pop("gyro_segment"),
-            "seed": [int(spec.seed), job.index], "params": info,
-            "files": {k: p.relative_to(out).as_posix() for k, p in paths.items()}}
+    return {
+        "index": job.index,
+        "split": job.split,
+        "name": job.name,
+        "stem": job.stem,
+        "source_image": job.image,
+        "gyro_segment": info.pop("gyro_segment"),
+        "seed": [int(spec.seed), job.index],
+        "params": info,
+        "files": {k: p.relative_to(out).as_posix() for k, p in paths.items()},
+    }
 
 
 # ------------------------------------------------------------------ builder side
@@ -223,10 +247,16 @@ class BuildResult:
 
     def to_dict(self) -> dict[str, Any]:
         rate = self.made / self.elapsed_s if self.elapsed_s > 0 else None
-        return {"made": self.made, "skipped": self.skipped, "planned": self.planned,
-                "elapsed_s": self.elapsed_s, "triplets_per_s": rate,
-                "manifest": self.manifest.name, "bezier_fit_within_0.5px_min":
-                self.fit_share_min, "bezier_fit_within_0.5px_mean": self.fit_share_mean}
+        return {
+            "made": self.made,
+            "skipped": self.skipped,
+            "planned": self.planned,
+            "elapsed_s": self.elapsed_s,
+            "triplets_per_s": rate,
+            "manifest": self.manifest.name,
+            "bezier_fit_within_0.5px_min": self.fit_share_min,
+            "bezier_fit_within_0.5px_mean": self.fit_share_mean,
+        }
 
 
 def _check_spec(out: Path, spec: DatasetSpec) -> None:
@@ -235,8 +265,10 @@ def _check_spec(out: Path, spec: DatasetSpec) -> None:
     if path.is_file():
         have = read_yaml(path, "dataset.yaml")
         if have != json.loads(json.dumps(want)):
-            raise SynthesisError(f"{out} holds a dataset made with other parameters; use a new "
-                                 f"--out or the same options")
+            raise SynthesisError(
+                f"{out} holds a dataset made with other parameters; use a new "
+                f"--out or the same options"
+            )
     else:
         write_yaml(path, want)
 
@@ -253,14 +285,20 @@ def _finished(out: Path, records: dict[int, dict[str, Any]]) -> set[int]:
     for i, rec in records.items():
         files = rec.get("files", {})
         if all(_inside(out, files.get(k)) for k, _ in KINDS) and all(
-                _inside(out, f) for f in files.values()):
+            _inside(out, f) for f in files.values()
+        ):
             done.add(i)
     return done
 
 
-def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
-          workers: int = 1, progress: Callable[[int, int], None] | None = None,
-          png_level: int = DEFAULT_PNG_LEVEL) -> BuildResult:
+def build(
+    spec: DatasetSpec,
+    out: str | Path,
+    shard: tuple[int, int] = (0, 1),
+    workers: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+    png_level: int = DEFAULT_PNG_LEVEL,
+) -> BuildResult:
     """Build (or resume) the dataset's triplets of ``shard`` with ``workers`` processes.
 
     ``progress(done, total)`` is called after each triplet (the CLI draws its bar with it).
@@ -273,8 +311,10 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
         raise SynthesisError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
     root = Path(out)
     if root.resolve().is_relative_to(Path(spec.images).resolve()):
-        raise SynthesisError(f"the dataset folder {root} must not lie inside the image folder "
-                             f"{spec.images} (its images would become inputs)")
+        raise SynthesisError(
+            f"the dataset folder {root} must not lie inside the image folder "
+            f"{spec.images} (its images would become inputs)"
+        )
     images = list_images(spec.images)  # inputs first: a bad one leaves no folder behind
     source = open_source(spec.gyro)
     root.mkdir(parents=True, exist_ok=True)
@@ -290,6 +330,7 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
         tmp.unlink(missing_ok=True)
     made, fits = 0, []
     with manifest.open("a", encoding="utf-8") as f:
+
         def record(rec: dict[str, Any]) -> None:
             nonlocal made
             f.write(json.dumps(rec, sort_keys=True) + "\n")
@@ -317,9 +358,15 @@ def build(spec: DatasetSpec, out: str | Path, shard: tuple[int, int] = (0, 1),
             with _single_threaded_children(), ctx.Pool(workers, _init_worker, init) as pool:
                 for rec in pool.imap_unordered(_work, todo):
                     record(rec)
-    return BuildResult(made, len(mine) - len(todo), len(mine), time.perf_counter() - t0,
-                       manifest, min(fits) if fits else None,
-                       float(np.mean(fits)) if fits else None)
+    return BuildResult(
+        made,
+        len(mine) - len(todo),
+        len(mine),
+        time.perf_counter() - t0,
+        manifest,
+        min(fits) if fits else None,
+        float(np.mean(fits)) if fits else None,
+    )
 
 
 #: Thread-pool variables of numpy's BLAS back ends; each worker is one process on one core.
@@ -400,5 +447,10 @@ def merge(out: str | Path, shard_dirs: Iterable[str | Path] = ()) -> dict[str, A
         m.unlink()
     count = int(ref["spec"]["count"])
     missing = sorted(set(range(count)) - done)
-    return {"triplets": len(done), "count": count, "missing": len(missing),
-            "missing_first": missing[:20], "lost_records": len(records) - len(done)}
+    return {
+        "triplets": len(done),
+        "count": count,
+        "missing": len(missing),
+        "missing_first": missing[:20],
+        "lost_records": len(records) - len(done),
+    }

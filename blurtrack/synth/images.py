@@ -42,8 +42,11 @@ def list_images(folder: str | Path) -> list[str]:
     out = []
     for p in root.rglob("*"):
         rel = p.relative_to(root)
-        if any(part.startswith(".") for part in rel.parts) or p.suffix.lower() \
-                not in IMAGE_SUFFIXES or not p.is_file():
+        if (
+            any(part.startswith(".") for part in rel.parts)
+            or p.suffix.lower() not in IMAGE_SUFFIXES
+            or not p.is_file()
+        ):
             continue
         if not p.resolve().is_relative_to(base):
             continue  # a link leading out of the folder
@@ -75,8 +78,9 @@ def load_image(folder: str | Path, rel_path: str) -> np.ndarray:
     return img
 
 
-def fit_to_size(img: np.ndarray, width: int, height: int, rng: np.random.Generator,
-                upscale: bool = True) -> tuple[np.ndarray, dict]:
+def fit_to_size(
+    img: np.ndarray, width: int, height: int, rng: np.random.Generator, upscale: bool = True
+) -> tuple[np.ndarray, dict]:
     """Scale ``img`` to cover ``width x height`` and crop at a seeded position.
 
     Returns the fitted uint8 image and ``{"scale", "crop_xy"}`` for the manifest.
@@ -84,15 +88,16 @@ def fit_to_size(img: np.ndarray, width: int, height: int, rng: np.random.Generat
     h, w = img.shape[:2]
     scale = max(width / w, height / h)
     if scale > 1 and not upscale:
-        raise SynthesisError(f"image is {w}x{h}, smaller than the output {width}x{height} "
-                             f"(upscaling disabled)")
+        raise SynthesisError(
+            f"image is {w}x{h}, smaller than the output {width}x{height} (upscaling disabled)"
+        )
     sw, sh = max(width, round(w * scale)), max(height, round(h * scale))
     if (sw, sh) != (w, h):
         interp = cv2.INTER_CUBIC if scale > 1 else cv2.INTER_AREA
         img = cv2.resize(img, (sw, sh), interpolation=interp)
     x0 = int(rng.integers(0, sw - width + 1))
     y0 = int(rng.integers(0, sh - height + 1))
-    out = np.ascontiguousarray(img[y0:y0 + height, x0:x0 + width])
+    out = np.ascontiguousarray(img[y0 : y0 + height, x0 : x0 + width])
     return out, {"scale": float(scale), "crop_xy": [x0, y0]}
 
 
@@ -109,6 +114,13 @@ def camera_for_size(camera: Camera, width: int, height: int) -> Camera:
     # Pixel-centre convention: a point at x maps to (x + 0.5) * factor - 0.5, then the crop.
     ox = (W * factor - width) / 2
     oy = (H * factor - height) / 2
-    return replace(camera, resolution=(width, height),
-                   intrinsics=(fx * factor, fy * factor, (cx + 0.5) * factor - 0.5 - ox,
-                               (cy + 0.5) * factor - 0.5 - oy))
+    return replace(
+        camera,
+        resolution=(width, height),
+        intrinsics=(
+            fx * factor,
+            fy * factor,
+            (cx + 0.5) * factor - 0.5 - ox,
+            (cy + 0.5) * factor - 0.5 - oy,
+        ),
+    )

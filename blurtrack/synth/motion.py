@@ -52,8 +52,9 @@ class GyroSource:
     own_imu = False
     spec = ""
 
-    def segment(self, rng: np.random.Generator, span_s: float, margin_s: float,
-                timeshift_s: float = 0.0) -> Segment:
+    def segment(
+        self, rng: np.random.Generator, span_s: float, margin_s: float, timeshift_s: float = 0.0
+    ) -> Segment:
         raise NotImplementedError
 
     @property
@@ -65,36 +66,44 @@ class GyroSource:
 class TraceSource(GyroSource):
     """Segments of one recorded trace (a session's IMU or a shake file)."""
 
-    def __init__(self, trace: GyroTrace, kind: str, spec: str, own_imu: bool,
-                 t0_ns: int = 0) -> None:
+    def __init__(
+        self, trace: GyroTrace, kind: str, spec: str, own_imu: bool, t0_ns: int = 0
+    ) -> None:
         self.trace = trace
         self.kind = kind
         self.spec = spec
         self.own_imu = own_imu
         self.t0_ns = t0_ns
 
-    def segment(self, rng: np.random.Generator, span_s: float, margin_s: float,
-                timeshift_s: float = 0.0) -> Segment:
+    def segment(
+        self, rng: np.random.Generator, span_s: float, margin_s: float, timeshift_s: float = 0.0
+    ) -> Segment:
         """A frame start ``t`` (camera clock) whose IMU window ``[t + shift - margin,
         t + shift + span + margin]`` the trace covers without gaps."""
         shift = timeshift_s if self.own_imu else 0.0
         lo = self.trace.t_s[0] + margin_s - shift
         hi = self.trace.t_s[-1] - margin_s - span_s - shift
         if hi <= lo:
-            raise SynthesisError(f"gyro source {self.spec} is shorter than one segment "
-                                 f"({span_s + 2 * margin_s:.3f} s)")
+            raise SynthesisError(
+                f"gyro source {self.spec} is shorter than one segment "
+                f"({span_s + 2 * margin_s:.3f} s)"
+            )
         for _ in range(MAX_DRAWS):
             t = float(rng.uniform(lo, hi))
             a, b = t + shift - margin_s, t + shift + span_s + margin_s
             if self.trace.covers(a, b):
                 seg = self.trace.segment(a, b)
-                info = {"source": self.kind, "spec": self.spec,
-                        "frame_t_ns": round(t * 1e9) + self.t0_ns,
-                        "imu_window_ns": [round(a * 1e9) + self.t0_ns,
-                                          round(b * 1e9) + self.t0_ns]}
+                info = {
+                    "source": self.kind,
+                    "spec": self.spec,
+                    "frame_t_ns": round(t * 1e9) + self.t0_ns,
+                    "imu_window_ns": [round(a * 1e9) + self.t0_ns, round(b * 1e9) + self.t0_ns],
+                }
                 return Segment(seg, t, info)
-        raise SynthesisError(f"gyro source {self.spec}: no gap-free segment of "
-                             f"{span_s + 2 * margin_s:.3f} s found in {MAX_DRAWS} draws")
+        raise SynthesisError(
+            f"gyro source {self.spec}: no gap-free segment of "
+            f"{span_s + 2 * margin_s:.3f} s found in {MAX_DRAWS} draws"
+        )
 
 
 class SyntheticSource(GyroSource):
@@ -109,19 +118,27 @@ class SyntheticSource(GyroSource):
         self.n_tones = int(n_tones)
         self.spec = f"synthetic:{self.rms_radps:g}"
 
-    def segment(self, rng: np.random.Generator, span_s: float, margin_s: float,
-                timeshift_s: float = 0.0) -> Segment:
+    def segment(
+        self, rng: np.random.Generator, span_s: float, margin_s: float, timeshift_s: float = 0.0
+    ) -> Segment:
         t = np.arange(0.0, span_s + 2 * margin_s + 2 / SYNTH_RATE_HZ, 1 / SYNTH_RATE_HZ)
         freq = rng.uniform(1.0, 12.0, (3, self.n_tones))
         phase = rng.uniform(0, 2 * np.pi, (3, self.n_tones))
         amp = rng.rayleigh(1.0, (3, self.n_tones))
         # Sum of tones with random phases: RMS = sqrt(sum amp^2 / 2) per axis.
-        amp *= (self.rms_radps / np.sqrt(np.sum(amp**2, axis=1, keepdims=True) / 2))
+        amp *= self.rms_radps / np.sqrt(np.sum(amp**2, axis=1, keepdims=True) / 2)
         amp[2] *= 0.5
-        w = np.einsum("ak,akt->ta", amp,
-                      np.sin(2 * np.pi * freq[:, :, None] * t[None, None, :] + phase[:, :, None]))
-        info = {"source": self.kind, "spec": self.spec,
-                "tones_hz": np.round(freq, 4).tolist(), "frame_t_ns": round(margin_s * 1e9)}
+        w = np.einsum(
+            "ak,akt->ta",
+            amp,
+            np.sin(2 * np.pi * freq[:, :, None] * t[None, None, :] + phase[:, :, None]),
+        )
+        info = {
+            "source": self.kind,
+            "spec": self.spec,
+            "tones_hz": np.round(freq, 4).tolist(),
+            "frame_t_ns": round(margin_s * 1e9),
+        }
         return Segment(GyroTrace(t, w), margin_s, info)
 
 
@@ -132,8 +149,9 @@ def open_source(spec: str) -> GyroSource:
         try:
             rms = float(spec.split(":", 1)[1]) if ":" in spec else 0.7
         except ValueError:
-            raise SynthesisError(f"bad synthetic gyro spec {spec!r} (synthetic:RMS_RADPS)") \
-                from None
+            raise SynthesisError(
+                f"bad synthetic gyro spec {spec!r} (synthetic:RMS_RADPS)"
+            ) from None
         return SyntheticSource(rms)
     p = Path(spec)
     try:
@@ -143,13 +161,20 @@ def open_source(spec: str) -> GyroSource:
             s = load_session(p)
             if s.imu_t_ns.size < 2:
                 raise SynthesisError(f"session {p} has no gyro samples")
-            return TraceSource(GyroTrace(s.imu_times_s - s.imu_times_s[0], s.omega_radps),
-                               "session", str(p), own_imu=True, t0_ns=int(s.imu_t_ns[0]))
+            return TraceSource(
+                GyroTrace(s.imu_times_s - s.imu_times_s[0], s.omega_radps),
+                "session",
+                str(p),
+                own_imu=True,
+                t0_ns=int(s.imu_t_ns[0]),
+            )
         if p.is_dir():
             files = sorted(f for f in p.iterdir() if f.suffix == ".txt" and f.is_file())
             if len(files) != 1:
-                raise SynthesisError(f"gyro folder {p} must be a session or hold exactly one "
-                                     f".txt shake file, found {len(files)}")
+                raise SynthesisError(
+                    f"gyro folder {p} must be a session or hold exactly one "
+                    f".txt shake file, found {len(files)}"
+                )
             p = files[0]
         return TraceSource(read_shake_trace(p), "shake", str(p), own_imu=False)
     except SynthesisError:

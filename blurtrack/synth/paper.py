@@ -47,9 +47,15 @@ def paper_window(calib: Calibration, frame_t_s: float) -> float:
     return float(cam.row_start_s(frame_t_s, (cam.height - 1) / 2))
 
 
-def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
-                 frame_t_s: float, exposure_s: float, t_ref_s: float | None = None,
-                 settings: RenderSettings | None = None) -> RenderResult:
+def render_paper(
+    sharp_srgb: np.ndarray,
+    calib: Calibration,
+    trace: GyroTrace,
+    frame_t_s: float,
+    exposure_s: float,
+    t_ref_s: float | None = None,
+    settings: RenderSettings | None = None,
+) -> RenderResult:
     """Paper-style blur of ``sharp_srgb`` (float32 sRGB values, ``(H, W[, C])``).
 
     ``t_ref`` defaults to the middle of the centre row's exposure (as the exact renderer).
@@ -59,8 +65,9 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
     W, H = cam.resolution
     img = np.asarray(sharp_srgb)
     if img.dtype != np.float32 or img.shape[:2] != (H, W):
-        raise SynthesisError(f"sharp image must be float32 {H}x{W}[xC], got {img.dtype} "
-                             f"{img.shape}")
+        raise SynthesisError(
+            f"sharp image must be float32 {H}x{W}[xC], got {img.dtype} {img.shape}"
+        )
     model = paper_model(calib, trace)
     t0 = paper_window(calib, frame_t_s)
     t1 = t0 + exposure_s
@@ -74,8 +81,9 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
     step = np.max(np.linalg.norm(np.diff(pos, axis=1), axis=-1), axis=0)
     n_j = np.maximum(1, np.ceil(step - 1e-9)).astype(int)
     if int(n_j.sum()) > st.max_samples:
-        raise SynthesisError(f"paper mode would need {int(n_j.sum())} sub-steps "
-                             f"(limit {st.max_samples})")
+        raise SynthesisError(
+            f"paper mode would need {int(n_j.sum())} sub-steps (limit {st.max_samples})"
+        )
     border = BORDERS[st.border]
     work = four_channels(img)
     acc = np.zeros(work.shape, np.float32)
@@ -90,10 +98,17 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
         src = model.warp(np.tile(corners, (n, 1)), np.repeat(ts, 4), np.full(4 * n, t_ref))
         part[...] = 0
         for k in range(n):
-            Hk = cv2.getPerspectiveTransform(corners.astype(np.float32),
-                                             src[4 * k:4 * k + 4].astype(np.float32))
-            cv2.warpPerspective(work, Hk, (W, H), dst=warped,
-                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border)
+            Hk = cv2.getPerspectiveTransform(
+                corners.astype(np.float32), src[4 * k : 4 * k + 4].astype(np.float32)
+            )
+            cv2.warpPerspective(
+                work,
+                Hk,
+                (W, H),
+                dst=warped,
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=border,
+            )
             cv2.accumulate(warped, part)
         cv2.scaleAdd(part, float((tb - ta) / (n * exposure_s)), acc, dst=acc)
     if work is not img:
@@ -103,5 +118,6 @@ def render_paper(sharp_srgb: np.ndarray, calib: Calibration, trace: GyroTrace,
     mx, my = source_positions(model, t0, exposure_s, t_ref, grid.u, grid.v, tau)
     margin = np.minimum(np.minimum(mx, W - 1.0 - mx), np.minimum(my, H - 1.0 - my)).min(axis=0)
     valid = np.ascontiguousarray(grid.upsample(margin) >= 0)
-    return RenderResult(acc, valid, tau, float(np.max(step / n_j)), "paper",
-                        np.concatenate(weights))
+    return RenderResult(
+        acc, valid, tau, float(np.max(step / n_j)), "paper", np.concatenate(weights)
+    )

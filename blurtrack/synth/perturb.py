@@ -19,8 +19,14 @@ from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
 
 #: Keys accepted by :meth:`Perturbation.parse` and their units.
-KEYS = {"timeshift_ms": "ms", "gyro_noise": "rad/s per sample", "gyro_bias": "rad/s per axis",
-        "focal_rel": "relative", "principal_px": "px", "readout_rel": "relative"}
+KEYS = {
+    "timeshift_ms": "ms",
+    "gyro_noise": "rad/s per sample",
+    "gyro_bias": "rad/s per axis",
+    "focal_rel": "relative",
+    "principal_px": "px",
+    "readout_rel": "relative",
+}
 
 
 @dataclass(frozen=True)
@@ -67,16 +73,18 @@ class Perturbation:
             key, sep, val = part.partition("=")
             key = key.strip()
             if not sep or key not in KEYS:
-                raise SynthesisError(f"bad perturbation item {part!r}; use KEY=SIGMA with KEY "
-                                     f"in {', '.join(KEYS)}")
+                raise SynthesisError(
+                    f"bad perturbation item {part!r}; use KEY=SIGMA with KEY in {', '.join(KEYS)}"
+                )
             try:
                 values[key] = float(val)
             except ValueError:
                 raise SynthesisError(f"perturbation {key}: {val!r} is not a number") from None
         return cls(**values)
 
-    def apply(self, calib: Calibration, trace: GyroTrace,
-              rng: np.random.Generator) -> tuple[Calibration, GyroTrace, dict[str, Any]]:
+    def apply(
+        self, calib: Calibration, trace: GyroTrace, rng: np.random.Generator
+    ) -> tuple[Calibration, GyroTrace, dict[str, Any]]:
         """A perturbed copy of ``calib`` and ``trace`` and the errors drawn."""
         dt = float(rng.normal(0.0, self.timeshift_ms * 1e-3)) if self.timeshift_ms else 0.0
         bias = rng.normal(0.0, self.gyro_bias, 3) if self.gyro_bias else np.zeros(3)
@@ -85,15 +93,26 @@ class Perturbation:
         rscale = 1.0 + (float(rng.normal(0.0, self.readout_rel)) if self.readout_rel else 0.0)
         cam = calib.camera
         fx, fy, cx, cy = cam.intrinsics
-        cam_p = replace(cam, intrinsics=(fx * fscale, fy * fscale, cx + dpp[0], cy + dpp[1]),
-                        readout_s=min(cam.readout_s * max(rscale, 0.0), 0.999))
+        cam_p = replace(
+            cam,
+            intrinsics=(fx * fscale, fy * fscale, cx + dpp[0], cy + dpp[1]),
+            readout_s=min(cam.readout_s * max(rscale, 0.0), 0.999),
+        )
         # A model that believes the bias is b - e sees ω_meas - b + e: the true rate plus e.
-        calib_p = replace(calib, camera=cam_p,
-                          timeshift_cam_imu_s=calib.timeshift_cam_imu_s + dt,
-                          gyro_bias_radps=calib.gyro_bias_radps - bias)
+        calib_p = replace(
+            calib,
+            camera=cam_p,
+            timeshift_cam_imu_s=calib.timeshift_cam_imu_s + dt,
+            gyro_bias_radps=calib.gyro_bias_radps - bias,
+        )
         omega = trace.omega_radps
         if self.gyro_noise:
             omega = omega + rng.normal(0.0, self.gyro_noise, omega.shape)
-        drawn = {"timeshift_s": dt, "gyro_bias_radps": bias.tolist(), "focal_scale": fscale,
-                 "principal_px": dpp.tolist(), "readout_scale": rscale}
+        drawn = {
+            "timeshift_s": dt,
+            "gyro_bias_radps": bias.tolist(),
+            "focal_scale": fscale,
+            "principal_px": dpp.tolist(),
+            "readout_scale": rscale,
+        }
         return calib_p, GyroTrace(trace.t_s, omega, trace.max_gap_s), drawn

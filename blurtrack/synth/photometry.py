@@ -53,8 +53,9 @@ def linear_to_srgb(y: np.ndarray) -> np.ndarray:
 
 
 _DECODE_LUT = srgb_to_linear(np.arange(256) / 255.0).astype(np.float32)
-_ENCODE_LUT = np.clip(np.round(255.0 * linear_to_srgb(
-    np.arange(2**_ENC_BITS) / (2**_ENC_BITS - 1))), 0, 255).astype(np.uint8)
+_ENCODE_LUT = np.clip(
+    np.round(255.0 * linear_to_srgb(np.arange(2**_ENC_BITS) / (2**_ENC_BITS - 1))), 0, 255
+).astype(np.uint8)
 
 
 def decode_srgb8(img: np.ndarray) -> np.ndarray:
@@ -116,8 +117,10 @@ class Photometry:
         object.__setattr__(self, "jpeg_quality", q)
         object.__setattr__(self, "linear", bool(self.linear))
         if not self.linear and (self.noise_shot or self.noise_read or self.saturation_gain > 1):
-            raise SynthesisError("noise and saturation re-expansion act on linear light; they "
-                                 "cannot be combined with sRGB averaging")
+            raise SynthesisError(
+                "noise and saturation re-expansion act on linear light; they "
+                "cannot be combined with sRGB averaging"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -165,8 +168,9 @@ def finish_blur(blur: np.ndarray, ph: Photometry, rng: np.random.Generator) -> n
     """
     if ph.linear:
         noisy = ph.noise_shot > 0 or ph.noise_read > 0
-        img8 = encode_srgb8(add_noise(blur, ph.noise_shot, ph.noise_read, rng) if noisy
-                            else blur)  # encode_srgb8 clips
+        img8 = encode_srgb8(
+            add_noise(blur, ph.noise_shot, ph.noise_read, rng) if noisy else blur
+        )  # encode_srgb8 clips
     else:
         img8 = np.clip(np.round(blur * 255.0), 0, 255).astype(np.uint8)
     return jpeg_roundtrip(img8, ph.jpeg_quality)

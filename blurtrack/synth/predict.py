@@ -45,8 +45,10 @@ def session_calibration(session: Session, calib: Calibration) -> Calibration:
         return calib
     factor = want[0] / have[0]
     if abs(have[1] * factor - want[1]) > 0.5:
-        raise SynthesisError(f"calibration is for {have[0]}x{have[1]} but the session's frames "
-                             f"are {want[0]}x{want[1]} (another aspect ratio)")
+        raise SynthesisError(
+            f"calibration is for {have[0]}x{have[1]} but the session's frames "
+            f"are {want[0]}x{want[1]} (another aspect ratio)"
+        )
     return replace(calib, camera=calib.camera.scaled(factor))
 
 
@@ -55,8 +57,9 @@ def uncovered_frames(session: Session, model: BlurModel) -> list[int]:
     shift = model.calib.timeshift_cam_imu_s
     readout = model.camera.readout_s
     bad = []
-    for ts, t, e in zip(session.frames["timestamp_ns"], session.frame_times_s,
-                        session.exposures_s, strict=True):
+    for ts, t, e in zip(
+        session.frames["timestamp_ns"], session.frame_times_s, session.exposures_s, strict=True
+    ):
         if not model.gyro.covers(t + shift, t + readout + e + shift):
             bad.append(int(ts))
     return bad
@@ -70,10 +73,16 @@ def _save_npy(path: Path, arr: np.ndarray) -> None:
     os.replace(tmp, path)
 
 
-def predict_session(session: Session, calib: Calibration, out: str | Path, stride: int = 8,
-                    n_t: int = 16, grid: tuple[int, int] = (16, 9),
-                    skip_uncovered: bool = False,
-                    progress: Callable[[int, int], None] | None = None) -> PredictResult:
+def predict_session(
+    session: Session,
+    calib: Calibration,
+    out: str | Path,
+    stride: int = 8,
+    n_t: int = 16,
+    grid: tuple[int, int] = (16, 9),
+    skip_uncovered: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> PredictResult:
     """Write heat maps and trajectories of every frame of ``session`` under ``out``."""
     if session.imu_t_ns.size < 2:
         raise CoverageError(f"session {session.folder} has no gyro samples")
@@ -84,8 +93,10 @@ def predict_session(session: Session, calib: Calibration, out: str | Path, strid
     bad = uncovered_frames(session, model)
     if bad and not skip_uncovered:
         shown = ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else "")
-        raise CoverageError(f"the gyro does not cover {len(bad)} of {len(frames)} frames "
-                            f"(timestamps ns: {shown}); --skip-uncovered predicts the others")
+        raise CoverageError(
+            f"the gyro does not cover {len(bad)} of {len(frames)} frames "
+            f"(timestamps ns: {shown}); --skip-uncovered predicts the others"
+        )
     root = Path(out)
     (root / "heat").mkdir(parents=True, exist_ok=True)
     W, H = model.camera.resolution
@@ -104,26 +115,41 @@ def predict_session(session: Session, calib: Calibration, out: str | Path, strid
         T = tau.size
         xx = np.broadcast_to(gu[None, None, :], mx.shape)
         yy = np.broadcast_to(gv[None, :, None], mx.shape)
-        rows.append(pd.DataFrame({
-            "timestamp_ns": np.full(mx.size, ts, np.int64),
-            "x": np.moveaxis(xx, 0, -1).reshape(-1), "y": np.moveaxis(yy, 0, -1).reshape(-1),
-            "tau": np.tile(tau, mx.size // T),
-            "qx": np.moveaxis(mx - xx, 0, -1).reshape(-1),
-            "qy": np.moveaxis(my - yy, 0, -1).reshape(-1)}))
+        rows.append(
+            pd.DataFrame(
+                {
+                    "timestamp_ns": np.full(mx.size, ts, np.int64),
+                    "x": np.moveaxis(xx, 0, -1).reshape(-1),
+                    "y": np.moveaxis(yy, 0, -1).reshape(-1),
+                    "tau": np.tile(tau, mx.size // T),
+                    "qx": np.moveaxis(mx - xx, 0, -1).reshape(-1),
+                    "qy": np.moveaxis(my - yy, 0, -1).reshape(-1),
+                }
+            )
+        )
         fit_ok += int(np.sum(err <= 0.5))
         fit_n += err.size
         lengths.append(float(np.median(np.hypot(heat[2] - heat[0], heat[3] - heat[1]))))
         written.append(ts)
         if progress:
             progress(k + 1, len(todo))
-    table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(
-        columns=["timestamp_ns", "x", "y", "tau", "qx", "qy"])
+    table = (
+        pd.concat(rows, ignore_index=True)
+        if rows
+        else pd.DataFrame(columns=["timestamp_ns", "x", "y", "tau", "qx", "qy"])
+    )
     tmp = root / ".trajectories.parquet.tmp"
     table.to_parquet(tmp, index=False)
     os.replace(tmp, root / "trajectories.parquet")
-    stats = {"frames": len(frames), "predicted": len(written), "skipped": len(bad),
-             "resolution": [W, H], "heat_stride": stride, "trajectory_samples": n_t,
-             "bezier_fit_within_0.5px": fit_ok / fit_n if fit_n else math.nan,
-             "median_blur_length_px": float(np.median(lengths)) if lengths else math.nan,
-             "reference_time": "mid-exposure of the centre row"}
+    stats = {
+        "frames": len(frames),
+        "predicted": len(written),
+        "skipped": len(bad),
+        "resolution": [W, H],
+        "heat_stride": stride,
+        "trajectory_samples": n_t,
+        "bezier_fit_within_0.5px": fit_ok / fit_n if fit_n else math.nan,
+        "median_blur_length_px": float(np.median(lengths)) if lengths else math.nan,
+        "reference_time": "mid-exposure of the centre row",
+    }
     return PredictResult(written, bad, stats)

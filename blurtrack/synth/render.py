@@ -102,8 +102,15 @@ class RenderResult:
     weights: np.ndarray | None = None
 
 
-def source_positions(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
-                     u: np.ndarray, v: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, ...]:
+def source_positions(
+    model: BlurModel,
+    frame_t_s: float,
+    exposure_s: float,
+    t_ref_s: float,
+    u: np.ndarray,
+    v: np.ndarray,
+    tau: np.ndarray,
+) -> tuple[np.ndarray, ...]:
     """``x + q_x(τ)`` for the node grid ``u (gw,) × v (gh,)``: ``(mapx, mapy)`` each
     ``(T, gh, gw)`` in pixels of the sharp reference image (camera clock, seconds)."""
     cam = model.camera
@@ -134,8 +141,9 @@ class SamplePlan:
     reach_px: float
 
 
-def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float,
-                 settings: RenderSettings) -> SamplePlan:
+def plan_samples(
+    model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s: float, settings: RenderSettings
+) -> SamplePlan:
     """Samples of the blur integral such that consecutive ones move at most ``max_step_px``.
 
     The peak (over a planning grid) per-interval motion, accumulated over τ, is a "motion
@@ -157,8 +165,10 @@ def plan_samples(model: BlurModel, frame_t_s: float, exposure_s: float, t_ref_s:
     total = float(clock[-1])
     n = max(2, math.ceil(total / settings.max_step_px - 1e-9))
     if n > settings.max_samples:
-        raise SynthesisError(f"blur moves up to {total:.0f} px per exposure and would need {n} "
-                             f"samples (limit {settings.max_samples})")
+        raise SynthesisError(
+            f"blur moves up to {total:.0f} px per exposure and would need {n} "
+            f"samples (limit {settings.max_samples})"
+        )
     if total < 1e-9:  # no motion: any cells will do
         edges = np.linspace(0.0, 1.0, n + 1)
         return SamplePlan((edges[:-1] + edges[1:]) / 2, np.diff(edges), 0.0, reach)
@@ -206,8 +216,9 @@ class NodeGrid:
         """Node values ``(gh, gw[, C])`` float32 to every pixel ``(H, W[, C])`` (a view)."""
         return self.upsample_rows(nodes, 0, self.height)
 
-    def upsample_rows(self, nodes: np.ndarray, y0: int, rows: int,
-                      canvas: np.ndarray | None = None) -> np.ndarray:
+    def upsample_rows(
+        self, nodes: np.ndarray, y0: int, rows: int, canvas: np.ndarray | None = None
+    ) -> np.ndarray:
         """Rows ``y0 .. y0 + rows - 1`` of :meth:`upsample` (a view; ``canvas`` is an optional
         reusable contiguous float32 buffer of at least ``(rows + 3s)·gw·s·C`` values).
 
@@ -224,9 +235,9 @@ class NodeGrid:
         dst = None
         if canvas is not None:
             shape = (size[1], size[0], *part.shape[2:])
-            dst = canvas.reshape(-1)[:math.prod(shape)].reshape(shape)
+            dst = canvas.reshape(-1)[: math.prod(shape)].reshape(shape)
         up = cv2.resize(part, size, dst=dst, interpolation=cv2.INTER_LINEAR)
-        return up[c0 - ja * s:c1 + 1 - ja * s, p:p + self.width]
+        return up[c0 - ja * s : c1 + 1 - ja * s, p : p + self.width]
 
 
 def four_channels(img: np.ndarray) -> np.ndarray:
@@ -243,9 +254,14 @@ def four_channels(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_s: float,
-                t_ref_s: float | None = None,
-                settings: RenderSettings | None = None) -> RenderResult:
+def render_blur(
+    sharp: np.ndarray,
+    model: BlurModel,
+    frame_t_s: float,
+    exposure_s: float,
+    t_ref_s: float | None = None,
+    settings: RenderSettings | None = None,
+) -> RenderResult:
     """Blur ``sharp`` (float32 ``(H, W)`` or ``(H, W, C)``, C <= 4, the scene at ``t_ref``; linear
     light for physically right averaging) over the frame exposed from ``frame_t_s`` (top row,
     camera clock) for ``exposure_s``. ``t_ref`` defaults to the model's mid-exposure time."""
@@ -254,10 +270,13 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
     W, H = cam.resolution
     img = np.asarray(sharp)
     if img.dtype != np.float32 or img.shape[:2] != (H, W) or img.ndim not in (2, 3):
-        raise SynthesisError(f"sharp image must be float32 {H}x{W}[xC] to match the camera, "
-                             f"got {img.dtype} {img.shape}")
-    t_ref = model.default_reference_time(frame_t_s, exposure_s) if t_ref_s is None \
-        else float(t_ref_s)
+        raise SynthesisError(
+            f"sharp image must be float32 {H}x{W}[xC] to match the camera, "
+            f"got {img.dtype} {img.shape}"
+        )
+    t_ref = (
+        model.default_reference_time(frame_t_s, exposure_s) if t_ref_s is None else float(t_ref_s)
+    )
     plan = plan_samples(model, frame_t_s, exposure_s, t_ref, st)
     tau, wts = plan.tau, plan.weights.astype(np.float32)
     n = tau.size
@@ -271,31 +290,38 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
     band = grid.spacing * max(1, _BAND_PIXELS // (W * grid.spacing))
     bands = [(y0, min(band, H - y0)) for y0 in range(0, H, band)]
     warped = np.empty((band, *work.shape[1:]), np.float32)  # reused output of every warp
-    canvas = np.empty((band + 3 * grid.spacing) * grid.u.size * grid.spacing * 2,
-                      np.float32)  # reused per-pixel coordinate map of a band
+    canvas = np.empty(
+        (band + 3 * grid.spacing) * grid.u.size * grid.spacing * 2, np.float32
+    )  # reused per-pixel coordinate map of a band
     if homography:
         R = model.rotations(frame_t_s + exposure_s * tau, np.full(n, t_ref))
         K = cam.K
         Hs = K @ np.transpose(R, (0, 2, 1)) @ np.linalg.inv(K)
     for k0 in range(0, n, _TAU_CHUNK):
-        mx, my = source_positions(model, frame_t_s, exposure_s, t_ref, grid.u, grid.v,
-                                  tau[k0:k0 + _TAU_CHUNK])
+        mx, my = source_positions(
+            model, frame_t_s, exposure_s, t_ref, grid.u, grid.v, tau[k0 : k0 + _TAU_CHUNK]
+        )
         inside = np.minimum(np.minimum(mx, W - 1.0 - mx), np.minimum(my, H - 1.0 - my))
         margin = np.minimum(margin, inside.min(axis=0))
         # Absolute coordinates: the identity is linear, so bilinear upsampling keeps it exact.
         maps = None if homography else np.stack([mx, my], axis=-1).astype(np.float32)
-        chunk = wts[k0:k0 + _TAU_CHUNK]
+        chunk = wts[k0 : k0 + _TAU_CHUNK]
         # Band by band, every sample: the band's accumulator, warp output and map stay in the
         # CPU cache (about 1.4x faster than whole frames, which are memory-bound).
         for y0, rows in bands:
             out = warped[:rows]
-            dst = acc[y0:y0 + rows]
+            dst = acc[y0 : y0 + rows]
             shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
             for k, wk in enumerate(chunk):
                 if homography:
-                    cv2.warpPerspective(work, Hs[k0 + k] @ shift, (W, rows), dst=out,
-                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                        borderMode=border)
+                    cv2.warpPerspective(
+                        work,
+                        Hs[k0 + k] @ shift,
+                        (W, rows),
+                        dst=out,
+                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                        borderMode=border,
+                    )
                 else:
                     m = grid.upsample_rows(maps[k], y0, rows, canvas)
                     cv2.remap(work, m, None, cv2.INTER_LINEAR, dst=out, borderMode=border)
@@ -303,5 +329,11 @@ def render_blur(sharp: np.ndarray, model: BlurModel, frame_t_s: float, exposure_
     if work is not img:
         acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
     valid = grid.upsample(margin) >= 0
-    return RenderResult(acc, np.ascontiguousarray(valid), tau, plan.step_px,
-                        "homography" if homography else "remap", plan.weights)
+    return RenderResult(
+        acc,
+        np.ascontiguousarray(valid),
+        tau,
+        plan.step_px,
+        "homography" if homography else "remap",
+        plan.weights,
+    )

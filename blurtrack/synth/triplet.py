@@ -56,21 +56,27 @@ class TripletParams:
         if len(size) != 2 or not (16 <= size[0] <= 8192 and 16 <= size[1] <= 8192):
             raise SynthesisError(f"size must be WxH with sides in [16, 8192], got {self.size}")
         exp = tuple(float(v) for v in self.exposure_ms)
-        if len(exp) != 2 or not (all(math.isfinite(v) for v in exp) and 0 < exp[0] <= exp[1]
-                                 <= 1000):
-            raise SynthesisError(f"exposure_ms must be a range 0 < lo <= hi <= 1000, got "
-                                 f"{self.exposure_ms}")
+        if len(exp) != 2 or not (
+            all(math.isfinite(v) for v in exp) and 0 < exp[0] <= exp[1] <= 1000
+        ):
+            raise SynthesisError(
+                f"exposure_ms must be a range 0 < lo <= hi <= 1000, got {self.exposure_ms}"
+            )
         if self.mode not in MODES:
             raise SynthesisError(f"mode must be one of {MODES}, got {self.mode!r}")
         ph_ = self.photometry
-        if self.mode == "paper" and (ph_.noise_shot or ph_.noise_read or ph_.jpeg_quality
-                                     or ph_.saturation_gain > 1):
-            raise SynthesisError("paper mode reproduces the source paper's synthesis: no noise, "
-                                 "saturation or JPEG options")
+        if self.mode == "paper" and (
+            ph_.noise_shot or ph_.noise_read or ph_.jpeg_quality or ph_.saturation_gain > 1
+        ):
+            raise SynthesisError(
+                "paper mode reproduces the source paper's synthesis: no noise, "
+                "saturation or JPEG options"
+            )
         if not 1 <= int(self.heat_stride) <= 64 or not 3 <= int(self.heat_n_t) <= 256:
             raise SynthesisError("heat_stride must be in [1, 64] and heat_n_t in [3, 256]")
-        if self.readout_ms is not None and not (math.isfinite(self.readout_ms)
-                                                and 0 <= self.readout_ms < 1000):
+        if self.readout_ms is not None and not (
+            math.isfinite(self.readout_ms) and 0 <= self.readout_ms < 1000
+        ):
             raise SynthesisError(f"readout_ms must be in [0, 1000), got {self.readout_ms}")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "exposure_ms", exp)
@@ -109,8 +115,13 @@ def triplet_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
 
 
-def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
-                 params: TripletParams, rng: np.random.Generator) -> Triplet:
+def make_triplet(
+    image: np.ndarray,
+    calib: Calibration,
+    source: GyroSource,
+    params: TripletParams,
+    rng: np.random.Generator,
+) -> Triplet:
     """Synthesise one triplet from an 8-bit BGR photograph (any size)."""
     W, H = params.size
     cam = camera_for_size(calib.camera, W, H)
@@ -122,16 +133,18 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
     perturb_rng = np.random.default_rng(int(rng.integers(2**63)))
     exposure = float(rng.uniform(*params.exposure_ms)) * 1e-3
     margin = max(SEGMENT_MARGIN_S, params.perturbation.margin_s + 0.01)
-    seg = source.segment(rng, cam.readout_s + exposure, margin,
-                         calib_out.timeshift_cam_imu_s)
+    seg = source.segment(rng, cam.readout_s + exposure, margin, calib_out.timeshift_cam_imu_s)
     sharp8, fit = fit_to_size(image, W, H, rng, params.upscale)
     p = params.photometry
     gain = float(rng.uniform(1.0, p.saturation_gain)) if p.saturation_gain > 1 else 1.0
     if params.mode == "exact":
         model = BlurModel(calib_out, seg.trace)
         t_ref = model.default_reference_time(seg.frame_t_s, exposure)
-        lin = ph.expand_saturation(ph.decode_srgb8(sharp8), p.saturation_threshold, gain) \
-            if p.linear else sharp8.astype(np.float32) / 255
+        lin = (
+            ph.expand_saturation(ph.decode_srgb8(sharp8), p.saturation_threshold, gain)
+            if p.linear
+            else sharp8.astype(np.float32) / 255
+        )
         res = render_blur(lin, model, seg.frame_t_s, exposure, t_ref, params.render)
         if gain > 1:
             sharp8 = ph.encode_srgb8(lin)
@@ -140,28 +153,46 @@ def make_triplet(image: np.ndarray, calib: Calibration, source: GyroSource,
         model = paper_model(calib_out, seg.trace)
         heat_frame_t = paper_window(calib_out, seg.frame_t_s)
         t_ref = heat_frame_t + exposure / 2
-        res = render_paper(sharp8.astype(np.float32) / 255, calib_out, seg.trace,
-                           seg.frame_t_s, exposure, t_ref, params.render)
+        res = render_paper(
+            sharp8.astype(np.float32) / 255,
+            calib_out,
+            seg.trace,
+            seg.frame_t_s,
+            exposure,
+            t_ref,
+            params.render,
+        )
         heat_calib = model.calib
     drawn: dict[str, Any] = {}
     heat_model = model  # the blur's own model (its resampled gyro is reused) unless perturbed
     if params.perturbation.active:
-        heat_calib, heat_trace, drawn = params.perturbation.apply(heat_calib, seg.trace,
-                                                                        perturb_rng)
+        heat_calib, heat_trace, drawn = params.perturbation.apply(
+            heat_calib, seg.trace, perturb_rng
+        )
         heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
-    heat, err = heat_model.heat_maps(heat_frame_t, exposure, params.heat_n_t, t_ref,
-                                     params.heat_stride)
+    heat, err = heat_model.heat_maps(
+        heat_frame_t, exposure, params.heat_n_t, t_ref, params.heat_stride
+    )
     finish = p if params.mode == "exact" else ph.Photometry(linear=False)
     blur8 = ph.finish_blur(res.blur, finish, rng)
     length = np.hypot(heat[2] - heat[0], heat[3] - heat[1])
     info = {
-        "exposure_s": exposure, "readout_s": cam.readout_s, "t_ref_s": t_ref,
-        "intrinsics": list(cam.intrinsics), "gyro_segment": seg.info, "fit": fit,
-        "saturation_gain": gain, "perturbation": drawn, "samples": int(res.tau.size),
-        "max_step_px": res.max_step_px, "render_path": res.path,
+        "exposure_s": exposure,
+        "readout_s": cam.readout_s,
+        "t_ref_s": t_ref,
+        "intrinsics": list(cam.intrinsics),
+        "gyro_segment": seg.info,
+        "fit": fit,
+        "saturation_gain": gain,
+        "perturbation": drawn,
+        "samples": int(res.tau.size),
+        "max_step_px": res.max_step_px,
+        "render_path": res.path,
         "valid_fraction": float(res.valid.mean()),
         "blur_length_px": {"median": float(np.median(length)), "max": float(length.max())},
-        "bezier_fit": {"within_0.5px": float(np.mean(err <= FIT_TOL_PX)),
-                       "max_px": float(err.max())},
+        "bezier_fit": {
+            "within_0.5px": float(np.mean(err <= FIT_TOL_PX)),
+            "max_px": float(err.max()),
+        },
     }
     return Triplet(sharp8, blur8, heat, err, res.valid, info)

@@ -29,7 +29,8 @@ def shake(t_s: np.ndarray, seed: int, amplitude_radps: float) -> np.ndarray:
         for _ in range(3):
             f = rng.uniform(1.0, 6.0)
             out[:, axis] += rng.normal(0, amplitude_radps / 2) * np.sin(
-                2 * np.pi * f * t_s + rng.uniform(0, 2 * np.pi))
+                2 * np.pi * f * t_s + rng.uniform(0, 2 * np.pi)
+            )
     return out
 
 
@@ -58,8 +59,10 @@ def write_synthetic_session(
     meta = SessionMeta(camera=camera, imu=ImuConfig(rate_hz=1000.0))
     t_imu = np.arange(0.0, (n_frames + 2) / fps, 1e-3)
     omega = shake(t_imu, seed, amplitude_radps)
-    model = BlurModel(Calibration(camera=camera, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
-                      GyroTrace(t_imu, omega))
+    model = BlurModel(
+        Calibration(camera=camera, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
+        GyroTrace(t_imu, omega),
+    )
     gx, gy = grid
     xs = (np.arange(gx) + 0.5) * W / gx
     ys = (np.arange(gy) + 0.5) * H / gy
@@ -73,9 +76,13 @@ def write_synthetic_session(
         for k in range(n_frames):
             t0 = (k + 1) / fps
             times = np.linspace(t0, t0 + exposure_s, 600)
-            tracks = model.point_track(dots, np.full(len(dots), t_ref),
-                                       np.broadcast_to(times, (len(dots), times.size))
-                                       ) if len(dots) else np.zeros((0, times.size, 2))
+            tracks = (
+                model.point_track(
+                    dots, np.full(len(dots), t_ref), np.broadcast_to(times, (len(dots), times.size))
+                )
+                if len(dots)
+                else np.zeros((0, times.size, 2))
+            )
             flux = rng.uniform(1.5, 3.0, len(dots))
             img = render_streaks((H, W), list(tracks), flux, sigma_px, 0.03, noise, seed + k)
             ts = round(t0 * 1e9)
@@ -83,9 +90,15 @@ def write_synthetic_session(
             streaks = []
             for d, tr in enumerate(tracks):
                 inside = bool(np.all((tr >= 0) & (tr <= [W - 1, H - 1])))
-                streaks.append({"dot": d, "start": tr[0].tolist(), "end": tr[-1].tolist(),
-                                "centerline": [*tr[::20].tolist(), tr[-1].tolist()],
-                                "inside": inside})
+                streaks.append(
+                    {
+                        "dot": d,
+                        "start": tr[0].tolist(),
+                        "end": tr[-1].tolist(),
+                        "centerline": [*tr[::20].tolist(), tr[-1].tolist()],
+                        "inside": inside,
+                    }
+                )
             frames.append({"index": k, "timestamp_ns": ts, "streaks": streaks})
         truth = {"frames": frames}
         w.write_truth(truth)

@@ -43,5 +43,13 @@ def build_model(name: str, preset: str | None = None, **overrides: Any) -> Deblu
         raise GamdConfigError(f"{name}: bad constructor arguments {kwargs}: {exc}") from exc
 
 
-__all__ = ["NETWORKS", "DeblurNet", "Gamd", "GamdOnly", "MimoPro", "MimoUNet", "build_model",
-           "model_kwargs"]
+__all__ = [
+    "NETWORKS",
+    "DeblurNet",
+    "Gamd",
+    "GamdOnly",
+    "MimoPro",
+    "MimoUNet",
+    "build_model",
+    "model_kwargs",
+]

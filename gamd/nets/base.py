@@ -37,17 +37,23 @@ class DeblurNet(nn.Module):
         if self.uses_heat:
             if heat is None:
                 raise GamdDataError(f"{type(self).__name__} needs heat maps")
-            if heat.shape[0] != blur.shape[0] or heat.shape[1] != 6 \
-                    or heat.shape[-2:] != blur.shape[-2:]:
+            if (
+                heat.shape[0] != blur.shape[0]
+                or heat.shape[1] != 6
+                or heat.shape[-2:] != blur.shape[-2:]
+            ):
                 raise GamdDataError(
                     f"heat maps must be (B, 6, H, W) matching blur {tuple(blur.shape)}, "
-                    f"got {tuple(heat.shape)}")
+                    f"got {tuple(heat.shape)}"
+                )
         h, w = blur.shape[-2:]
         blur_p, _ = pad_to_multiple(blur, self.PAD_MULTIPLE)
         heat_p = pad_to_multiple(heat, self.PAD_MULTIPLE)[0] if self.uses_heat else None
         outs = self._forward(blur_p, heat_p)
-        return [o[..., : math.ceil(h / s), : math.ceil(w / s)]
-                for o, s in zip(outs, self.OUTPUT_SCALES, strict=True)]
+        return [
+            o[..., : math.ceil(h / s), : math.ceil(w / s)]
+            for o, s in zip(outs, self.OUTPUT_SCALES, strict=True)
+        ]
 
     def _forward(self, blur: torch.Tensor, heat: torch.Tensor | None) -> list[torch.Tensor]:
         raise NotImplementedError
@@ -57,14 +63,16 @@ class DeblurNet(nn.Module):
         """Constructor arguments of a named preset."""
         if preset not in cls.PRESETS:
             raise GamdConfigError(
-                f"{cls.__name__}: unknown preset {preset!r} (known: {sorted(cls.PRESETS)})")
+                f"{cls.__name__}: unknown preset {preset!r} (known: {sorted(cls.PRESETS)})"
+            )
         return dict(cls.PRESETS[preset])
 
 
 def check_width(name: str, base_channels: int, num_res: int, minimum: int = 4) -> None:
     """Validate the common width/depth arguments."""
     if not isinstance(base_channels, int) or base_channels < minimum:
-        raise GamdConfigError(f"{name}: base_channels must be an int >= {minimum}, "
-                              f"got {base_channels!r}")
+        raise GamdConfigError(
+            f"{name}: base_channels must be an int >= {minimum}, got {base_channels!r}"
+        )
     if not isinstance(num_res, int) or num_res < 0:
         raise GamdConfigError(f"{name}: num_res must be an int >= 0, got {num_res!r}")

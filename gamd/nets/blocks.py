@@ -14,10 +14,12 @@ from torch import nn
 class ConvAct(nn.Sequential):
     """``Conv2d`` ('same' padding, odd kernel) optionally followed by ReLU."""
 
-    def __init__(self, c_in: int, c_out: int, kernel: int = 3, stride: int = 1,
-                 act: bool = True) -> None:
+    def __init__(
+        self, c_in: int, c_out: int, kernel: int = 3, stride: int = 1, act: bool = True
+    ) -> None:
         layers: list[nn.Module] = [
-            nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=kernel // 2)]
+            nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=kernel // 2)
+        ]
         if act:
             layers.append(nn.ReLU(inplace=True))
         super().__init__(*layers)
@@ -46,8 +48,9 @@ class ResBlock(nn.Module):
 
     def __init__(self, channels: int) -> None:
         super().__init__()
-        self.body = nn.Sequential(ConvAct(channels, channels, 3),
-                                  ConvAct(channels, channels, 3, act=False))
+        self.body = nn.Sequential(
+            ConvAct(channels, channels, 3), ConvAct(channels, channels, 3, act=False)
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x + self.body(x)
@@ -69,8 +72,9 @@ def downsample(x: torch.Tensor, factor: int) -> torch.Tensor:
     """Bilinear downsampling by an integer factor (the pyramid's image and target scales)."""
     if factor == 1:
         return x
-    return F.interpolate(x, scale_factor=1.0 / factor, mode="bilinear", align_corners=False,
-                         antialias=False)
+    return F.interpolate(
+        x, scale_factor=1.0 / factor, mode="bilinear", align_corners=False, antialias=False
+    )
 
 
 def heat_pyramid(heat: torch.Tensor, levels: int) -> list[torch.Tensor]:
@@ -79,7 +83,7 @@ def heat_pyramid(heat: torch.Tensor, levels: int) -> list[torch.Tensor]:
     Values are displacements in (normalised) pixels of their own resolution, so level k is
     both resized and divided by ``2^(k-1)``.
     """
-    return [downsample(heat, 2 ** k) / (2 ** k) for k in range(levels)]
+    return [downsample(heat, 2**k) / (2**k) for k in range(levels)]
 
 
 def pad_to_multiple(x: torch.Tensor, multiple: int) -> tuple[torch.Tensor, tuple[int, int]]:
@@ -112,19 +116,20 @@ class Decoder3(nn.Module):
         super().__init__()
         self.dec3 = res_stack(c3, num_res)
         self.out3 = ConvAct(c3, 3, 3, act=False)
-        self.up3 = nn.Sequential(nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
+        self.up3 = nn.Sequential(
+            nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1), nn.ReLU(inplace=True)
+        )
         self.skip2 = ConvAct(2 * c2, c2, 1)
         self.dec2 = res_stack(c2, num_res)
         self.out2 = ConvAct(c2, 3, 3, act=False) if mid_output else None
-        self.up2 = nn.Sequential(nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1),
-                                 nn.ReLU(inplace=True))
+        self.up2 = nn.Sequential(
+            nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1), nn.ReLU(inplace=True)
+        )
         self.skip1 = ConvAct(2 * c1, c1, 1)
         self.dec1 = res_stack(c1, num_res)
         self.out1 = ConvAct(c1, 3, 3, act=False)
 
-    def forward(self, skips: list[torch.Tensor], images: list[torch.Tensor]
-                ) -> list[torch.Tensor]:
+    def forward(self, skips: list[torch.Tensor], images: list[torch.Tensor]) -> list[torch.Tensor]:
         """``skips`` = features of levels 1..3 (finest first), ``images`` = the blurred input
         at the same levels; returns the outputs finest first (scales 1, [2,] 4)."""
         d3 = self.dec3(skips[2])

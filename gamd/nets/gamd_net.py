@@ -40,8 +40,7 @@ from gamd.nets.blocks import (
 class InputHead(nn.Module):
     """Level input: image via a 3×3 conv, heat maps via a 10×10 conv, concatenated."""
 
-    def __init__(self, channels: int, use_heat: bool, heat_kernel: int,
-                 image_kernel: int) -> None:
+    def __init__(self, channels: int, use_heat: bool, heat_kernel: int, image_kernel: int) -> None:
         super().__init__()
         self.use_heat = use_heat
         c_img = channels // 2 if use_heat else channels
@@ -60,8 +59,10 @@ class FFM(nn.Module):
 
     def __init__(self, in_channels: list[int], out_channels: int) -> None:
         super().__init__()
-        self.fuse = nn.Sequential(ConvAct(sum(in_channels), out_channels, 1),
-                                  ConvAct(out_channels, out_channels, 3, act=False))
+        self.fuse = nn.Sequential(
+            ConvAct(sum(in_channels), out_channels, 1),
+            ConvAct(out_channels, out_channels, 3, act=False),
+        )
 
     def forward(self, own: torch.Tensor, *others: torch.Tensor) -> torch.Tensor:
         size = own.shape[-2:]
@@ -78,14 +79,21 @@ class Gamd(DeblurNet):
         "paper": {"base_channels": 32, "num_res": 8},
     }
 
-    def __init__(self, base_channels: int = 32, num_res: int = 8, heat_kernel: int = 10,
-                 image_kernel: int = 3, use_heat: bool = True) -> None:
+    def __init__(
+        self,
+        base_channels: int = 32,
+        num_res: int = 8,
+        heat_kernel: int = 10,
+        image_kernel: int = 3,
+        use_heat: bool = True,
+    ) -> None:
         super().__init__()
         check_width(type(self).__name__, base_channels, num_res)
         self.uses_heat = bool(use_heat)
         c1, c2, c3 = base_channels, 2 * base_channels, 4 * base_channels
         self.heads = nn.ModuleList(
-            InputHead(c, self.uses_heat, heat_kernel, image_kernel) for c in (c1, c2, c3))
+            InputHead(c, self.uses_heat, heat_kernel, image_kernel) for c in (c1, c2, c3)
+        )
         self.down2 = ConvAct(c1, c2, 3, stride=2)
         self.down3 = ConvAct(c2, c3, 3, stride=2)
         self.merge2 = ConvAct(2 * c2, c2, 1)

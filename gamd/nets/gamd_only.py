@@ -14,5 +14,6 @@ class GamdOnly(Gamd):
     PRESETS: ClassVar[dict[str, dict]] = {k: dict(v) for k, v in Gamd.PRESETS.items()}
 
     def __init__(self, base_channels: int = 32, num_res: int = 8, image_kernel: int = 3) -> None:
-        super().__init__(base_channels=base_channels, num_res=num_res,
-                         image_kernel=image_kernel, use_heat=False)
+        super().__init__(
+            base_channels=base_channels, num_res=num_res, image_kernel=image_kernel, use_heat=False
+        )

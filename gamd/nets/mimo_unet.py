@@ -33,11 +33,16 @@ class SCM(nn.Module):
     def __init__(self, c_in: int, c_out: int) -> None:
         super().__init__()
         if c_out - c_in < 1 or c_out < 8:
-            raise GamdConfigError(f"SCM needs more output ({c_out}) than input ({c_in}) "
-                                  "channels and at least 8 (raise base_channels)")
-        self.main = nn.Sequential(ConvAct(c_in, c_out // 4, 3), ConvAct(c_out // 4, c_out // 2, 1),
-                                  ConvAct(c_out // 2, c_out // 2, 3),
-                                  ConvAct(c_out // 2, c_out - c_in, 1))
+            raise GamdConfigError(
+                f"SCM needs more output ({c_out}) than input ({c_in}) "
+                "channels and at least 8 (raise base_channels)"
+            )
+        self.main = nn.Sequential(
+            ConvAct(c_in, c_out // 4, 3),
+            ConvAct(c_out // 4, c_out // 2, 1),
+            ConvAct(c_out // 2, c_out // 2, 3),
+            ConvAct(c_out // 2, c_out - c_in, 1),
+        )
         self.conv = ConvAct(c_out, c_out, 1, act=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -75,13 +80,13 @@ class MimoUNet(DeblurNet):
         "paper": {"base_channels": 32, "num_res": 8},
     }
 
-    def __init__(self, base_channels: int = 32, num_res: int = 8,
-                 extra_channels: int = 0) -> None:
+    def __init__(self, base_channels: int = 32, num_res: int = 8, extra_channels: int = 0) -> None:
         super().__init__()
         check_width(type(self).__name__, base_channels, num_res, minimum=8)
         if extra_channels not in (0, 6):
-            raise GamdConfigError(f"extra_channels must be 0 or 6 (heat maps), got "
-                                  f"{extra_channels!r}")
+            raise GamdConfigError(
+                f"extra_channels must be 0 or 6 (heat maps), got {extra_channels!r}"
+            )
         self.uses_heat = extra_channels > 0
         c_in = 3 + extra_channels
         c1, c2, c3 = base_channels, 2 * base_channels, 4 * base_channels
@@ -102,8 +107,10 @@ class MimoUNet(DeblurNet):
     def _forward(self, blur: torch.Tensor, heat: torch.Tensor | None) -> list[torch.Tensor]:
         images = [blur, downsample(blur, 2), downsample(blur, 4)]
         if heat is not None:
-            inputs = [torch.cat([im, ht], dim=1)
-                      for im, ht in zip(images, heat_pyramid(heat, 3), strict=True)]
+            inputs = [
+                torch.cat([im, ht], dim=1)
+                for im, ht in zip(images, heat_pyramid(heat, 3), strict=True)
+            ]
         else:
             inputs = images
         e1 = self.enc1(self.feat_in(inputs[0]))

@@ -32,9 +32,16 @@ CENTERLINE_SPACING_PX = 4.0
 INSIDE_MARGIN_PX = 3.0
 
 
-def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
-                   focal_px: float, jitter: float = 0.0,
-                   rng: np.random.Generator | None = None) -> np.ndarray:
+def dot_directions(
+    cols: int,
+    rows: int,
+    fill: float,
+    width: int,
+    height: int,
+    focal_px: float,
+    jitter: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """Unit world directions ``(rows * cols, 3)`` of a regular angular dot grid.
 
     Dot ``j = row * cols + col``; the grid spans ``fill`` of a ``width x height`` view at
@@ -62,8 +69,13 @@ def dot_directions(cols: int, rows: int, fill: float, width: int, height: int,
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def dot_pixels(motion: TrueMotion, camera: Camera, directions: np.ndarray,
-               t_s: np.ndarray, dot_index: np.ndarray) -> np.ndarray:
+def dot_pixels(
+    motion: TrueMotion,
+    camera: Camera,
+    directions: np.ndarray,
+    t_s: np.ndarray,
+    dot_index: np.ndarray,
+) -> np.ndarray:
     """Pixel positions ``(S, 2)`` of dots ``dot_index (S,)`` at camera times ``t_s (S,)``.
 
     Dots behind the camera come back as NaN.
@@ -77,8 +89,14 @@ def dot_pixels(motion: TrueMotion, camera: Camera, directions: np.ndarray,
     return np.where(front[:, None], np.stack([u, v], axis=1), np.nan)
 
 
-def row_time(motion: TrueMotion, camera: Camera, directions: np.ndarray, frame_t_s: float,
-             offset_s: float, dot_index: np.ndarray) -> np.ndarray:
+def row_time(
+    motion: TrueMotion,
+    camera: Camera,
+    directions: np.ndarray,
+    frame_t_s: float,
+    offset_s: float,
+    dot_index: np.ndarray,
+) -> np.ndarray:
     """Camera times ``(J,)`` solving ``t = frame_t + readout · v_j(t) / H + offset``.
 
     Fixed-point iteration on the true motion; it contracts while the dot's vertical speed stays
@@ -99,8 +117,9 @@ def row_time(motion: TrueMotion, camera: Camera, directions: np.ndarray, frame_t
         if done:
             break
     else:
-        raise SimError("rolling-shutter row times did not converge (motion too fast for the "
-                       "readout)")
+        raise SimError(
+            "rolling-shutter row times did not converge (motion too fast for the readout)"
+        )
     return t
 
 
@@ -113,13 +132,13 @@ class FrameStreaks:
     """
 
     t_ref_s: float
-    t_start_s: np.ndarray   # (J,)
-    t_end_s: np.ndarray     # (J,)
-    path: np.ndarray        # (J, DENSE_SAMPLES, 2)
-    ref: np.ndarray         # (J, 2)
-    visible: np.ndarray     # (J,) bool: some of the streak lies in the image
-    inside: np.ndarray      # (J,) bool: all of it at least INSIDE_MARGIN_PX inside
-    length_px: np.ndarray   # (J,) arc length of the path
+    t_start_s: np.ndarray  # (J,)
+    t_end_s: np.ndarray  # (J,)
+    path: np.ndarray  # (J, DENSE_SAMPLES, 2)
+    ref: np.ndarray  # (J, 2)
+    visible: np.ndarray  # (J,) bool: some of the streak lies in the image
+    inside: np.ndarray  # (J,) bool: all of it at least INSIDE_MARGIN_PX inside
+    length_px: np.ndarray  # (J,) arc length of the path
 
     @property
     def start(self) -> np.ndarray:
@@ -138,14 +157,23 @@ class FrameStreaks:
     def centerline(self, j: int) -> np.ndarray:
         """At most 32 points ``(n, 2)``, start to end, equally spaced in time, about one per
         ``CENTERLINE_SPACING_PX`` of length."""
-        n = int(np.clip(math.ceil(self.length_px[j] / CENTERLINE_SPACING_PX) + 1, 2,
-                        MAX_CENTERLINE_POINTS))
+        n = int(
+            np.clip(
+                math.ceil(self.length_px[j] / CENTERLINE_SPACING_PX) + 1, 2, MAX_CENTERLINE_POINTS
+            )
+        )
         pick = np.round(np.linspace(0, DENSE_SAMPLES - 1, n)).astype(int)
         return self.path[j, pick]
 
 
-def frame_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
-                  frame_t_s: float, exposure_s: float, t_ref_s: float) -> FrameStreaks:
+def frame_streaks(
+    motion: TrueMotion,
+    camera: Camera,
+    directions: np.ndarray,
+    frame_t_s: float,
+    exposure_s: float,
+    t_ref_s: float,
+) -> FrameStreaks:
     """The true streaks of every dot in the frame that starts at ``frame_t_s``."""
     J = directions.shape[0]
     idx = np.arange(J)
@@ -153,8 +181,9 @@ def frame_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
     t1 = row_time(motion, camera, directions, frame_t_s, exposure_s, idx)
     frac = np.linspace(0.0, 1.0, DENSE_SAMPLES)
     times = t0[:, None] + (t1 - t0)[:, None] * frac[None, :]
-    path = dot_pixels(motion, camera, directions, times.ravel(),
-                      np.repeat(idx, DENSE_SAMPLES)).reshape(J, DENSE_SAMPLES, 2)
+    path = dot_pixels(
+        motion, camera, directions, times.ravel(), np.repeat(idx, DENSE_SAMPLES)
+    ).reshape(J, DENSE_SAMPLES, 2)
     ref = dot_pixels(motion, camera, directions, np.full(J, t_ref_s), idx)
     W, H = camera.resolution
     x, y = path[..., 0], path[..., 1]

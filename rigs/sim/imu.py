@@ -35,16 +35,21 @@ class GyroModel:
         if self.noise_radps < 0:
             raise SimError("gyro model: noise must be >= 0")
 
-    def ideal(self, omega_cam_at: Callable[[np.ndarray], np.ndarray],
-              t_imu_s: np.ndarray) -> np.ndarray:
+    def ideal(
+        self, omega_cam_at: Callable[[np.ndarray], np.ndarray], t_imu_s: np.ndarray
+    ) -> np.ndarray:
         """Noise-free measurement ``(M, 3)`` (rad/s, IMU frame) at IMU times ``(M,)``."""
         t = np.asarray(t_imu_s, dtype=float).reshape(-1)
         w_cam = omega_cam_at(t - self.timeshift_cam_imu_s)
-        w_imu = w_cam @ self.R_cam_imu          # rows: (R_cam_imuᵀ ω_cam)ᵀ
+        w_imu = w_cam @ self.R_cam_imu  # rows: (R_cam_imuᵀ ω_cam)ᵀ
         return w_imu @ self.scale.T + self.bias_radps
 
-    def measure(self, omega_cam_at: Callable[[np.ndarray], np.ndarray], t_imu_s: np.ndarray,
-                rng: np.random.Generator) -> np.ndarray:
+    def measure(
+        self,
+        omega_cam_at: Callable[[np.ndarray], np.ndarray],
+        t_imu_s: np.ndarray,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
         """Noisy measurement ``(M, 3)`` at IMU times ``(M,)``."""
         w = self.ideal(omega_cam_at, t_imu_s)
         if self.noise_radps > 0:

@@ -55,13 +55,15 @@ class TrueMotion:
         omega_radps: ``(K, 3)`` camera-frame angular velocity at the knots (rad/s).
     """
 
-    def __init__(self, t_s: np.ndarray, omega_radps: np.ndarray,
-                 step_s: float = TABLE_STEP_S) -> None:
+    def __init__(
+        self, t_s: np.ndarray, omega_radps: np.ndarray, step_s: float = TABLE_STEP_S
+    ) -> None:
         t = np.asarray(t_s, dtype=float)
         w = np.asarray(omega_radps, dtype=float)
         if t.ndim != 1 or w.shape != (t.size, 3) or t.size < 4:
-            raise SimError(f"motion needs >= 4 knots of t (K,) and omega (K, 3), got {t.shape}, "
-                           f"{w.shape}")
+            raise SimError(
+                f"motion needs >= 4 knots of t (K,) and omega (K, 3), got {t.shape}, {w.shape}"
+            )
         if not (np.all(np.isfinite(w)) and np.all(np.diff(t) > 0)):
             raise SimError("motion knots must be finite with increasing times")
         self._spline = CubicSpline(t, w, axis=0)
@@ -87,8 +89,9 @@ class TrueMotion:
         """True orientations ``R_c(t)`` (camera to world) ``(M, 3, 3)`` at camera times."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float)).reshape(-1)
         self._check(t)
-        k = np.clip(np.floor((t - self.t_begin_s) / self._h).astype(np.int64), 0,
-                    self._grid.size - 2)
+        k = np.clip(
+            np.floor((t - self.t_begin_s) / self._h).astype(np.int64), 0, self._grid.size - 2
+        )
         step = so3_exp(self._magnus(self._grid[k], t - self._grid[k]))
         return self._table[k] @ step
 
@@ -106,14 +109,20 @@ class TrueMotion:
 
     def _check(self, t: np.ndarray) -> None:
         if t.size and (t.min() < self.t_begin_s - 1e-9 or t.max() > self.t_end_s + 1e-9):
-            raise SimError(f"true motion covers [{self.t_begin_s:.4f}, {self.t_end_s:.4f}] s, "
-                           f"asked for [{t.min():.4f}, {t.max():.4f}] s")
+            raise SimError(
+                f"true motion covers [{self.t_begin_s:.4f}, {self.t_end_s:.4f}] s, "
+                f"asked for [{t.min():.4f}, {t.max():.4f}] s"
+            )
 
 
-def synthetic_omega(rng: np.random.Generator, duration_s: float,
-                    rms_radps: tuple[float, float, float], band_hz: tuple[float, float],
-                    rate_hz: float = OMEGA_RATE_HZ, pad_s: float = 1.0,
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def synthetic_omega(
+    rng: np.random.Generator,
+    duration_s: float,
+    rms_radps: tuple[float, float, float],
+    band_hz: tuple[float, float],
+    rate_hz: float = OMEGA_RATE_HZ,
+    pad_s: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Band-limited Gaussian random angular velocity: ``(t_s (M,), omega_radps (M, 3))``.
 
     White noise, band-passed (zero phase) and scaled so each axis has the given RMS over the
@@ -122,15 +131,20 @@ def synthetic_omega(rng: np.random.Generator, duration_s: float,
     n_pad = round(pad_s * rate_hz)
     n = math.ceil(duration_s * rate_hz) + 1
     white = rng.standard_normal((n + 2 * n_pad, 3))
-    w = band_pass(white, rate_hz, band_hz)[n_pad:n_pad + n]
+    w = band_pass(white, rate_hz, band_hz)[n_pad : n_pad + n]
     rms = np.sqrt(np.mean(w * w, axis=0))
     w = w * (np.asarray(rms_radps, dtype=float) / np.maximum(rms, 1e-300))
     return np.arange(n) / rate_hz, w
 
 
-def shake_omega(trace: ShakeTrace, rng: np.random.Generator, duration_s: float,
-                scale_range: tuple[float, float], band_hz: tuple[float, float],
-                rate_hz: float = OMEGA_RATE_HZ) -> tuple[np.ndarray, np.ndarray, dict]:
+def shake_omega(
+    trace: ShakeTrace,
+    rng: np.random.Generator,
+    duration_s: float,
+    scale_range: tuple[float, float],
+    band_hz: tuple[float, float],
+    rate_hz: float = OMEGA_RATE_HZ,
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """A seed-chosen, scaled stretch of a real shake trace as smooth ω.
 
     Returns ``(t_s (M,), omega_radps (M, 3), info)`` with times from 0 and ``info`` recording
@@ -139,11 +153,22 @@ def shake_omega(trace: ShakeTrace, rng: np.random.Generator, duration_s: float,
     margin = 1.0
     room = trace.duration_s - duration_s - 2 * margin
     if room <= 0:
-        raise SimError(f"shake trace {trace.source} ({trace.duration_s:.1f} s) is too short for "
-                       f"{duration_s:.1f} s of motion")
+        raise SimError(
+            f"shake trace {trace.source} ({trace.duration_s:.1f} s) is too short for "
+            f"{duration_s:.1f} s of motion"
+        )
     start = float(trace.t_s[0] + margin + rng.uniform(0.0, room))
     scale = float(rng.uniform(*scale_range))
     t, w = trace.resampled(start, duration_s, rate_hz=rate_hz, band_hz=band_hz)
-    return t, w * scale, {"source": Path(trace.source).name, "start_s": start, "scale": scale,
-                          "dropouts_bridged": [list(g) for g in trace.gaps()
-                                               if start - 1 < g[0] < start + duration_s + 1]}
+    return (
+        t,
+        w * scale,
+        {
+            "source": Path(trace.source).name,
+            "start_s": start,
+            "scale": scale,
+            "dropouts_bridged": [
+                list(g) for g in trace.gaps() if start - 1 < g[0] < start + duration_s + 1
+            ],
+        },
+    )

@@ -27,8 +27,11 @@ MOTION_SOURCES = ("synthetic", "shake")
 
 #: Nominal camera-IMU axis permutation (a proper rotation: x and y swapped, z flipped), as a
 #: phone-style IMU mounted on a camera board might be; ``ω_cam = R_cam_imu ω_imu``.
-NOMINAL_R_CAM_IMU: tuple[tuple[float, ...], ...] = ((0.0, 1.0, 0.0), (1.0, 0.0, 0.0),
-                                                    (0.0, 0.0, -1.0))
+NOMINAL_R_CAM_IMU: tuple[tuple[float, ...], ...] = (
+    (0.0, 1.0, 0.0),
+    (1.0, 0.0, 0.0),
+    (0.0, 0.0, -1.0),
+)
 
 
 @dataclass(frozen=True)
@@ -40,43 +43,43 @@ class SimPreset:
     width: int = 1280
     height: int = 720
     focal_px: float = 1000.0
-    focal_spread: float = 0.0          # relative: true fx = focal (1 + U(-s, s))
-    aspect_spread: float = 0.0         # relative: true fy = fx (1 + U(-s, s))
-    principal_spread_px: float = 0.0   # true (cx, cy) = centre + U(-s, s) px
+    focal_spread: float = 0.0  # relative: true fx = focal (1 + U(-s, s))
+    aspect_spread: float = 0.0  # relative: true fy = fx (1 + U(-s, s))
+    principal_spread_px: float = 0.0  # true (cx, cy) = centre + U(-s, s) px
     distortion_coeffs: tuple[float, ...] = ()  # true radtan k1 k2 p1 p2; () = none
     fps: float = 30.0
     exposure_s: float = 0.01
-    readout_s: float = 0.0             # nominal (datasheet) rolling-shutter readout
-    readout_spread: float = 0.0        # relative: true readout = readout (1 + U(-s, s))
+    readout_s: float = 0.0  # nominal (datasheet) rolling-shutter readout
+    readout_spread: float = 0.0  # relative: true readout = readout (1 + U(-s, s))
     readout_guess_s: float | None = None  # what session.yaml says; None = the nominal value
     # --- IMU
     imu_rate_hz: float = 1000.0
-    gyro_noise_radps: float = 0.0      # white noise, 1-sigma per sample per axis
-    gyro_bias_radps: float = 0.0       # true bias drawn U(-b, b) per axis (IMU frame)
-    gyro_scale_error: float = 0.0      # true scale/cross-axis matrix I + N(0, s) entries
+    gyro_noise_radps: float = 0.0  # white noise, 1-sigma per sample per axis
+    gyro_bias_radps: float = 0.0  # true bias drawn U(-b, b) per axis (IMU frame)
+    gyro_scale_error: float = 0.0  # true scale/cross-axis matrix I + N(0, s) entries
     misalignment_deg: tuple[float, float] = (0.0, 0.0)  # true extra rotation angle range
     timeshift_s: tuple[float, float] = (0.0, 0.0)  # |t_imu - t_cam| range; sign by seed
     # --- motion
-    motion: str = "synthetic"          # "synthetic" or "shake" (GyroDeblurNet traces)
+    motion: str = "synthetic"  # "synthetic" or "shake" (GyroDeblurNet traces)
     motion_scale: tuple[float, float] = (1.0, 1.0)  # shake traces: scale range
     synthetic_rms_radps: tuple[float, float, float] = (0.6, 0.6, 0.3)
     motion_band_hz: tuple[float, float] = (1.0, 8.0)  # band-pass of the true ω
     # --- dot grid (a diffractive projector: a regular angular grid fixed in the world)
     dot_cols: int = 15
     dot_rows: int = 11
-    dot_fill: float = 0.9              # the grid spans this fraction of the nominal view
-    dot_jitter: float = 0.0            # random angular offset per dot, fraction of the spacing
-    dot_sigma_px: float = 1.3          # Gaussian spread of a dot (px)
-    dot_flux_eps: float = 2.0e7        # photo-electrons per second from one dot
+    dot_fill: float = 0.9  # the grid spans this fraction of the nominal view
+    dot_jitter: float = 0.0  # random angular offset per dot, fraction of the spacing
+    dot_sigma_px: float = 1.3  # Gaussian spread of a dot (px)
+    dot_flux_eps: float = 2.0e7  # photo-electrons per second from one dot
     # --- radiometry
-    ambient_eps: float = 2.0e4         # ambient light, photo-electrons per second per pixel
-    vignetting: float = 0.0            # ambient falls by this fraction from centre to corner
+    ambient_eps: float = 2.0e4  # ambient light, photo-electrons per second per pixel
+    vignetting: float = 0.0  # ambient falls by this fraction from centre to corner
     full_well_e: float = 10000.0
     read_noise_e: float = 0.0
     shot_noise: bool = False
     bit_depth: int = 8
     # --- rendering
-    substep_px: float = 0.25           # largest dot displacement between render sub-steps
+    substep_px: float = 0.25  # largest dot displacement between render sub-steps
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -86,36 +89,50 @@ class SimPreset:
         for f in fields(self):
             v = getattr(self, f.name)
             vals = v if isinstance(v, tuple) else (v,)
-            _check(all(not isinstance(x, float) or math.isfinite(x) for x in vals),
-                   f"{f.name} must be finite")
+            _check(
+                all(not isinstance(x, float) or math.isfinite(x) for x in vals),
+                f"{f.name} must be finite",
+            )
         _check(isinstance(self.name, str) and self.name != "", "name must be a non-empty string")
         _check(self.width >= 16 and self.height >= 16, "width and height must be >= 16 px")
         _check(self.width * self.height <= 50_000_000, "image larger than 50 Mpx")
         _check(self.focal_px > 0, "focal_px must be positive")
         for k in ("focal_spread", "aspect_spread", "readout_spread", "gyro_scale_error"):
             _check(0.0 <= getattr(self, k) < 0.5, f"{k} must be in [0, 0.5)")
-        _check(0.0 <= self.principal_spread_px < min(self.width, self.height) / 4,
-               "principal_spread_px out of range")
+        _check(
+            0.0 <= self.principal_spread_px < min(self.width, self.height) / 4,
+            "principal_spread_px out of range",
+        )
         _check(len(self.distortion_coeffs) in (0, 4), "distortion_coeffs: 0 or 4 (k1 k2 p1 p2)")
         _check(self.fps > 0, "fps must be positive")
-        _check(0.0 < self.exposure_s < 1.0 / self.fps,
-               "exposure_s must be positive and shorter than the frame period")
-        _check(0.0 <= self.readout_s * (1 + self.readout_spread) < 1.0 / self.fps,
-               "readout_s must be in [0, frame period)")
-        _check(self.readout_guess_s is None or 0.0 <= self.readout_guess_s < 1.0,
-               "readout_guess_s must be in [0, 1) s")
+        _check(
+            0.0 < self.exposure_s < 1.0 / self.fps,
+            "exposure_s must be positive and shorter than the frame period",
+        )
+        _check(
+            0.0 <= self.readout_s * (1 + self.readout_spread) < 1.0 / self.fps,
+            "readout_s must be in [0, frame period)",
+        )
+        _check(
+            self.readout_guess_s is None or 0.0 <= self.readout_guess_s < 1.0,
+            "readout_guess_s must be in [0, 1) s",
+        )
         _check(1.0 <= self.imu_rate_hz <= 10000.0, "imu_rate_hz must be in [1, 10000]")
-        _check(self.gyro_noise_radps >= 0 and self.gyro_bias_radps >= 0,
-               "gyro noise and bias must be >= 0")
+        _check(
+            self.gyro_noise_radps >= 0 and self.gyro_bias_radps >= 0,
+            "gyro noise and bias must be >= 0",
+        )
         _pair(self.misalignment_deg, "misalignment_deg", 0.0, 20.0)
         _pair(self.timeshift_s, "timeshift_s", 0.0, 1.0)
         _pair(self.motion_scale, "motion_scale", 0.0, 20.0)
         _pair(self.motion_band_hz, "motion_band_hz", 0.0, 200.0)
         _check(self.motion_band_hz[1] > 0, "motion_band_hz upper edge must be positive")
         _check(self.motion in MOTION_SOURCES, f"motion must be one of {MOTION_SOURCES}")
-        _check(len(self.synthetic_rms_radps) == 3
-               and all(0 <= v <= 50 for v in self.synthetic_rms_radps),
-               "synthetic_rms_radps must be 3 values in [0, 50]")
+        _check(
+            len(self.synthetic_rms_radps) == 3
+            and all(0 <= v <= 50 for v in self.synthetic_rms_radps),
+            "synthetic_rms_radps must be 3 values in [0, 50]",
+        )
         _check(1 <= self.dot_cols <= 200 and 1 <= self.dot_rows <= 200, "dot grid 1..200")
         _check(0.0 < self.dot_fill <= 3.0, "dot_fill must be in (0, 3]")
         _check(0.0 <= self.dot_jitter <= 0.5, "dot_jitter must be in [0, 0.5]")
@@ -174,8 +191,9 @@ def _check(ok: bool, message: str) -> None:
 
 
 def _pair(v: tuple[float, float], name: str, lo: float, hi: float) -> None:
-    _check(len(v) == 2 and lo <= v[0] <= v[1] <= hi, f"{name} must be [min, max] within "
-           f"[{lo}, {hi}]")
+    _check(
+        len(v) == 2 and lo <= v[0] <= v[1] <= hi, f"{name} must be [min, max] within [{lo}, {hi}]"
+    )
 
 
 def _coerce(value: Any, default: Any, where: str) -> Any:
@@ -200,7 +218,8 @@ def _coerce(value: Any, default: Any, where: str) -> Any:
         return value
     if isinstance(default, tuple):
         if not isinstance(value, (list, tuple)) or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value
+        ):
             raise SimError(f"{where} must be a list of numbers")
         return tuple(float(x) for x in value)
     raise SimError(f"{where}: unsupported value")  # pragma: no cover - all fields covered
@@ -214,20 +233,57 @@ def _coerce(value: Any, default: Any, where: str) -> Any:
 PRESETS: dict[str, SimPreset] = {
     "clean": SimPreset(name="clean", dot_fill=0.85),
     "realistic": SimPreset(
-        name="realistic", focal_spread=0.03, aspect_spread=0.003, principal_spread_px=12.0,
-        exposure_s=0.02, readout_s=0.025, readout_spread=0.08, imu_rate_hz=200.0,
-        gyro_noise_radps=0.005, gyro_bias_radps=0.02, gyro_scale_error=0.003,
-        misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
-        motion_scale=(0.7, 1.3), motion_band_hz=(1.0, 15.0), dot_fill=0.88, dot_flux_eps=1.2e7,
-        ambient_eps=4.0e4, vignetting=0.3, read_noise_e=8.0, shot_noise=True),
+        name="realistic",
+        focal_spread=0.03,
+        aspect_spread=0.003,
+        principal_spread_px=12.0,
+        exposure_s=0.02,
+        readout_s=0.025,
+        readout_spread=0.08,
+        imu_rate_hz=200.0,
+        gyro_noise_radps=0.005,
+        gyro_bias_radps=0.02,
+        gyro_scale_error=0.003,
+        misalignment_deg=(1.0, 2.0),
+        timeshift_s=(0.005, 0.030),
+        motion="shake",
+        motion_scale=(0.7, 1.3),
+        motion_band_hz=(1.0, 15.0),
+        dot_fill=0.88,
+        dot_flux_eps=1.2e7,
+        ambient_eps=4.0e4,
+        vignetting=0.3,
+        read_noise_e=8.0,
+        shot_noise=True,
+    ),
     "hard": SimPreset(
-        name="hard", focal_spread=0.04, aspect_spread=0.005, principal_spread_px=20.0,
-        fps=20.0, exposure_s=0.04, readout_s=0.03, readout_spread=0.1, imu_rate_hz=200.0,
-        gyro_noise_radps=0.01, gyro_bias_radps=0.05, gyro_scale_error=0.01,
-        misalignment_deg=(1.0, 2.0), timeshift_s=(0.005, 0.030), motion="shake",
-        motion_scale=(2.0, 3.0), motion_band_hz=(1.0, 20.0), dot_cols=23, dot_rows=15,
-        dot_fill=1.15, dot_jitter=0.3, dot_sigma_px=1.5, dot_flux_eps=4.0e7, ambient_eps=6.0e4,
-        read_noise_e=12.0, shot_noise=True),
+        name="hard",
+        focal_spread=0.04,
+        aspect_spread=0.005,
+        principal_spread_px=20.0,
+        fps=20.0,
+        exposure_s=0.04,
+        readout_s=0.03,
+        readout_spread=0.1,
+        imu_rate_hz=200.0,
+        gyro_noise_radps=0.01,
+        gyro_bias_radps=0.05,
+        gyro_scale_error=0.01,
+        misalignment_deg=(1.0, 2.0),
+        timeshift_s=(0.005, 0.030),
+        motion="shake",
+        motion_scale=(2.0, 3.0),
+        motion_band_hz=(1.0, 20.0),
+        dot_cols=23,
+        dot_rows=15,
+        dot_fill=1.15,
+        dot_jitter=0.3,
+        dot_sigma_px=1.5,
+        dot_flux_eps=4.0e7,
+        ambient_eps=6.0e4,
+        read_noise_e=12.0,
+        shot_noise=True,
+    ),
 }
 
 

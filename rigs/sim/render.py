@@ -41,8 +41,13 @@ def patch_radius(sigma_px: float) -> int:
     return max(1, math.ceil(PATCH_SIGMAS * sigma_px))
 
 
-def splat(out: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_px: float,
-          row_weight: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
+def splat(
+    out: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    sigma_px: float,
+    row_weight: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> None:
     """Add Gaussian patches centred at ``(u, v) (S,)`` into ``out (H, W)`` in place.
 
     ``row_weight(rows (s, P), sel) -> (s, P)`` gives each sample's weight per patch row (energy
@@ -67,14 +72,15 @@ def splat(out: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_px: float,
     w_buf = np.empty((step, P, P))
     i_buf = np.empty((step, P * P), dtype=np.int64)
     for a in range(0, keep.size, step):
-        k = keep[a:a + step]
+        k = keep[a : a + step]
         m = k.size
         uu, vv = u[k][:, None], v[k][:, None]
         px = cu[k][:, None] + offs
         py = cv[k][:, None] + offs
         gx = ndtr((px + 0.5 - uu) / sigma_px) - ndtr((px - 0.5 - uu) / sigma_px)
-        wy = (ndtr((py + 0.5 - vv) / sigma_px) - ndtr((py - 0.5 - vv) / sigma_px)) \
-            * row_weight(py, k)
+        wy = (ndtr((py + 0.5 - vv) / sigma_px) - ndtr((py - 0.5 - vv) / sigma_px)) * row_weight(
+            py, k
+        )
         base = (cv[k] + pad) * Wp + (cu[k] + pad)
         idx = np.add(base[:, None], pattern[None, :], out=i_buf[:m])
         w = np.multiply(wy[:, :, None], gx[:, None, :], out=w_buf[:m])
@@ -82,12 +88,13 @@ def splat(out: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_px: float,
         flat = idx.ravel()
         flat -= lo
         binned = np.bincount(flat, weights=w.ravel())
-        acc[lo:lo + binned.size] += binned
-    out += acc.reshape(H + 2 * pad, Wp)[pad:pad + H, pad:pad + W]
+        acc[lo : lo + binned.size] += binned
+    out += acc.reshape(H + 2 * pad, Wp)[pad : pad + H, pad : pad + W]
 
 
-def arc_length_slots(t_coarse: np.ndarray, p_coarse: np.ndarray, substep_px: float,
-                     min_slots: int = MIN_SLOTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def arc_length_slots(
+    t_coarse: np.ndarray, p_coarse: np.ndarray, substep_px: float, min_slots: int = MIN_SLOTS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Split each dot's time window into slots over which it moves at most ``substep_px``.
 
     Args:
@@ -116,21 +123,32 @@ def arc_length_slots(t_coarse: np.ndarray, p_coarse: np.ndarray, substep_px: flo
     target = k / n[dot_b] * total[dot_b]
     big = float(total.max()) * 2 + 1.0
     glob = (arc + big * np.arange(J)[:, None]).ravel()
-    pos = np.clip(np.searchsorted(glob, target + big * dot_b, side="right") - 1,
-                  dot_b * M1, dot_b * M1 + M1 - 2)
+    pos = np.clip(
+        np.searchsorted(glob, target + big * dot_b, side="right") - 1,
+        dot_b * M1,
+        dot_b * M1 + M1 - 2,
+    )
     a0, a1 = glob[pos] - big * dot_b, glob[pos + 1] - big * dot_b
     tc = t_coarse.ravel()
     f = np.clip((target - a0) / (a1 - a0), 0.0, 1.0)
     bounds = tc[pos] + f * (tc[pos + 1] - tc[pos])
-    last = np.cumsum(n + 1) - 1                       # index of each dot's final boundary
+    last = np.cumsum(n + 1) - 1  # index of each dot's final boundary
     keep = np.ones(bounds.size, bool)
     keep[last] = False
     return dot_b[keep], bounds[keep], bounds[np.flatnonzero(keep) + 1]
 
 
-def render_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
-                   streaks: FrameStreaks, frame_t_s: float, exposure_s: float,
-                   flux_eps: float, sigma_px: float, substep_px: float) -> np.ndarray:
+def render_streaks(
+    motion: TrueMotion,
+    camera: Camera,
+    directions: np.ndarray,
+    streaks: FrameStreaks,
+    frame_t_s: float,
+    exposure_s: float,
+    flux_eps: float,
+    sigma_px: float,
+    substep_px: float,
+) -> np.ndarray:
     """Mean photo-electrons ``(H, W)`` that the dots deposit in one rolling-shutter frame."""
     W, H = camera.resolution
     out = np.zeros((H, W))
@@ -141,7 +159,8 @@ def render_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
     margin = R + 1.0
     x, y = streaks.path[..., 0], streaks.path[..., 1]
     near = np.all(np.isfinite(x), axis=1) & np.any(
-        (x >= -margin) & (x <= W - 1 + margin) & (y >= -margin) & (y <= H - 1 + margin), axis=1)
+        (x >= -margin) & (x <= W - 1 + margin) & (y >= -margin) & (y <= H - 1 + margin), axis=1
+    )
     idx = np.flatnonzero(near)
     if idx.size == 0 or flux_eps == 0:
         return out
@@ -149,31 +168,37 @@ def render_streaks(motion: TrueMotion, camera: Camera, directions: np.ndarray,
     hi = streaks.t_end_s[idx] + pad
     frac = np.linspace(0.0, 1.0, COARSE_SAMPLES + 1)
     t_coarse = lo[:, None] + (hi - lo)[:, None] * frac
-    p_coarse = dot_pixels(motion, camera, directions, t_coarse.ravel(),
-                          np.repeat(idx, frac.size)).reshape(idx.size, frac.size, 2)
+    p_coarse = dot_pixels(
+        motion, camera, directions, t_coarse.ravel(), np.repeat(idx, frac.size)
+    ).reshape(idx.size, frac.size, 2)
     which, t0, t1 = arc_length_slots(t_coarse, p_coarse, substep_px)
     pos = dot_pixels(motion, camera, directions, (t0 + t1) / 2, idx[which])
 
     def row_weight(rows: np.ndarray, sel: np.ndarray) -> np.ndarray:
         r0 = frame_t_s + ro * rows / H
-        overlap = (np.minimum(t1[sel][:, None], r0 + exposure_s)
-                   - np.maximum(t0[sel][:, None], r0))
+        overlap = np.minimum(t1[sel][:, None], r0 + exposure_s) - np.maximum(t0[sel][:, None], r0)
         return flux_eps * np.clip(overlap, 0.0, None)
 
     splat(out, pos[:, 0], pos[:, 1], sigma_px, row_weight)
     return out
 
 
-def render_points(shape: tuple[int, int], pixels: np.ndarray, energy_e: float,
-                  sigma_px: float) -> np.ndarray:
+def render_points(
+    shape: tuple[int, int], pixels: np.ndarray, energy_e: float, sigma_px: float
+) -> np.ndarray:
     """Mean photo-electrons ``(H, W)`` of motionless dots at ``pixels (J, 2)``, each
     ``energy_e`` electrons in all (the sharp frame)."""
     out = np.zeros(shape)
     px = np.asarray(pixels, dtype=float)
     px = px[np.all(np.isfinite(px), axis=1)]
     if px.size:
-        splat(out, px[:, 0], px[:, 1], sigma_px,
-              lambda rows, sel: np.full(rows.shape, float(energy_e)))
+        splat(
+            out,
+            px[:, 0],
+            px[:, 1],
+            sigma_px,
+            lambda rows, sel: np.full(rows.shape, float(energy_e)),
+        )
     return out
 
 
@@ -186,9 +211,15 @@ def ambient_map(width: int, height: int, level_e: float, vignetting: float) -> n
     return (level_e * (1.0 - vignetting * r2)).astype(np.float32)
 
 
-def expose(signal_e: np.ndarray, ambient_e: float | np.ndarray, full_well_e: float,
-           read_noise_e: float,
-           shot_noise: bool, bit_depth: int, rng: np.random.Generator | None) -> np.ndarray:
+def expose(
+    signal_e: np.ndarray,
+    ambient_e: float | np.ndarray,
+    full_well_e: float,
+    read_noise_e: float,
+    shot_noise: bool,
+    bit_depth: int,
+    rng: np.random.Generator | None,
+) -> np.ndarray:
     """Sensor model: mean electrons ``(H, W)`` -> ``uint8``/``uint16`` image.
 
     Shot noise on signal + ambient and Gaussian read noise, then saturation at the full well
@@ -199,16 +230,19 @@ def expose(signal_e: np.ndarray, ambient_e: float | np.ndarray, full_well_e: flo
     """
     e = np.asarray(signal_e, dtype=np.float32) + np.asarray(ambient_e, dtype=np.float32)
     if rng is not None and (shot_noise or read_noise_e > 0):
-        var = e + np.float32(read_noise_e ** 2) if shot_noise else \
-            np.full(e.shape, read_noise_e ** 2, np.float32)
+        var = (
+            e + np.float32(read_noise_e**2)
+            if shot_noise
+            else np.full(e.shape, read_noise_e**2, np.float32)
+        )
         noisy = e + np.sqrt(var) * rng.standard_normal(e.shape, dtype=np.float32)
         if shot_noise:
             low = e < POISSON_EXACT_BELOW_E
             if np.any(low):
                 lam = e[low]
-                noisy[low] = (rng.poisson(lam).astype(np.float32)
-                              + np.float32(read_noise_e) * rng.standard_normal(
-                                  lam.shape, dtype=np.float32))
+                noisy[low] = rng.poisson(lam).astype(np.float32) + np.float32(
+                    read_noise_e
+                ) * rng.standard_normal(lam.shape, dtype=np.float32)
         e = noisy
     top = (1 << bit_depth) - 1
     dn = np.clip(np.rint(e * np.float32(top / full_well_e)), 0, top)

@@ -42,8 +42,10 @@ class ShakeTrace:
         t = np.asarray(self.t_s, dtype=float)
         w = np.asarray(self.omega_radps, dtype=float)
         if t.ndim != 1 or w.shape != (t.size, 3) or t.size < 4:
-            raise SimError(f"shake trace {self.source}: needs >= 4 samples of t (N,) and "
-                           f"omega (N, 3), got {t.shape} and {w.shape}")
+            raise SimError(
+                f"shake trace {self.source}: needs >= 4 samples of t (N,) and "
+                f"omega (N, 3), got {t.shape} and {w.shape}"
+            )
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(w))):
             raise SimError(f"shake trace {self.source}: NaN or infinite values")
         if np.any(np.diff(t) <= 0):
@@ -66,9 +68,14 @@ class ShakeTrace:
         idx = np.flatnonzero(dt > factor * np.median(dt))
         return [(float(self.t_s[i]), float(self.t_s[i + 1])) for i in idx]
 
-    def resampled(self, t0_s: float, duration_s: float, rate_hz: float = 1000.0,
-                  band_hz: tuple[float, float] = (0.3, 15.0),
-                  pad_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def resampled(
+        self,
+        t0_s: float,
+        duration_s: float,
+        rate_hz: float = 1000.0,
+        band_hz: tuple[float, float] = (0.3, 15.0),
+        pad_s: float = 1.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Smooth ω on a uniform grid over ``[t0_s, t0_s + duration_s]`` (trace time).
 
         Returns ``(t_s (M,), omega_radps (M, 3))`` with times relative to ``t0_s``. The band-pass
@@ -77,10 +84,13 @@ class ShakeTrace:
         lo = max(t0_s - pad_s, float(self.t_s[0]))
         hi = min(t0_s + duration_s + pad_s, float(self.t_s[-1]))
         if t0_s < self.t_s[0] or t0_s + duration_s > self.t_s[-1]:
-            raise SimError(f"shake trace {self.source}: [{t0_s:.3f}, {t0_s + duration_s:.3f}] s "
-                           f"is outside the trace [{self.t_s[0]:.3f}, {self.t_s[-1]:.3f}] s")
-        sel = slice(max(int(np.searchsorted(self.t_s, lo)) - 2, 0),
-                    int(np.searchsorted(self.t_s, hi)) + 2)
+            raise SimError(
+                f"shake trace {self.source}: [{t0_s:.3f}, {t0_s + duration_s:.3f}] s "
+                f"is outside the trace [{self.t_s[0]:.3f}, {self.t_s[-1]:.3f}] s"
+            )
+        sel = slice(
+            max(int(np.searchsorted(self.t_s, lo)) - 2, 0), int(np.searchsorted(self.t_s, hi)) + 2
+        )
         spline = CubicSpline(self.t_s[sel], self.omega_radps[sel], axis=0)
         n = int(np.ceil((hi - lo) * rate_hz)) + 1
         grid = lo + np.arange(n) / rate_hz
@@ -126,14 +136,17 @@ def read_shake_trace(path: str | Path) -> ShakeTrace:
                     continue
                 parts = line.split()
                 if len(parts) != 4:
-                    raise SimError(f"{p}: line {lineno}: expected 4 columns "
-                                   f"(timestamp_ns wx wy wz), got {len(parts)}")
+                    raise SimError(
+                        f"{p}: line {lineno}: expected 4 columns "
+                        f"(timestamp_ns wx wy wz), got {len(parts)}"
+                    )
                 try:
                     t_ns.append(int(parts[0]))
                     rows.append((float(parts[1]), float(parts[2]), float(parts[3])))
                 except ValueError:
-                    raise SimError(f"{p}: line {lineno}: not numbers: {line.strip()[:60]!r}") \
-                        from None
+                    raise SimError(
+                        f"{p}: line {lineno}: not numbers: {line.strip()[:60]!r}"
+                    ) from None
         except UnicodeDecodeError as exc:
             raise SimError(f"{p}: not UTF-8 text ({exc.reason})") from None
     if len(t_ns) < 4:

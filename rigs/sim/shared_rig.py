@@ -86,8 +86,9 @@ def shared_rig(preset: str, seed: int, frames: int, clock: Clock | None = None) 
                 from rigs.sim.preset import get_preset
                 from rigs.sim.rig import SimRig
             except ModuleNotFoundError:
-                raise DeviceUrlError("rig=... needs the rigs.sim simulator, which is not "
-                                     "installed") from None
+                raise DeviceUrlError(
+                    "rig=... needs the rigs.sim simulator, which is not installed"
+                ) from None
             rig = SimRig(get_preset(preset), int(seed), int(frames))
             cam0_s = float(rig.frame_times_ns[0]) * 1e-9
             origin = (clock or MonotonicClock()).now_ns() + ORIGIN_DELAY_NS
@@ -120,7 +121,9 @@ def rig_guess_for_urls(*urls: str | None) -> dict[str, Any] | None:
         u = parse_device_url(url)
         if u.scheme == "sim" and "rig" in u.params:
             meta = rig_from_params(url, u.params, None).rig.nominal_meta()
-            return {"intrinsics": list(meta.camera.intrinsics),
-                    "readout_s": meta.camera.readout_s,
-                    "R_cam_imu": np.asarray(meta.imu.T_cam_imu)[:3, :3].tolist()}
+            return {
+                "intrinsics": list(meta.camera.intrinsics),
+                "readout_s": meta.camera.readout_s,
+                "R_cam_imu": np.asarray(meta.imu.T_cam_imu)[:3, :3].tolist(),
+            }
     return None

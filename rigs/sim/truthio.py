@@ -54,8 +54,7 @@ def dump_truth(truth: dict[str, Any]) -> str:
     """YAML text of a truth dict whose ``frames`` list (if any) comes last."""
     head = {k: v for k, v in truth.items() if k != "frames"}
     dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
-    parts = [yaml.dump(head, Dumper=dumper, sort_keys=False, default_flow_style=None,
-                       width=100)]
+    parts = [yaml.dump(head, Dumper=dumper, sort_keys=False, default_flow_style=None, width=100)]
     if "frames" in truth:
         parts.append("frames:\n" if truth["frames"] else "frames: []\n")
         for fr in truth["frames"]:

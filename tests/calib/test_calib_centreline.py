@@ -46,9 +46,16 @@ def test_association_and_perpendicular_distance_known_values() -> None:
 def test_track_ends_at_the_endpoint_residual(clean) -> None:
     p, model = clean
     th = theta_from(p.truth) + 1e-3
-    us, vs = predicted_track(list(th), list(model.data_matrix(p.streaks).T),
-                             model.gyro.omega_components, model.R0_cam_imu, (), 720,
-                             model.n_sub, NUMPY_OPS)
+    us, vs = predicted_track(
+        list(th),
+        list(model.data_matrix(p.streaks).T),
+        model.gyro.omega_components,
+        model.R0_cam_imu,
+        (),
+        720,
+        model.n_sub,
+        NUMPY_OPS,
+    )
     r = model.residual_np(th, p.streaks)
     np.testing.assert_array_equal(us[-1] - p.streaks.end[:, 0], r[:, 0])
     np.testing.assert_array_equal(vs[-1] - p.streaks.end[:, 1], r[:, 1])
@@ -72,8 +79,28 @@ def test_centre_jacobian_matches_numpy_and_finite_differences(clean) -> None:
     p, model = clean
     sub = p.streaks.subset(np.arange(60))
     ev = JacobianEvaluator(model, centre_k=4)
-    th = theta_from(p.truth) + np.array([1e-3, 2, -1, 3, -2, 1e-3, 1e-3, -1e-3, 2e-3,
-                                         1e-3, -2e-3, 3e-3, 2e-3, -1e-3, 1e-3, 5e-4, -5e-4, 1e-3])
+    th = theta_from(p.truth) + np.array(
+        [
+            1e-3,
+            2,
+            -1,
+            3,
+            -2,
+            1e-3,
+            1e-3,
+            -1e-3,
+            2e-3,
+            1e-3,
+            -2e-3,
+            3e-3,
+            2e-3,
+            -1e-3,
+            1e-3,
+            5e-4,
+            -5e-4,
+            1e-3,
+        ]
+    )
     r, J = ev.evaluate(th, sub)
     np.testing.assert_allclose(r, ev.residual(th, sub), atol=1e-9, rtol=0)
     np.testing.assert_allclose(r[:, :2], model.residual_np(th, sub), atol=1e-9, rtol=0)
@@ -93,26 +120,48 @@ def test_centre_jacobian_matches_numpy_and_finite_differences(clean) -> None:
 
 def test_centre_points_follow_start_end_swaps() -> None:
     c = np.arange(12.0).reshape(2, 3, 2)
-    s = StreakSet(np.zeros((2, 2)), np.ones((2, 2)), np.zeros(2), np.full(2, 0.01),
-                  np.zeros(2), np.arange(2), centre=c)
+    s = StreakSet(
+        np.zeros((2, 2)),
+        np.ones((2, 2)),
+        np.zeros(2),
+        np.full(2, 0.01),
+        np.zeros(2),
+        np.arange(2),
+        centre=c,
+    )
     np.testing.assert_array_equal(s.flipped().centre, c[:, ::-1])
     np.testing.assert_array_equal(s.reoriented(np.array([True, False])).centre[1], c[1])
     np.testing.assert_array_equal(s.reoriented(np.array([True, False])).centre[0], c[0, ::-1])
     with pytest.raises(CalibError, match="centre"):
-        StreakSet(np.zeros((2, 2)), np.ones((2, 2)), np.zeros(2), np.full(2, 0.01),
-                  np.zeros(2), np.arange(2), centre=np.zeros((2, 3)))
+        StreakSet(
+            np.zeros((2, 2)),
+            np.ones((2, 2)),
+            np.zeros(2),
+            np.full(2, 0.01),
+            np.zeros(2),
+            np.arange(2),
+            centre=np.zeros((2, 3)),
+        )
 
 
 def test_fit_with_centre_lines_recovers_truth() -> None:
-    p = make_problem(seed=11, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
-                     shift_error_s=-0.02, focal_error=0.04, centre_k=4, centre_noise_px=0.1)
-    res = calibrate(p.streaks, p.gyro, p.initial,
-                    FitOptions(holdout_fraction=0.25, centreline=True))
+    p = make_problem(
+        seed=11,
+        n_frames=16,
+        dots_per_frame=40,
+        endpoint_noise_px=0.1,
+        shift_error_s=-0.02,
+        focal_error=0.04,
+        centre_k=4,
+        centre_noise_px=0.1,
+    )
+    res = calibrate(
+        p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.25, centreline=True)
+    )
     assert res.converged and res.status in ("ok", "warning"), res.warnings
     truth = theta_from(p.truth)
     for k, name in enumerate(("timeshift_s", "fx", "fy", "cx", "cy", "readout_s")):
         assert abs(res.values[name] - truth[k]) < 4 * res.sigma[name], name
     with pytest.raises(CalibError, match="centre"):
         no_centre = make_problem(seed=11, n_frames=4, dots_per_frame=20)
-        calibrate(no_centre.streaks, no_centre.gyro, no_centre.initial,
-                  FitOptions(centreline=True))
+        calibrate(no_centre.streaks, no_centre.gyro, no_centre.initial, FitOptions(centreline=True))

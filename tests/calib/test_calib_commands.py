@@ -16,15 +16,22 @@ from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 from calib.testing import make_problem
 
 
-def _write_session(folder: Path, seed: int = 21,
-                   tracked: bool = False) -> tuple[Path, Calibration]:
-    p = make_problem(seed=seed, n_frames=10, dots_per_frame=30, endpoint_noise_px=0.05,
-                     shift_error_s=0.02, focal_error=0.04, tracked=tracked)
+def _write_session(folder: Path, seed: int = 21, tracked: bool = False) -> tuple[Path, Calibration]:
+    p = make_problem(
+        seed=seed,
+        n_frames=10,
+        dots_per_frame=30,
+        endpoint_noise_px=0.05,
+        shift_error_s=0.02,
+        focal_error=0.04,
+        tracked=tracked,
+    )
     s = p.streaks
     T = np.eye(4)
     T[:3, :3] = p.initial.R_cam_imu
-    meta = SessionMeta(camera=p.initial.camera,
-                       imu=ImuConfig(200.0, T, p.initial.timeshift_cam_imu_s))
+    meta = SessionMeta(
+        camera=p.initial.camera, imu=ImuConfig(200.0, T, p.initial.timeshift_cam_imu_s)
+    )
     frame_t_ns = np.round((np.unique(s.frame_t_s) + s.t0_s) * 1e9).astype(np.int64)
     with SessionWriter(folder, meta) as w:
         for ts in frame_t_ns:
@@ -33,15 +40,33 @@ def _write_session(folder: Path, seed: int = 21,
         frames = []
         for i, ts in enumerate(frame_t_ns):
             sel = s.frame == i
-            frames.append({"index": i, "timestamp_ns": int(ts), "exposure_ns": 20_000_000,
-                           "streaks": [{"dot": int(d), "start": a.tolist(), "end": b.tolist(),
-                                        "centerline": [a.tolist(), b.tolist()], "inside": True,
-                                        **({"mid": m.tolist()} if tracked else {})}
-                                       for d, a, b, m in zip(
-                                           s.streak_id[sel], s.start[sel], s.end[sel],
-                                           (s.mid if tracked else s.start)[sel], strict=True)]})
-        w.write_truth({"calibration": p.truth.to_dict(), "simulator": {"preset": "test"},
-                       "frames": frames})
+            frames.append(
+                {
+                    "index": i,
+                    "timestamp_ns": int(ts),
+                    "exposure_ns": 20_000_000,
+                    "streaks": [
+                        {
+                            "dot": int(d),
+                            "start": a.tolist(),
+                            "end": b.tolist(),
+                            "centerline": [a.tolist(), b.tolist()],
+                            "inside": True,
+                            **({"mid": m.tolist()} if tracked else {}),
+                        }
+                        for d, a, b, m in zip(
+                            s.streak_id[sel],
+                            s.start[sel],
+                            s.end[sel],
+                            (s.mid if tracked else s.start)[sel],
+                            strict=True,
+                        )
+                    ],
+                }
+            )
+        w.write_truth(
+            {"calibration": p.truth.to_dict(), "simulator": {"preset": "test"}, "frames": frames}
+        )
     from blurtrack.io.session import load_session
 
     table = streak_table.from_truth(load_session(folder).truth)
@@ -70,8 +95,22 @@ def test_calibrate_and_report(session_dir, tmp_path: Path, capsys) -> None:
     assert (tmp_path / "calib.camera_info.yaml").is_file()
 
     rep = tmp_path / "report"
-    assert main(["report", str(folder), "--calib", str(out), "--out", str(rep),
-                 "--from-truth", "--overlays", "1"]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(folder),
+                "--calib",
+                str(out),
+                "--out",
+                str(rep),
+                "--from-truth",
+                "--overlays",
+                "1",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((rep / "summary.json").read_text())
     assert summary["overall"]["after"]["mean_px"] < 0.3
     assert summary["overall"]["before"]["mean_px"] > summary["overall"]["after"]["mean_px"]
@@ -80,20 +119,37 @@ def test_calibrate_and_report(session_dir, tmp_path: Path, capsys) -> None:
     html = (rep / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 7 and "src='http" not in html
     errs = pd.read_csv(rep / "streak_errors.csv")
-    assert set(errs["variant"]) == {"before", "after", "paper_small_angle", "exact_global",
-                                    "small_angle_rolling",
-                                    "exact_rolling"}
+    assert set(errs["variant"]) == {
+        "before",
+        "after",
+        "paper_small_angle",
+        "exact_global",
+        "small_angle_rolling",
+        "exact_rolling",
+    }
     frames = pd.read_csv(rep / "frame_errors.csv")
     assert frames["frame"].nunique() == 10
 
 
 def test_bad_fit_list_and_missing_streaks(session_dir, tmp_path: Path, capsys) -> None:
     folder, _ = session_dir
-    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
-                 "--fit", "fx,zoom"]) == 2
+    assert (
+        main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"), "--fit", "fx,zoom"]) == 2
+    )
     assert "zoom" in capsys.readouterr().err
-    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
-                 "--streaks", str(tmp_path / "nope.parquet")]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                str(folder),
+                "--out",
+                str(tmp_path / "c.yaml"),
+                "--streaks",
+                str(tmp_path / "nope.parquet"),
+            ]
+        )
+        == 2
+    )
     assert "not found" in capsys.readouterr().err
     assert not (tmp_path / "c.yaml").exists()
 
@@ -102,16 +158,14 @@ def test_report_rejects_garbled_calibration(session_dir, tmp_path: Path, capsys)
     folder, _ = session_dir
     bad = tmp_path / "bad.yaml"
     bad.write_text("cam0: [1, 2\n")
-    assert main(["report", str(folder), "--calib", str(bad), "--out",
-                 str(tmp_path / "r")]) == 2
+    assert main(["report", str(folder), "--calib", str(bad), "--out", str(tmp_path / "r")]) == 2
     assert "not valid YAML" in capsys.readouterr().err
 
 
 def test_calibrate_with_centre_lines(session_dir, tmp_path: Path, capsys) -> None:
     folder, truth = session_dir
     out = tmp_path / "calib.yaml"
-    assert main(["calibrate", str(folder), "--out", str(out), "--from-truth",
-                 "--centreline"]) == 0
+    assert main(["calibrate", str(folder), "--out", str(out), "--from-truth", "--centreline"]) == 0
     capsys.readouterr()
     cal = Calibration.from_yaml(out)
     assert abs(cal.timeshift_cam_imu_s - truth.timeshift_cam_imu_s) < 2e-4
@@ -130,19 +184,32 @@ def test_calibrate_fits_tracks_where_dots_persist(tmp_path: Path, capsys) -> Non
     assert summ["tracks_inliers"]["mean_px"] < 0.2
     assert abs(summ["error_vs_truth"]["fx"]) < 2.0
     rep = tmp_path / "report"
-    assert main(["report", str(folder), "--calib", str(out), "--out", str(rep),
-                 "--overlays", "0"]) == 0
+    assert (
+        main(["report", str(folder), "--calib", str(out), "--out", str(rep), "--overlays", "0"])
+        == 0
+    )
     assert "fitted residuals: <b>tracks</b>" in (rep / "report.html").read_text()
 
 
 def test_tracks_refused_without_midpoints(session_dir, tmp_path: Path, capsys) -> None:
     folder, _ = session_dir  # its truth (and so its table) has no midpoints
-    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"), "--from-truth",
-                 "--residuals", "tracks"]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                str(folder),
+                "--out",
+                str(tmp_path / "c.yaml"),
+                "--from-truth",
+                "--residuals",
+                "tracks",
+            ]
+        )
+        == 2
+    )
     assert "midpoints" in capsys.readouterr().err
     assert not (tmp_path / "c.yaml").exists()
-    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"),
-                 "--from-truth"]) == 0
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "c.yaml"), "--from-truth"]) == 0
     assert "fitted endpoints" in capsys.readouterr().out
     summ = json.loads((tmp_path / "c.summary.json").read_text())
     assert summ["residuals"] == "endpoints"

@@ -15,10 +15,19 @@ from calib.export import write_camera_info, write_openvins
 
 
 def _calib() -> Calibration:
-    cam = Camera((1280, 720), (1001.5, 999.0, 640.2, 361.7), "radtan",
-                 (-0.1, 0.02, 1e-3, -2e-3), readout_s=0.021)
-    return Calibration(cam, R_cam_imu=so3_exp(np.array([0.1, -0.2, 0.3])),
-                       t_cam_imu_m=np.array([0.01, 0.02, -0.03]), timeshift_cam_imu_s=-0.0042)
+    cam = Camera(
+        (1280, 720),
+        (1001.5, 999.0, 640.2, 361.7),
+        "radtan",
+        (-0.1, 0.02, 1e-3, -2e-3),
+        readout_s=0.021,
+    )
+    return Calibration(
+        cam,
+        R_cam_imu=so3_exp(np.array([0.1, -0.2, 0.3])),
+        t_cam_imu_m=np.array([0.01, 0.02, -0.03]),
+        timeshift_cam_imu_s=-0.0042,
+    )
 
 
 def test_openvins_round_trip_through_opencv(tmp_path: Path) -> None:
@@ -27,8 +36,9 @@ def test_openvins_round_trip_through_opencv(tmp_path: Path) -> None:
     write_openvins(c, p)
     fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
     node = fs.getNode("cam0")
-    T = np.array([[node.getNode("T_imu_cam").at(i).at(j).real() for j in range(4)]
-                  for i in range(4)])
+    T = np.array(
+        [[node.getNode("T_imu_cam").at(i).at(j).real() for j in range(4)] for i in range(4)]
+    )
     np.testing.assert_allclose(T @ c.T_cam_imu, np.eye(4), atol=1e-12)
     intr = [node.getNode("intrinsics").at(i).real() for i in range(4)]
     assert intr == list(c.camera.intrinsics)

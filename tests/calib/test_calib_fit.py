@@ -14,8 +14,14 @@ from calib.testing import make_problem
 
 @pytest.fixture(scope="module")
 def fitted():
-    p = make_problem(seed=11, n_frames=24, dots_per_frame=40, endpoint_noise_px=0.1,
-                     shift_error_s=-0.045, focal_error=0.09)
+    p = make_problem(
+        seed=11,
+        n_frames=24,
+        dots_per_frame=40,
+        endpoint_noise_px=0.1,
+        shift_error_s=-0.045,
+        focal_error=0.09,
+    )
     return p, calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.25))
 
 
@@ -39,8 +45,13 @@ def test_recovers_truth_from_far_guess(fitted) -> None:
 
 def test_sigma_covers_the_true_error(fitted) -> None:
     p, res = fitted
-    truth = dict(zip(("timeshift_s", "fx", "fy", "cx", "cy", "readout_s"),
-                     theta_from(p.truth)[:6], strict=True))
+    truth = dict(
+        zip(
+            ("timeshift_s", "fx", "fy", "cx", "cy", "readout_s"),
+            theta_from(p.truth)[:6],
+            strict=True,
+        )
+    )
     for name, t in truth.items():
         assert res.sigma[name] > 0
         assert abs(res.values[name] - t) < 4 * res.sigma[name], name
@@ -52,8 +63,15 @@ def test_global_shutter_readout_at_its_bound() -> None:
     # Readout 0 (true and guessed), fitted: every Gauss-Newton step pulls it a little below 0.
     # Rejecting those steps stalled the fit at its start (cx, cy and the bias stayed at the
     # guess); the step is projected onto the bound instead.
-    p = make_problem(seed=3, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
-                     readout_s=0.0, shift_error_s=0.01, focal_error=0.03)
+    p = make_problem(
+        seed=3,
+        n_frames=16,
+        dots_per_frame=40,
+        endpoint_noise_px=0.1,
+        readout_s=0.0,
+        shift_error_s=0.01,
+        focal_error=0.03,
+    )
     res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.25))
     truth = theta_from(p.truth)
     v = res.values
@@ -65,8 +83,14 @@ def test_global_shutter_readout_at_its_bound() -> None:
 
 
 def test_flipped_and_gross_outliers_are_rejected() -> None:
-    p = make_problem(seed=5, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.1,
-                     shift_error_s=0.02, focal_error=0.03)
+    p = make_problem(
+        seed=5,
+        n_frames=16,
+        dots_per_frame=40,
+        endpoint_noise_px=0.1,
+        shift_error_s=0.02,
+        focal_error=0.03,
+    )
     s = p.streaks
     rng = np.random.default_rng(0)
     long = np.flatnonzero(s.length_px > 8)
@@ -127,8 +151,15 @@ def test_no_roll_warns_about_readout_and_principal_point() -> None:
 
 def test_gyro_scale_fit_removes_the_focal_bias() -> None:
     M = np.eye(3) + np.array([[4e-3, 1e-3, 0.0], [1e-3, -3e-3, 5e-4], [0.0, 5e-4, 2e-3]])
-    p = make_problem(seed=9, n_frames=12, dots_per_frame=40, endpoint_noise_px=0.05,
-                     gyro_scale=M, shift_error_s=0.01, focal_error=0.02)
+    p = make_problem(
+        seed=9,
+        n_frames=12,
+        dots_per_frame=40,
+        endpoint_noise_px=0.05,
+        gyro_scale=M,
+        shift_error_s=0.01,
+        focal_error=0.02,
+    )
     res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
     assert "scale_xy" in res.fitted  # by default
     assert not any("scale/cross-axis" in w for w in res.warnings)  # no score test when fitted
@@ -139,15 +170,19 @@ def test_gyro_scale_fit_removes_the_focal_bias() -> None:
     assert np.all(np.abs(got - want) < np.maximum(4 * sig, 3e-4)), (got - want) / sig
     assert abs(res.values["fx"] / p.truth.camera.intrinsics[0] - 1) < 1.5e-3
     assert res.calibration.sigma["gyro_scale"][0] > 0
-    np.testing.assert_allclose(res.calibration.gyro_scale_matrix - np.eye(3),
-                               [[got[0], got[3], got[4]], [got[3], got[1], got[5]],
-                                [got[4], got[5], got[2]]], atol=1e-15)
+    np.testing.assert_allclose(
+        res.calibration.gyro_scale_matrix - np.eye(3),
+        [[got[0], got[3], got[4]], [got[3], got[1], got[5]], [got[4], got[5], got[2]]],
+        atol=1e-15,
+    )
     # Without the scale group the score test flags what the fit now absorbs.
-    res0 = calibrate(p.streaks, p.gyro, p.initial,
-                     FitOptions(fit="timeshift,fx,fy,cx,cy,readout,bias,rotation",
-                                holdout_fraction=0.0))
+    res0 = calibrate(
+        p.streaks,
+        p.gyro,
+        p.initial,
+        FitOptions(fit="timeshift,fx,fy,cx,cy,readout,bias,rotation", holdout_fraction=0.0),
+    )
     assert np.array_equal(res0.calibration.gyro_scale_matrix, np.eye(3))
-
 
 
 def test_scale_check_flags_a_large_unfitted_scale() -> None:
@@ -158,11 +193,15 @@ def test_scale_check_flags_a_large_unfitted_scale() -> None:
     from calib.problem import ResidualModel, choose_substeps
 
     M = np.diag([1.0, 1.0, 1.05])  # roll-axis scale: no intrinsic can absorb it
-    p = make_problem(seed=12, n_frames=10, dots_per_frame=40, endpoint_noise_px=0.02,
-                     gyro_scale=M)
+    p = make_problem(seed=12, n_frames=10, dots_per_frame=40, endpoint_noise_px=0.02, gyro_scale=M)
     s = p.streaks
-    model = ResidualModel(relative_gyro(p.gyro.upsampled(8), s.t0_s), p.truth.R_cam_imu, (),
-                          720, choose_substeps(s, 720, 0.05))
+    model = ResidualModel(
+        relative_gyro(p.gyro.upsampled(8), s.t0_s),
+        p.truth.R_cam_imu,
+        (),
+        720,
+        choose_substeps(s, 720, 0.05),
+    )
     ev = JacobianEvaluator(model)
     free = tuple(range(12))
     w = np.ones(len(s))

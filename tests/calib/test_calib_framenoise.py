@@ -55,10 +55,18 @@ def test_moment_estimate_finds_the_frame_effect_variance() -> None:
 
 
 def test_fit_with_frame_noise_under_gyro_noise() -> None:
-    p = make_problem(seed=13, n_frames=16, dots_per_frame=40, endpoint_noise_px=0.0,
-                     gyro_noise_radps=0.005, shift_error_s=0.01, focal_error=0.02)
-    res = calibrate(p.streaks, p.gyro, p.initial,
-                    FitOptions(holdout_fraction=0.0, frame_noise=True))
+    p = make_problem(
+        seed=13,
+        n_frames=16,
+        dots_per_frame=40,
+        endpoint_noise_px=0.0,
+        gyro_noise_radps=0.005,
+        shift_error_s=0.01,
+        focal_error=0.02,
+    )
+    res = calibrate(
+        p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0, frame_noise=True)
+    )
     assert res.converged and res.status in ("ok", "warning"), res.warnings
     assert "gls_prior_scale" in res.timings_s
     truth = theta_from(p.truth)

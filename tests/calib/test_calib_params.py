@@ -44,10 +44,12 @@ def test_apply_theta_round_trip(u: list[float]) -> None:
     np.testing.assert_allclose(back[12:18], th[12:18], atol=1e-15)
     np.testing.assert_array_equal(cal.gyro_scale_matrix, scale_matrix(th))
     # and through the calibration file
-    np.testing.assert_allclose(theta_from(Calibration.from_dict(cal.to_dict()))[12:18],
-                               th[12:18], atol=1e-15)
-    np.testing.assert_allclose(rotation_error_rad(cal.R_cam_imu, BASE.R_cam_imu), th[9:12],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        theta_from(Calibration.from_dict(cal.to_dict()))[12:18], th[12:18], atol=1e-15
+    )
+    np.testing.assert_allclose(
+        rotation_error_rad(cal.R_cam_imu, BASE.R_cam_imu), th[9:12], atol=1e-9
+    )
 
 
 @given(st.lists(st.sampled_from(sorted(GROUPS)), min_size=1, max_size=9))
@@ -92,8 +94,11 @@ def test_scale_matrix_and_sigma_block() -> None:
     np.testing.assert_allclose(M, M.T)
     assert M[0, 1] == 4 and M[2, 2] == 4
     blk = sigma_block({"fx": 0.5, "timeshift_s": 1e-5, "bias_y": 1e-4})
-    assert blk == {"timeshift_cam_imu": 1e-5, "intrinsics": [0.5, None, None, None],
-                   "gyro_bias_radps": [None, 1e-4, None]}
+    assert blk == {
+        "timeshift_cam_imu": 1e-5,
+        "intrinsics": [0.5, None, None, None],
+        "gyro_bias_radps": [None, 1e-4, None],
+    }
 
 
 def test_default_fit_is_every_group_including_the_gyro_scale() -> None:
@@ -119,5 +124,4 @@ def test_symmetric_scale_form_keeps_the_measurement_model(u: list[float]) -> Non
     n = symmetric_scale_form(cal)
     np.testing.assert_allclose(n.gyro_scale_matrix, n.gyro_scale_matrix.T, atol=1e-15)
     assert np.all(np.linalg.eigvalsh(n.gyro_scale_matrix) > 0)
-    np.testing.assert_allclose(n.gyro_scale_matrix @ n.R_cam_imu.T, M @ cal.R_cam_imu.T,
-                               atol=1e-12)
+    np.testing.assert_allclose(n.gyro_scale_matrix @ n.R_cam_imu.T, M @ cal.R_cam_imu.T, atol=1e-12)

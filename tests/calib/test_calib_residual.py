@@ -16,8 +16,7 @@ from calib.testing import make_problem
 def clean():
     p = make_problem(seed=3, n_frames=8, dots_per_frame=40, endpoint_noise_px=0.0)
     g = relative_gyro(p.gyro.upsampled(8), p.streaks.t0_s)
-    model = ResidualModel(g, p.truth.R_cam_imu, (), 720,
-                          choose_substeps(p.streaks, 720, 0.05))
+    model = ResidualModel(g, p.truth.R_cam_imu, (), 720, choose_substeps(p.streaks, 720, 0.05))
     return p, model
 
 
@@ -41,8 +40,28 @@ def test_casadi_residual_and_jacobian_match_numpy(clean) -> None:
     p, model = clean
     sub = p.streaks.subset(np.arange(250))  # spans two chunks, the second one padded
     ev = JacobianEvaluator(model)
-    th = theta_from(p.truth) + np.array([1e-3, 2, -1, 3, -2, 1e-3, 1e-3, -1e-3, 2e-3,
-                                         1e-3, -2e-3, 3e-3, 2e-3, -1e-3, 1e-3, 5e-4, -5e-4, 1e-3])
+    th = theta_from(p.truth) + np.array(
+        [
+            1e-3,
+            2,
+            -1,
+            3,
+            -2,
+            1e-3,
+            1e-3,
+            -1e-3,
+            2e-3,
+            1e-3,
+            -2e-3,
+            3e-3,
+            2e-3,
+            -1e-3,
+            1e-3,
+            5e-4,
+            -5e-4,
+            1e-3,
+        ]
+    )
     r, J = ev.evaluate(th, sub)
     _, J_part = ev.evaluate(th, sub, (0, 5, 13))
     np.testing.assert_allclose(J_part[:, :, [0, 5, 13]], J[:, :, [0, 5, 13]], rtol=1e-12)

@@ -20,14 +20,14 @@ from calib.tracks import build_tracks, concat, mean_rows
 def _model(p, streaks: StreakSet) -> ResidualModel:
     g = relative_gyro(p.gyro.upsampled(GYRO_UPSAMPLE), streaks.t0_s)
     cam = p.truth.camera
-    return ResidualModel(g, p.truth.R_cam_imu, cam.dist, cam.height,
-                         choose_substeps(streaks, cam.height, 0.05))
+    return ResidualModel(
+        g, p.truth.R_cam_imu, cam.dist, cam.height, choose_substeps(streaks, cam.height, 0.05)
+    )
 
 
 @pytest.fixture(scope="module")
 def exact():
-    return make_problem(seed=5, n_frames=12, dots_per_frame=30, endpoint_noise_px=0.0,
-                        tracked=True)
+    return make_problem(seed=5, n_frames=12, dots_per_frame=30, endpoint_noise_px=0.0, tracked=True)
 
 
 def test_tracks_pair_the_same_dot_and_vanish_at_the_truth(exact) -> None:
@@ -40,8 +40,7 @@ def test_tracks_pair_the_same_dot_and_vanish_at_the_truth(exact) -> None:
     assert np.all(ids[pairs[:, 0]] == ids[pairs[:, 1]])
     assert np.all(frames[pairs[:, 1]] == frames[pairs[:, 0]] + 1)
     # Every dot seen in two consecutive frames is paired exactly once.
-    expected = sum(np.intersect1d(ids[frames == f], ids[frames == f + 1]).size
-                   for f in range(11))
+    expected = sum(np.intersect1d(ids[frames == f], ids[frames == f + 1]).size for f in range(11))
     assert len(tracks) == expected
     # A track spans mid-exposure to mid-exposure of the next frame, dated by its mean rows.
     assert np.allclose(tracks.exposure_s, 0.05)
@@ -75,8 +74,16 @@ def test_track_jacobian_matches_numpy_and_finite_differences(exact) -> None:
 def test_track_fit_is_unmoved_by_a_length_bias() -> None:
     # Both ends 0.15 px outwards on every streak, as a detector might: the endpoint fit takes it
     # for a longer focal length, the track fit (midpoints only) does not see it.
-    p = make_problem(seed=2, n_frames=30, dots_per_frame=40, endpoint_noise_px=0.05,
-                     tracked=True, end_bias_px=0.15, shift_error_s=0.02, focal_error=0.04)
+    p = make_problem(
+        seed=2,
+        n_frames=30,
+        dots_per_frame=40,
+        endpoint_noise_px=0.05,
+        tracked=True,
+        end_bias_px=0.15,
+        shift_error_s=0.02,
+        focal_error=0.04,
+    )
     truth = theta_from(p.truth)
     ep = calibrate(p.streaks, p.gyro, p.initial, FitOptions(residuals="endpoints"))
     tr = calibrate(p.streaks, p.gyro, p.initial, FitOptions(residuals="tracks"))
@@ -95,9 +102,15 @@ def test_track_fit_is_unmoved_by_a_length_bias() -> None:
 
 def test_tracks_need_midpoints_and_consecutive_frames(exact) -> None:
     p = exact
-    no_mid = StreakSet(p.streaks.start, p.streaks.end, p.streaks.frame_t_s,
-                       p.streaks.exposure_s, p.streaks.frame, p.streaks.streak_id,
-                       p.streaks.t0_s)
+    no_mid = StreakSet(
+        p.streaks.start,
+        p.streaks.end,
+        p.streaks.frame_t_s,
+        p.streaks.exposure_s,
+        p.streaks.frame,
+        p.streaks.streak_id,
+        p.streaks.t0_s,
+    )
     with pytest.raises(CalibError, match="midpoints"):
         calibrate(no_mid, p.gyro, p.initial, FitOptions(residuals="tracks"))
     sparse = p.streaks.subset(p.streaks.frame % 3 == 0)  # no two frames within reach
@@ -114,22 +127,45 @@ def test_options_and_time_rows_are_validated() -> None:
         FitOptions(residuals="tracks", frame_noise=True)
     z = np.zeros((2, 2))
     with pytest.raises(CalibError, match="time rows"):
-        StreakSet(z, z + 1, np.zeros(2), np.ones(2), np.arange(2), np.arange(2),
-                  time_row=np.zeros((3, 2)))
+        StreakSet(
+            z, z + 1, np.zeros(2), np.ones(2), np.arange(2), np.arange(2), time_row=np.zeros((3, 2))
+        )
     with pytest.raises(CalibError, match="midpoints"):
-        StreakSet(z, z + 1, np.zeros(2), np.ones(2), np.arange(2), np.arange(2),
-                  mid=np.full((2, 2), np.nan))
-    s = StreakSet(z, z + 1, np.zeros(2), np.ones(2), np.arange(2), np.arange(2),
-                  time_row=np.array([[1.0, 2.0], [3.0, 4.0]]))
+        StreakSet(
+            z,
+            z + 1,
+            np.zeros(2),
+            np.ones(2),
+            np.arange(2),
+            np.arange(2),
+            mid=np.full((2, 2), np.nan),
+        )
+    s = StreakSet(
+        z,
+        z + 1,
+        np.zeros(2),
+        np.ones(2),
+        np.arange(2),
+        np.arange(2),
+        time_row=np.array([[1.0, 2.0], [3.0, 4.0]]),
+    )
     assert s.reoriented(np.array([True, False])).rows.tolist() == [[2.0, 1.0], [3.0, 4.0]]
     assert s.flipped().rows.tolist() == [[2.0, 1.0], [4.0, 3.0]]
-    assert StreakSet(z, z + 1, np.zeros(2), np.ones(2), np.arange(2),
-                     np.arange(2)).rows.tolist() == [[0.0, 1.0], [0.0, 1.0]]
+    assert StreakSet(
+        z, z + 1, np.zeros(2), np.ones(2), np.arange(2), np.arange(2)
+    ).rows.tolist() == [[0.0, 1.0], [0.0, 1.0]]
 
 
 def test_auto_picks_tracks_or_endpoints() -> None:
-    p = make_problem(seed=4, n_frames=14, dots_per_frame=30, endpoint_noise_px=0.05,
-                     tracked=True, shift_error_s=0.01, focal_error=0.02)
+    p = make_problem(
+        seed=4,
+        n_frames=14,
+        dots_per_frame=30,
+        endpoint_noise_px=0.05,
+        tracked=True,
+        shift_error_s=0.01,
+        focal_error=0.02,
+    )
     res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0))
     assert res.residuals == "tracks" and res.n_tracks > 300
     # Midpoints of most streaks moved far off: few tracks are left, fitted alone, with a
@@ -140,11 +176,11 @@ def test_auto_picks_tracks_or_endpoints() -> None:
     mid = p.streaks.mid + np.where(rng.random(len(p.streaks)) < 0.6, 1.0, 0.0)[:, None] * off
     from dataclasses import replace
 
-    few = calibrate(replace(p.streaks, mid=mid), p.gyro, p.initial,
-                    FitOptions(holdout_fraction=0))
+    few = calibrate(replace(p.streaks, mid=mid), p.gyro, p.initial, FitOptions(holdout_fraction=0))
     assert few.residuals == "tracks" and 30 <= few.n_tracks < 0.25 * len(p.streaks)
     assert any("the fit uses the tracks only" in w for w in few.warnings)
-    bare = calibrate(replace(p.streaks, mid=None), p.gyro, p.initial,
-                     FitOptions(holdout_fraction=0))
+    bare = calibrate(
+        replace(p.streaks, mid=None), p.gyro, p.initial, FitOptions(holdout_fraction=0)
+    )
     assert bare.residuals == "endpoints" and bare.tracks is None
     assert any("no time midpoints" in w for w in bare.warnings)

@@ -41,17 +41,44 @@ def test_casadi_twin_equals_numpy_to_1e9() -> None:
     s = ca.MX.sym("shift")
     k = ca.MX.sym("k", 4)
     U, V = ca.DM(u), ca.DM(v)
-    uu, vv = warp_c(U, V, ca.DM(t0), ca.DM(t1), omega_cam_fn(ca_omega, R, bias, s),
-                    (k[0], k[1], k[2], k[3]), dist, 30, CA_OPS)
+    uu, vv = warp_c(
+        U,
+        V,
+        ca.DM(t0),
+        ca.DM(t1),
+        omega_cam_fn(ca_omega, R, bias, s),
+        (k[0], k[1], k[2], k[3]),
+        dist,
+        30,
+        CA_OPS,
+    )
     f = ca.Function("f", [s, k], [uu, vv])
     got_u, got_v = f(shift, intr)
     np.testing.assert_allclose(np.asarray(got_u).ravel(), ref[0], atol=1e-9, rtol=0)
     np.testing.assert_allclose(np.asarray(got_v).ravel(), ref[1], atol=1e-9, rtol=0)
 
-    ro = rolling_endpoint_c(u, v, t0, t0 - 0.01, 0.02, 0.03, 720,
-                            omega_cam_fn(np_omega, R, bias, shift), intr, dist, 30)
-    g = ca.Function("g", [s], list(rolling_endpoint_c(
-        U, V, ca.DM(t0), ca.DM(t0 - 0.01), 0.02, 0.03, 720,
-        omega_cam_fn(ca_omega, R, bias, s), intr, dist, 30, CA_OPS)))
+    ro = rolling_endpoint_c(
+        u, v, t0, t0 - 0.01, 0.02, 0.03, 720, omega_cam_fn(np_omega, R, bias, shift), intr, dist, 30
+    )
+    g = ca.Function(
+        "g",
+        [s],
+        list(
+            rolling_endpoint_c(
+                U,
+                V,
+                ca.DM(t0),
+                ca.DM(t0 - 0.01),
+                0.02,
+                0.03,
+                720,
+                omega_cam_fn(ca_omega, R, bias, s),
+                intr,
+                dist,
+                30,
+                CA_OPS,
+            )
+        ),
+    )
     for a, b in zip(g(shift), ro, strict=True):
         np.testing.assert_allclose(np.asarray(a).ravel(), b, atol=1e-9, rtol=0)

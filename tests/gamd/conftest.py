@@ -23,11 +23,16 @@ def bezier_blur(sharp: np.ndarray, heat: np.ndarray, n_t: int = 24) -> np.ndarra
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     acc = np.zeros_like(sharp)
     for t in (np.arange(n_t) + 0.5) / n_t:
-        a, b, c = (1 - t) ** 2, 2 * t * (1 - t), t ** 2
+        a, b, c = (1 - t) ** 2, 2 * t * (1 - t), t**2
         qx = a * heat[0] + c * heat[2] + b * heat[4]
         qy = a * heat[1] + c * heat[3] + b * heat[5]
-        acc += cv2.remap(sharp, (xs + qx).astype(np.float32), (ys + qy).astype(np.float32),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        acc += cv2.remap(
+            sharp,
+            (xs + qx).astype(np.float32),
+            (ys + qy).astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REFLECT,
+        )
     return acc / n_t
 
 
@@ -44,8 +49,13 @@ def random_example(rng: np.random.Generator, h: int, w: int) -> tuple[np.ndarray
     return sharp, bezier_blur(sharp, heat), heat
 
 
-def write_dataset(root: Path, counts: dict[str, int], size_hw: tuple[int, int] = (40, 48),
-                  seed: int = 0, with_heat: bool = True) -> Path:
+def write_dataset(
+    root: Path,
+    counts: dict[str, int],
+    size_hw: tuple[int, int] = (40, 48),
+    seed: int = 0,
+    with_heat: bool = True,
+) -> Path:
     """Write a dataset in the `blurtrack synth` layout and return its root."""
     rng = np.random.default_rng(seed)
     manifest = []
@@ -57,8 +67,9 @@ def write_dataset(root: Path, counts: dict[str, int], size_hw: tuple[int, int] =
             folder = root / split / name
             for sub, img in (("sharp", sharp), ("blur", blur)):
                 (folder / sub).mkdir(parents=True, exist_ok=True)
-                bgr = cv2.cvtColor((img * 255 + 0.5).clip(0, 255).astype(np.uint8),
-                                   cv2.COLOR_RGB2BGR)
+                bgr = cv2.cvtColor(
+                    (img * 255 + 0.5).clip(0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR
+                )
                 cv2.imwrite(str(folder / sub / f"{stem}.png"), bgr)
             if with_heat:
                 (folder / "heat").mkdir(exist_ok=True)

@@ -37,18 +37,33 @@ def test_link_groups_builds_a_readable_dataset(bench, tiny_dataset, tmp_path) ->
     blur.write_bytes(blur.read_bytes() + b"x")
     assert not bench.same_blur(tiny_dataset, copy)
     bench.link_groups(copy, tmp_path / "heat" / "train", "a", what="heat")
-    swapped = DeblurDataset(tmp_path / "data", "train", crop=None, augment=False,
-                            heat_scale_px=1.0, heat_root=tmp_path / "heat")
+    swapped = DeblurDataset(
+        tmp_path / "data",
+        "train",
+        crop=None,
+        augment=False,
+        heat_scale_px=1.0,
+        heat_root=tmp_path / "heat",
+    )
     assert swapped.triplets[0].heat.parent.parent.parent.parent == tmp_path / "heat"
 
 
 def test_gains_and_ratios(bench) -> None:
     prof = {"cpu_ms_median": {"256x256": 10.0}, "macs": {"256x256": 100}}
-    nets = {"gamd": {"psnr_db": 30.0, "ssim": 0.9, "tiny": prof,
-                     "perturbed": {"timeshift_ms=2": {"psnr_db": 29.0}, "x": "unavailable"}},
-            "gamd_only": {"psnr_db": 26.0, "ssim": 0.8, "tiny": prof},
-            "mimo_unet": {"psnr_db": 25.0, "ssim": 0.7,
-                          "tiny": {"cpu_ms_median": {"256x256": 20.0}, "macs": {"256x256": 50}}}}
+    nets = {
+        "gamd": {
+            "psnr_db": 30.0,
+            "ssim": 0.9,
+            "tiny": prof,
+            "perturbed": {"timeshift_ms=2": {"psnr_db": 29.0}, "x": "unavailable"},
+        },
+        "gamd_only": {"psnr_db": 26.0, "ssim": 0.8, "tiny": prof},
+        "mimo_unet": {
+            "psnr_db": 25.0,
+            "ssim": 0.7,
+            "tiny": {"cpu_ms_median": {"256x256": 20.0}, "macs": {"256x256": 50}},
+        },
+    }
     r = bench.ratios(nets, "tiny")
     assert r["gamd"]["psnr_gain_db"] == 5.0 and r["gamd"]["cpu_ms_ratio_256x256"] == 0.5
     assert r["gamd"]["macs_ratio_256x256"] == 2.0

@@ -15,8 +15,9 @@ def _ramp_heat(h: int, w: int) -> np.ndarray:
     """A spatially varying motion: q grows along x and y."""
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     base = [2.5, -1.0, -2.0, 1.5, 0.5, 2.0]
-    return np.stack([b + 0.04 * (xs if i % 2 == 0 else ys) for i, b in enumerate(base)]
-                    ).astype(np.float32)
+    return np.stack([b + 0.04 * (xs if i % 2 == 0 else ys) for i, b in enumerate(base)]).astype(
+        np.float32
+    )
 
 
 @pytest.mark.parametrize("op", ["h", "v", "r1", "r2", "r3", "hr1"])
@@ -115,5 +116,6 @@ def test_sampler_partitions_global_batch_and_resumes() -> None:
 
 def test_normalise_heat_rejects_bad_scale() -> None:
     from gamd.errors import GamdConfigError
+
     with pytest.raises(GamdConfigError):
         normalise_heat(torch.zeros(6, 2, 2), 0.0)

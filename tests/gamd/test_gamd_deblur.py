@@ -18,10 +18,17 @@ from gamd.infer import frame_to_rgb
 @pytest.fixture(scope="module")
 def checkpoint(tiny_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("gamd_ckpt")
-    cfg = {"model": {"name": "gamd", "preset": "tiny"},
-           "data": {"root": str(tiny_dataset), "crop": 16, "heat_scale_px": 8.0},
-           "train": {"out_dir": str(out), "steps": 1, "batch_size": 1, "progress": False,
-                     "tensorboard": False}}
+    cfg = {
+        "model": {"name": "gamd", "preset": "tiny"},
+        "data": {"root": str(tiny_dataset), "crop": 16, "heat_scale_px": 8.0},
+        "train": {
+            "out_dir": str(out),
+            "steps": 1,
+            "batch_size": 1,
+            "progress": False,
+            "tensorboard": False,
+        },
+    }
     (out / "cfg.yaml").write_text(yaml.safe_dump(cfg))
     assert main(["train", "--config", str(out / "cfg.yaml")]) == 0
     return out / "checkpoints/last.pt"
@@ -48,8 +55,21 @@ def _session(tmp_path, gray: bool):
 def test_deblur_session_writes_frames(checkpoint, tmp_path, gray, capsys) -> None:
     session, pred, stamps = _session(tmp_path, gray)
     out = tmp_path / "out"
-    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "deblur",
+                str(session),
+                "--checkpoint",
+                str(checkpoint),
+                "--heat",
+                str(pred),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "2 frames" in capsys.readouterr().out
     for ts in stamps:
         img = cv2.imread(str(out / f"{ts}.png"))
@@ -61,14 +81,45 @@ def test_deblur_session_writes_frames(checkpoint, tmp_path, gray, capsys) -> Non
 def test_deblur_refuses_missing_heat(checkpoint, tmp_path, capsys) -> None:
     session, pred, stamps = _session(tmp_path, False)
     (pred / "heat" / f"{stamps[1]}.npy").unlink()
-    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
-                 "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(
+            [
+                "deblur",
+                str(session),
+                "--checkpoint",
+                str(checkpoint),
+                "--heat",
+                str(pred),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 2
+    )
     assert f"no heat map for frame {stamps[1]}" in capsys.readouterr().err
-    assert main(["deblur", str(session), "--checkpoint", str(checkpoint),
-                 "--out", str(tmp_path / "o2")]) == 2
+    assert (
+        main(
+            ["deblur", str(session), "--checkpoint", str(checkpoint), "--out", str(tmp_path / "o2")]
+        )
+        == 2
+    )
     assert "needs heat maps" in capsys.readouterr().err
-    assert main(["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred),
-                 "--out", str(tmp_path / "o3"), "--skip-missing"]) == 0
+    assert (
+        main(
+            [
+                "deblur",
+                str(session),
+                "--checkpoint",
+                str(checkpoint),
+                "--heat",
+                str(pred),
+                "--out",
+                str(tmp_path / "o3"),
+                "--skip-missing",
+            ]
+        )
+        == 0
+    )
     assert "1 skipped" in capsys.readouterr().out
     summary = json.loads((tmp_path / "o3/summary.json").read_text())
     assert summary["frames"] == stamps[:1] and summary["skipped"] == stamps[1:]
@@ -85,8 +136,7 @@ def test_frame_to_rgb_conventions() -> None:
 def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
     from gamd.demo import demo_train
 
-    s = demo_train(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2,
-                 progress=False)
+    s = demo_train(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2, progress=False)
     img = cv2.imread(s["picture"])
     assert img.shape == (40, 3 * 48 + 8, 3)
     assert json.loads((tmp_path / "demo/summary.json").read_text())["steps"] == 3

@@ -29,8 +29,9 @@ class Oracle(DeblurNet):
         self.dummy = torch.nn.Parameter(torch.zeros(()))
 
     def _forward(self, blur, heat):
-        return [self.image[None].expand_as(blur[:, :, : self.image.shape[1],
-                                                : self.image.shape[2]])]
+        return [
+            self.image[None].expand_as(blur[:, :, : self.image.shape[1], : self.image.shape[2]])
+        ]
 
 
 @pytest.mark.filterwarnings("ignore:divide by zero")
@@ -60,17 +61,37 @@ def test_evaluate_scores_restored_images(tiny_dataset, tmp_path) -> None:
 
 
 def test_cli_train_then_eval(tiny_dataset, tmp_path, capsys) -> None:
-    cfg = {"model": {"name": "gamd_only", "preset": "tiny"},
-           "data": {"root": str(tiny_dataset), "crop": 16},
-           "train": {"out_dir": str(tmp_path / "run"), "steps": 2, "batch_size": 2,
-                     "tensorboard": True, "checkpoint_every": 2}}
+    cfg = {
+        "model": {"name": "gamd_only", "preset": "tiny"},
+        "data": {"root": str(tiny_dataset), "crop": 16},
+        "train": {
+            "out_dir": str(tmp_path / "run"),
+            "steps": 2,
+            "batch_size": 2,
+            "tensorboard": True,
+            "checkpoint_every": 2,
+        },
+    }
     (tmp_path / "cfg.yaml").write_text(yaml.safe_dump(cfg))
     assert main(["train", "--config", str(tmp_path / "cfg.yaml"), "--no-progress"]) == 0
     assert "gamd train: gamd_only steps 0->2" in capsys.readouterr().out
     assert any((tmp_path / "run/tensorboard").iterdir())
     ckpt = tmp_path / "run/checkpoints/last.pt"
-    assert main(["eval", "--checkpoint", str(ckpt), "--data", str(tiny_dataset),
-                 "--out", str(tmp_path / "ev"), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(ckpt),
+                "--data",
+                str(tiny_dataset),
+                "--out",
+                str(tmp_path / "ev"),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "gamd_only@2" in out and "structural_similarity" in out
     assert json.loads((tmp_path / "ev/summary.json").read_text())["count"] == 3
@@ -81,8 +102,20 @@ def test_cli_errors_are_one_line(tiny_dataset, tmp_path, capsys) -> None:
     err = capsys.readouterr().err.strip()
     assert err.startswith("gamd train: error: cannot read config") and "\n" not in err
     (tmp_path / "bad.pt").write_bytes(b"\x00garbage")
-    assert main(["eval", "--checkpoint", str(tmp_path / "bad.pt"), "--data",
-                 str(tiny_dataset), "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(tmp_path / "bad.pt"),
+                "--data",
+                str(tiny_dataset),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 2
+    )
     assert "gamd eval: error: cannot read checkpoint" in capsys.readouterr().err
 
 
@@ -93,7 +126,8 @@ def test_heat_root_swaps_heat_maps(tiny_dataset, tmp_path) -> None:
         dst.parent.mkdir(parents=True, exist_ok=True)
         np.save(dst, np.load(src) + 1.0)
     a = DeblurDataset(tiny_dataset, "test", crop=None, augment=False, heat_scale_px=1.0)
-    b = DeblurDataset(tiny_dataset, "test", crop=None, augment=False, heat_scale_px=1.0,
-                      heat_root=other)
+    b = DeblurDataset(
+        tiny_dataset, "test", crop=None, augment=False, heat_scale_px=1.0, heat_root=other
+    )
     assert torch.allclose(b.full(0)["heat"], a.full(0)["heat"] + 1.0)
     assert torch.equal(b.full(0)["blur"], a.full(0)["blur"])

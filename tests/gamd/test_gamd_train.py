@@ -24,17 +24,31 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _config(root: Path, out: Path, name: str = "gamd", **train_kw) -> RunConfig:
-    train = {"out_dir": str(out), "steps": 6, "batch_size": 2, "lr": 2e-3, "milestones": [4],
-             "seed": 7, "checkpoint_every": 3, "progress": False, "tensorboard": False}
+    train = {
+        "out_dir": str(out),
+        "steps": 6,
+        "batch_size": 2,
+        "lr": 2e-3,
+        "milestones": [4],
+        "seed": 7,
+        "checkpoint_every": 3,
+        "progress": False,
+        "tensorboard": False,
+    }
     train.update(train_kw)
-    return RunConfig.from_dict({"model": {"name": name, "preset": "tiny", "num_res": 1},
-                                "data": {"root": str(root), "crop": 16, "heat_scale_px": 4.0},
-                                "train": train})
+    return RunConfig.from_dict(
+        {
+            "model": {"name": name, "preset": "tiny", "num_res": 1},
+            "data": {"root": str(root), "crop": 16, "heat_scale_px": 4.0},
+            "train": train,
+        }
+    )
 
 
 def _fixed_loss(model, cfg: RunConfig) -> float:
-    ds = DeblurDataset(cfg.data.root, "train", crop=None, augment=False,
-                       heat_scale_px=cfg.data.heat_scale_px)
+    ds = DeblurDataset(
+        cfg.data.root, "train", crop=None, augment=False, heat_scale_px=cfg.data.heat_scale_px
+    )
     items = [ds.full(i) for i in range(len(ds))]
     blur = torch.stack([it["blur"] for it in items])
     sharp = torch.stack([it["sharp"] for it in items])
@@ -46,8 +60,9 @@ def _fixed_loss(model, cfg: RunConfig) -> float:
 
 @pytest.mark.parametrize("name", ["gamd", "mimo_pro"])
 def test_training_lowers_the_loss(tiny_dataset, tmp_path, name) -> None:
-    cfg = _config(tiny_dataset, tmp_path / name, name=name, steps=30, lr=3e-3,
-                  milestones=[25], batch_size=2)
+    cfg = _config(
+        tiny_dataset, tmp_path / name, name=name, steps=30, lr=3e-3, milestones=[25], batch_size=2
+    )
     torch.manual_seed(cfg.train.seed)  # the initial weights train() starts from
     before = _fixed_loss(build_model(name, "tiny", num_res=1), cfg)
     res = train(cfg)
@@ -99,9 +114,13 @@ def test_bad_checkpoints_and_configs(tmp_path) -> None:
         load_checkpoint(tmp_path / "z.pt")
     good = {"model": {"name": "gamd"}, "data": {"root": "d"}, "train": {"out_dir": "o"}}
     assert RunConfig.from_dict(good).loss_name == "gamd"
-    for section, bad in [("train", {"out_dir": "o", "stepz": 3}), ("train", {"out_dir": "o",
-                         "milestones": [5, 2]}), ("data", {"root": "d", "heat_scale_px": -1}),
-                         ("model", {"name": "resnet"}), ("train", {"out_dir": "o", "loss": "l2"})]:
+    for section, bad in [
+        ("train", {"out_dir": "o", "stepz": 3}),
+        ("train", {"out_dir": "o", "milestones": [5, 2]}),
+        ("data", {"root": "d", "heat_scale_px": -1}),
+        ("model", {"name": "resnet"}),
+        ("train", {"out_dir": "o", "loss": "l2"}),
+    ]:
         with pytest.raises(GamdConfigError):
             RunConfig.from_dict({**good, section: bad})
     path = tmp_path / "c.yaml"
@@ -115,8 +134,11 @@ def test_losses_known_values() -> None:
     outs = [torch.full((1, 3, 8, 8), 0.5), torch.full((1, 3, 2, 2), 1.0)]
     assert float(gamd_loss(outs, sharp, (1, 4))) == pytest.approx(0.5 + 0.6 * 1.0)
     # constant error c: L1 c per scale; FFT L1 = c·N·... only the DC term, real part
-    m_outs = [torch.full((1, 3, 8, 8), 0.5), torch.full((1, 3, 4, 4), 0.5),
-              torch.full((1, 3, 2, 2), 0.5)]
+    m_outs = [
+        torch.full((1, 3, 8, 8), 0.5),
+        torch.full((1, 3, 4, 4), 0.5),
+        torch.full((1, 3, 2, 2), 0.5),
+    ]
     expected_fft = sum(0.5 * n * n / (n * n * 2) for n in (8, 4, 2))
     assert float(mimo_loss(m_outs, sharp, (1, 2, 4))) == pytest.approx(1.5 + 0.1 * expected_fft)
 
@@ -138,12 +160,29 @@ def test_ddp_two_gloo_processes_agree(tiny_dataset, tmp_path) -> None:
     cfg = _config(tiny_dataset, tmp_path / "ddp", steps=3, batch_size=1)
     cfg.to_yaml(tmp_path / "cfg.yaml")
     (tmp_path / "worker.py").write_text(WORKER)
-    env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-           "OMP_NUM_THREADS": "1"}
+    env = {
+        **os.environ,
+        "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+        "OMP_NUM_THREADS": "1",
+    }
     proc = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-         str(tmp_path / "worker.py"), str(tmp_path / "cfg.yaml"), str(tmp_path)],
-        env=env, capture_output=True, text=True, timeout=300, check=False)
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            str(tmp_path / "worker.py"),
+            str(tmp_path / "cfg.yaml"),
+            str(tmp_path),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     r0 = torch.load(tmp_path / "rank0.pt", weights_only=True)
     r1 = torch.load(tmp_path / "rank1.pt", weights_only=True)

@@ -44,8 +44,11 @@ def test_file_replay_timestamps_follow_the_file(tmp_path: Path) -> None:
 
 def test_virtual_camera_schedule_and_exposure() -> None:
     clock = ManualClock(start_ns=5_000)
-    cam = VirtualCamera(dot_grid_renderer(80, 60), VirtualCameraConfig(
-        fps=50.0, exposure_s=0.004, n_frames=3, realtime=False), clock)
+    cam = VirtualCamera(
+        dot_grid_renderer(80, 60),
+        VirtualCameraConfig(fps=50.0, exposure_s=0.004, n_frames=3, realtime=False),
+        clock,
+    )
     frames = [cam.read() for _ in range(4)]
     assert frames[3] is None
     assert [f.timestamp_ns for f in frames[:3]] == [5_000, 20_005_000, 40_005_000]
@@ -56,8 +59,11 @@ def test_virtual_camera_schedule_and_exposure() -> None:
 
 def test_virtual_camera_slow_reader_loses_frames_beyond_the_buffer() -> None:
     clock = ManualClock(start_ns=0)
-    cam = VirtualCamera(lambda t: np.full((4, 4), int(t * 100) % 256, np.uint8),
-                        VirtualCameraConfig(fps=100.0, exposure_s=0.001, buffer_frames=4), clock)
+    cam = VirtualCamera(
+        lambda t: np.full((4, 4), int(t * 100) % 256, np.uint8),
+        VirtualCameraConfig(fps=100.0, exposure_s=0.001, buffer_frames=4),
+        clock,
+    )
     clock.advance_s(0.0015)
     assert cam.read().index == 0
     clock.advance_s(0.2)  # 20 frame periods late; the ring buffer holds 4
@@ -88,9 +94,11 @@ def test_shared_origin_puts_imu_and_camera_on_one_timeline() -> None:
     clock = ManualClock(start_ns=7_000_000_000)
     origin = clock.now_ns()
     seen: list[float] = []
-    cam = VirtualCamera(lambda t: (seen.append(t), np.zeros((2, 2), np.uint8))[1],
-                        VirtualCameraConfig(fps=20.0, exposure_s=0.01, realtime=False,
-                                            origin_ns=origin), clock)
+    cam = VirtualCamera(
+        lambda t: (seen.append(t), np.zeros((2, 2), np.uint8))[1],
+        VirtualCameraConfig(fps=20.0, exposure_s=0.01, realtime=False, origin_ns=origin),
+        clock,
+    )
     clock.advance_s(3.0)  # the camera was created long before it is read
     frames = [cam.read() for _ in range(3)]
     assert seen == [0.0, 0.05, 0.1]
@@ -102,8 +110,11 @@ def test_shared_origin_puts_imu_and_camera_on_one_timeline() -> None:
 
     from rigs.imu import ImuDriver
 
-    imu = VirtualImu(lambda t: np.stack([t, t, t], axis=1),
-                     VirtualImuConfig(rate_hz=200.0, realtime=True, origin_ns=origin), clock)
+    imu = VirtualImu(
+        lambda t: np.stack([t, t, t], axis=1),
+        VirtualImuConfig(rate_hz=200.0, realtime=True, origin_ns=origin),
+        clock,
+    )
     drv = ImuDriver(serial.Serial(imu.open_pty(), timeout=0.05), "sim://imu", device=imu)
     imu.start()
     try:

@@ -45,8 +45,21 @@ def encoder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("fw")
     (d / "main.c").write_text(PROGRAM)
     exe = d / "enc"
-    subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-I", str(FIRMWARE), str(d / "main.c"),
-                    "-o", str(exe)], check=True, timeout=120)
+    subprocess.run(
+        [
+            cc,
+            "-std=c99",
+            "-Wall",
+            "-Werror",
+            "-I",
+            str(FIRMWARE),
+            str(d / "main.c"),
+            "-o",
+            str(exe),
+        ],
+        check=True,
+        timeout=120,
+    )
     return exe
 
 
@@ -57,8 +70,13 @@ def test_firmware_frames_and_lines_match_python(encoder: Path) -> None:
         t_us = int(rng.integers(0, 2**32))
         g = [int(v) for v in rng.integers(-(2**31), 2**31, 3)]
         a = [int(v) for v in rng.integers(-(10**8), 10**8, 3)]
-        out = subprocess.run([str(encoder), str(counter), str(t_us), *map(str, g + a)],
-                             check=True, capture_output=True, text=True, timeout=30).stdout
+        out = subprocess.run(
+            [str(encoder), str(counter), str(t_us), *map(str, g + a)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        ).stdout
         full, gyro_only, line = out.split(" ", 2)
         assert bytes.fromhex(full) == encode_binary(counter, t_us, tuple(g), tuple(a))
         assert bytes.fromhex(gyro_only) == encode_binary(counter, t_us, tuple(g))

@@ -33,15 +33,19 @@ def drain(driver: ImuDriver) -> list[ImuBatch]:
 
 
 def concat(batches: list[ImuBatch]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (np.concatenate([b.index for b in batches]),
-            np.concatenate([b.t_dev_us for b in batches]),
-            np.concatenate([b.gyro_radps for b in batches]))
+    return (
+        np.concatenate([b.index for b in batches]),
+        np.concatenate([b.t_dev_us for b in batches]),
+        np.concatenate([b.gyro_radps for b in batches]),
+    )
 
 
 def test_one_percent_byte_corruption_loses_only_damaged_frames() -> None:
     n = 4000
-    drv = open_imu(f"sim://imu?rate=1000&realtime=0&samples={n}&flip=0.01&seed=7"
-                   "&counter_start=63000&t0_us=4293000000")
+    drv = open_imu(
+        f"sim://imu?rate=1000&realtime=0&samples={n}&flip=0.01&seed=7"
+        "&counter_start=63000&t0_us=4293000000"
+    )
     try:
         index, t_dev_us, gyro = concat(drain(drv))
         dev = drv.device

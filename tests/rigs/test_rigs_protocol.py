@@ -190,8 +190,11 @@ def test_sequencer_ascii_gaps_from_time() -> None:
 
 
 @settings(max_examples=80, deadline=None, derandomize=True)
-@given(data=st.binary(max_size=400), cuts=st.lists(st.integers(0, 400), max_size=8),
-       proto=st.sampled_from(["binary", "ascii", "auto"]))
+@given(
+    data=st.binary(max_size=400),
+    cuts=st.lists(st.integers(0, 400), max_size=8),
+    proto=st.sampled_from(["binary", "ascii", "auto"]),
+)
 def test_decoder_never_raises_and_chunking_does_not_matter(data, cuts, proto) -> None:
     whole = StreamDecoder(proto).feed(data)
     dec = StreamDecoder(proto)

@@ -20,8 +20,11 @@ def _write(path: Path, n_chunks: int = 6) -> tuple[list[np.ndarray], np.ndarray]
         sl = slice(10 * c, 10 * c + 10)
         idx = np.arange(sl.start, sl.stop)
         w.write_imu(c, idx, idx * 1000, idx * 1000 + 5, gyro[sl], None)
-        img = rng.integers(0, 65535, (6, 5, 3), dtype=np.uint16) if c % 2 else \
-            rng.integers(0, 255, (6, 5), dtype=np.uint8)
+        img = (
+            rng.integers(0, 65535, (6, 5, 3), dtype=np.uint16)
+            if c % 2
+            else rng.integers(0, 255, (6, 5), dtype=np.uint8)
+        )
         images.append(img)
         w.write_frame(CameraFrame(c, img, 100 * c, 7, c, "driver"), img.tobytes())
         w.flush()  # one chunk per iteration

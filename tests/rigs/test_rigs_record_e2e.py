@@ -40,11 +40,14 @@ def test_recorder_keeps_every_intact_sample_at_one_percent_corruption(tmp_path: 
     n = 3000
     imu = open_imu(f"sim://imu?rate=1000&realtime=0&samples={n}&flip=0.01&seed=11")
     frames = [np.full((24, 32), 10 * i, np.uint8) for i in range(5)]
-    cam = VirtualCamera(lambda t: frames[min(int(t * 10), 4)],
-                        VirtualCameraConfig(fps=10, exposure_s=0.005, n_frames=5, realtime=False))
+    cam = VirtualCamera(
+        lambda t: frames[min(int(t * 10), 4)],
+        VirtualCameraConfig(fps=10, exposure_s=0.005, n_frames=5, realtime=False),
+    )
     # the camera ends long before the board: the recorder waits for the board's last sample
-    rec = Recorder(tmp_path / "rec.mcap", imu, cam, {"imu_url": "sim"},
-                   RecorderConfig(flush_interval_s=0.05))
+    rec = Recorder(
+        tmp_path / "rec.mcap", imu, cam, {"imu_url": "sim"}, RecorderConfig(flush_interval_s=0.05)
+    )
     dev = imu.device
     assert dev is not None
     result = rec.run()
@@ -65,8 +68,14 @@ def test_recorder_keeps_every_intact_sample_at_one_percent_corruption(tmp_path: 
 
 def _spawn(args: list[str]) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.Popen([sys.executable, "-m", "blurtrack", *args], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "blurtrack", *args],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _wait_for_flushed(proc: subprocess.Popen[str], imu_at_least: int) -> tuple[int, int]:
@@ -87,8 +96,15 @@ def _wait_for_flushed(proc: subprocess.Popen[str], imu_at_least: int) -> tuple[i
     raise AssertionError(f"recorder ended early: {proc.stderr.read() if proc.stderr else ''}")
 
 
-RECORD = ["record", "--imu", "sim://imu?rate=500", "--camera",
-          "sim://camera?fps=10&width=64&height=48", "--flush-interval", "0.1"]
+RECORD = [
+    "record",
+    "--imu",
+    "sim://imu?rate=500",
+    "--camera",
+    "sim://camera?fps=10&width=64&height=48",
+    "--flush-interval",
+    "0.1",
+]
 
 
 def test_sigkill_then_recover_keeps_everything_flushed(tmp_path: Path) -> None:
@@ -116,11 +132,22 @@ def test_sigkill_then_recover_keeps_everything_flushed(tmp_path: Path) -> None:
 
 
 def test_unplug_mid_recording_gives_clear_error_and_usable_session(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "session"
-    rc = cli_main(["record", "--imu", "sim://imu?rate=1000&unplug=1.0", "--camera",
-                   "sim://camera?fps=20&width=64&height=48", "--out", str(out),
-                   "--duration", str(DEADLINE_S)])
+    rc = cli_main(
+        [
+            "record",
+            "--imu",
+            "sim://imu?rate=1000&unplug=1.0",
+            "--camera",
+            "sim://camera?fps=20&width=64&height=48",
+            "--out",
+            str(out),
+            "--duration",
+            str(DEADLINE_S),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2
     assert "disconnected" in err and str(out) in err and err.count("\n") == 1
@@ -175,8 +202,9 @@ def test_convert_requires_exposure_when_camera_reports_none(tmp_path: Path) -> N
     for i in range(3):
         frame = CameraFrame(i, np.zeros((8, 8), np.uint8), 1000 + i, -1, 5, "host")
         w.write_frame(frame, png, "png")
-    w.write_imu(0, np.arange(4), np.arange(4) * 1000, np.arange(4) * 1_000_000 + 7,
-                np.zeros((4, 3)), None)
+    w.write_imu(
+        0, np.arange(4), np.arange(4) * 1000, np.arange(4) * 1_000_000 + 7, np.zeros((4, 3)), None
+    )
     w.finish()
     with pytest.raises(RecorderLogError, match="exposure-ms"):
         log_to_session(tmp_path / "l.mcap", tmp_path / "s")
@@ -211,10 +239,20 @@ def test_recorder_needs_a_device(tmp_path: Path) -> None:
 
 
 def test_unplug_without_frames_reports_both_problems_and_keeps_the_log(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "session"
-    rc = cli_main(["record", "--imu", "sim://imu?rate=500&unplug=0.2", "--out", str(out),
-                   "--duration", str(DEADLINE_S)])
+    rc = cli_main(
+        [
+            "record",
+            "--imu",
+            "sim://imu?rate=500&unplug=0.2",
+            "--out",
+            str(out),
+            "--duration",
+            str(DEADLINE_S),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and "disconnected" in err and "no session written" in err
     assert "no camera frames" in err

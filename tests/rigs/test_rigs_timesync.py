@@ -87,12 +87,19 @@ def test_conversion_maps_drifting_jittery_imu_onto_host_time(tmp_path) -> None:
     dev_ns, host_ns, truth_ns = _scenario("uniform", seed=9, batch=4)
     w = RecLogWriter(tmp_path / "d.mcap", {})
     png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))[1].tobytes()
-    w.write_frame(CameraFrame(0, np.zeros((8, 8), np.uint8), int(truth_ns[0]), 1000, 0, "host"),
-                  png, "png")
+    w.write_frame(
+        CameraFrame(0, np.zeros((8, 8), np.uint8), int(truth_ns[0]), 1000, 0, "host"), png, "png"
+    )
     for a in range(0, dev_ns.size, 1000):
         sl = slice(a, a + 1000)
-        w.write_imu(int(host_ns[sl][-1]), np.arange(a, a + 1000), dev_ns[sl] // 1000,
-                    host_ns[sl], np.zeros((1000, 3)), None)
+        w.write_imu(
+            int(host_ns[sl][-1]),
+            np.arange(a, a + 1000),
+            dev_ns[sl] // 1000,
+            host_ns[sl],
+            np.zeros((1000, 3)),
+            None,
+        )
     w.finish()
     res = log_to_session(tmp_path / "d.mcap", tmp_path / "s")
     s = load_session(tmp_path / "s")

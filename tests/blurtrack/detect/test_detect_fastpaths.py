@@ -23,8 +23,9 @@ from blurtrack.errors import DetectionError
 _RING = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
 
 
-def _hot_reference(raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _hot_reference(
+    raw: np.ndarray, signal: np.ndarray, ratio: float, floor: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The definition, pixel by pixel: interior raw local maxima above ``floor`` that exceed
     ``ratio`` times their brightest 8-neighbour; returns the hot mask and the repaired signal."""
     H, W = raw.shape
@@ -127,16 +128,23 @@ def test_fit_short_recovers_noise_free_segments() -> None:
         g /= sigma[i] * np.sqrt(2 * np.pi)
         y[i] = np.trapezoid(g * dens[None, :], u, axis=1)
     w = np.ones_like(y)
-    a, L, c0 = fit_short(y, w, sigma, a_true + np.array([0.6, -0.5, 0.8, -0.5]),
-                         L_true + np.array([-1.0, 1.2, -0.9, 0.8]), iterations=6)
+    a, L, c0 = fit_short(
+        y,
+        w,
+        sigma,
+        a_true + np.array([0.6, -0.5, 0.8, -0.5]),
+        L_true + np.array([-1.0, 1.2, -0.9, 0.8]),
+        iterations=6,
+    )
     np.testing.assert_allclose(a, a_true, atol=3e-3)
     np.testing.assert_allclose(L, L_true, atol=5e-3)
     # The mean density over the segment.
     np.testing.assert_allclose(c0, 1.0 + curv * L_true**2 / 12, atol=3e-3)
     # A pure edge step (not a segment) stays finite and inside the window.
     edge = np.tile(ndtr((s - 20.0) / 1.8), (1, 1))
-    a2, L2, _ = fit_short(edge, np.ones_like(edge), np.array([1.8]), np.array([18.0]),
-                          np.array([5.0]))
+    a2, L2, _ = fit_short(
+        edge, np.ones_like(edge), np.array([1.8]), np.array([18.0]), np.array([5.0])
+    )
     assert np.isfinite(a2).all() and a2[0] >= 0 and a2[0] + L2[0] <= 39.0 + 1e-9
 
 
@@ -149,8 +157,7 @@ def test_cross_section_widths_of_sampled_gaussians() -> None:
     np.testing.assert_allclose(cross_section_sigma(v, half), sig, rtol=1e-9)
     # Centred and clipped at 40 % of the peak: the flanks still give the width.
     centred = 0.8 * np.exp(-0.5 * (o[None, :] / sig[:, None]) ** 2)
-    np.testing.assert_allclose(tail_sigma(np.minimum(centred, 0.32), half, 0.32), sig,
-                               rtol=1e-9)
+    np.testing.assert_allclose(tail_sigma(np.minimum(centred, 0.32), half, 0.32), sig, rtol=1e-9)
     # Unusable rows are nan: a dip in the middle, too few flank samples.
     flat = np.ones((1, 2 * half + 1))
     assert np.isnan(cross_section_sigma(-v[:1], half)).all()
@@ -203,8 +210,7 @@ def test_tangents_are_clamped_central_differences() -> None:
         i = np.arange(len(line))
         d = line[np.minimum(i + 1, len(line) - 1)] - line[np.maximum(i - 1, 0)]
         expected = d / np.linalg.norm(d, axis=1, keepdims=True)
-        np.testing.assert_allclose(t[r.starts[k] : r.starts[k] + len(line)], expected,
-                                   atol=1e-12)
+        np.testing.assert_allclose(t[r.starts[k] : r.starts[k] + len(line)], expected, atol=1e-12)
 
 
 def test_hot_pixel_on_a_noise_free_flat_frame() -> None:
@@ -245,8 +251,9 @@ def test_background_from_the_histogram_equals_the_sorted_sample() -> None:
     dots[::9, ::7] = 250  # sparse bright pixels: outside the core
     frames.append(dots)
     for gray in frames:
-        np.testing.assert_allclose(background_and_noise(gray), _background_reference(gray),
-                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(
+            background_and_noise(gray), _background_reference(gray), rtol=1e-12, atol=1e-12
+        )
     wide = rng.integers(0, 4096, (90, 90)).astype(np.uint16)  # 16-bit: the sorted path
     np.testing.assert_allclose(background_and_noise(wide), _background_reference(wide))
 

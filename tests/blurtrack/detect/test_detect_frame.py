@@ -75,8 +75,9 @@ def test_decelerating_streaks_have_unbiased_ends(length: float) -> None:
     for k in range(12):
         p0 = np.array([25.0 + 60 * (k % 6), 25.0 + 50 * (k // 6)]) + rng.uniform(-3, 3, 2)
         ang = rng.uniform(0, 2 * np.pi)
-        curves.append(line(p0, p0 + length * np.array([np.cos(ang), np.sin(ang)]), n=800,
-                           accel=0.4))
+        curves.append(
+            line(p0, p0 + length * np.array([np.cos(ang), np.sin(ang)]), n=800, accel=0.4)
+        )
     img = quantise(render_streaks((130, 390), curves, 0.6, 1.3, 0.03, 0.004, 3))
     fs = detect_frame(img)
     out_start, out_end = [], []
@@ -121,8 +122,10 @@ def test_time_midpoints_of_decelerating_streaks(length: float) -> None:
 def test_round_static_dots_have_near_zero_length() -> None:
     # Several dots, so that the frame's dot width (which short streaks rely on) is well known.
     rng = np.random.default_rng(5)
-    centres = [np.array([20.0 + 40 * (k % 3), 25.0 + 50 * (k // 3)]) + rng.uniform(-1, 1, 2)
-               for k in range(6)]
+    centres = [
+        np.array([20.0 + 40 * (k % 3), 25.0 + 50 * (k // 3)]) + rng.uniform(-1, 1, 2)
+        for k in range(6)
+    ]
     # (Lengths of a few px are hard: they only widen the blur a little, L**2 / 12 against
     # sigma**2; hence a high signal-to-noise ratio here.)
     fs = detect_frame(_frame([np.stack([c, c]) for c in centres], noise=0.001))
@@ -150,8 +153,9 @@ def test_s_curve_centre_line_and_ends() -> None:
     _, ea, eb = _match(fs, s[0], s[-1])
     assert ea < 0.5 and eb < 0.5
     assert cKDTree(s).query(fs.points[0])[0].max() < 0.5
-    assert fs.length_px[0] == pytest.approx(np.sum(np.linalg.norm(np.diff(s, axis=0), axis=1)),
-                                            rel=0.02)
+    assert fs.length_px[0] == pytest.approx(
+        np.sum(np.linalg.norm(np.diff(s, axis=0), axis=1)), rel=0.02
+    )
 
 
 def test_loop_is_one_streak_flagged_looped() -> None:
@@ -248,8 +252,12 @@ def test_streaks_touching_end_to_end_are_split() -> None:
     # Two collinear 30 px streaks 5 px apart (their masks join), among ordinary 30 px ones.
     a = line((10, 50), (40, 50))
     b = line((45, 50), (75, 50))
-    others = [line((10, 15), (40, 18)), line((70, 15), (100, 18)), line((10, 85), (40, 88)),
-              line((70, 85), (100, 88))]
+    others = [
+        line((10, 15), (40, 18)),
+        line((70, 15), (100, 18)),
+        line((10, 85), (40, 88)),
+        line((70, 85), (100, 88)),
+    ]
     fs = detect_frame(_frame([a, b, *others]))
     assert len(fs) == 6
     for c in (a, b):

@@ -28,8 +28,11 @@ def test_resample_keeps_ends_and_spacing() -> None:
 
 
 def test_extend_and_cut_are_inverse_on_straight_lines() -> None:
-    r = ragged.resample(ragged.Ragged.from_list([np.array([[0.0, 0.0], [10.0, 0.0]]),
-                                                 np.array([[0.0, 5.0], [0.0, 12.0]])]))
+    r = ragged.resample(
+        ragged.Ragged.from_list(
+            [np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([[0.0, 5.0], [0.0, 12.0]])]
+        )
+    )
     e = ragged.extend(r, 3)
     assert list(e.sizes) == [r.sizes[0] + 6, r.sizes[1] + 6]
     first = e.split()[0]
@@ -59,8 +62,9 @@ def _erf_profile(length: float, s0: float, sigma: float, plateau: float, n: int)
     sigma=st.floats(1.2, 2.5),
     plateau=st.floats(0.3, 5.0),
 )
-def test_edge_fit_recovers_erf_endpoints(length: float, s0: float, sigma: float,
-                                         plateau: float) -> None:
+def test_edge_fit_recovers_erf_endpoints(
+    length: float, s0: float, sigma: float, plateau: float
+) -> None:
     n = int(s0 + length + 12)
     A = _erf_profile(length, s0, sigma, plateau, n)[None, :]
     fit = fit_edges(A, np.array([n]), np.array([sigma]))
@@ -71,8 +75,7 @@ def test_edge_fit_recovers_erf_endpoints(length: float, s0: float, sigma: float,
         assert fit.plateau_a[0] == pytest.approx(plateau, rel=0.01)
 
 
-def _time_law_profile(length: float, s0: float, sigma: float, gamma: float, n: int
-                      ) -> np.ndarray:
+def _time_law_profile(length: float, s0: float, sigma: float, gamma: float, n: int) -> np.ndarray:
     """Blurred profile of a dot under constant acceleration (position fraction
     ``t + gamma t (1 - t)``, speed falling from ``1 + gamma`` to ``1 - gamma``): light per
     sample is time per sample, by dense sampling in time."""
@@ -88,8 +91,7 @@ def _time_law_profile(length: float, s0: float, sigma: float, gamma: float, n: i
 
 @settings(max_examples=25, deadline=None)
 @given(length=st.floats(16.0, 50.0), sigma=st.floats(1.3, 2.2), gamma=st.floats(-0.45, 0.45))
-def test_edge_fit_follows_an_accelerating_dot(length: float, sigma: float,
-                                              gamma: float) -> None:
+def test_edge_fit_follows_an_accelerating_dot(length: float, sigma: float, gamma: float) -> None:
     # Brightness 1 / speed is convex along the streak; both ends within 0.06 px (a linear
     # density extrapolated to the ends put them up to 0.2 px outside at |gamma| = 0.4).
     n = int(10 + length + 12)

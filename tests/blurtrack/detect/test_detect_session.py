@@ -27,21 +27,27 @@ def synthetic(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     return folder, truth
 
 
-def _oriented_fraction(df: pd.DataFrame, truth: dict, min_len: float = 5.0
-                       ) -> tuple[int, int, list[float]]:
+def _oriented_fraction(
+    df: pd.DataFrame, truth: dict, min_len: float = 5.0
+) -> tuple[int, int, list[float]]:
     tr = streaks.from_truth(truth)
     ok = n = 0
     errors: list[float] = []
     for _, r in tr.iterrows():
         d = df[df.frame == r.frame]
         mid = np.array([(r.start_x + r.end_x) / 2, (r.start_y + r.end_y) / 2])
-        j = int(np.argmin(np.hypot(d.start_x + d.end_x - 2 * mid[0],
-                                   d.start_y + d.end_y - 2 * mid[1])))
+        j = int(
+            np.argmin(np.hypot(d.start_x + d.end_x - 2 * mid[0], d.start_y + d.end_y - 2 * mid[1]))
+        )
         m = d.iloc[j]
-        right = [np.hypot(m.start_x - r.start_x, m.start_y - r.start_y),
-                 np.hypot(m.end_x - r.end_x, m.end_y - r.end_y)]
-        wrong = [np.hypot(m.start_x - r.end_x, m.start_y - r.end_y),
-                 np.hypot(m.end_x - r.start_x, m.end_y - r.start_y)]
+        right = [
+            np.hypot(m.start_x - r.start_x, m.start_y - r.start_y),
+            np.hypot(m.end_x - r.end_x, m.end_y - r.end_y),
+        ]
+        wrong = [
+            np.hypot(m.start_x - r.end_x, m.start_y - r.end_y),
+            np.hypot(m.end_x - r.start_x, m.end_y - r.start_y),
+        ]
         if r.length_px > min_len:
             n += 1
             ok += sum(right) < sum(wrong)
@@ -79,8 +85,7 @@ def test_gyro_on_without_coverage_is_an_error(tmp_path: Path) -> None:
     assert res.summary["gyro"] == "off"
 
 
-def test_table_schema_and_parquet_round_trip(synthetic: tuple[Path, dict], tmp_path: Path
-                                             ) -> None:
+def test_table_schema_and_parquet_round_trip(synthetic: tuple[Path, dict], tmp_path: Path) -> None:
     folder, _ = synthetic
     res = detect_session(load_session(folder))
     path = tmp_path / "t.parquet"
@@ -94,8 +99,9 @@ def test_table_schema_and_parquet_round_trip(synthetic: tuple[Path, dict], tmp_p
     assert cl.shape[0] == len(row["profile"]) >= 2
     assert np.allclose(cl[0], [row.start_x, row.start_y], atol=1e-3)
     assert np.allclose(cl[-1], [row.end_x, row.end_y], atol=1e-3)
-    assert row.length_px == pytest.approx(np.linalg.norm(np.diff(cl, axis=0), axis=1).sum(),
-                                          abs=0.05)
+    assert row.length_px == pytest.approx(
+        np.linalg.norm(np.diff(cl, axis=0), axis=1).sum(), abs=0.05
+    )
     assert back["orientation_confidence"].between(0.5, 1.0).all()
 
 
@@ -104,10 +110,22 @@ def _streaks(ends_a: list, ends_b: list) -> FrameStreaks:
     pts = [np.linspace(p, q, int(np.linalg.norm(q - p)) + 1) for p, q in zip(a, b, strict=True)]
     n = len(a)
     return FrameStreaks(
-        shape=(100, 100), end_a=a, end_b=b, time_mid=(a + b) / 2, plateau=np.ones((n, 2)),
-        length_px=np.linalg.norm(b - a, axis=1), width_px=np.ones(n), snr=np.full(n, 50.0),
-        points=pts, profile=[np.ones(len(p)) for p in pts],
-        flags={}, sigma_c_px=1.8, noise=0.01, hot_pixels=0, short=np.zeros(n, bool))
+        shape=(100, 100),
+        end_a=a,
+        end_b=b,
+        time_mid=(a + b) / 2,
+        plateau=np.ones((n, 2)),
+        length_px=np.linalg.norm(b - a, axis=1),
+        width_px=np.ones(n),
+        snr=np.full(n, 50.0),
+        points=pts,
+        profile=[np.ones(len(p)) for p in pts],
+        flags={},
+        sigma_c_px=1.8,
+        noise=0.01,
+        hot_pixels=0,
+        short=np.zeros(n, bool),
+    )
 
 
 def test_continuity_orients_a_chain_of_streaks() -> None:
@@ -131,8 +149,9 @@ def test_combine_without_evidence_is_undecided() -> None:
     assert np.allclose(ori.confidence, 0.5)
 
 
-def test_cli_detect_writes_table_summary_and_overlay(synthetic: tuple[Path, dict],
-                                                     tmp_path: Path) -> None:
+def test_cli_detect_writes_table_summary_and_overlay(
+    synthetic: tuple[Path, dict], tmp_path: Path
+) -> None:
     folder, _ = synthetic
     out = tmp_path / "out" / "streaks.parquet"
     png = tmp_path / "out" / "overlay.png"
@@ -157,8 +176,9 @@ def test_session_without_any_dots_is_reported(tmp_path: Path) -> None:
         detect_session(load_session(folder))
 
 
-def test_detection_demo_writes_table_picture_summary(synthetic: tuple[Path, dict],
-                                                     tmp_path: Path) -> None:
+def test_detection_demo_writes_table_picture_summary(
+    synthetic: tuple[Path, dict], tmp_path: Path
+) -> None:
     from blurtrack.detect.demo import detection_demo
 
     folder, _ = synthetic
@@ -180,10 +200,13 @@ def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
     write_synthetic_session(folder, n_frames=5, seed=7, timeshift_s=0.018)
     session = load_session(folder)
     frames = detect_session(session, gyro="off").frames
-    timings = [FrameTiming(float(t), float(e))
-               for t, e in zip(session.frame_times_s, session.exposures_s, strict=True)]
-    est = estimate_timeshift(frames, timings, session.initial_calibration(), session.gyro(),
-                             search_s=0.03)
+    timings = [
+        FrameTiming(float(t), float(e))
+        for t, e in zip(session.frame_times_s, session.exposures_s, strict=True)
+    ]
+    est = estimate_timeshift(
+        frames, timings, session.initial_calibration(), session.gyro(), search_s=0.03
+    )
     assert est is not None and est.initial_s == 0.0
     assert est.timeshift_s == pytest.approx(0.018, abs=0.0015)
     res = detect_session(session, gyro="auto")

@@ -43,8 +43,9 @@ def test_roll_moves_points_on_circles_around_principal_point() -> None:
     px = grid_pixels()
     out = m.warp(px, 0.1, 0.3)
     c = np.array(CAM.intrinsics[2:])
-    np.testing.assert_allclose(np.linalg.norm(out - c, axis=1), np.linalg.norm(px - c, axis=1),
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(out - c, axis=1), np.linalg.norm(px - c, axis=1), rtol=1e-12
+    )
     ang = np.arctan2(*(out - c).T[::-1]) - np.arctan2(*(px - c).T[::-1])
     # The camera rolls by +w*dt about +z, so the scene turns by -w*dt in the image.
     np.testing.assert_allclose(np.angle(np.exp(1j * ang)), -w * 0.2, atol=1e-9)
@@ -140,8 +141,9 @@ def test_camera_imu_rotation_bias_and_shift_enter_as_documented() -> None:
 
 def test_rolling_shutter_rows_start_at_the_right_times() -> None:
     cam = Camera((640, 480), (500.0, 500.0, 319.5, 239.5), readout_s=0.024)
-    np.testing.assert_allclose(cam.row_start_s(1.0, [0, 240, 479]),
-                               [1.0, 1.012, 1.0 + 0.024 * 479 / 480])
+    np.testing.assert_allclose(
+        cam.row_start_s(1.0, [0, 240, 479]), [1.0, 1.012, 1.0 + 0.024 * 479 / 480]
+    )
 
 
 def test_rolling_shutter_streak_endpoints_solve_the_row_time() -> None:
@@ -184,8 +186,9 @@ def test_heat_maps_match_point_tracks() -> None:
     assert err.max() < 0.5
 
 
-@pytest.mark.parametrize(("W", "H", "stride"), [(96, 64, 4), (100, 37, 16), (50, 20, 64),
-                                                (17, 9, 3)])
+@pytest.mark.parametrize(
+    ("W", "H", "stride"), [(96, 64, 4), (100, 37, 16), (50, 20, 64), (17, 9, 3)]
+)
 def test_strided_heat_map_upsampling_is_bilinear(W: int, H: int, stride: int) -> None:
     # a + b x + c y + d x y is bilinear in every grid cell, so interpolating it from the stride
     # grid (last row and column included) must reproduce it at every pixel.

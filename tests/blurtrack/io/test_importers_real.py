@@ -17,8 +17,19 @@ from blurtrack.io.shake import read_shake_trace
 
 def test_deepgyro_import_and_overlays(shared_data: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "dg"
-    assert main(["import", "deepgyro", str(shared_data / "real" / "deepgyro-shield"), str(out),
-                 "--overlays", "7"]) == 0
+    assert (
+        main(
+            [
+                "import",
+                "deepgyro",
+                str(shared_data / "real" / "deepgyro-shield"),
+                str(out),
+                "--overlays",
+                "7",
+            ]
+        )
+        == 0
+    )
     s = load_session(out)
     assert len(s.frames) == 7 and s.omega_radps.shape == (23, 3)
     assert s.meta.camera.resolution == (1920, 1080)

@@ -12,8 +12,10 @@ from blurtrack.geometry.camera import Camera
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter, load_session
 
-META = SessionMeta(Camera((8, 6), (10.0, 10.0, 3.5, 2.5), readout_s=0.01),
-                   ImuConfig(rate_hz=200.0, timeshift_cam_imu=0.002))
+META = SessionMeta(
+    Camera((8, 6), (10.0, 10.0, 3.5, 2.5), readout_s=0.01),
+    ImuConfig(rate_hz=200.0, timeshift_cam_imu=0.002),
+)
 
 
 def make_session(root: Path, n_frames: int = 3, accel: bool = True) -> Path:
@@ -21,8 +23,9 @@ def make_session(root: Path, n_frames: int = 3, accel: bool = True) -> Path:
     rng = np.random.default_rng(0)
     with SessionWriter(folder, META) as w:
         for i in range(n_frames):
-            w.add_frame(1_000_000 + i * 33_000_000, rng.integers(0, 255, (6, 8), np.uint8),
-                        20_000_000)
+            w.add_frame(
+                1_000_000 + i * 33_000_000, rng.integers(0, 255, (6, 8), np.uint8), 20_000_000
+            )
         t = np.arange(0, 200) * 5_000_000
         w.add_imu(t[:100], rng.normal(size=(100, 3)), rng.normal(size=(100, 3)) if accel else None)
         w.add_imu(t[100:], rng.normal(size=(100, 3)), rng.normal(size=(100, 3)) if accel else None)
@@ -33,7 +36,7 @@ def make_session(root: Path, n_frames: int = 3, accel: bool = True) -> Path:
 def test_round_trip(tmp_path: Path) -> None:
     folder = make_session(tmp_path)
     s = load_session(folder)
-    assert s.meta.camera == META.camera and s.meta.target_kind == 'laser-grid'
+    assert s.meta.camera == META.camera and s.meta.target_kind == "laser-grid"
     np.testing.assert_allclose(s.meta.imu.T_cam_imu, np.eye(4))
     assert s.frames.timestamp_ns.tolist() == [1_000_000, 34_000_000, 67_000_000]
     assert s.imu_t_ns.size == 200 and s.accel_mps2 is not None
@@ -73,8 +76,9 @@ def _edit(path: Path, old: str, new: str) -> None:
         ("session.yaml", "readout_s: 0.01", "readout_s: -3", "readout_s"),
     ],
 )
-def test_malformed_sessions_give_one_line_errors(tmp_path: Path, target: str, old: str,
-                                                 new: str, message: str) -> None:
+def test_malformed_sessions_give_one_line_errors(
+    tmp_path: Path, target: str, old: str, new: str, message: str
+) -> None:
     folder = make_session(tmp_path)
     _edit(folder / target, old, new)
     with pytest.raises(SessionError, match=message) as info:
@@ -126,11 +130,19 @@ def test_gyro_gap_inside_exposures_is_refused_when_asked(tmp_path: Path) -> None
 
 
 def test_calibration_yaml_round_trip_and_errors(tmp_path: Path) -> None:
-    cal = Calibration(Camera((1280, 720), (900.0, 905.0, 640.2, 361.0), "radtan",
-                             (-0.1, 0.01, 0.0, 0.0), readout_s=0.021),
-                      R_cam_imu=np.array([[0, 1.0, 0], [1.0, 0, 0], [0, 0, -1.0]]),
-                      timeshift_cam_imu_s=-0.0123, gyro_bias_radps=np.array([1e-3, 0, -2e-3]),
-                      sigma={"timeshift_cam_imu": 1e-5})
+    cal = Calibration(
+        Camera(
+            (1280, 720),
+            (900.0, 905.0, 640.2, 361.0),
+            "radtan",
+            (-0.1, 0.01, 0.0, 0.0),
+            readout_s=0.021,
+        ),
+        R_cam_imu=np.array([[0, 1.0, 0], [1.0, 0, 0], [0, 0, -1.0]]),
+        timeshift_cam_imu_s=-0.0123,
+        gyro_bias_radps=np.array([1e-3, 0, -2e-3]),
+        sigma={"timeshift_cam_imu": 1e-5},
+    )
     cal.to_yaml(tmp_path / "c.yaml")
     back = Calibration.from_yaml(tmp_path / "c.yaml")
     assert back.camera == cal.camera

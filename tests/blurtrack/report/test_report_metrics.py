@@ -18,11 +18,17 @@ from blurtrack.report.metrics import ReportError, endpoint_errors, per_frame, st
 def _scene(seed: int = 0, amp: float = 2.0):
     rng = np.random.default_rng(seed)
     cam = Camera((640, 480), (500.0, 502.0, 320.0, 240.0), readout_s=0.02)
-    calib = Calibration(cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.004,
-                        gyro_bias_radps=np.array([0.01, 0.0, -0.01]))
+    calib = Calibration(
+        cam,
+        R_cam_imu=np.eye(3),
+        timeshift_cam_imu_s=0.004,
+        gyro_bias_radps=np.array([0.01, 0.0, -0.01]),
+    )
     t = np.arange(9.5, 11.0, 0.002)
-    w = np.stack([amp * np.sin(2 * np.pi * f * t + p) for f, p in
-                  ((3.0, 0.1), (4.0, 1.0), (2.5, 2.0))], axis=1)
+    w = np.stack(
+        [amp * np.sin(2 * np.pi * f * t + p) for f, p in ((3.0, 0.1), (4.0, 1.0), (2.5, 2.0))],
+        axis=1,
+    )
     gyro = GyroTrace(t, w)
     model = BlurModel(calib, gyro)
     rows, frames = [], []
@@ -32,12 +38,26 @@ def _scene(seed: int = 0, amp: float = 2.0):
         s, e, _, _ = model.streak_endpoints(px, model.default_reference_time(ft, exp), ft, exp)
         frames.append({"timestamp_ns": round(ft * 1e9), "exposure_ns": round(exp * 1e9)})
         for k in range(30):
-            rows.append({"frame": i, "timestamp_ns": round(ft * 1e9), "streak_id": k,
-                         "start_x": s[k, 0], "start_y": s[k, 1], "end_x": e[k, 0],
-                         "end_y": e[k, 1], "length_px": float(np.linalg.norm(e[k] - s[k])),
-                         "centerline": [], "profile": [], "orientation_confidence": 1.0,
-                         "orientation_source": "truth", "clipped": False, "saturated": False,
-                         "merged": False, "faint": False})
+            rows.append(
+                {
+                    "frame": i,
+                    "timestamp_ns": round(ft * 1e9),
+                    "streak_id": k,
+                    "start_x": s[k, 0],
+                    "start_y": s[k, 1],
+                    "end_x": e[k, 0],
+                    "end_y": e[k, 1],
+                    "length_px": float(np.linalg.norm(e[k] - s[k])),
+                    "centerline": [],
+                    "profile": [],
+                    "orientation_confidence": 1.0,
+                    "orientation_source": "truth",
+                    "clipped": False,
+                    "saturated": False,
+                    "merged": False,
+                    "faint": False,
+                }
+            )
     table = streak_table.validate(pd.DataFrame(rows))
     return calib, gyro, table, pd.DataFrame(frames)
 
@@ -87,17 +107,31 @@ def test_bad_input() -> None:
 
 def test_stats_known_values() -> None:
     s = stats(np.array([1.0, 2.0, 3.0, np.nan]))
-    assert s == {"n": 3, "mean_px": 2.0, "median_px": 2.0, "p95_px": pytest.approx(2.9),
-                 "rms_px": pytest.approx(np.sqrt(14 / 3))}
+    assert s == {
+        "n": 3,
+        "mean_px": 2.0,
+        "median_px": 2.0,
+        "p95_px": pytest.approx(2.9),
+        "rms_px": pytest.approx(np.sqrt(14 / 3)),
+    }
 
 
 def test_html_is_self_contained_and_escaped() -> None:
-    summary = {"n_streaks": 3, "n_frames": 1, "warnings": ["<script>x</script>"],
-               "overall": {"before": stats(np.ones(3)), "after": stats(np.zeros(3))},
-               "motion_models": {"exact_rolling": stats(np.zeros(3))},
-               "motion_model_labels": {"exact_rolling": "exact + RS"}, "fit": {}}
-    fs = pd.DataFrame([{"variant": "before", "frame": 0, "mean_px": 1.0},
-                       {"variant": "after", "frame": 0, "mean_px": 0.0}])
+    summary = {
+        "n_streaks": 3,
+        "n_frames": 1,
+        "warnings": ["<script>x</script>"],
+        "overall": {"before": stats(np.ones(3)), "after": stats(np.zeros(3))},
+        "motion_models": {"exact_rolling": stats(np.zeros(3))},
+        "motion_model_labels": {"exact_rolling": "exact + RS"},
+        "fit": {},
+    }
+    fs = pd.DataFrame(
+        [
+            {"variant": "before", "frame": 0, "mean_px": 1.0},
+            {"variant": "after", "frame": 0, "mean_px": 0.0},
+        ]
+    )
     page = render(summary, [("fig", b"\x89PNG")], fs)
     assert "<script>" not in page and "&lt;script&gt;" in page
     assert "data:image/png;base64,iVBORw==" in page
@@ -109,8 +143,9 @@ def test_blur_model_applies_a_calibrated_gyro_scale() -> None:
 
     calib, gyro, _, _ = _scene()
     M = np.array([[1.02, 0.004, 0.0], [0.004, 0.99, 0.0], [0.0, 0.0, 1.0]])
-    meas = GyroTrace(gyro.t_s, (gyro.omega_radps - calib.gyro_bias_radps) @ M.T
-                     + calib.gyro_bias_radps)
+    meas = GyroTrace(
+        gyro.t_s, (gyro.omega_radps - calib.gyro_bias_radps) @ M.T + calib.gyro_bias_radps
+    )
     t = np.linspace(gyro.t_s[5], gyro.t_s[-5], 50) - calib.timeshift_cam_imu_s
     want = np.stack(BlurModel(calib, gyro).omega_cam_at(t), axis=1)
     got = np.stack(BlurModel(calib.with_(gyro_scale_matrix=M), meas).omega_cam_at(t), axis=1)

@@ -33,13 +33,23 @@ def images(tmp_path: Path) -> Path:
 
 def spec(images: Path, count: int = 5, **kw) -> DatasetSpec:
     params = TripletParams(size=(64, 48), exposure_ms=(10, 20), **kw)
-    return DatasetSpec(calib=CAL.to_dict(), gyro="synthetic:0.8", images=str(images),
-                       count=count, seed=11, params=params, group=2)
+    return DatasetSpec(
+        calib=CAL.to_dict(),
+        gyro="synthetic:0.8",
+        images=str(images),
+        count=count,
+        seed=11,
+        params=params,
+        group=2,
+    )
 
 
 def digest(root: Path) -> dict[str, str]:
-    return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.glob("*/*/*/*")) if not p.name.startswith(".")}
+    return {
+        p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.glob("*/*/*/*"))
+        if not p.name.startswith(".")
+    }
 
 
 def test_layout_manifest_and_determinism(images: Path, tmp_path: Path) -> None:
@@ -49,8 +59,7 @@ def test_layout_manifest_and_determinism(images: Path, tmp_path: Path) -> None:
     recs = read_manifest(out / "manifest.jsonl")
     assert sorted(recs) == list(range(5))
     for r in recs.values():
-        assert set(r) >= {"split", "name", "stem", "source_image", "gyro_segment", "seed",
-                          "params"}
+        assert set(r) >= {"split", "name", "stem", "source_image", "gyro_segment", "seed", "params"}
         assert r["split"] == ("test" if r["source_image"].startswith("test/") else "train")
         heat = np.load(out / r["files"]["heat"], allow_pickle=False)
         assert heat.dtype == np.float32 and heat.shape == (6, 48, 64)
@@ -118,16 +127,26 @@ def test_paper_mode_and_robust_heat_maps(images: Path) -> None:
 
     src = SyntheticSource(1.0)
     exact = make_triplet(img, CAL, src, TripletParams(size=(64, 48)), triplet_rng(1, 2))
-    paper = make_triplet(img, CAL, src, TripletParams(size=(64, 48), mode="paper"),
-                         triplet_rng(1, 2))
+    paper = make_triplet(
+        img, CAL, src, TripletParams(size=(64, 48), mode="paper"), triplet_rng(1, 2)
+    )
     assert paper.info["render_path"] == "paper" and exact.info["render_path"] == "remap"
     np.testing.assert_array_equal(exact.sharp, paper.sharp)
     noisy = Photometry(noise_shot=1e-3, noise_read=1e-3)
-    clean = make_triplet(img, CAL, src, TripletParams(size=(64, 48), photometry=noisy),
-                         triplet_rng(1, 2))
-    robust = make_triplet(img, CAL, src, TripletParams(
-        size=(64, 48), photometry=noisy,
-        perturbation=Perturbation(timeshift_ms=3.0, focal_rel=0.02)), triplet_rng(1, 2))
+    clean = make_triplet(
+        img, CAL, src, TripletParams(size=(64, 48), photometry=noisy), triplet_rng(1, 2)
+    )
+    robust = make_triplet(
+        img,
+        CAL,
+        src,
+        TripletParams(
+            size=(64, 48),
+            photometry=noisy,
+            perturbation=Perturbation(timeshift_ms=3.0, focal_rel=0.02),
+        ),
+        triplet_rng(1, 2),
+    )
     np.testing.assert_array_equal(robust.blur, clean.blur)  # blur (noise too) as without it
     assert np.abs(robust.heat - exact.heat).max() > 0.01
     assert robust.info["perturbation"]["timeshift_s"] != 0
@@ -141,9 +160,30 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     cal = tmp_path / "cal.yaml"
     CAL.to_yaml(cal)
     out = tmp_path / "cli"
-    args = ["synth", "--calib", str(cal), "--gyro", "synthetic", "--images", str(images),
-            "--out", str(out), "--count", "2", "--size", "48x32", "--noise", "0.001,0.002",
-            "--jpeg", "90", "--extras", "--png-compression", "6", "--saturation", "3"]
+    args = [
+        "synth",
+        "--calib",
+        str(cal),
+        "--gyro",
+        "synthetic",
+        "--images",
+        str(images),
+        "--out",
+        str(out),
+        "--count",
+        "2",
+        "--size",
+        "48x32",
+        "--noise",
+        "0.001,0.002",
+        "--jpeg",
+        "90",
+        "--extras",
+        "--png-compression",
+        "6",
+        "--saturation",
+        "3",
+    ]
     assert main(args) == 0
     rec = next(iter(read_manifest(out / "manifest.jsonl").values()))
     mask = cv2.imread(str(out / rec["files"]["mask"]), cv2.IMREAD_UNCHANGED)
@@ -182,9 +222,26 @@ def test_sigkill_mid_build_then_resume(images: Path, tmp_path: Path) -> None:
     cal = tmp_path / "cal.yaml"
     CAL.to_yaml(cal)
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "blurtrack", "synth", "--calib", str(cal), "--gyro",
-           "synthetic:0.8", "--images", str(images), "--out", str(out), "--count", "40",
-           "--size", "96x64", "--seed", "4"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "blurtrack",
+        "synth",
+        "--calib",
+        str(cal),
+        "--gyro",
+        "synthetic:0.8",
+        "--images",
+        str(images),
+        "--out",
+        str(out),
+        "--count",
+        "40",
+        "--size",
+        "96x64",
+        "--seed",
+        "4",
+    ]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     man = out / "manifest.jsonl"
@@ -200,7 +257,9 @@ def test_sigkill_mid_build_then_resume(images: Path, tmp_path: Path) -> None:
     assert done_before >= 3
     assert subprocess.run([*cmd], env=env, capture_output=True).returncode == 0
     ref = tmp_path / "ref"
-    assert subprocess.run([*cmd[:-7], str(ref), *cmd[-6:]], env=env,
-                          capture_output=True).returncode == 0
+    assert (
+        subprocess.run([*cmd[:-7], str(ref), *cmd[-6:]], env=env, capture_output=True).returncode
+        == 0
+    )
     assert sorted(read_manifest(man)) == list(range(40))
     assert digest(out) == digest(ref)

@@ -49,8 +49,13 @@ def test_saturation_expansion_and_photometry_validation() -> None:
     out = ph.expand_saturation(lin, 0.9, 4.0)
     np.testing.assert_allclose(out[0, 0], lin[0, 0])
     np.testing.assert_allclose(out[0, 1], 4.0 * lin[0, 1])
-    for bad in ({"saturation_gain": 0.5}, {"noise_shot": -1}, {"jpeg_quality": 101},
-                {"saturation_threshold": 1.0}, {"linear": False, "noise_read": 0.01}):
+    for bad in (
+        {"saturation_gain": 0.5},
+        {"noise_shot": -1},
+        {"jpeg_quality": 101},
+        {"saturation_threshold": 1.0},
+        {"linear": False, "noise_read": 0.01},
+    ):
         with pytest.raises(SynthesisError):
             ph.Photometry(**bad)
     img = (np.random.default_rng(1).random((32, 48, 3)) * 255).astype(np.uint8)
@@ -117,8 +122,9 @@ def test_perturbation_changes_heat_maps_by_the_expected_amount() -> None:
 def test_images_listing_split_fit_and_camera(tmp_path: Path) -> None:
     for rel in ("train/a.png", "test/b.jpg", "val/c.png", ".hidden/d.png", "train/e.txt"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(tmp_path / rel), np.zeros((30, 40, 3), np.uint8)) \
-            if rel.endswith(("png", "jpg")) else (tmp_path / rel).write_text("x")
+        cv2.imwrite(str(tmp_path / rel), np.zeros((30, 40, 3), np.uint8)) if rel.endswith(
+            ("png", "jpg")
+        ) else (tmp_path / rel).write_text("x")
     assert list_images(tmp_path) == ["test/b.jpg", "train/a.png", "val/c.png"]
     assert [split_of(r) for r in list_images(tmp_path)] == ["test", "train", "train"]
     img = load_image(tmp_path, "train/a.png")

@@ -63,8 +63,22 @@ def test_uncovered_frames_refused_or_skipped(tmp_path: Path, capsys) -> None:
     Calibration(CAM).to_yaml(cal)
     assert main(["predict", str(folder), "--calib", str(cal), "--out", str(tmp_path / "c")]) == 2
     assert "does not cover 2 of 3 frames" in capsys.readouterr().err
-    assert main(["predict", str(folder), "--calib", str(cal), "--out", str(tmp_path / "c"),
-                 "--skip-uncovered"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                str(folder),
+                "--calib",
+                str(cal),
+                "--out",
+                str(tmp_path / "c"),
+                "--skip-uncovered",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((tmp_path / "c" / "summary.json").read_text())
-    assert summary["predicted"] == 1 and summary["skipped_timestamps_ns"] == [390_000_000,
-                                                                              500_000_000]
+    assert summary["predicted"] == 1 and summary["skipped_timestamps_ns"] == [
+        390_000_000,
+        500_000_000,
+    ]

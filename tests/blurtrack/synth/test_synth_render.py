@@ -29,17 +29,32 @@ def shake_trace(seed: int = 0, scale: float = 1.0) -> GyroTrace:
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 1.0, 0.005)
     f = rng.uniform(1, 8, 3)
-    w = scale * np.stack([0.8 * np.sin(2 * np.pi * f[0] * t), 0.9 * np.cos(2 * np.pi * f[1] * t),
-                          0.4 * np.sin(2 * np.pi * f[2] * t + 1.0)], axis=1)
+    w = scale * np.stack(
+        [
+            0.8 * np.sin(2 * np.pi * f[0] * t),
+            0.9 * np.cos(2 * np.pi * f[1] * t),
+            0.4 * np.sin(2 * np.pi * f[2] * t + 1.0),
+        ],
+        axis=1,
+    )
     return GyroTrace(t, w)
 
 
-def make_model(readout: float = 0.0, dist: bool = False, size=(160, 96), f: float = 150.0,
-               trace: GyroTrace | None = None) -> BlurModel:
+def make_model(
+    readout: float = 0.0,
+    dist: bool = False,
+    size=(160, 96),
+    f: float = 150.0,
+    trace: GyroTrace | None = None,
+) -> BlurModel:
     W, H = size
-    cam = Camera((W, H), (f, f * 1.01, (W - 1) / 2 + 3, (H - 1) / 2 - 2), readout_s=readout,
-                 distortion_model="radtan" if dist else "none",
-                 distortion_coeffs=RADTAN if dist else ())
+    cam = Camera(
+        (W, H),
+        (f, f * 1.01, (W - 1) / 2 + 3, (H - 1) / 2 - 2),
+        readout_s=readout,
+        distortion_model="radtan" if dist else "none",
+        distortion_coeffs=RADTAN if dist else (),
+    )
     R = cv2.Rodrigues(np.array([0.1, -0.2, 0.05]))[0]
     return BlurModel(Calibration(cam, R_cam_imu=R), trace or shake_trace())
 
@@ -50,9 +65,15 @@ def ramp(model: BlurModel) -> np.ndarray:
     return np.dstack([u, v, np.ones_like(u)])
 
 
-@pytest.mark.parametrize(("readout", "dist", "path"),
-                         [(0.0, False, "homography"), (0.03, False, "remap"),
-                          (0.03, True, "remap"), (0.0, True, "remap")])
+@pytest.mark.parametrize(
+    ("readout", "dist", "path"),
+    [
+        (0.0, False, "homography"),
+        (0.03, False, "remap"),
+        (0.03, True, "remap"),
+        (0.0, True, "remap"),
+    ],
+)
 def test_ramp_blur_is_mean_trajectory(readout: float, dist: bool, path: str) -> None:
     # Bilinear interpolation reproduces a linear image exactly, so B(x) - x is the mean of
     # q_x over the samples: compare with the core's BlurModel.warp pixel by pixel.
@@ -110,8 +131,12 @@ def half_max_ends(img: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.nda
     d = (b - a) / np.linalg.norm(b - a)
     s = np.arange(-6.0, np.linalg.norm(b - a) + 6.0, 0.02)
     pts = a[None, :] + s[:, None] * d[None, :]
-    prof = cv2.remap(img, pts[:, 0].astype(np.float32)[None], pts[:, 1].astype(np.float32)[None],
-                     cv2.INTER_LINEAR)[0]
+    prof = cv2.remap(
+        img,
+        pts[:, 0].astype(np.float32)[None],
+        pts[:, 1].astype(np.float32)[None],
+        cv2.INTER_LINEAR,
+    )[0]
     half = 0.5 * np.median(prof[(s > 3) & (s < s[-1] - 9)])
     above = np.flatnonzero(prof >= half)
     i0, i1 = above[0], above[-1]
@@ -138,8 +163,10 @@ def test_blurred_dot_ends_where_model_and_heat_maps_say(readout: float) -> None:
     # The heat map at the streak's ends points back to the dot: x + q(0) = p at the start.
     heat, _ = m.heat_maps(frame_t, exposure, 16, t_ref, stride=1)
     for x, ch in ((start[0], 0), (end[0], 2)):
-        q = [cv2.remap(heat[c], np.float32([[x[0]]]), np.float32([[x[1]]]),
-                       cv2.INTER_LINEAR)[0, 0] for c in (ch, ch + 1)]
+        q = [
+            cv2.remap(heat[c], np.float32([[x[0]]]), np.float32([[x[1]]]), cv2.INTER_LINEAR)[0, 0]
+            for c in (ch, ch + 1)
+        ]
         np.testing.assert_allclose(x + q, p, atol=0.05)
 
 
@@ -161,8 +188,9 @@ def test_refuses_wrong_image_and_excess_blur() -> None:
     with pytest.raises(SynthesisError, match="float32"):
         render_blur(np.zeros((96, 160, 3), np.uint8), m, 0.3, 0.03)
     with pytest.raises(SynthesisError, match="samples"):
-        render_blur(np.zeros((96, 160), np.float32), m, 0.3, 0.03,
-                    settings=RenderSettings(max_samples=3))
+        render_blur(
+            np.zeros((96, 160), np.float32), m, 0.3, 0.03, settings=RenderSettings(max_samples=3)
+        )
 
 
 def test_paper_mode_follows_small_angle_four_corner_model() -> None:
@@ -179,23 +207,30 @@ def test_paper_mode_follows_small_angle_four_corner_model() -> None:
     # paper's average of the ramp is a weighted mean of its four-corner homography warps,
     # which for a pinhole camera equal the small-angle model's point warps.
     times = t0 + 0.03 * res.tau
-    bounds = np.concatenate([[t0], np.sort(m.gyro.t_s[(m.gyro.t_s > t0)
-                                                      & (m.gyro.t_s < t0 + 0.03)]), [t0 + 0.03]])
+    bounds = np.concatenate(
+        [[t0], np.sort(m.gyro.t_s[(m.gyro.t_s > t0) & (m.gyro.t_s < t0 + 0.03)]), [t0 + 0.03]]
+    )
     j = np.searchsorted(bounds, times) - 1
     counts = np.bincount(j, minlength=bounds.size - 1)
     wts = np.diff(bounds)[j] / counts[j] / 0.03
     for x in px:
         track = pm.warp(np.tile(x, (times.size, 1)), times, np.full(times.size, t_ref))
-        np.testing.assert_allclose(res.blur[int(x[1]), int(x[0]), :2],
-                                   (wts[:, None] * track).sum(0), atol=0.02)
+        np.testing.assert_allclose(
+            res.blur[int(x[1]), int(x[0]), :2], (wts[:, None] * track).sum(0), atol=0.02
+        )
     exact = render_blur(ramp(m), m, 0.3, 0.03)
     # The paper ignores the rolling shutter: rows away from the centre differ clearly.
     assert np.abs(exact.blur[5, 80, :2] - res.blur[5, 80, :2]).max() > 0.2
 
 
 @settings(max_examples=40, deadline=None, derandomize=True)
-@given(W=st.integers(2, 300), H=st.integers(2, 200), g=st.integers(2, 40),
-       a=st.floats(-3, 3), b=st.floats(-3, 3))
+@given(
+    W=st.integers(2, 300),
+    H=st.integers(2, 200),
+    g=st.integers(2, 40),
+    a=st.floats(-3, 3),
+    b=st.floats(-3, 3),
+)
 def test_node_grid_property(W: int, H: int, g: int, a: float, b: float) -> None:
     grid = NodeGrid.build(W, H, g)
     assert grid.u[0] <= 0 and grid.u[-1] >= W - 1 and grid.v[0] <= 0 and grid.v[-1] >= H - 1
@@ -207,10 +242,14 @@ def test_node_grid_property(W: int, H: int, g: int, a: float, b: float) -> None:
 
 
 @settings(max_examples=30, deadline=None, derandomize=True)
-@given(W=st.integers(2, 120), H=st.integers(2, 90), g=st.integers(2, 20),
-       y0=st.integers(0, 89), rows=st.integers(1, 90))
-def test_node_grid_band_equals_full_upsampling(W: int, H: int, g: int, y0: int,
-                                               rows: int) -> None:
+@given(
+    W=st.integers(2, 120),
+    H=st.integers(2, 90),
+    g=st.integers(2, 20),
+    y0=st.integers(0, 89),
+    rows=st.integers(1, 90),
+)
+def test_node_grid_band_equals_full_upsampling(W: int, H: int, g: int, y0: int, rows: int) -> None:
     # The renderer upsamples the coordinate maps band by band: the same values (up to float32
     # rounding of OpenCV's scale factors).
     y0, rows = min(y0, H - 1), min(rows, H - min(y0, H - 1))
@@ -219,5 +258,5 @@ def test_node_grid_band_equals_full_upsampling(W: int, H: int, g: int, y0: int,
     nodes = nodes.astype(np.float32)
     canvas = np.full((rows + 3 * g) * grid.u.size * g * 2, np.nan, np.float32)
     band = grid.upsample_rows(nodes, y0, rows, canvas)
-    np.testing.assert_allclose(band, grid.upsample(nodes)[y0:y0 + rows], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(band, grid.upsample(nodes)[y0 : y0 + rows], rtol=0, atol=1e-6)
     assert np.shares_memory(band, canvas)  # the buffer was big enough to be used

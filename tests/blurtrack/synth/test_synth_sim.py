@@ -47,18 +47,29 @@ def half_max(s: np.ndarray, prof: np.ndarray) -> float:
     return float(np.interp(half, [prof[i + 1], prof[i]], [s[i + 1], s[i]]))
 
 
-@pytest.mark.parametrize(("preset", "changes"), [
-    ("clean", {"exposure_s": 0.03, "synthetic_rms_radps": (2.0, 2.0, 0.6)}),
-    ("realistic", {"motion_scale": (2.0, 2.0), "read_noise_e": 0.0, "shot_noise": False}),
-])
-def test_synthesis_reproduces_simulated_frame(tmp_path: Path, shared_data: Path, preset: str,
-                                              changes: dict) -> None:
+@pytest.mark.parametrize(
+    ("preset", "changes"),
+    [
+        ("clean", {"exposure_s": 0.03, "synthetic_rms_radps": (2.0, 2.0, 0.6)}),
+        ("realistic", {"motion_scale": (2.0, 2.0), "read_noise_e": 0.0, "shot_noise": False}),
+    ],
+)
+def test_synthesis_reproduces_simulated_frame(
+    tmp_path: Path, shared_data: Path, preset: str, changes: dict
+) -> None:
     # Images without noise, 16 bits, and dots that do not saturate the sharp frame; the gyro
     # keeps the preset's noise, bias, misalignment and time offset (the realistic preset: a
     # rolling shutter, 200 Hz gyro and real hand shake).
-    p = dataclasses.replace(sim_preset.get_preset(preset), width=640, height=360,
-                            focal_px=500.0, dot_flux_eps=4e6, ambient_eps=0.0, bit_depth=16,
-                            **changes)
+    p = dataclasses.replace(
+        sim_preset.get_preset(preset),
+        width=640,
+        height=360,
+        focal_px=500.0,
+        dot_flux_eps=4e6,
+        ambient_eps=0.0,
+        bit_depth=16,
+        **changes,
+    )
     rig = sim_rig.SimRig(p, seed=3, n_frames=2)
     sim_writer.write_session(rig, tmp_path / "s")
     session = load_session(tmp_path / "s")
@@ -66,11 +77,13 @@ def test_synthesis_reproduces_simulated_frame(tmp_path: Path, shared_data: Path,
     model = BlurModel(calib, session.gyro())
     frame = session.truth["frames"][1]
     t_ref = frame["t_ref_ns"] * 1e-9
-    assert t_ref == pytest.approx(model.default_reference_time(frame["timestamp_ns"] * 1e-9,
-                                                               p.exposure_s), abs=1e-9)
+    assert t_ref == pytest.approx(
+        model.default_reference_time(frame["timestamp_ns"] * 1e-9, p.exposure_s), abs=1e-9
+    )
     sharp = rig.render_sharp(t_ref, noise=False).astype(np.float32)
-    res = render_blur(sharp, model, frame["timestamp_ns"] * 1e-9, float(session.exposures_s[1]),
-                      t_ref)
+    res = render_blur(
+        sharp, model, frame["timestamp_ns"] * 1e-9, float(session.exposures_s[1]), t_ref
+    )
     sim = session.read_image(1).astype(np.float32)
     assert res.blur[res.valid].sum() == pytest.approx(sim[res.valid].sum(), rel=0.01)
     errors = []
@@ -79,20 +92,23 @@ def test_synthesis_reproduces_simulated_frame(tmp_path: Path, shared_data: Path,
             continue
         line = np.asarray(st["centerline"], float)
         for path in (line[::-1], line):  # the start, then the end
-            errors.append(half_max(*end_profile(res.blur, path))
-                          - half_max(*end_profile(sim, path)))
+            errors.append(
+                half_max(*end_profile(res.blur, path)) - half_max(*end_profile(sim, path))
+            )
     assert len(errors) >= 20
     assert np.max(np.abs(errors)) < 0.2
 
 
-def test_predict_heat_maps_point_streak_ends_to_their_dots(tmp_path: Path,
-                                                            shared_data: Path) -> None:
+def test_predict_heat_maps_point_streak_ends_to_their_dots(
+    tmp_path: Path, shared_data: Path
+) -> None:
     # blurtrack predict on a simulated recording with its true calibration: at every true
     # streak start x, x + q(0) is the dot's position at the reference time (same at the end).
     from blurtrack.synth.predict import predict_session
 
-    p = dataclasses.replace(sim_preset.get_preset("realistic"), width=640, height=360,
-                            focal_px=500.0)
+    p = dataclasses.replace(
+        sim_preset.get_preset("realistic"), width=640, height=360, focal_px=500.0
+    )
     rig = sim_rig.SimRig(p, seed=5, n_frames=2)
     sim_writer.write_session(rig, tmp_path / "s")
     session = load_session(tmp_path / "s")
@@ -107,8 +123,10 @@ def test_predict_heat_maps_point_streak_ends_to_their_dots(tmp_path: Path,
                 continue
             for key, ch in (("start", 0), ("end", 2)):
                 x = np.asarray(st[key], np.float32)
-                q = [cv2.remap(heat[c], x[None, None, :1], x[None, None, 1:], cv2.INTER_LINEAR)
-                     [0, 0] for c in (ch, ch + 1)]
+                q = [
+                    cv2.remap(heat[c], x[None, None, :1], x[None, None, 1:], cv2.INTER_LINEAR)[0, 0]
+                    for c in (ch, ch + 1)
+                ]
                 errors.append(np.linalg.norm(x + np.asarray(q) - np.asarray(st["ref"])))
     assert len(errors) > 100
     # The session's gyro is noisy (5 mrad/s), biased (removed by the true calibration) and

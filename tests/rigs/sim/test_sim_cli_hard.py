@@ -13,8 +13,14 @@ from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
 
-SHAKE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / \
-    "gyrodeblurnet-shake" / "gyro_train.txt"
+SHAKE = (
+    Path(__file__).resolve().parents[3].parent
+    / "shared"
+    / "data"
+    / "real"
+    / "gyrodeblurnet-shake"
+    / "gyro_train.txt"
+)
 
 
 def test_cli_writes_session_truth_and_summary(tmp_path: Path, capsys) -> None:
@@ -32,11 +38,27 @@ def test_cli_writes_session_truth_and_summary(tmp_path: Path, capsys) -> None:
 
 def test_cli_preset_file_and_overrides(tmp_path: Path) -> None:
     f = tmp_path / "p.yaml"
-    f.write_text("base: realistic\nname: tiny\nwidth: 320\nheight: 240\nfocal_px: 250.0\n"
-                 "dot_cols: 5\ndot_rows: 4\n")
+    f.write_text(
+        "base: realistic\nname: tiny\nwidth: 320\nheight: 240\nfocal_px: 250.0\n"
+        "dot_cols: 5\ndot_rows: 4\n"
+    )
     out = tmp_path / "s"
-    rc = main(["simulate", str(out), "--preset-file", str(f), "--frames", "2",
-               "--motion", "synthetic", "--bit-depth", "16", "--imu-rate", "500"])
+    rc = main(
+        [
+            "simulate",
+            str(out),
+            "--preset-file",
+            str(f),
+            "--frames",
+            "2",
+            "--motion",
+            "synthetic",
+            "--bit-depth",
+            "16",
+            "--imu-rate",
+            "500",
+        ]
+    )
     assert rc == 0
     s = load_session(out)
     assert s.read_image(0).dtype == np.uint16
@@ -44,11 +66,14 @@ def test_cli_preset_file_and_overrides(tmp_path: Path) -> None:
     assert s.truth["simulator"]["preset"]["name"] == "tiny"
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--preset", "nope"], "unknown preset"),
-    (["--frames", "0"], "frames"),
-    (["--preset", "realistic", "--shake", "/nonexistent/g.txt"], "shake trace not found"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--preset", "nope"], "unknown preset"),
+        (["--frames", "0"], "frames"),
+        (["--preset", "realistic", "--shake", "/nonexistent/g.txt"], "shake trace not found"),
+    ],
+)
 def test_cli_errors_are_one_line_exit_2(tmp_path: Path, capsys, args, message) -> None:
     rc = main(["simulate", str(tmp_path / "s"), *args])
     err = capsys.readouterr().err
@@ -68,11 +93,13 @@ def crossing(p: np.ndarray, q: np.ndarray) -> bool:
     c, d = q[None, :-1], q[None, 1:]
 
     def cross(o, u, v):
-        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - \
-            (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0])
+        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (
+            v[..., 0] - o[..., 0]
+        )
 
-    return bool(np.any((cross(c, d, a) * cross(c, d, b) < 0)
-                       & (cross(a, b, c) * cross(a, b, d) < 0)))
+    return bool(
+        np.any((cross(c, d, a) * cross(c, d, b) < 0) & (cross(a, b, c) * cross(a, b, d) < 0))
+    )
 
 
 @pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
@@ -89,8 +116,11 @@ def test_hard_preset_has_fast_shake_saturation_crossings_and_leaving_dots() -> N
         coarse = s.path[:, ::8]
         for a in vis:
             for b in vis:
-                if a < b and np.linalg.norm(s.ref[a] - s.ref[b]) < 250 \
-                        and crossing(coarse[a], coarse[b]):
+                if (
+                    a < b
+                    and np.linalg.norm(s.ref[a] - s.ref[b]) < 250
+                    and crossing(coarse[a], coarse[b])
+                ):
                     crossings += 1
         saturated += int(np.count_nonzero(rig.render_frame(t) == 255))
     assert np.median(lengths) > 40

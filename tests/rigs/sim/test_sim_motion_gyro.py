@@ -34,7 +34,7 @@ def test_orientation_is_the_exact_integral_of_omega() -> None:
     t0 = rng.uniform(5.2, 6.7, 20)
     t1 = t0 + rng.uniform(-0.03, 0.03, 20)
     R0, R1 = m.orientation(t0), m.orientation(t1)
-    rel = np.einsum("nji,njk->nik", R0, R1)           # R_c(t0)^T R_c(t1)
+    rel = np.einsum("nji,njk->nik", R0, R1)  # R_c(t0)^T R_c(t1)
 
     def omega(t):
         w = m.omega_cam_at(t)
@@ -42,7 +42,7 @@ def test_orientation_is_the_exact_integral_of_omega() -> None:
 
     ref = np.stack(relative_rotation(t0, t1, omega, 8000), axis=-1).reshape(-1, 3, 3)
     ang = np.linalg.norm(so3_log(np.einsum("nji,njk->nik", rel, ref)), axis=1)
-    assert ang.max() < 1e-9   # 1e-6 px at f = 1000 px
+    assert ang.max() < 1e-9  # 1e-6 px at f = 1000 px
     # and the motion really moves (degrees within 30 ms at these rates)
     assert np.degrees(np.linalg.norm(so3_log(rel), axis=1)).max() > 1.0
 
@@ -68,8 +68,9 @@ def test_synthetic_omega_is_deterministic_and_scaled() -> None:
 
 
 def gyro_rig(**changes) -> SimRig:
-    p = get_preset("realistic").replace(motion="synthetic", width=320, height=240,
-                                        focal_px=250.0, **changes)
+    p = get_preset("realistic").replace(
+        motion="synthetic", width=320, height=240, focal_px=250.0, **changes
+    )
     return SimRig(p, 5, 20)
 
 
@@ -94,11 +95,10 @@ def test_ideal_gyro_is_true_omega_in_imu_frame_on_imu_clock() -> None:
 def test_gyro_noise_level_and_timestamps() -> None:
     rig = gyro_rig(gyro_scale_error=0.0)
     t_ns = rig.gyro_times_ns()
-    assert np.all(np.diff(t_ns) == 5_000_000)                   # 200 Hz
+    assert np.all(np.diff(t_ns) == 5_000_000)  # 200 Hz
     shift = rig.gyro_model.timeshift_cam_imu_s
     assert t_ns[0] * 1e-9 < rig.frame_times_ns[0] * 1e-9 + shift
-    assert t_ns[-1] * 1e-9 > (rig.frame_times_ns[-1] * 1e-9 + shift + 0.02
-                              + rig.camera.readout_s)
+    assert t_ns[-1] * 1e-9 > (rig.frame_times_ns[-1] * 1e-9 + shift + 0.02 + rig.camera.readout_s)
     t = t_ns * 1e-9
     noise = rig.sample_gyro(t) - rig.sample_gyro(t, noise=False)
     assert noise.std() == pytest.approx(0.005, rel=0.15)

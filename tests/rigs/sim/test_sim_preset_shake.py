@@ -12,8 +12,14 @@ from rigs.sim.motion import shake_omega
 from rigs.sim.preset import PRESETS, SimPreset, get_preset
 from rigs.sim.shake import ShakeTrace, read_shake_trace
 
-SHAKE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / \
-    "gyrodeblurnet-shake" / "gyro_train.txt"
+SHAKE = (
+    Path(__file__).resolve().parents[3].parent
+    / "shared"
+    / "data"
+    / "real"
+    / "gyrodeblurnet-shake"
+    / "gyro_train.txt"
+)
 needs_shake = pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
 
 
@@ -42,19 +48,22 @@ def test_preset_file_with_base_and_overrides(tmp_path: Path) -> None:
     assert p.misalignment_deg == (0.0, 0.0)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("exposure_s: 0.5\n", "exposure_s"),
-    ("bogus_key: 1\n", "unknown preset keys"),
-    ("width: 12.5\n", "integer"),
-    ("shot_noise: 1\n", "true or false"),
-    ("motion: wobbly\n", "motion"),
-    ("timeshift_s: [0.03, 0.01]\n", "timeshift_s"),
-    ("bit_depth: 12\n", "bit_depth"),
-    ("dot_flux_eps: .nan\n", "finite"),
-    ("- 1\n- 2\n", "mapping"),
-    ("a: [unclosed\n", "not valid YAML"),
-    ("base: nothing\n", "unknown preset"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("exposure_s: 0.5\n", "exposure_s"),
+        ("bogus_key: 1\n", "unknown preset keys"),
+        ("width: 12.5\n", "integer"),
+        ("shot_noise: 1\n", "true or false"),
+        ("motion: wobbly\n", "motion"),
+        ("timeshift_s: [0.03, 0.01]\n", "timeshift_s"),
+        ("bit_depth: 12\n", "bit_depth"),
+        ("dot_flux_eps: .nan\n", "finite"),
+        ("- 1\n- 2\n", "mapping"),
+        ("a: [unclosed\n", "not valid YAML"),
+        ("base: nothing\n", "unknown preset"),
+    ],
+)
 def test_bad_preset_files_fail_with_one_line(tmp_path: Path, text: str, message: str) -> None:
     f = tmp_path / "bad.yaml"
     f.write_text(text)
@@ -101,13 +110,16 @@ def test_shake_motion_is_seeded_and_scaled() -> None:
     assert a[0][0] == pytest.approx(0.0, abs=2e-3) and a[0][-1] >= 2.0 - 1e-9
 
 
-@pytest.mark.parametrize("text, message", [
-    ("1\t0.1\t0.2\n2\t0.1\n", "expected 4 columns"),
-    ("1\t0.1\t0.2\tx\n" * 5, "not numbers"),
-    ("".join(f"{k}\t0\t0\t0\n" for k in (1, 2, 3, 3, 4)), "not increasing"),
-    ("1\t0\t0\tnan\n2\t0\t0\t0\n3\t0\t0\t0\n4\t0\t0\t0\n", "NaN"),
-    ("1\t0\t0\t0\n", "only 1 samples"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("1\t0.1\t0.2\n2\t0.1\n", "expected 4 columns"),
+        ("1\t0.1\t0.2\tx\n" * 5, "not numbers"),
+        ("".join(f"{k}\t0\t0\t0\n" for k in (1, 2, 3, 3, 4)), "not increasing"),
+        ("1\t0\t0\tnan\n2\t0\t0\t0\n3\t0\t0\t0\n4\t0\t0\t0\n", "NaN"),
+        ("1\t0\t0\t0\n", "only 1 samples"),
+    ],
+)
 def test_bad_shake_files(tmp_path: Path, text: str, message: str) -> None:
     f = tmp_path / "g.txt"
     f.write_text(text)

@@ -19,7 +19,7 @@ def test_splat_conserves_energy_and_centroid() -> None:
         u, v = rng.uniform(20, 60, 2)
         out = np.zeros((80, 90))
         splat(out, np.array([u]), np.array([v]), 1.4, lambda r, s: np.full(r.shape, 7.0))
-        assert out.sum() == pytest.approx(7.0, rel=5e-4)   # tails beyond 3.5 sigma cut
+        assert out.sum() == pytest.approx(7.0, rel=5e-4)  # tails beyond 3.5 sigma cut
         ys, xs = np.mgrid[:80, :90]
         assert (out * xs).sum() / out.sum() == pytest.approx(u, abs=1e-3)
         assert (out * ys).sum() / out.sum() == pytest.approx(v, abs=1e-3)
@@ -27,9 +27,8 @@ def test_splat_conserves_energy_and_centroid() -> None:
 
 def test_splat_clips_at_borders_without_wrapping() -> None:
     out = np.zeros((40, 50))
-    splat(out, np.array([-1.0, 49.4]), np.array([20.0, 38.8]), 1.5,
-          lambda r, s: np.ones(r.shape))
-    assert 0.1 < out.sum() < 1.0          # parts of both patches fall outside
+    splat(out, np.array([-1.0, 49.4]), np.array([20.0, 38.8]), 1.5, lambda r, s: np.ones(r.shape))
+    assert 0.1 < out.sum() < 1.0  # parts of both patches fall outside
     assert out[:, 10:40].sum() == 0.0 and out[:10].sum() == 0.0
 
 
@@ -39,8 +38,7 @@ def brute_force(rig: SimRig, t_f: float, steps: int = 20000) -> np.ndarray:
     J = rig.dots_world.shape[0]
     t = t_f + (np.arange(steps) + 0.5) * (cam.readout_s + p.exposure_s) / steps
     dt = (cam.readout_s + p.exposure_s) / steps
-    pos = dot_pixels(rig.motion, cam, rig.dots_world, np.repeat(t, J), np.tile(np.arange(J),
-                                                                               steps))
+    pos = dot_pixels(rig.motion, cam, rig.dots_world, np.repeat(t, J), np.tile(np.arange(J), steps))
     ts = np.repeat(t, J)
     out = np.zeros((cam.height, cam.width))
 
@@ -55,13 +53,14 @@ def brute_force(rig: SimRig, t_f: float, steps: int = 20000) -> np.ndarray:
 
 @pytest.mark.parametrize("readout_s", [0.0, 0.025])
 def test_render_matches_brute_force(readout_s: float) -> None:
-    preset = get_preset("realistic").replace(**SMALL, synthetic_rms_radps=(1.5, 1.5, 1.0),
-                                             readout_s=readout_s)
+    preset = get_preset("realistic").replace(
+        **SMALL, synthetic_rms_radps=(1.5, 1.5, 1.0), readout_s=readout_s
+    )
     rig = SimRig(preset, 3, 2)
     t_f = rig.frame_times_ns[1] * 1e-9
     fast = rig.render_electrons(t_f)
     ref = brute_force(rig, t_f)
-    assert rig.streaks(t_f).length_px.max() > 5   # real streaks (f = 160 px), not dots
+    assert rig.streaks(t_f).length_px.max() > 5  # real streaks (f = 160 px), not dots
     assert np.abs(fast - ref).max() < 0.01 * ref.max()
     assert fast.sum() == pytest.approx(ref.sum(), rel=2e-3)
 
@@ -109,13 +108,13 @@ def test_sharp_frame_peaks_at_reference_positions() -> None:
     for u, v in ref:
         if 8 < u < preset.width - 9 and 8 < v < preset.height - 9:
             iu, iv = round(u), round(v)
-            patch = e[iv - 7:iv + 8, iu - 7:iu + 8]
+            patch = e[iv - 7 : iv + 8, iu - 7 : iu + 8]
             assert (patch * xs).sum() / patch.sum() + iu - 7 == pytest.approx(u, abs=1e-3)
             assert (patch * ys).sum() / patch.sum() + iv - 7 == pytest.approx(v, abs=1e-3)
             checked += 1
     assert checked >= 6
     img = rig.render_sharp(t_ref)
-    assert img.dtype == np.uint8 and img.max() == 255   # a whole exposure in one spot
+    assert img.dtype == np.uint8 and img.max() == 255  # a whole exposure in one spot
 
 
 def test_render_points_energy() -> None:
@@ -131,7 +130,7 @@ def test_expose_noise_statistics_and_saturation() -> None:
     assert img.mean() / gain == pytest.approx(4000.0, rel=2e-3)
     assert img.var() / gain**2 == pytest.approx(4000.0 + 400.0, rel=0.03)
     low = expose(np.full((300, 300), 3.0), 0.0, 10000.0, 0.0, True, 16, rng).astype(float)
-    assert low.mean() / gain == pytest.approx(3.0, rel=0.02)   # exact Poisson branch
+    assert low.mean() / gain == pytest.approx(3.0, rel=0.02)  # exact Poisson branch
     assert low.var() / gain**2 == pytest.approx(3.0, rel=0.05)
     sat = expose(np.full((4, 4), 5e4), 0.0, 10000.0, 5.0, True, 8, rng)
     assert sat.dtype == np.uint8 and np.all(sat == 255)
@@ -162,9 +161,19 @@ def test_blurred_frame_is_the_sharp_frame_averaged_along_the_model_trajectories(
     from blurtrack.geometry.gyro import GyroTrace
 
     preset = get_preset("realistic").replace(
-        width=160, height=120, focal_px=400.0, dot_cols=4, dot_rows=3, motion="synthetic",
-        dot_sigma_px=2.0, gyro_noise_radps=0.0, gyro_bias_radps=0.0, gyro_scale_error=0.0,
-        imu_rate_hz=1000.0, synthetic_rms_radps=(0.6, 0.6, 0.6))
+        width=160,
+        height=120,
+        focal_px=400.0,
+        dot_cols=4,
+        dot_rows=3,
+        motion="synthetic",
+        dot_sigma_px=2.0,
+        gyro_noise_radps=0.0,
+        gyro_bias_radps=0.0,
+        gyro_scale_error=0.0,
+        imu_rate_hz=1000.0,
+        synthetic_rms_radps=(0.6, 0.6, 0.6),
+    )
     rig = SimRig(preset, 6, 2)
     t_f = rig.frame_times_ns[1] * 1e-9
     t_ref = rig.reference_time(t_f)
@@ -181,8 +190,16 @@ def test_blurred_frame_is_the_sharp_frame_averaged_along_the_model_trajectories(
     for k in range(n):
         t = row_t0 + (k + 0.5) / n * preset.exposure_s
         q = model.warp(px, t, np.full(px.shape[0], t_ref)).astype(np.float32)
-        synth += cv2.remap(sharp, q[:, 0].reshape(H, W), q[:, 1].reshape(H, W),
-                           cv2.INTER_LINEAR, borderValue=0.0).ravel() / n
+        synth += (
+            cv2.remap(
+                sharp,
+                q[:, 0].reshape(H, W),
+                q[:, 1].reshape(H, W),
+                cv2.INTER_LINEAR,
+                borderValue=0.0,
+            ).ravel()
+            / n
+        )
     # Away from the borders (the sharp frame lacks light from beyond them; bilinear sampling
     # of the sharp frame smooths by a few % of the peak):
     inner = (slice(15, H - 15), slice(15, W - 15))
@@ -204,8 +221,16 @@ def test_arc_length_slots_tile_each_window_with_short_moves() -> None:
     speed[2] = 0.0
     step = np.diff(t, axis=1) * speed[:, 1:]
     ang = rng.uniform(0, 6.3, (J, M))
-    p = np.concatenate([np.zeros((J, 1, 2)), np.cumsum(
-        np.stack([step * np.cos(ang), step * np.sin(ang)], -1), axis=1)], axis=1) + 100
+    p = (
+        np.concatenate(
+            [
+                np.zeros((J, 1, 2)),
+                np.cumsum(np.stack([step * np.cos(ang), step * np.sin(ang)], -1), axis=1),
+            ],
+            axis=1,
+        )
+        + 100
+    )
     dot, lo, hi = arc_length_slots(t, p, 0.25)
     for j in range(J):
         sel = dot == j

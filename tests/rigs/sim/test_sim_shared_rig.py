@@ -19,16 +19,28 @@ from rigs.sim.shared_rig import shared_rig
 def test_record_a_simulated_laser_grid_rig(tmp_path: Path) -> None:
     url = "rig=clean&seed=5&frames=6"
     out = tmp_path / "session"
-    rc = cli_main(["record", "--imu", f"sim://imu?{url}", "--camera", f"sim://camera?{url}",
-                   "--out", str(out), "--duration", "120"])
+    rc = cli_main(
+        [
+            "record",
+            "--imu",
+            f"sim://imu?{url}",
+            "--camera",
+            f"sim://camera?{url}",
+            "--out",
+            str(out),
+            "--duration",
+            "120",
+        ]
+    )
     assert rc == 0
     s = load_session(out)
     shared = shared_rig("clean", 5, 6)
     rig = shared.rig
     # every frame, none dropped, on the rig's schedule, with the rig's exposure
     assert len(s.frames) == 6
-    np.testing.assert_array_equal(np.diff(s.frames.timestamp_ns.to_numpy()),
-                                  np.diff(rig.frame_times_ns))
+    np.testing.assert_array_equal(
+        np.diff(s.frames.timestamp_ns.to_numpy()), np.diff(rig.frame_times_ns)
+    )
     assert (s.frames.exposure_ns == rig.exposure_ns).all()
     # the whole board: lead before the first frame to tail after the last, gap-free
     scan = scan_log(tmp_path / "session.mcap")

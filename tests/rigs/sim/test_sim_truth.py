@@ -18,16 +18,20 @@ from rigs.sim.writer import write_session
 
 def ideal_gyro(name: str, **changes):
     """A preset with a noise-free, bias-free 1 kHz gyro and synthetic motion (no data files)."""
-    return get_preset(name).replace(gyro_noise_radps=0.0, gyro_bias_radps=0.0,
-                                    gyro_scale_error=0.0, imu_rate_hz=1000.0,
-                                    motion="synthetic", **changes)
+    return get_preset(name).replace(
+        gyro_noise_radps=0.0,
+        gyro_bias_radps=0.0,
+        gyro_scale_error=0.0,
+        imu_rate_hz=1000.0,
+        motion="synthetic",
+        **changes,
+    )
 
 
 @pytest.fixture(scope="module")
 def realistic_session(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sim") / "realistic"
-    write_session(SimRig(ideal_gyro("realistic", synthetic_rms_radps=(0.8, 0.8, 0.4)), 11, 3),
-                  out)
+    write_session(SimRig(ideal_gyro("realistic", synthetic_rms_radps=(0.8, 0.8, 0.4)), 11, 3), out)
     return out
 
 
@@ -38,13 +42,16 @@ def endpoint_errors(session_dir: Path) -> tuple[float, float]:
     for fr in s.truth["frames"]:
         st = fr["streaks"]
         ref = np.array([x["ref"] for x in st])
-        start, end, t0, _t1 = model.streak_endpoints(ref, fr["t_ref_ns"] * 1e-9,
-                                                    fr["timestamp_ns"] * 1e-9,
-                                                    fr["exposure_ns"] * 1e-9)
+        start, end, t0, _t1 = model.streak_endpoints(
+            ref, fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9, fr["exposure_ns"] * 1e-9
+        )
         true_start = np.array([x["start"] for x in st])
         true_end = np.array([x["end"] for x in st])
-        worst_px = max(worst_px, float(np.max(np.abs(start - true_start))),
-                       float(np.max(np.abs(end - true_end))))
+        worst_px = max(
+            worst_px,
+            float(np.max(np.abs(start - true_start))),
+            float(np.max(np.abs(end - true_end))),
+        )
         worst_ns = max(worst_ns, float(np.max(np.abs(t0 * 1e9 - [x["t_start_ns"] for x in st]))))
     return worst_px, worst_ns
 
@@ -69,7 +76,8 @@ def test_wrong_calibration_does_not_reproduce_truth(realistic_session: Path) -> 
     fr = s.truth["frames"][1]
     ref = np.array([x["ref"] for x in fr["streaks"]])
     start, _, _, _ = BlurModel(bad, s.gyro()).streak_endpoints(
-        ref, fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9, fr["exposure_ns"] * 1e-9)
+        ref, fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9, fr["exposure_ns"] * 1e-9
+    )
     err = np.abs(start - np.array([x["start"] for x in fr["streaks"]])).max()
     assert err > 1.0
 
@@ -110,21 +118,30 @@ def test_session_loads_back_with_truth(realistic_session: Path) -> None:
 
 
 def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path) -> None:
-    p = get_preset("realistic").replace(motion="synthetic", width=320, height=240,
-                                        focal_px=250.0, dot_cols=6, dot_rows=4)
+    p = get_preset("realistic").replace(
+        motion="synthetic", width=320, height=240, focal_px=250.0, dot_cols=6, dot_rows=4
+    )
     for name, seed in (("a", 7), ("b", 7), ("c", 8)):
         write_session(SimRig(p, seed, 2), tmp_path / name)
-    files = sorted(f.relative_to(tmp_path / "a") for f in (tmp_path / "a").rglob("*")
-                   if f.is_file())
+    files = sorted(
+        f.relative_to(tmp_path / "a") for f in (tmp_path / "a").rglob("*") if f.is_file()
+    )
     assert len(files) >= 6
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
-    assert (tmp_path / "a" / "truth.yaml").read_bytes() != \
-        (tmp_path / "c" / "truth.yaml").read_bytes()
+    assert (tmp_path / "a" / "truth.yaml").read_bytes() != (
+        tmp_path / "c" / "truth.yaml"
+    ).read_bytes()
 
 
-SHAKE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / \
-    "gyrodeblurnet-shake" / "gyro_train.txt"
+SHAKE = (
+    Path(__file__).resolve().parents[3].parent
+    / "shared"
+    / "data"
+    / "real"
+    / "gyrodeblurnet-shake"
+    / "gyro_train.txt"
+)
 
 
 @pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
@@ -133,8 +150,9 @@ def test_core_model_reproduces_truth_on_real_shake(name: str) -> None:
     # Without rendering: the rig's truth against BlurModel on its ideal 1 kHz gyro.
     from blurtrack.geometry.gyro import GyroTrace
 
-    p = get_preset(name).replace(gyro_noise_radps=0.0, gyro_bias_radps=0.0,
-                                 gyro_scale_error=0.0, imu_rate_hz=1000.0)
+    p = get_preset(name).replace(
+        gyro_noise_radps=0.0, gyro_bias_radps=0.0, gyro_scale_error=0.0, imu_rate_hz=1000.0
+    )
     rig = SimRig(p, 21, 6)
     t_ns = rig.gyro_times_ns()
     model = BlurModel(rig.calibration, GyroTrace(t_ns * 1e-9, rig.sample_gyro(t_ns * 1e-9)))
@@ -143,19 +161,30 @@ def test_core_model_reproduces_truth_on_real_shake(name: str) -> None:
         fr = rig.frame_truth(i)
         st = fr["streaks"]
         start, end, _, _ = model.streak_endpoints(
-            np.array([x["ref"] for x in st]), fr["t_ref_ns"] * 1e-9, fr["timestamp_ns"] * 1e-9,
-            fr["exposure_ns"] * 1e-9)
-        worst = max(worst, float(np.abs(start - [x["start"] for x in st]).max()),
-                    float(np.abs(end - [x["end"] for x in st]).max()))
+            np.array([x["ref"] for x in st]),
+            fr["t_ref_ns"] * 1e-9,
+            fr["timestamp_ns"] * 1e-9,
+            fr["exposure_ns"] * 1e-9,
+        )
+        worst = max(
+            worst,
+            float(np.abs(start - [x["start"] for x in st]).max()),
+            float(np.abs(end - [x["end"] for x in st]).max()),
+        )
     assert worst <= 0.02
 
 
 def test_core_model_reproduces_truth_with_lens_distortion(tmp_path: Path) -> None:
-    p = ideal_gyro("realistic", distortion_coeffs=(-0.12, 0.03, 0.001, -0.0015),
-                   width=640, height=360, focal_px=500.0)
+    p = ideal_gyro(
+        "realistic",
+        distortion_coeffs=(-0.12, 0.03, 0.001, -0.0015),
+        width=640,
+        height=360,
+        focal_px=500.0,
+    )
     write_session(SimRig(p, 8, 2), tmp_path / "s")
     s = load_session(tmp_path / "s")
     assert s.truth["calibration"]["cam0"]["distortion_model"] == "radtan"
-    assert s.meta.camera.distortion_model == "none"    # the rig's guess
+    assert s.meta.camera.distortion_model == "none"  # the rig's guess
     px, _ = endpoint_errors(tmp_path / "s")
     assert px <= 0.02
