@@ -1,4 +1,4 @@
-"""CLI commands ``blurtrack calibrate`` and ``blurtrack report`` (listed in blurtrack.cli)."""
+"""CLI command ``blurtrack calibrate`` (listed in blurtrack.cli)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
 from calib.params import DEFAULT_FIT
 
 #: Display scale and unit of each parameter in the printed table.
@@ -40,7 +41,7 @@ def register(subparsers: Any) -> None:
         "cross-axis error, written as gyro_scale_matrix; without it a score "
         f"test warns when the data ask for one); default: {DEFAULT_FIT}",
     )
-    _streak_args(p)
+    add_streak_source_args(p)
     p.add_argument(
         "--holdout",
         type=float,
@@ -77,51 +78,6 @@ def register(subparsers: Any) -> None:
         "see the same dots, else endpoints with a warning",
     )
     p.set_defaults(func=run_calibrate)
-
-    r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
-    r.add_argument("session", help="session folder")
-    r.add_argument("--calib", required=True, help="calibration YAML to evaluate")
-    r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--before", help="calibration to compare with (default: session.yaml)")
-    r.add_argument(
-        "--fit-summary",
-        help="summary JSON of the fit (default: the one written "
-        "next to --calib by calibrate, if present)",
-    )
-    r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
-    _streak_args(r)
-    r.set_defaults(func=run_report)
-
-
-def _streak_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--streaks", help="streak table (default: SESSION/streaks.parquet)")
-    g.add_argument(
-        "--from-truth",
-        action="store_true",
-        help="use the simulator's true streaks (truth.yaml) instead of detections",
-    )
-
-
-def _load(args: argparse.Namespace):
-    from blurtrack.io import streaks as streak_table
-    from blurtrack.io.session import load_session
-    from calib.errors import CalibError
-
-    session = load_session(args.session)
-    if args.from_truth:
-        if session.truth is None:
-            raise CalibError(f"--from-truth: {args.session} has no truth.yaml")
-        table = streak_table.from_truth(session.truth)
-    else:
-        path = Path(args.streaks) if args.streaks else Path(args.session) / "streaks.parquet"
-        table = streak_table.read(path)
-    return session, table
-
-
-def summary_path(calib_path: str | Path) -> Path:
-    p = Path(calib_path)
-    return p.with_name(p.stem + ".summary.json")
 
 
 def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
@@ -162,7 +118,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.params import theta_from
     from calib.result import named
 
-    session, table = _load(args)
+    session, table = load_session_and_streaks(args)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
     )
@@ -244,56 +200,3 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
         )
     for w in res.warnings:
         print(f"warning: {w}")
-
-
-def run_report(args: argparse.Namespace) -> int:
-    from blurtrack.io.calibration import Calibration
-    from blurtrack.report.build import build_report
-    from calib.errors import CalibError
-
-    session, table = _load(args)
-    after = Calibration.from_yaml(args.calib)
-    before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
-    fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
-    fit = None
-    if fs_path.is_file():
-        try:
-            fit = json.loads(fs_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise CalibError(f"fit summary {fs_path} is not valid JSON ({exc})") from None
-        if not isinstance(fit, dict):
-            raise CalibError(f"fit summary {fs_path} is not a JSON object")
-    elif args.fit_summary:
-        raise CalibError(f"fit summary not found: {fs_path}")
-    summary = build_report(
-        session, table, before, after, args.out, fit_summary=fit, n_overlays=args.overlays
-    )
-    for k in ("before", "after"):
-        s = summary["overall"][k]
-        print(
-            f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "
-            f"p95 {s['p95_px']:.3f} ({s['n']} streaks)"
-        )
-    for k, s in summary["motion_models"].items():
-        print(f"  {summary['motion_model_labels'][k]}: mean {s['mean_px']:.3f} px")
-    for w in summary["warnings"]:
-        print(f"warning: {w}")
-    print(f"wrote {Path(args.out) / 'report.html'}")
-    return 0
-
-
-def demo_argv(session: str | Path, out: str | Path, from_truth: bool = True) -> list[list[str]]:
-    """The ``blurtrack`` argument lists that ``make demo`` runs for calibration and report.
-
-    ``calibrate`` prints the recovered parameters beside the initial guess and, for simulated
-    sessions, beside the truth; ``report`` writes ``OUT/report/report.html``.
-
-    >>> demo_argv("s", "o")[0][:4]
-    ['calibrate', 's', '--out', 'o/calib.yaml']
-    """
-    src = ["--from-truth"] if from_truth else []
-    calib = str(Path(out) / "calib.yaml")
-    return [
-        ["calibrate", str(session), "--out", calib, *src],
-        ["report", str(session), "--calib", calib, "--out", str(Path(out) / "report"), *src],
-    ]

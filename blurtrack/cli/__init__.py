@@ -1,7 +1,9 @@
 """The ``blurtrack`` command line.
 
-Subcommands live in modules (``blurtrack/cli/<name>.py``, ``calib/cli.py``, ``rigs/cli.py``) that
-expose ``register(subparsers) -> None``; each registered parser
+Each package registers its own commands: ``blurtrack/cli/<name>.py`` (simulate, import,
+validate, detect, report, predict, synth, demo), ``calib/cli.py`` (calibrate) and ``rigs/cli.py``
+(record, recover); ``gamd/cli.py`` is the separate ``gamd`` program. Each module exposes
+``register(subparsers) -> None``; each registered parser
 sets ``func`` to a callable ``(argparse.Namespace) -> int``. The modules of the other packages
 (rigs, calib) are imported only when the parser is built, and they import their heavy
 dependencies inside their command functions, so ``blurtrack --help`` stays fast.
@@ -27,6 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "blurtrack.cli.validate",
     "blurtrack.cli.detect",
     "calib.cli",
+    "blurtrack.cli.report",
     "blurtrack.cli.predict",
     "blurtrack.cli.synth",
     "rigs.cli",

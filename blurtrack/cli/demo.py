@@ -2,7 +2,9 @@
 
 simulate → detect → calibrate (printed beside the simulator's truth) → report → import the
 real recordings → synthesise a small dataset with the fitted calibration → train GAMD briefly
-→ before/after picture. Each step runs the command a user would type; the first failing step
+→ before/after picture (this is the one demo module: :func:`demo_dataset` and
+:func:`demo_train` are its synthesis and deblurring steps). Each step runs the command a user
+would type; the first failing step
 stops the demo with its one-line reason and a non-zero exit.
 """
 
@@ -14,6 +16,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
@@ -146,7 +149,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _synth(out: Path, data: Path) -> int:
     from blurtrack.io.calibration import Calibration
-    from blurtrack.synth.demo import demo_dataset
 
     calib = Calibration.from_yaml(out / "calib.yaml")
     res = demo_dataset(out / "dataset", data, count=24, size=(256, 192), calib=calib)
@@ -155,8 +157,6 @@ def _synth(out: Path, data: Path) -> int:
 
 
 def _gamd(out: Path, steps: int, progress: bool) -> int:
-    from gamd.demo import demo_train
-
     res = demo_train(out / "dataset", out / "gamd", steps=steps, progress=progress)
     print(
         f"   {steps} training steps; test image {res['image']}: blurred "
@@ -165,3 +165,115 @@ def _gamd(out: Path, steps: int, progress: bool) -> int:
         f"(a short CPU run; see the README for the trained benchmark)"
     )
     return 0
+
+
+def demo_calibration() -> Any:
+    """A 720p phone-class camera: 65° horizontal field of view, 20 ms rolling-shutter readout."""
+    from blurtrack.geometry.camera import Camera
+    from blurtrack.io.calibration import Calibration
+
+    return Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))
+
+
+def demo_dataset(
+    out: str | Path,
+    data: str | Path,
+    count: int = 8,
+    size: tuple[int, int] = (320, 180),
+    calib: Any = None,
+    workers: int = 1,
+) -> dict[str, Any]:
+    """Build (or resume) a small dataset at ``out`` from ``data/backgrounds/bsds500``.
+
+    BSDS500 photographs blurred with the real GyroDeblurNet shake (synthetic shake when that file
+    is absent) through a phone-like calibration (or ``calib``), exact mode, mild noise; returns
+    the build summary.
+    """
+    from blurtrack.errors import SynthesisError
+    from blurtrack.synth.dataset import DatasetSpec, build
+    from blurtrack.synth.photometry import Photometry
+    from blurtrack.synth.triplet import TripletParams
+
+    data = Path(data)
+    images = data / "backgrounds" / "bsds500"
+    if not images.is_dir():
+        raise SynthesisError(f"demo backgrounds not found at {images}")
+    shake = data / "real" / "gyrodeblurnet-shake"
+    gyro = str(shake.resolve()) if shake.is_dir() else "synthetic:0.7"
+    params = TripletParams(
+        size=size, exposure_ms=(10.0, 30.0), photometry=Photometry(noise_shot=2e-4, noise_read=2e-3)
+    )
+    spec = DatasetSpec(
+        calib=(calib or demo_calibration()).to_dict(),
+        gyro=gyro,
+        images=str(images.resolve()),
+        count=count,
+        seed=0,
+        params=params,
+        group=max(1, count // 2),
+    )
+    res = build(spec, out, workers=workers)
+    return {"out": str(out), "gyro": Path(gyro).name, **res.to_dict()}
+
+
+def demo_train(
+    dataset: str | Path,
+    out_dir: str | Path,
+    steps: int = 100,
+    crop: int = 64,
+    batch_size: int = 4,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = True,
+) -> dict:
+    """Train tiny GAMD for ``steps`` steps and write the before/after picture; returns the
+    summary (PSNR/SSIM of the blurred and the restored test image)."""
+    from gamd.config import RunConfig
+    from gamd.data import DeblurDataset
+    from gamd.evaluate import psnr_ssim, restore
+    from gamd.infer import side_by_side, write_rgb
+    from gamd.train import train
+
+    out = Path(out_dir)
+    config = RunConfig.from_dict(
+        {
+            "model": {"name": "gamd", "preset": "tiny"},
+            "data": {"root": str(dataset), "crop": crop},
+            "train": {
+                "out_dir": str(out / "run"),
+                "steps": steps,
+                "batch_size": batch_size,
+                "lr": 1e-3,
+                "milestones": [max(1, 3 * steps // 4)],
+                "seed": seed,
+                "threads": threads,
+                "checkpoint_every": steps,
+                "progress": progress,
+                "tensorboard": False,
+            },
+        }
+    )
+    res = train(config, resume="auto")
+    split = "test" if (Path(dataset) / "test").is_dir() else "train"  # tiny demo sets
+    test = DeblurDataset(
+        dataset, split, crop=None, augment=False, heat_scale_px=config.data.heat_scale_px
+    )
+    item = test.full(0)
+    restored = restore(res.model, item["blur"], item["heat"]).permute(1, 2, 0).numpy()
+    blur = item["blur"].permute(1, 2, 0).numpy()
+    sharp = item["sharp"].permute(1, 2, 0).numpy()
+    picture = out / "before_after.png"
+    write_rgb(picture, side_by_side(blur, restored, sharp))
+    (bp, bs), (rp, rs) = psnr_ssim(blur, sharp), psnr_ssim(restored, sharp)
+    summary = {
+        "image": f"{split}/{test.triplets[0].name}",
+        "steps": steps,
+        "picture": str(picture),
+        "blurred_psnr_db": bp,
+        "blurred_ssim": bs,
+        "restored_psnr_db": rp,
+        "restored_ssim": rs,
+        "checkpoint": str(res.checkpoint),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary

@@ -10,7 +10,7 @@ centre lines and profiles), :mod:`~blurtrack.detect.gaps` (streaks touching end 
 tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
 (a whole session), :mod:`~blurtrack.detect.table` (the streak table),
-:mod:`~blurtrack.detect.overlay` and :mod:`~blurtrack.detect.demo` (pictures, demo step),
+:mod:`~blurtrack.detect.overlay` (pictures),
 :mod:`~blurtrack.testing.streak_frames` and :mod:`~blurtrack.testing.mini_session` (exact test
 data).
 """

@@ -134,7 +134,7 @@ def test_frame_to_rgb_conventions() -> None:
 
 
 def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
-    from gamd.demo import demo_train
+    from blurtrack.cli.demo import demo_train
 
     s = demo_train(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2, progress=False)
     img = cv2.imread(s["picture"])

@@ -176,22 +176,6 @@ def test_session_without_any_dots_is_reported(tmp_path: Path) -> None:
         detect_session(load_session(folder))
 
 
-def test_detection_demo_writes_table_picture_summary(
-    synthetic: tuple[Path, dict], tmp_path: Path
-) -> None:
-    from blurtrack.detect.demo import detection_demo
-
-    folder, _ = synthetic
-    summary = detection_demo(folder, tmp_path / "demo", crop=(0, 0, 160, 120))
-    assert (tmp_path / "demo" / "streaks.parquet").is_file()
-    assert json.loads((tmp_path / "demo" / "summary.json").read_text())["streaks"] > 0
-    import cv2
-
-    pic = cv2.imread(summary["overlay"])
-    assert pic.shape == (480, 640, 3)
-    assert (pic[..., 2] > 200).sum() > 10  # red start markers drawn
-
-
 def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
     from blurtrack.detect.orientation import FrameTiming
     from blurtrack.detect.timeshift import estimate_timeshift

@@ -205,7 +205,7 @@ def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
 
 
 def test_demo_dataset_from_shared_backgrounds(tmp_path: Path, shared_data: Path) -> None:
-    from blurtrack.synth.demo import demo_dataset
+    from blurtrack.cli.demo import demo_dataset
 
     summary = demo_dataset(tmp_path / "demo", shared_data, count=2, size=(64, 36))
     assert summary["made"] == 2

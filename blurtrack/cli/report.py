@@ -1,0 +1,62 @@
+"""CLI command ``blurtrack report``: the endpoint-error report of a calibration."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
+
+
+def register(subparsers: Any) -> None:
+    r = subparsers.add_parser("report", help="endpoint-error report of a calibration")
+    r.add_argument("session", help="session folder")
+    r.add_argument("--calib", required=True, help="calibration YAML to evaluate")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--before", help="calibration to compare with (default: session.yaml)")
+    r.add_argument(
+        "--fit-summary",
+        help="summary JSON of the fit (default: the one written "
+        "next to --calib by calibrate, if present)",
+    )
+    r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
+    add_streak_source_args(r)
+    r.set_defaults(func=run_report)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    from blurtrack.errors import BlurTrackError
+    from blurtrack.io.calibration import Calibration
+    from blurtrack.report.build import build_report
+
+    session, table = load_session_and_streaks(args)
+    after = Calibration.from_yaml(args.calib)
+    before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
+    fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
+    fit = None
+    if fs_path.is_file():
+        try:
+            fit = json.loads(fs_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise BlurTrackError(f"fit summary {fs_path} is not valid JSON ({exc})") from None
+        if not isinstance(fit, dict):
+            raise BlurTrackError(f"fit summary {fs_path} is not a JSON object")
+    elif args.fit_summary:
+        raise BlurTrackError(f"fit summary not found: {fs_path}")
+    summary = build_report(
+        session, table, before, after, args.out, fit_summary=fit, n_overlays=args.overlays
+    )
+    for k in ("before", "after"):
+        s = summary["overall"][k]
+        print(
+            f"{k:>7}: mean {s['mean_px']:.3f} px, median {s['median_px']:.3f}, "
+            f"p95 {s['p95_px']:.3f} ({s['n']} streaks)"
+        )
+    for k, s in summary["motion_models"].items():
+        print(f"  {summary['motion_model_labels'][k]}: mean {s['mean_px']:.3f} px")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    print(f"wrote {Path(args.out) / 'report.html'}")
+    return 0
