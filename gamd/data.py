@@ -29,7 +29,7 @@ MAX_PIXELS = 64_000_000
 
 
 @dataclass(frozen=True)
-class Triplet:
+class TripletFiles:
     """Paths of one (blur, sharp, heat) example; ``heat`` is None in GoPro-style sets."""
 
     name: str
@@ -75,7 +75,7 @@ def read_heat(path: Path, shape_hw: tuple[int, int]) -> np.ndarray:
 
 def find_triplets(
     root: Path, split: str, need_sharp: bool = True, heat_root: Path | None = None
-) -> list[Triplet]:
+) -> list[TripletFiles]:
     """All triplets of ``root/split`` in sorted order; heat maps from ``heat_root`` (same
     layout) instead of ``root`` when given (e.g. heat maps of a perturbed calibration)."""
     base = Path(root) / split
@@ -90,7 +90,7 @@ def find_triplets(
         if need_sharp and not sharp.is_file():
             raise GamdDataError(f"missing sharp image for {blur}")
         triplets.append(
-            Triplet(
+            TripletFiles(
                 name=f"{group.name}/{blur.stem}",
                 blur=blur,
                 sharp=sharp if sharp.is_file() else None,

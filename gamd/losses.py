@@ -62,8 +62,3 @@ def mimo_loss(
 
 
 LOSSES = {"gamd": gamd_loss, "mimo": mimo_loss}
-
-
-def default_loss(model_name: str) -> str:
-    """The loss each network was published with: MIMO's for the MIMO family, GAMD's otherwise."""
-    return "mimo" if model_name.startswith("mimo") else "gamd"

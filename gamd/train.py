@@ -11,7 +11,6 @@ and checkpoints.
 from __future__ import annotations
 
 import csv
-import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -237,8 +236,3 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
         seconds=time.perf_counter() - t0,
         model=model,
     )
-
-
-def mean_loss(losses: list[float]) -> float:
-    """Mean of a loss list (nan for an empty one)."""
-    return sum(losses) / len(losses) if losses else math.nan

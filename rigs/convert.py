@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import BlurTrackError
-from blurtrack.io.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 from rigs.errors import RecorderLogError
 from rigs.reclog import LogScan, iter_frames, scan_log
 from rigs.recorder import rate_of
@@ -177,9 +178,7 @@ def log_to_session(
     )
     try:
         meta = SessionMeta(
-            camera=CameraConfig(
-                resolution=(w, h), intrinsics=tuple(intrinsics), readout_s=readout_s
-            ),
+            camera=Camera(resolution=(w, h), intrinsics=tuple(intrinsics), readout_s=readout_s),
             imu=ImuConfig(rate_hz=imu_rate if imu_rate > 0 else 200.0, T_cam_imu=T_cam_imu),
             target_kind=options.target_kind,
             extra={"recording": recording},

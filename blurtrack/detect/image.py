@@ -125,13 +125,6 @@ def background_levels(
     return level.astype(np.float32)
 
 
-def background_map(gray: np.ndarray, noise: float, block: int = BACKGROUND_BLOCK_PX) -> np.ndarray:
-    """Smooth background ``(H, W)`` float32 (frame units) for uneven illumination (vignetting,
-    ambient gradients): :func:`background_levels` upsampled bilinearly."""
-    H, W = gray.shape
-    return cv2.resize(background_levels(gray, noise, block), (W, H), interpolation=cv2.INTER_LINEAR)
-
-
 def sparse_points(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices ``(K,)`` of the nonzero pixels of a uint8 mask, in raster order,
     given their ``count``. A sparse contiguous mask is scanned as 64-bit words (numpy finds

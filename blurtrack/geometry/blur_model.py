@@ -4,7 +4,7 @@
 :class:`~blurtrack.geometry.gyro.GyroTrace` and evaluates the functions of
 :mod:`blurtrack.geometry.kernels` on
 numpy arrays: the same code the CasADi calibration differentiates. All times are on the camera
-clock in seconds; pixels follow DESIGN.md.
+clock in seconds; pixels follow docs/conventions.md.
 """
 
 from __future__ import annotations

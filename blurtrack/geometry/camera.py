@@ -1,6 +1,7 @@
 """Pinhole camera with optional radtan distortion and rolling-shutter row timing.
 
-Conventions (DESIGN.md): camera frame x right, y down, z forward; pixel (0, 0) is the centre of
+Conventions (docs/conventions.md): camera frame x right, y down, z forward; pixel (0, 0) is the
+centre of
 the top-left pixel; intrinsics ``[fx, fy, cx, cy]`` in pixels; distortion ``none`` or ``radtan``
 (OpenCV ``k1 k2 p1 p2``). Row ``r`` of an ``H``-row frame stamped ``t`` starts exposing at
 ``t + readout_s * r / H``. The projection maths is :mod:`blurtrack.geometry.kernels`'s, shared

@@ -1,4 +1,4 @@
-"""Blur heat maps (DESIGN.md): trajectory endpoints and quadratic Bézier control points.
+"""Blur heat maps (docs/conventions.md): trajectory endpoints and quadratic Bézier control points.
 
 A pixel's trajectory ``q(τ)``, ``τ ∈ [0, 1]`` over its row's exposure, is summarised by
 ``q(0)``, ``q(1)`` and the control point ``P`` of ``B(τ) = (1-τ)² q(0) + 2τ(1-τ) P + τ² q(1)``
@@ -54,10 +54,3 @@ def pack(q: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ctrl, err = bezier_fit(q, tau)
     maps = np.concatenate([q[..., 0, :], q[..., -1, :], ctrl], axis=-1)
     return np.ascontiguousarray(np.moveaxis(maps, -1, 0), dtype=np.float32), err
-
-
-def flip_horizontal(maps: np.ndarray) -> np.ndarray:
-    """Heat maps of the horizontally flipped image: mirror the pixels, negate the x channels."""
-    out = maps[..., ::-1].copy()
-    out[0::2] *= -1
-    return out

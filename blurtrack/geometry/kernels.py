@@ -4,7 +4,8 @@ Every function here takes an ``ops`` namespace (``sin``, ``cos``, ``sqrt``) and 
 elementwise arithmetic, so the same code evaluates on numpy arrays (prediction, synthesis,
 simulation) and on CasADi ``SX``/``MX`` columns (calibration in ``calib``). Batches are carried
 component-wise: a batch of 3-vectors is a tuple ``(x, y, z)`` of arrays of shape ``(N,)``; a batch
-of rotation matrices is a row-major 9-tuple of arrays. Conventions are those of DESIGN.md:
+of rotation matrices is a row-major 9-tuple of arrays. Functions named ``*_c`` take and return such
+component tuples ("c" for component-wise). Conventions are those of docs/conventions.md:
 
 - ``R_c(t)`` is the camera orientation (camera to world) at camera time ``t``; the body-frame
   angular velocity ``omega_cam`` drives ``dR/dt = R [omega_cam]_x``.
@@ -42,13 +43,6 @@ OmegaFn = Callable[[Any], Vec3]
 
 # Keeps sqrt differentiable at zero rotation; shifts the angle by at most 1e-12 rad.
 _ANGLE_EPS2 = 1e-24
-
-
-def identity3(like: Any) -> Mat3:
-    """Identity rotations shaped like ``like`` (an array or a CasADi column)."""
-    one = like * 0 + 1
-    zero = like * 0
-    return (one, zero, zero, zero, one, zero, zero, zero, one)
 
 
 def so3_exp_c(wx: Any, wy: Any, wz: Any, ops: Any = NUMPY_OPS) -> Mat3:

@@ -1,6 +1,7 @@
 """Calibration files: Kalibr ``camchain-imucam.yaml`` keys plus BlurTrack's extra keys.
 
-See DESIGN.md ("Calibration file"). ``T_cam_imu`` maps IMU-frame vectors into the camera frame;
+See docs/conventions.md ("Calibration file"). ``T_cam_imu`` maps IMU-frame vectors into the camera
+frame;
 only its rotation matters to the pure-rotation blur model, its translation is carried through.
 ``timeshift_cam_imu`` follows Kalibr's sign: ``t_imu = t_cam + shift``. The optional extra key
 ``gyro_scale_matrix`` is the ``M`` of ``ω_meas = M R_cam_imuᵀ ω_cam + bias`` (gyro scale and

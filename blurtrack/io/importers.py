@@ -1,4 +1,4 @@
-"""Importers that turn third-party phone recordings into session folders (DESIGN.md).
+"""Importers that turn third-party phone recordings into session folders (docs/conventions.md).
 
 Both real recordings of ``../shared/data/real`` are supported:
 

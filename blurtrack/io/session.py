@@ -1,4 +1,4 @@
-"""Session folders (DESIGN.md): read, write incrementally, and validate.
+"""Session folders (docs/conventions.md): read, write incrementally, and validate.
 
 Layout (EuRoC/ASL style)::
 
@@ -36,9 +36,6 @@ ACC_HEADER = ",a_x [m s^-2],a_y [m s^-2],a_z [m s^-2]"
 TARGET_KINDS = ("laser-grid", "natural")
 #: Largest CSV read (bytes); guards against allocating for a hostile file.
 MAX_CSV_BYTES = 2 * 1024**3
-
-#: The session's camera block has exactly the fields of :class:`Camera`.
-CameraConfig = Camera
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
-from blurtrack.io.session import CameraConfig, ImuConfig, SessionMeta, SessionWriter
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 
@@ -55,7 +56,7 @@ def write_synthetic_session(
     """
     W, H = resolution
     f = 0.9 * W
-    camera = CameraConfig(resolution=(W, H), intrinsics=(f, f, (W - 1) / 2, (H - 1) / 2))
+    camera = Camera(resolution=(W, H), intrinsics=(f, f, (W - 1) / 2, (H - 1) / 2))
     meta = SessionMeta(camera=camera, imu=ImuConfig(rate_hz=1000.0))
     t_imu = np.arange(0.0, (n_frames + 2) / fps, 1e-3)
     omega = shake(t_imu, seed, amplitude_radps)

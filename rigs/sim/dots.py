@@ -2,7 +2,8 @@
 
 The projector is a diffractive dot matrix: directions on a regular angular grid, fixed in the
 world frame of :class:`~rigs.sim.motion.TrueMotion`. Dot ``j`` at world direction ``d_j`` is seen
-at ``π(K R_c(t)ᵀ d_j)`` (pure rotation, DESIGN.md). A streak's start is where the dot is when its
+at ``π(K R_c(t)ᵀ d_j)`` (pure rotation, docs/conventions.md). A streak's start is where the dot is
+when its
 own row starts exposing — the fixed point of ``t = t_frame + readout · v(t) / H`` — and its end
 where it is when that row stops (``+ exposure``); in between the dot traces the centre line.
 """
@@ -124,7 +125,7 @@ def row_time(
 
 
 @dataclass(frozen=True)
-class FrameStreaks:
+class TrueFrameStreaks:
     """True streaks of all dots in one frame (camera clock, seconds; pixels).
 
     ``path`` holds ``DENSE_SAMPLES`` positions per dot equally spaced in time from ``t_start``
@@ -173,7 +174,7 @@ def frame_streaks(
     frame_t_s: float,
     exposure_s: float,
     t_ref_s: float,
-) -> FrameStreaks:
+) -> TrueFrameStreaks:
     """The true streaks of every dot in the frame that starts at ``frame_t_s``."""
     J = directions.shape[0]
     idx = np.arange(J)
@@ -192,4 +193,4 @@ def frame_streaks(
     m = INSIDE_MARGIN_PX
     inside = np.all(ok & (x >= m) & (x <= W - 1 - m) & (y >= m) & (y <= H - 1 - m), axis=1)
     length = np.linalg.norm(np.diff(path, axis=1), axis=2).sum(axis=1)
-    return FrameStreaks(float(t_ref_s), t0, t1, path, ref, visible, inside, length)
+    return TrueFrameStreaks(float(t_ref_s), t0, t1, path, ref, visible, inside, length)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from blurtrack.geometry.camera import Camera
-from rigs.sim.dots import FrameStreaks, dot_pixels
+from rigs.sim.dots import TrueFrameStreaks, dot_pixels
 from rigs.sim.motion import TrueMotion
 
 #: Patch half-width in dot sigmas (the Gaussian beyond it holds < 5e-4 of the light per side).
@@ -142,7 +142,7 @@ def render_streaks(
     motion: TrueMotion,
     camera: Camera,
     directions: np.ndarray,
-    streaks: FrameStreaks,
+    streaks: TrueFrameStreaks,
     frame_t_s: float,
     exposure_s: float,
     flux_eps: float,

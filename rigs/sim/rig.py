@@ -26,7 +26,7 @@ from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.rotation import so3_exp
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import ImuConfig, SessionMeta
-from rigs.sim.dots import FrameStreaks, dot_directions, dot_pixels, frame_streaks
+from rigs.sim.dots import TrueFrameStreaks, dot_directions, dot_pixels, frame_streaks
 from rigs.sim.errors import SimError
 from rigs.sim.imu import GyroModel
 from rigs.sim.motion import TrueMotion, shake_omega, synthetic_omega
@@ -138,7 +138,7 @@ class SimRig:
             p.dot_cols, p.dot_rows, p.dot_fill, W, H, p.focal_px, p.dot_jitter, _rng(self.seed, 4)
         )
         self._gyro_rng = _rng(self.seed, 2)
-        self._cache: tuple[float, FrameStreaks] | None = None
+        self._cache: tuple[float, TrueFrameStreaks] | None = None
         self._ambient = ambient_map(W, H, p.ambient_eps * p.exposure_s, p.vignetting)
 
     # ------------------------------------------------------------- guesses
@@ -196,7 +196,7 @@ class SimRig:
         H = self.camera.height
         return t_start_s + self.camera.readout_s * (H - 1) / 2 / H + self.preset.exposure_s / 2
 
-    def streaks(self, t_start_s: float) -> FrameStreaks:
+    def streaks(self, t_start_s: float) -> TrueFrameStreaks:
         """True streaks of the frame starting at ``t_start_s`` (cached for the last frame)."""
         cached = self._cache  # one read: virtual devices may call from several threads
         if cached is not None and cached[0] == t_start_s:
