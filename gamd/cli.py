@@ -154,6 +154,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BlurTrackError as exc:
         print(f"gamd {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:
+        from blurtrack.cli import missing_extra_message
+
+        message = missing_extra_message(exc)
+        if message is None:
+            raise
+        print(f"gamd {args.command}: error: {message}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"gamd {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -55,6 +55,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Optional third-party packages and the extra that installs each (pyproject.toml).
+OPTIONAL_EXTRAS: dict[str, str] = {"casadi": "calib", "torch": "gamd", "tensorboard": "gamd"}
+
+
+def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
+    """The one-line advice for a missing optional package, or None for any other import error.
+
+    >>> missing_extra_message(ModuleNotFoundError("x", name="casadi"))
+    "this command needs the optional package 'casadi': pip install 'blurtrack[calib]'"
+    """
+    top = (exc.name or "").split(".")[0]
+    extra = OPTIONAL_EXTRAS.get(top)
+    if extra is None:
+        return None
+    return f"this command needs the optional package '{top}': pip install 'blurtrack[{extra}]'"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -62,6 +79,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except BlurTrackError as exc:
         print(f"blurtrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:
+        message = missing_extra_message(exc)
+        if message is None:
+            raise
+        print(f"blurtrack {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"blurtrack {args.command}: interrupted", file=sys.stderr)

@@ -1,0 +1,90 @@
+"""The package layering of DESIGN.md, checked on every import statement of the tree.
+
+| package   | may import (first party)      | must not import (third party)       |
+| blurtrack | blurtrack (its cli/ may reach the others lazily) | casadi, torch             |
+| rigs      | blurtrack, rigs               | casadi, torch                       |
+| calib     | blurtrack, calib              | torch                               |
+| gamd      | blurtrack, gamd               | casadi                              |
+
+Every ``import`` and ``from ... import`` is found with ``ast``, including the lazy ones inside
+functions, so a violation cannot hide behind a local import. A second test imports the session
+I/O in a fresh interpreter and checks that neither torch nor CasADi gets loaded (they are
+optional extras).
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+FIRST_PARTY = ("blurtrack", "rigs", "calib", "gamd")
+
+#: package -> (first-party packages it may import, third-party packages it must not import)
+CONTRACT: dict[str, tuple[set[str], set[str]]] = {
+    "blurtrack": ({"blurtrack"}, {"casadi", "torch"}),
+    "rigs": ({"blurtrack", "rigs"}, {"casadi", "torch"}),
+    "calib": ({"blurtrack", "calib"}, {"torch"}),
+    "gamd": ({"blurtrack", "gamd"}, {"casadi"}),
+}
+#: The blurtrack CLI dispatches to the other packages' command modules (lazily).
+CLI_DISPATCH = {"blurtrack", "rigs", "calib", "gamd"}
+
+
+def imported_tops(path: Path) -> set[str]:
+    """Top-level names of every module imported anywhere in one file (absolute imports)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    tops: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            tops.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            tops.add(node.module.split(".")[0])
+    return tops
+
+
+def violations(package: str) -> list[str]:
+    allowed, banned = CONTRACT[package]
+    found = []
+    for path in sorted((REPO / package).rglob("*.py")):
+        rel = path.relative_to(REPO)
+        may = CLI_DISPATCH if rel.parts[:2] == ("blurtrack", "cli") else allowed
+        for top in sorted(imported_tops(path)):
+            if (top in FIRST_PARTY and top not in may) or top in banned:
+                found.append(f"{rel} imports {top}")
+    return found
+
+
+@pytest.mark.parametrize("package", sorted(CONTRACT))
+def test_package_imports_only_what_the_layering_allows(package: str) -> None:
+    assert violations(package) == []
+
+
+def test_the_checker_sees_lazy_imports(tmp_path: Path) -> None:
+    # Negative control: an import hidden in a function body is still found.
+    f = tmp_path / "m.py"
+    f.write_text("def f():\n    from calib.fit import calibrate\n    import torch.nn\n")
+    assert imported_tops(f) == {"calib", "torch"}
+
+
+def test_session_io_and_cli_parser_load_neither_torch_nor_casadi() -> None:
+    code = (
+        "import sys, blurtrack.io.session, blurtrack.io.calibration, blurtrack.cli; "
+        "blurtrack.cli.build_parser(); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'casadi'}))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True
+    )
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_missing_optional_package_is_one_line_advice() -> None:
+    from blurtrack.cli import missing_extra_message
+
+    assert "blurtrack[gamd]" in (missing_extra_message(ModuleNotFoundError(name="torch.nn")) or "")
+    assert missing_extra_message(ModuleNotFoundError(name="numpy")) is None
