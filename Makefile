@@ -11,6 +11,9 @@ venv: $(VENV)/.installed
 $(VENV)/.installed: pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
+	# one OpenCV build (contrib); an older .venv with the plain build gets it replaced
+	if $(BIN)/python -m pip show -q opencv-python-headless 2>/dev/null; then \
+	  $(BIN)/python -m pip uninstall -y -q opencv-python-headless opencv-contrib-python-headless; fi
 	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev,all]'
 	touch $@
 

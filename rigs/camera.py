@@ -1,7 +1,8 @@
 """Cameras selected by URL: V4L2/UVC and other OpenCV backends, video-file replays, simulation.
 
 ``v4l2://0`` and ``opencv://0`` open a device through OpenCV (``cv2.VideoCapture``);
-``file:///path/video.mp4`` replays a file; ``sim://camera`` is :class:`VirtualCamera`.
+``file:///path/video.mp4`` replays a file; ``sim://camera`` is :class:`VirtualCamera`. Openers
+are registered by scheme in :data:`CAMERA_SCHEMES`; callers get a :class:`CameraSource`.
 
 Timestamps: OpenCV's V4L2 backend reports the kernel buffer timestamp (CLOCK_MONOTONIC, ms) as
 ``CAP_PROP_POS_MSEC``; it is used when it lies within a second of the host clock, otherwise the
@@ -20,7 +21,7 @@ from rigs.camera_types import CameraFrame, CameraSource
 from rigs.clock import Clock, MonotonicClock
 from rigs.errors import DeviceDisconnectedError, DeviceError, DeviceUrlError
 from rigs.fake_camera import RenderFn, VirtualCamera, VirtualCameraConfig, dot_grid_renderer
-from rigs.urls import DeviceUrl, parse_device_url
+from rigs.urls import DeviceUrl, SchemeRegistry
 
 _DRIVER_STAMP_TOLERANCE_NS = 1_000_000_000
 
@@ -146,37 +147,45 @@ def _open_rig_camera(u: DeviceUrl, clock: Clock | None) -> VirtualCamera:
     return VirtualCamera(shared.render, cfg, clock, u.url)
 
 
+#: Camera openers by URL scheme: ``opener(url, clock, render) -> CameraSource``.
+CAMERA_SCHEMES: SchemeRegistry[CameraSource] = SchemeRegistry("camera")
+
+
 def open_camera(
     url: str, clock: Clock | None = None, render: RenderFn | None = None
 ) -> CameraSource:
     """Open the camera named by ``url``; ``render`` drives ``sim://camera`` (default: dots)."""
-    u = parse_device_url(url)
-    if u.scheme in ("v4l2", "opencv", "file"):
-        return _open_cv(u, clock)
-    if u.scheme == "sim":
-        if u.target != "camera":
-            raise DeviceUrlError(f"{url}: the simulated camera is sim://camera")
-        if "rig" in u.params:
-            return _open_rig_camera(u, clock)
-        u.check_keys(
-            {"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise", "seed"}
+    return CAMERA_SCHEMES.open(url, clock, render)
+
+
+@CAMERA_SCHEMES.register("v4l2", "opencv", "file")
+def _open_opencv_url(u: DeviceUrl, clock: Clock | None, render: RenderFn | None) -> CameraSource:
+    return _open_cv(u, clock)
+
+
+@CAMERA_SCHEMES.register("sim")
+def _open_sim(u: DeviceUrl, clock: Clock | None, render: RenderFn | None) -> CameraSource:
+    url = u.url
+    if u.target != "camera":
+        raise DeviceUrlError(f"{url}: the simulated camera is sim://camera")
+    if "rig" in u.params:
+        return _open_rig_camera(u, clock)
+    u.check_keys({"fps", "width", "height", "exposure_ms", "frames", "realtime", "noise", "seed"})
+    frames = u.get_int("frames", -1, -1, 10**9)
+    try:
+        cfg = VirtualCameraConfig(
+            fps=u.get_float("fps", 30.0, 0.1, 1000.0),
+            exposure_s=u.get_float("exposure_ms", 10.0, 0.001, 10_000.0) * 1e-3,
+            n_frames=None if frames < 0 else frames,
+            realtime=u.get_int("realtime", 1, 0, 1) == 1,
         )
-        frames = u.get_int("frames", -1, -1, 10**9)
-        try:
-            cfg = VirtualCameraConfig(
-                fps=u.get_float("fps", 30.0, 0.1, 1000.0),
-                exposure_s=u.get_float("exposure_ms", 10.0, 0.001, 10_000.0) * 1e-3,
-                n_frames=None if frames < 0 else frames,
-                realtime=u.get_int("realtime", 1, 0, 1) == 1,
-            )
-        except ValueError as exc:
-            raise DeviceUrlError(f"{url}: {exc}") from None
-        if render is None:
-            render = dot_grid_renderer(
-                u.get_int("width", 640, 16, 8192),
-                u.get_int("height", 480, 16, 8192),
-                noise=u.get_float("noise", 0.0, 0.0, 100.0),
-                seed=u.get_int("seed", 0, 0, 2**31),
-            )
-        return VirtualCamera(render, cfg, clock, url)
-    raise DeviceUrlError(f"{url}: unknown camera scheme {u.scheme!r} (v4l2, opencv, file, sim)")
+    except ValueError as exc:
+        raise DeviceUrlError(f"{url}: {exc}") from None
+    if render is None:
+        render = dot_grid_renderer(
+            u.get_int("width", 640, 16, 8192),
+            u.get_int("height", 480, 16, 8192),
+            noise=u.get_float("noise", 0.0, 0.0, 100.0),
+            seed=u.get_int("seed", 0, 0, 2**31),
+        )
+    return VirtualCamera(render, cfg, clock, url)

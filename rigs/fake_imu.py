@@ -183,6 +183,22 @@ class VirtualImu:
             os.close(self._slave)
             self._slave = -1
 
+    # ----------------------------------------------------------------- StreamEnd (rigs.imu)
+    @property
+    def finite(self) -> bool:
+        """True when the board stops by itself (a sample limit), so a reader waits for its end."""
+        return self.config.n_samples is not None
+
+    def drained(self, bytes_decoded: int) -> bool:
+        """True once the board has sent everything (or was unplugged) and ``bytes_decoded`` of
+        what it sent reached the decoder."""
+        if not self.finished.is_set():
+            return False
+        return self.unplugged.is_set() or bytes_decoded >= self.bytes_sent
+
+    def close(self) -> None:
+        self.stop()
+
     def unplug(self) -> None:
         """Pull the cable now: the reader sees the port vanish."""
         self._close_master()

@@ -1,7 +1,9 @@
 """The serial IMU driver: bytes from pyserial to timestamped, unwrapped samples.
 
-``open_imu(url)`` picks the transport from the URL (``serial://``, any pyserial URL such as
-``loop://`` or ``socket://``, and ``sim://imu`` for the virtual board on a pseudo-terminal).
+``open_imu(url)`` picks the transport from the URL through :data:`IMU_SCHEMES` (``serial://``,
+any pyserial URL such as ``loop://`` or ``socket://``, and ``sim://imu`` for the virtual board
+on a pseudo-terminal) and returns an :class:`ImuSource`; the recorder and everything above it
+see only that protocol, never which device is behind it.
 Each :meth:`ImuDriver.read` returns the samples completed by the bytes read, stamped with the
 host time of the read; :mod:`rigs.timesync` later turns device time into host time.
 """
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import serial
@@ -20,7 +23,7 @@ from rigs.errors import DeviceDisconnectedError, DeviceError, DeviceUrlError
 from rigs.fake_imu import ImuFaults, MotionFn, VirtualImu, VirtualImuConfig, sine_motion
 from rigs.protocol import MAX_FRAME_BYTES
 from rigs.sequence import Sequencer
-from rigs.urls import DeviceUrl, parse_device_url
+from rigs.urls import DeviceUrl, SchemeRegistry
 
 PYSERIAL_SCHEMES = ("loop", "socket", "rfc2217", "spy", "alt", "hwgrep")
 
@@ -41,8 +44,52 @@ class ImuBatch:
         return int(self.index.size)
 
 
+class ImuSource(Protocol):
+    """What the recorder needs from an IMU, real or virtual."""
+
+    url: str
+    rate_hz: float | None
+
+    def read(self) -> ImuBatch:
+        """Samples completed since the last read (blocks up to the source's timeout)."""
+        ...
+
+    @property
+    def finite(self) -> bool:
+        """True when the source ends by itself (a log, a board with a sample limit)."""
+        ...
+
+    @property
+    def exhausted(self) -> bool:
+        """True once a finite source has delivered everything; always False otherwise."""
+        ...
+
+    @property
+    def stats(self) -> dict[str, int]: ...
+
+    def close(self) -> None: ...
+
+
+class StreamEnd(Protocol):
+    """The far end of a port that knows when it has sent everything (a virtual board)."""
+
+    @property
+    def finite(self) -> bool: ...
+
+    def drained(self, bytes_decoded: int) -> bool:
+        """True once everything it sent has been decoded (``bytes_decoded`` bytes so far)."""
+        ...
+
+    def close(self) -> None: ...
+
+
 class ImuDriver:
-    """Reads and decodes an open pyserial port. ``device`` is a virtual board it owns."""
+    """Reads and decodes an open pyserial port (an :class:`ImuSource`).
+
+    ``far_end`` is what sits at the other end of the port when the driver owns it (the virtual
+    board of ``sim://imu``): it says whether the stream is finite and when it is drained, and
+    is closed with the driver. Real ports have none: they are infinite.
+    """
 
     def __init__(
         self,
@@ -52,7 +99,7 @@ class ImuDriver:
         rate_hz: float | None = None,
         clock: Clock | None = None,
         min_latency_s: float = 0.0,
-        device: VirtualImu | None = None,
+        far_end: StreamEnd | None = None,
     ) -> None:
         self.port = port
         self.url = url
@@ -60,7 +107,7 @@ class ImuDriver:
         self.sequencer = Sequencer(rate_hz)
         self.clock = clock or MonotonicClock()
         self.min_latency_s = min_latency_s
-        self.device = device
+        self.far_end = far_end
         self.rate_hz = rate_hz
 
     def read(self) -> ImuBatch:
@@ -87,13 +134,13 @@ class ImuDriver:
         )
 
     @property
+    def finite(self) -> bool:
+        return self.far_end is not None and self.far_end.finite
+
+    @property
     def exhausted(self) -> bool:
-        """True once a virtual board with a sample limit has sent everything and all of it has
-        been decoded (or it was unplugged); always False for real devices."""
-        dev = self.device
-        if dev is None or not dev.finished.is_set():
-            return False
-        return dev.unplugged.is_set() or self.decoder.stats.bytes_in >= dev.bytes_sent
+        end = self.far_end
+        return end is not None and end.drained(self.decoder.stats.bytes_in)
 
     @property
     def stats(self) -> dict[str, int]:
@@ -103,8 +150,8 @@ class ImuDriver:
         try:
             self.port.close()
         finally:
-            if self.device is not None:
-                self.device.stop()
+            if self.far_end is not None:
+                self.far_end.close()
 
 
 def _sim_config(u: DeviceUrl) -> VirtualImuConfig:
@@ -174,50 +221,71 @@ def _rig_config(u: DeviceUrl, clock: Clock | None) -> tuple[VirtualImuConfig, Mo
     return dataclasses.replace(cfg, origin_ns=shared.imu_origin_ns), shared.omega_at
 
 
+#: IMU openers by URL scheme: ``opener(url, clock, motion, read_timeout_s) -> ImuSource``.
+IMU_SCHEMES: SchemeRegistry[ImuSource] = SchemeRegistry("IMU")
+
+
 def open_imu(
     url: str,
     clock: Clock | None = None,
     motion: MotionFn | None = None,
     read_timeout_s: float = 0.05,
-) -> ImuDriver:
+) -> ImuSource:
     """Open the IMU named by ``url``; ``motion`` drives a ``sim://imu`` board (default: sines)."""
-    u = parse_device_url(url)
-    if u.scheme == "sim":
-        if u.target != "imu":
-            raise DeviceUrlError(f"{url}: the simulated IMU is sim://imu")
-        if "rig" in u.params:
-            cfg, motion = _rig_config(u, clock)
-        else:
-            cfg = _sim_config(u)
-        device = VirtualImu(motion or sine_motion(), cfg, clock=None)
-        path = device.open_pty()
-        try:
-            port = serial.Serial(path, baudrate=921600, timeout=read_timeout_s)
-        except serial.SerialException as exc:
-            device.stop()
-            raise DeviceError(f"cannot open the virtual IMU's pty {path}: {exc}") from None
-        device.start()
-        return ImuDriver(port, url, cfg.protocol, cfg.rate_hz, clock, 0.0, device)
-    common = {"protocol", "rate"}
+    return IMU_SCHEMES.open(url, clock, motion, read_timeout_s)
+
+
+@IMU_SCHEMES.register("sim")
+def _open_sim(
+    u: DeviceUrl, clock: Clock | None, motion: MotionFn | None, read_timeout_s: float
+) -> ImuDriver:
+    """The virtual board on a pseudo-terminal, read through pyserial like a real one."""
+    if u.target != "imu":
+        raise DeviceUrlError(f"{u.url}: the simulated IMU is sim://imu")
+    if "rig" in u.params:
+        cfg, motion = _rig_config(u, clock)
+    else:
+        cfg = _sim_config(u)
+    device = VirtualImu(motion or sine_motion(), cfg, clock=None)
+    path = device.open_pty()
+    try:
+        port = serial.Serial(path, baudrate=921600, timeout=read_timeout_s)
+    except serial.SerialException as exc:
+        device.stop()
+        raise DeviceError(f"cannot open the virtual IMU's pty {path}: {exc}") from None
+    device.start()
+    return ImuDriver(port, u.url, cfg.protocol, cfg.rate_hz, clock, 0.0, device)
+
+
+@IMU_SCHEMES.register("serial")
+def _open_serial(
+    u: DeviceUrl, clock: Clock | None, motion: MotionFn | None, read_timeout_s: float
+) -> ImuDriver:
+    u.check_keys({"protocol", "rate", "baud"})
     protocol = u.get_str("protocol", "binary", PROTOCOLS)
     rate = u.get_opt_float("rate", 1.0, 10_000.0)
-    if u.scheme == "serial":
-        u.check_keys(common | {"baud"})
-        baud = u.get_int("baud", 921600, 1200, 20_000_000)
-        if not u.target:
-            raise DeviceUrlError(f"{url}: no serial device path")
-        try:
-            port = serial.Serial(u.target, baudrate=baud, timeout=read_timeout_s)
-        except (serial.SerialException, ValueError) as exc:
-            raise DeviceError(f"cannot open IMU port {u.target}: {exc}") from None
-        # one frame's time on the wire (10 bits per byte) is the least possible latency
-        return ImuDriver(port, url, protocol, rate, clock, MAX_FRAME_BYTES * 10 / baud)
-    if u.scheme in PYSERIAL_SCHEMES:
-        u.check_keys(common)
-        bare = url.split("?", 1)[0]
-        try:
-            port = serial.serial_for_url(bare, timeout=read_timeout_s)
-        except (serial.SerialException, ValueError) as exc:
-            raise DeviceError(f"cannot open IMU {bare}: {exc}") from None
-        return ImuDriver(port, url, protocol, rate, clock)
-    raise DeviceUrlError(f"{url}: unknown IMU scheme {u.scheme!r} (serial, sim, loop, ...)")
+    baud = u.get_int("baud", 921600, 1200, 20_000_000)
+    if not u.target:
+        raise DeviceUrlError(f"{u.url}: no serial device path")
+    try:
+        port = serial.Serial(u.target, baudrate=baud, timeout=read_timeout_s)
+    except (serial.SerialException, ValueError) as exc:
+        raise DeviceError(f"cannot open IMU port {u.target}: {exc}") from None
+    # one frame's time on the wire (10 bits per byte) is the least possible latency
+    return ImuDriver(port, u.url, protocol, rate, clock, MAX_FRAME_BYTES * 10 / baud)
+
+
+@IMU_SCHEMES.register(*PYSERIAL_SCHEMES)
+def _open_pyserial_url(
+    u: DeviceUrl, clock: Clock | None, motion: MotionFn | None, read_timeout_s: float
+) -> ImuDriver:
+    """Any other transport pyserial knows by URL (``loop://``, ``socket://HOST:PORT``, ...)."""
+    u.check_keys({"protocol", "rate"})
+    protocol = u.get_str("protocol", "binary", PROTOCOLS)
+    rate = u.get_opt_float("rate", 1.0, 10_000.0)
+    bare = u.url.split("?", 1)[0]
+    try:
+        port = serial.serial_for_url(bare, timeout=read_timeout_s)
+    except (serial.SerialException, ValueError) as exc:
+        raise DeviceError(f"cannot open IMU {bare}: {exc}") from None
+    return ImuDriver(port, u.url, protocol, rate, clock)

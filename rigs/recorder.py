@@ -25,7 +25,7 @@ import numpy as np
 from rigs.camera_types import CameraFrame, CameraSource, image_info
 from rigs.clock import Clock, MonotonicClock
 from rigs.errors import DeviceDisconnectedError, RigConfigError, RigError
-from rigs.imu import ImuBatch, ImuDriver
+from rigs.imu import ImuBatch, ImuSource
 from rigs.reclog import RecLogWriter
 
 
@@ -112,7 +112,7 @@ class Recorder:
     def __init__(
         self,
         log_path: str | Path,
-        imu: ImuDriver | None,
+        imu: ImuSource | None,
         camera: CameraSource | None,
         metadata: dict[str, str] | None = None,
         config: RecorderConfig | None = None,
@@ -298,9 +298,8 @@ class Recorder:
         imu = self.imu
         if imu is None or imu.exhausted:
             return True
-        dev = imu.device
-        if dev is not None and dev.config.n_samples is not None:
-            return False  # a finite virtual board: wait for its last sample
+        if imu.finite:
+            return False  # a source that ends by itself: wait for its last sample
         return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
 
     def _flush(

@@ -8,10 +8,14 @@ silently ignored.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Generic, TypeVar
 from urllib.parse import parse_qsl, unquote, urlsplit
 
 from rigs.errors import DeviceUrlError
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -91,3 +95,50 @@ def parse_device_url(url: str) -> DeviceUrl:
         params[key] = value
     target = unquote(parts.netloc + parts.path)
     return DeviceUrl(url=url, scheme=parts.scheme.lower(), target=target, params=params)
+
+
+class SchemeRegistry(Generic[T]):
+    """Openers of one kind of device keyed by URL scheme, as pyserial's ``serial_for_url``.
+
+    A driver module registers its opener for its schemes; ``open(url, ...)`` parses the URL,
+    dispatches on its scheme and names the known schemes when it is unknown. Real and virtual
+    devices register the same way, so nothing that opens a device knows which it got.
+
+    >>> reg: SchemeRegistry[str] = SchemeRegistry("widget")
+    >>> @reg.register("a", "b")
+    ... def _open(u: DeviceUrl) -> str:
+    ...     return u.target
+    >>> reg.open("b://x")
+    'x'
+    >>> reg.open("c://x")
+    Traceback (most recent call last):
+    ...
+    rigs.errors.DeviceUrlError: c://x: unknown widget scheme 'c' (known: a, b)
+    """
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self._openers: dict[str, Callable[..., T]] = {}
+
+    def register(self, *schemes: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
+        def add(opener: Callable[..., T]) -> Callable[..., T]:
+            for scheme in schemes:
+                if scheme in self._openers:
+                    raise ValueError(f"{self.kind} scheme {scheme!r} registered twice")
+                self._openers[scheme] = opener
+            return opener
+
+        return add
+
+    @property
+    def schemes(self) -> tuple[str, ...]:
+        return tuple(sorted(self._openers))
+
+    def open(self, url: str, *args: object, **kwargs: object) -> T:
+        u = parse_device_url(url)
+        opener = self._openers.get(u.scheme)
+        if opener is None:
+            raise DeviceUrlError(
+                f"{url}: unknown {self.kind} scheme {u.scheme!r} (known: {', '.join(self.schemes)})"
+            )
+        return opener(u, *args, **kwargs)

@@ -88,3 +88,27 @@ def test_a_missing_optional_package_is_one_line_advice() -> None:
 
     assert "blurtrack[gamd]" in (missing_extra_message(ModuleNotFoundError(name="torch.nn")) or "")
     assert missing_extra_message(ModuleNotFoundError(name="numpy")) is None
+
+
+def test_one_opencv_build_the_contrib_one() -> None:
+    from importlib.metadata import distributions
+
+    import cv2
+
+    names = {(d.metadata["Name"] or "").lower() for d in distributions()}
+    assert {n for n in names if n.startswith("opencv")} == {"opencv-contrib-python-headless"}
+    assert hasattr(cv2, "ximgproc")  # thinning for skeletons, from the contrib modules
+
+
+def test_the_recording_stack_does_not_know_the_simulator() -> None:
+    # The recorder, clock sync, log and conversion see devices only through ImuSource and
+    # CameraSource; the virtual devices and the simulator register behind the URL schemes.
+    fake = {"rigs.fake_imu", "rigs.fake_camera", "rigs.sim"}
+    for name in ("recorder", "timesync", "reclog", "convert"):
+        tree = ast.parse((REPO / "rigs" / f"{name}.py").read_text(encoding="utf-8"))
+        mods = {
+            n.module
+            for n in ast.walk(tree)
+            if isinstance(n, ast.ImportFrom) and n.module is not None
+        } | {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        assert not {m for m in mods if any(m == f or m.startswith(f + ".") for f in fake)}, name

@@ -115,7 +115,7 @@ def test_shared_origin_puts_imu_and_camera_on_one_timeline() -> None:
         VirtualImuConfig(rate_hz=200.0, realtime=True, origin_ns=origin),
         clock,
     )
-    drv = ImuDriver(serial.Serial(imu.open_pty(), timeout=0.05), "sim://imu", device=imu)
+    drv = ImuDriver(serial.Serial(imu.open_pty(), timeout=0.05), "sim://imu", far_end=imu)
     imu.start()
     try:
         got = []

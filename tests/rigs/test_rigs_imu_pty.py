@@ -22,7 +22,7 @@ DEADLINE_S = 60.0
 def drain(driver: ImuDriver) -> list[ImuBatch]:
     batches = []
     end = time.monotonic() + DEADLINE_S
-    dev = driver.device
+    dev = driver.far_end
     assert dev is not None
     while time.monotonic() < end:
         batches.append(driver.read())
@@ -48,7 +48,7 @@ def test_one_percent_byte_corruption_loses_only_damaged_frames() -> None:
     )
     try:
         index, t_dev_us, gyro = concat(drain(drv))
-        dev = drv.device
+        dev = drv.far_end
         sent_k = dev.sent_index
         assert sent_k.size == n
         got_k = index - 63000  # unwrapped counter back to sample number
@@ -73,7 +73,7 @@ def test_dropped_bytes_and_garbage_bursts() -> None:
     drv = open_imu("sim://imu?rate=500&realtime=0&samples=3000&drop=0.003&garbage=0.05&seed=2")
     try:
         index, _, gyro = concat(drain(drv))
-        dev = drv.device
+        dev = drv.far_end
         assert set(index.tolist()) == set(range(3000)) - dev.damaged
         np.testing.assert_array_equal(gyro, dev.sent_gyro_radps[index])
         assert drv.stats["resyncs"] > 50 and drv.stats["skipped_bytes"] > 0
@@ -85,7 +85,7 @@ def test_ascii_protocol_with_bit_flips() -> None:
     drv = open_imu("sim://imu?rate=200&realtime=0&samples=1500&protocol=ascii&flip=0.0005&seed=5")
     try:
         _index, t_dev_us, gyro = concat(drain(drv))
-        dev = drv.device
+        dev = drv.far_end
         sent_t = dev.sent_t_us
         pos = np.searchsorted(sent_t, t_dev_us)
         np.testing.assert_array_equal(sent_t[pos], t_dev_us)
@@ -109,8 +109,8 @@ def test_unplug_raises_disconnected_after_a_clean_prefix() -> None:
                 got.append(drv.read())
         index, _, gyro = concat(got)
         assert index.size > 0 and np.array_equal(index, np.arange(index.size))
-        np.testing.assert_array_equal(gyro, drv.device.sent_gyro_radps[: index.size])
-        assert drv.device.unplugged.is_set() and drv.device.sent_index.size == 1500
+        np.testing.assert_array_equal(gyro, drv.far_end.sent_gyro_radps[: index.size])
+        assert drv.far_end.unplugged.is_set() and drv.far_end.sent_index.size == 1500
     finally:
         drv.close()
 
@@ -168,8 +168,35 @@ def test_pause_delivers_every_sample_late_in_a_burst() -> None:
         batches = drain(drv)
         index, _, gyro = concat(batches)
         np.testing.assert_array_equal(index, np.arange(400))
-        np.testing.assert_array_equal(gyro, drv.device.sent_gyro_radps)
+        np.testing.assert_array_equal(gyro, drv.far_end.sent_gyro_radps)
         assert drv.stats["dropped"] == 0
-        assert drv.device.pauses == 1  # the board did stall once, and nothing was lost
+        assert drv.far_end.pauses == 1  # the board did stall once, and nothing was lost
     finally:
         drv.close()
+
+
+def test_recorder_waits_for_any_finite_source_through_the_protocol() -> None:
+    # A finite source that is not the virtual board: the recorder must wait for it by the
+    # protocol alone (finite, exhausted), and stop waiting for an infinite one after the grace.
+    from rigs.clock import ManualClock
+    from rigs.recorder import Recorder, RecorderConfig
+
+    class Replay:
+        url, rate_hz, stats = "replay://x", 200.0, {}
+        finite, exhausted = True, False
+
+        def read(self):  # pragma: no cover - not read here
+            raise AssertionError
+
+        def close(self) -> None: ...
+
+    clock = ManualClock()
+    rec = Recorder("unused.mcap", Replay(), None, config=RecorderConfig(), clock=clock)
+    clock.advance_ns(10**10)
+    assert rec._imu_done(0) is False
+    src = Replay()
+    src.exhausted = True
+    assert Recorder("unused.mcap", src, None, config=RecorderConfig(), clock=clock)._imu_done(0)
+    src = Replay()
+    src.finite = False
+    assert Recorder("unused.mcap", src, None, config=RecorderConfig(), clock=clock)._imu_done(0)

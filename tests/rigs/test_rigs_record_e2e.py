@@ -48,7 +48,7 @@ def test_recorder_keeps_every_intact_sample_at_one_percent_corruption(tmp_path: 
     rec = Recorder(
         tmp_path / "rec.mcap", imu, cam, {"imu_url": "sim"}, RecorderConfig(flush_interval_s=0.05)
     )
-    dev = imu.device
+    dev = imu.far_end
     assert dev is not None
     result = rec.run()
     imu.close()
