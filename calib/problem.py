@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Any
 
 import casadi as ca
@@ -27,6 +26,8 @@ import numpy as np
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import (
     NUMPY_OPS,
+    Backend,
+    Value,
     constant_mat3,
     matmul3,
     matvec3,
@@ -42,7 +43,24 @@ from blurtrack.geometry.kernels import (
 from calib.data import StreakSet
 from calib.params import N_THETA
 
-CA_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, sqrt=ca.sqrt)
+
+class CasadiBackend:
+    """:class:`blurtrack.geometry.kernels.Backend` over CasADi symbols."""
+
+    @staticmethod
+    def sin(x: Value, /) -> Value:
+        return ca.sin(x)
+
+    @staticmethod
+    def cos(x: Value, /) -> Value:
+        return ca.cos(x)
+
+    @staticmethod
+    def sqrt(x: Value, /) -> Value:
+        return ca.sqrt(x)
+
+
+CA_OPS: Backend = CasadiBackend()
 
 
 def _streak_motion(

@@ -26,26 +26,57 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from types import SimpleNamespace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
+#: An elementwise value of a backend: a float or numpy array, or a CasADi ``SX``/``MX`` column.
+#: The kernels use only ``+ - * /``, unary minus and the :class:`Backend` functions on it.
+Value = Any
+
+
+class Backend(Protocol):
+    """The elementwise functions the kernels take as ``ops``; numpy and CasADi both provide one
+    (:data:`NUMPY_OPS` here, ``calib.problem.CA_OPS`` for CasADi)."""
+
+    def sin(self, x: Value, /) -> Value: ...
+
+    def cos(self, x: Value, /) -> Value: ...
+
+    def sqrt(self, x: Value, /) -> Value: ...
+
+
+class NumpyBackend:
+    """:class:`Backend` over numpy arrays and floats."""
+
+    @staticmethod
+    def sin(x: Value, /) -> Value:
+        return np.sin(x)
+
+    @staticmethod
+    def cos(x: Value, /) -> Value:
+        return np.cos(x)
+
+    @staticmethod
+    def sqrt(x: Value, /) -> Value:
+        return np.sqrt(x)
+
+
 #: numpy implementation of the ops namespace.
-NUMPY_OPS = SimpleNamespace(sin=np.sin, cos=np.cos, sqrt=np.sqrt)
+NUMPY_OPS: Backend = NumpyBackend()
 
 #: Default longest integration sub-step (seconds).
 DEFAULT_MAX_SUBSTEP_S = 1e-3
 
-Vec3 = tuple[Any, Any, Any]
-Mat3 = tuple[Any, Any, Any, Any, Any, Any, Any, Any, Any]
-OmegaFn = Callable[[Any], Vec3]
+Vec3 = tuple[Value, Value, Value]
+Mat3 = tuple[Value, Value, Value, Value, Value, Value, Value, Value, Value]
+OmegaFn = Callable[[Value], Vec3]
 
 # Keeps sqrt differentiable at zero rotation; shifts the angle by at most 1e-12 rad.
 _ANGLE_EPS2 = 1e-24
 
 
-def so3_exp_c(wx: Any, wy: Any, wz: Any, ops: Any = NUMPY_OPS) -> Mat3:
+def so3_exp_c(wx: Any, wy: Any, wz: Any, ops: Backend = NUMPY_OPS) -> Mat3:
     """Rodrigues' formula, component-wise: rotation vectors (rad) to 9-tuples.
 
     >>> R = so3_exp_c(np.array([0.0]), np.array([0.0]), np.array([np.pi / 2]))
@@ -103,7 +134,7 @@ def n_substeps(max_duration_s: float, max_substep_s: float = DEFAULT_MAX_SUBSTEP
 
 
 def relative_rotation(
-    t_from_s: Any, t_to_s: Any, omega_cam_at: OmegaFn, n_sub: int, ops: Any = NUMPY_OPS
+    t_from_s: Any, t_to_s: Any, omega_cam_at: OmegaFn, n_sub: int, ops: Backend = NUMPY_OPS
 ) -> Mat3:
     """``R_c(t_from)^T R_c(t_to)`` for batches of camera-time intervals.
 
@@ -132,7 +163,7 @@ def relative_rotation(
 
 
 def relative_rotation_small_angle(
-    t_from_s: Any, t_to_s: Any, omega_cam_at: OmegaFn, n_sub: int, ops: Any = NUMPY_OPS
+    t_from_s: Any, t_to_s: Any, omega_cam_at: OmegaFn, n_sub: int, ops: Backend = NUMPY_OPS
 ) -> Mat3:
     """The source paper's approximation: per-axis angles summed, then ``Rz Ry Rx``.
 
@@ -229,7 +260,7 @@ def warp_c(
     intrinsics: Sequence[Any],
     dist: Sequence[Any],
     n_sub: int,
-    ops: Any = NUMPY_OPS,
+    ops: Backend = NUMPY_OPS,
     rotation: Callable[..., Mat3] = relative_rotation,
 ) -> tuple[Any, Any]:
     """Where a static direction seen at pixel ``(u, v)`` at ``t_from`` is seen at ``t_to``.
@@ -263,7 +294,7 @@ def rolling_endpoint_c(
     intrinsics: Sequence[Any],
     dist: Sequence[Any],
     n_sub: int,
-    ops: Any = NUMPY_OPS,
+    ops: Backend = NUMPY_OPS,
     rotation: Callable[..., Mat3] = relative_rotation,
 ) -> tuple[Any, Any, Any]:
     """Where, and when, a moving point crosses its row's start (+ ``offset_s``) of exposure.
