@@ -19,8 +19,6 @@ from scipy.signal import butter, sosfiltfilt
 
 from rigs.sim.errors import SimError
 
-#: Largest trace file read (bytes).
-MAX_SHAKE_BYTES = 512 * 1024 * 1024
 #: Where the project's data README puts the traces, relative to the repository's parent.
 SHAKE_RELPATH = Path("shared") / "data" / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
 
@@ -120,37 +118,13 @@ def band_pass(omega: np.ndarray, rate_hz: float, band_hz: tuple[float, float]) -
 
 
 def read_shake_trace(path: str | Path) -> ShakeTrace:
-    """Read a GyroDeblurNet trace file (``timestamp_ns<TAB>wx<TAB>wy<TAB>wz`` per line)."""
-    p = Path(path)
-    if not p.is_file():
-        raise SimError(f"shake trace not found: {p}")
-    size = p.stat().st_size
-    if size > MAX_SHAKE_BYTES:
-        raise SimError(f"shake trace {p} is {size} bytes, over {MAX_SHAKE_BYTES}")
-    t_ns: list[int] = []
-    rows: list[tuple[float, float, float]] = []
-    with p.open("r", encoding="utf-8", errors="strict") as f:
-        try:
-            for lineno, line in enumerate(f, start=1):
-                if not line.strip() or line.lstrip().startswith("#"):
-                    continue
-                parts = line.split()
-                if len(parts) != 4:
-                    raise SimError(
-                        f"{p}: line {lineno}: expected 4 columns "
-                        f"(timestamp_ns wx wy wz), got {len(parts)}"
-                    )
-                try:
-                    t_ns.append(int(parts[0]))
-                    rows.append((float(parts[1]), float(parts[2]), float(parts[3])))
-                except ValueError:
-                    raise SimError(
-                        f"{p}: line {lineno}: not numbers: {line.strip()[:60]!r}"
-                    ) from None
-        except UnicodeDecodeError as exc:
-            raise SimError(f"{p}: not UTF-8 text ({exc.reason})") from None
-    if len(t_ns) < 4:
-        raise SimError(f"{p}: only {len(t_ns)} samples")
-    t = np.asarray(t_ns, dtype=np.int64)
-    # Relative seconds keep full precision (absolute ns would lose it in float64).
-    return ShakeTrace((t - t[0]) * 1e-9, np.asarray(rows, dtype=float), source=str(p))
+    """Read a GyroDeblurNet trace file through the project's one reader
+    (:func:`blurtrack.io.shake.read_shake_trace`); its errors become :class:`SimError`."""
+    from blurtrack.errors import BlurTrackError
+    from blurtrack.io.shake import read_shake_trace as read_gyro_shake
+
+    try:
+        trace = read_gyro_shake(path)
+    except BlurTrackError as exc:
+        raise SimError(str(exc)) from None
+    return ShakeTrace(trace.t_s, trace.omega_radps, source=str(path))

@@ -113,11 +113,11 @@ def test_shake_motion_is_seeded_and_scaled() -> None:
 @pytest.mark.parametrize(
     "text, message",
     [
-        ("1\t0.1\t0.2\n2\t0.1\n", "expected 4 columns"),
-        ("1\t0.1\t0.2\tx\n" * 5, "not numbers"),
+        ("1\t0.1\t0.2\n2\t0.1\n", "has 3 fields, expected 4"),
+        ("1\t0.1\t0.2\tx\n" * 5, "not numeric"),
         ("".join(f"{k}\t0\t0\t0\n" for k in (1, 2, 3, 3, 4)), "not increasing"),
         ("1\t0\t0\tnan\n2\t0\t0\t0\n3\t0\t0\t0\n4\t0\t0\t0\n", "NaN"),
-        ("1\t0\t0\t0\n", "only 1 samples"),
+        ("1\t0\t0\t0\n", "fewer than 2 samples"),
     ],
 )
 def test_bad_shake_files(tmp_path: Path, text: str, message: str) -> None:
