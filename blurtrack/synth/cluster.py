@@ -216,7 +216,10 @@ def _run_tasks(client: Any, run: BuildRun, cluster: str, shared_fs: bool, png_le
             pure=False,
         )
 
-    ac = as_completed([submit(j) for j in islice(jobs, _window(client, per_task))], True)
+    run.start()
+    ac = as_completed(
+        [submit(j) for j in islice(jobs, _window(client, per_task))], with_results=True
+    )
     checked = time.monotonic()
     while True:
         item = _next_result(ac, cluster, KilledWorker)
@@ -276,7 +279,9 @@ def build_on_cluster(
     if not 0 < timeout_s <= 3600:
         raise SynthesisError(f"cluster timeout must be in (0, 3600] s, got {timeout_s}")
     with open_build(spec, out, shard, progress) as run:
-        if run.todo:
+        if not run.todo:
+            run.start()
+        else:
             try:
                 with connect(cluster, timeout_s) as client:
                     _run_tasks(client, run, cluster, shared_fs, png_level)

@@ -283,6 +283,11 @@ class BuildRun:
     t0: float
     fits: list[float] = field(default_factory=list)
 
+    def start(self) -> None:
+        """Report the work about to start (``progress(0, jobs left)``)."""
+        if self.progress:
+            self.progress(0, len(self.todo))
+
     def record(self, rec: dict[str, Any]) -> None:
         self.writer.append(rec)
         self.fits.append(rec["params"]["bezier_fit"]["within_0.5px"])
@@ -341,8 +346,6 @@ def open_build(
         writer = ManifestWriter(manifest)
         run = BuildRun(spec, root, tag, identity, mine, todo, manifest, progress, writer, t0)
         try:
-            if progress:
-                progress(0, len(todo))
             yield run
         finally:
             writer.close()
@@ -365,15 +368,18 @@ def build(
     if not 1 <= workers <= MAX_WORKERS:
         raise SynthesisError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
     with open_build(spec, out, shard, progress) as run:
+        run.start()
         if workers <= 1 or len(run.todo) <= 1:
             threads = cv2.getNumThreads()  # in process: leave the caller's OpenCV as it was
             try:
-                _init_worker(spec.to_dict(), str(run.root), run.tag, png_level)
+                cv2.setNumThreads(1)
+                renderer = Renderer(spec.to_dict(), png_level)
                 for job in run.todo:
-                    run.record(_work(job))
+                    rec, files = renderer.render(job)
+                    write_files(run.root, files, run.tag)
+                    run.record(rec)
             finally:
                 cv2.setNumThreads(threads)
-                _STATE.clear()
         else:
             ctx = multiprocessing.get_context("spawn")
             init = (spec.to_dict(), str(run.root), run.tag, png_level)
