@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import secrets
 import socket
 import threading
 import time
@@ -202,6 +203,7 @@ def _run_tasks(client: Any, run: BuildRun, cluster: str, shared_fs: bool, png_le
     per_task = None if shared_fs else W * H * (6 * 4 + 2 * 3 + (5 if run.spec.extras else 0))
     out = str(run.root.resolve()) if shared_fs else None
     jobs = iter(run.todo)
+    run_id = secrets.token_hex(8)  # keys of this run only: two builds never share a task
 
     def submit(job: Job) -> Any:
         return client.submit(
@@ -212,7 +214,7 @@ def _run_tasks(client: Any, run: BuildRun, cluster: str, shared_fs: bool, png_le
             job,
             out,
             run.tag,
-            key=f"blurtrack-triplet-{run.identity[:16]}-{job.index}",
+            key=f"blurtrack-triplet-{run_id}-{job.index}",
             pure=False,
         )
 

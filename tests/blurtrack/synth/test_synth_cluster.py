@@ -84,6 +84,17 @@ def manifest_lines(root: Path) -> list[str]:
     return sorted((root / "manifest.jsonl").read_text().splitlines())
 
 
+def test_dask_is_imported_only_by_cluster_builds() -> None:
+    code = (
+        "import sys, blurtrack.cli, blurtrack.io.session, blurtrack.synth.cluster;"
+        "blurtrack.cli.build_parser();"
+        "assert not {'dask', 'distributed'} & set(sys.modules), 'dask imported'"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 def test_parse_cluster() -> None:
     assert parse_cluster("local:2") == ("local", 2)
     assert parse_cluster("tcp://127.0.0.1:8786") == ("remote", "tcp://127.0.0.1:8786")
