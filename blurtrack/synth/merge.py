@@ -36,7 +36,7 @@ def _meta(folder: Path) -> tuple[dict[str, Any], DatasetSpec]:
         )
     try:
         return have, DatasetSpec.from_dict(have.get("spec"))
-    except (BlurTrackError, AttributeError, TypeError):
+    except (BlurTrackError, AttributeError, TypeError, ValueError, KeyError):
         raise SynthesisError(f"{folder}/dataset.yaml has a malformed spec") from None
 
 

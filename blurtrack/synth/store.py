@@ -30,6 +30,7 @@ import json
 import os
 import re
 import secrets
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -125,23 +126,27 @@ def expected_files(rec: dict[str, Any], count: int, group: int, extras: bool) ->
     return {k: f"{split}/{name}/{k}/{stem}{ext}" for k, ext in kinds}
 
 
-def _plain_file_inside(root: Path, rel: str) -> bool:
-    p = root / rel
-    return p.is_file() and not p.is_symlink() and p.resolve().is_relative_to(root.resolve())
-
-
 def finished(
     root: Path, records: dict[int, dict[str, Any]], count: int, group: int, extras: bool
 ) -> set[int]:
-    """Indices whose record names exactly its own files and whose files exist in ``root``."""
+    """Indices whose record names exactly its own files and whose files exist in ``root`` as
+    plain files (not links) in folders that resolve inside ``root``."""
+    base = root.resolve()
+    dir_inside: dict[str, bool] = {}
+
+    def plain_file(rel: str) -> bool:
+        folder = rel.rsplit("/", 1)[0]
+        if folder not in dir_inside:
+            dir_inside[folder] = (root / folder).resolve().is_relative_to(base)
+        try:
+            return dir_inside[folder] and stat.S_ISREG(os.lstat(root / rel).st_mode)
+        except OSError:
+            return False
+
     done = set()
     for i, rec in records.items():
         want = expected_files(rec, count, group, extras)
-        if (
-            want
-            and rec.get("files") == want
-            and all(_plain_file_inside(root, r) for r in want.values())
-        ):
+        if want and rec.get("files") == want and all(plain_file(r) for r in want.values()):
             done.add(i)
     return done
 
