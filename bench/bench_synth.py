@@ -11,12 +11,20 @@ Also reported: the heat maps' Bezier fit share within 0.5 px, and the error that
 ``stride`` adds against ``stride=1``. Prints one JSON object; ratios and medians, since the
 machine is shared and noisy.
 
+With ``--cluster ADDR`` (e.g. ``local:2``) only the cluster comparison runs: the same
+``blurtrack synth`` build with ``--workers K`` (the baseline), ``--cluster ADDR`` (workers
+return the files to the client) and ``--cluster ADDR --shared-fs``, interleaved ``--repeats``
+times, with per-repeat ratios of triplets/s against the baseline, their medians, and a
+byte-identity check of every build's files and manifest against the baseline's.
+
     PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2] [--build-count 40]
+    PYTHONPATH=. python bench/bench_synth.py --cluster local:2 [--build-count 40] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -149,14 +157,21 @@ def fit_share(gyro: str, n: int) -> dict:
 
 
 def cli_build(
-    size: tuple[int, int], count: int, workers: int, gyro: str, images: Path, tmp: Path
+    size: tuple[int, int],
+    count: int,
+    workers: int,
+    gyro: str,
+    images: Path,
+    tmp: Path,
+    extra: tuple[str, ...] = (),
+    name: str = "",
 ) -> dict:
     """``blurtrack synth --workers K`` end to end in a subprocess: wall time (start-up
     included), the steady rate between the 2nd and the last finished triplet (from the heat
     files' modification times) and the CPU seconds of the command and its workers."""
     calib = tmp / f"calib{size[0]}.yaml"
     CALIB.to_yaml(calib)
-    out = tmp / f"cli{size[0]}"
+    out = tmp / f"cli{size[0]}{name}"
     cmd = [
         sys.executable,
         "-m",
@@ -176,8 +191,7 @@ def cli_build(
         "3",
         "--size",
         f"{size[0]}x{size[1]}",
-        "--workers",
-        str(workers),
+        *(extra or ("--workers", str(workers))),
     ]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -197,6 +211,79 @@ def cli_build(
         "steady_triplets_per_s": steady,
         "cpu_s_per_triplet_incl_startup": cpu / len(done),
     }
+
+
+def tree_digest(root: Path) -> str:
+    """One hash over every triplet file (path and bytes) and the sorted manifest lines."""
+    h = hashlib.sha256()
+    for p in sorted(root.glob("*/*/*/*")):
+        h.update(p.relative_to(root).as_posix().encode() + hashlib.sha256(p.read_bytes()).digest())
+    for line in sorted((root / "manifest.jsonl").read_text().splitlines()):
+        h.update(line.encode())
+    return h.hexdigest()
+
+
+def cluster_compare(
+    cluster: str,
+    workers: int,
+    count: int,
+    repeats: int,
+    gyro: str,
+    images: Path,
+    size: tuple[int, int] = (1280, 720),
+) -> dict:
+    """``--workers K`` against ``--cluster`` (client writes) and ``--cluster --shared-fs``,
+    interleaved, the whole command timed in a subprocess."""
+    modes = {
+        "workers": (),
+        "cluster": ("--cluster", cluster),
+        "cluster_shared_fs": ("--cluster", cluster, "--shared-fs"),
+    }
+    runs: dict[str, list[dict]] = {m: [] for m in modes}
+    identical = True
+    for r in range(repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            ref = None
+            for m, extra in modes.items():
+                b = cli_build(size, count, workers, gyro, images, Path(tmp), extra, m)
+                d = tree_digest(Path(tmp) / f"cli{size[0]}{m}")
+                ref = ref or d
+                identical &= d == ref
+                b["repeat"] = r
+                runs[m].append(b)
+                for p in Path(tmp).glob(f"cli{size[0]}{m}/*/*"):  # keep the disk small
+                    if p.is_dir():
+                        subprocess.run(["rm", "-rf", str(p)], check=True)
+    base = runs["workers"]
+    out: dict = {
+        "cluster": cluster,
+        "workers": workers,
+        "size": list(size),
+        "triplets": count,
+        "repeats": repeats,
+    }
+    for m in ("cluster", "cluster_shared_fs"):
+        for key in ("triplets_per_s", "steady_triplets_per_s"):
+            ratios = [
+                c[key] / b[key] for c, b in zip(runs[m], base, strict=True) if c[key] and b[key]
+            ]
+            out[f"{m}_over_workers_{key}"] = ratios
+            out[f"{m}_over_workers_{key}_median"] = statistics.median(ratios) if ratios else None
+    for m, rs in runs.items():
+        out[f"{m}_triplets_per_s_median"] = statistics.median(x["triplets_per_s"] for x in rs)
+        out[f"{m}_steady_triplets_per_s_median"] = statistics.median(
+            x["steady_triplets_per_s"] or 0.0 for x in rs
+        )
+        out[f"{m}_cpu_s_per_triplet_median"] = statistics.median(
+            x["cpu_s_per_triplet_incl_startup"] for x in rs
+        )
+    out["byte_identical_to_workers_build"] = identical
+    out["target_within_10pct_overall"] = out["cluster_over_workers_triplets_per_s_median"] >= 0.9
+    out["target_within_10pct_steady"] = (
+        out["cluster_over_workers_steady_triplets_per_s_median"] or 0
+    ) >= 0.9
+    out["runs"] = runs
+    return out
 
 
 def inprocess_cpu(size: tuple[int, int], count: int, gyro: str, images: Path, tmp: Path) -> float:
@@ -230,6 +317,13 @@ def main() -> None:
         help="triplets of the 1280x720 builds (twice as many at 640x360)",
     )
     ap.add_argument("--fit-segments", type=int, default=50)
+    ap.add_argument(
+        "--cluster",
+        default=None,
+        help="only compare --cluster ADDR (e.g. local:2) with --workers on 1280x720 builds",
+    )
+    ap.add_argument("--repeats", type=int, default=3, help="interleaved repeats (--cluster)")
+    ap.add_argument("--size", default="1280x720", help="output WxH of the --cluster builds")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     shake = DATA / "real" / "gyrodeblurnet-shake"
@@ -237,6 +331,15 @@ def main() -> None:
     images = DATA / "backgrounds" / "bsds500"
     if not images.is_dir():
         raise SystemExit(f"backgrounds not found at {images}")
+    if args.cluster:
+        start = os.getloadavg()[0]
+        w, h = (int(v) for v in args.size.split("x"))
+        res = cluster_compare(
+            args.cluster, args.workers, args.build_count, args.repeats, gyro, images, (w, h)
+        )
+        res.update(load_average_1min_start=start, load_average_1min_end=os.getloadavg()[0])
+        print(json.dumps(res, indent=2))
+        return
     result = {
         "gyro": Path(gyro).name,
         "calibration": "1280x720 f=1000 px readout 20 ms",

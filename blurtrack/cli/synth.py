@@ -30,6 +30,26 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--shard", default="0/1", help="build only indices i %% N == I (I/N)")
     p.add_argument("--workers", type=int, default=1, help="worker processes")
+    p.add_argument(
+        "--cluster",
+        default=None,
+        metavar="local:N|tcp://HOST:PORT",
+        help="build on a dask.distributed cluster: N local worker processes, or a running "
+        "scheduler (one task per triplet; docs/synthesis.md)",
+    )
+    p.add_argument(
+        "--shared-fs",
+        action="store_true",
+        help="with --cluster: workers write the files into --out themselves (it must be "
+        "mounted at the same path on every worker); default: they return them to this client",
+    )
+    p.add_argument(
+        "--cluster-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds to wait for the scheduler and its first worker (default 10)",
+    )
     p.add_argument("--mode", choices=("exact", "paper"), default="exact")
     p.add_argument("--exposure-ms", default="10:30", help="exposure, LO:HI range or a value")
     p.add_argument(
@@ -90,6 +110,11 @@ def register(subparsers: Any) -> None:
     )
     m.add_argument("dataset")
     m.add_argument("shards", nargs="*", help="shard folders built elsewhere")
+    m.add_argument(
+        "--allow-missing",
+        action="store_true",
+        help="merge even if triplets are missing (default: refuse, changing nothing)",
+    )
     m.set_defaults(func=run_merge)
 
 
@@ -170,6 +195,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise SynthesisError("--workers must be >= 1")
+    if args.cluster is not None and args.workers != 1:
+        raise SynthesisError("--workers and --cluster exclude each other (local:N for N cores)")
+    if args.shared_fs and args.cluster is None:
+        raise SynthesisError("--shared-fs applies to --cluster builds only")
     spec = spec_from_args(args)
     shard = parse_shard(args.shard)
     bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
@@ -180,7 +209,21 @@ def run(args: argparse.Namespace) -> int:
         bars[0].update(done - bars[0].n)
 
     try:
-        result = build(spec, args.out, shard, args.workers, progress, args.png_compression)
+        if args.cluster is None:
+            result = build(spec, args.out, shard, args.workers, progress, args.png_compression)
+        else:
+            from blurtrack.synth.cluster import build_on_cluster
+
+            result = build_on_cluster(
+                spec,
+                args.out,
+                args.cluster,
+                shard,
+                args.shared_fs,
+                progress,
+                args.png_compression,
+                args.cluster_timeout,
+            )
     finally:
         for b in bars:
             b.close()
@@ -190,6 +233,9 @@ def run(args: argparse.Namespace) -> int:
         "count": spec.count,
         "mode": spec.params.mode,
         "size": list(spec.params.size),
+        "workers": args.workers if args.cluster is None else None,
+        "cluster": args.cluster,
+        "shared_fs": bool(args.shared_fs),
         **result.to_dict(),
     }
     name = "summary.json" if shard[1] == 1 else f"summary-shard{shard[0]}.json"
@@ -206,9 +252,9 @@ def run(args: argparse.Namespace) -> int:
 
 def run_merge(args: argparse.Namespace) -> int:
     from blurtrack.io.yamlio import write_text_atomic
-    from blurtrack.synth.dataset import merge
+    from blurtrack.synth.merge import merge
 
-    summary = {"command": "synth-merge", **merge(args.dataset, args.shards)}
+    summary = {"command": "synth-merge", **merge(args.dataset, args.shards, args.allow_missing)}
     write_text_atomic(Path(args.dataset) / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(
         f"synth-merge: {summary['triplets']} of {summary['count']} triplets in "

@@ -1,10 +1,10 @@
-"""The training-triplet dataset: plan, parallel build, resume, shards and merge.
+"""The training-triplet dataset: spec, plan, and the build on the cores of one machine.
 
-Layout (COMMON "Shared formats", GoPro style)::
+Layout (GoPro style)::
 
-    DATASET/dataset.yaml                        format: blurtrack-dataset/1 + the full spec
+    DATASET/dataset.yaml                        format: blurtrack-dataset/1, identity, spec
     DATASET/manifest.jsonl                      one JSON object per triplet (sorted by index)
-    DATASET/manifest-shard<I>.jsonl             per-shard manifests before ``merge``
+    DATASET/manifest-shard<I>.jsonl             per-shard manifests before ``synth-merge``
     DATASET/{train,test}/<name>/sharp/<stem>.png   8-bit sRGB
     DATASET/{train,test}/<name>/blur/<stem>.png
     DATASET/{train,test}/<name>/heat/<stem>.npy    float32 (6, H, W)
@@ -12,10 +12,12 @@ Layout (COMMON "Shared formats", GoPro style)::
 Triplet ``i`` is fully determined by ``(spec, i)``: its image is ``images[perm[i % n]]`` with a
 seeded permutation, its randomness comes from ``SeedSequence([seed, i])``. Files are written to a
 hidden temporary name and renamed into place, and the manifest line is appended (and fsynced)
-only after all three files are in place, so a killed build leaves only finished triplets under
-final names; a rerun skips every triplet whose manifest line and files exist. Shard ``I/N``
-builds the indices ``i % N == I`` into ``manifest-shardI.jsonl``; shards built on separate
-machines are combined with :func:`merge`.
+only after all files are in place, so a killed build leaves only finished triplets under
+final names; a rerun skips every triplet whose manifest line and files exist
+(:mod:`blurtrack.synth.store`). Shard ``I/N`` builds the indices ``i % N == I`` into
+``manifest-shardI.jsonl``; shards are combined by :func:`blurtrack.synth.merge.merge`. The
+same build runs on a Dask cluster through :mod:`blurtrack.synth.cluster`, which shares
+:func:`open_build` and :class:`Renderer` with this module.
 """
 
 from __future__ import annotations
@@ -24,10 +26,9 @@ import contextlib
 import json
 import multiprocessing
 import os
-import shutil
 import time
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,15 +37,25 @@ import numpy as np
 
 from blurtrack.errors import BlurTrackError, SynthesisError
 from blurtrack.io.calibration import Calibration
-from blurtrack.io.yamlio import read_yaml, write_text_atomic, write_yaml
+from blurtrack.io.yamlio import read_yaml, write_yaml
 from blurtrack.synth.images import list_images, load_image, split_of
 from blurtrack.synth.motion import open_source
+from blurtrack.synth.store import (
+    EXTRA_KINDS,
+    KINDS,
+    ManifestWriter,
+    dataset_lock,
+    finished,
+    input_identity,
+    read_manifest,
+    remove_temporaries,
+    write_atomic,
+)
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
 
+__all__ = ["DatasetSpec", "build", "open_build", "read_manifest"]
+
 FORMAT = "blurtrack-dataset/1"
-KINDS = (("sharp", ".png"), ("blur", ".png"), ("heat", ".npy"))
-#: Optional extra files (``extras=True``): validity mask (0/255 PNG) and Bezier fit error (px).
-EXTRA_KINDS = (("mask", ".png"), ("fit", ".npy"))
 #: Largest dataset (triplets) and worker count accepted.
 MAX_COUNT = 1_000_000
 MAX_WORKERS = 64
@@ -130,47 +141,6 @@ def parse_shard(text: str) -> tuple[int, int]:
     return i, n
 
 
-def read_manifest(path: Path, repair: bool = False) -> dict[int, dict[str, Any]]:
-    """Records by index (a later line wins). A final line without newline is the trace of a
-    killed writer: ignored, and cut off when ``repair``. Any other bad line is an error."""
-    if not path.is_file():
-        return {}
-    raw = path.read_bytes()
-    end = raw.rfind(b"\n") + 1
-    if end < len(raw) and repair:
-        with path.open("r+b") as f:
-            f.truncate(end)
-    records: dict[int, dict[str, Any]] = {}
-    for n, line in enumerate(raw[:end].splitlines(), start=1):
-        try:
-            rec = json.loads(line)
-            records[int(rec["index"])] = rec
-        except (ValueError, KeyError, TypeError):
-            raise SynthesisError(f"{path}: line {n} is not a manifest record") from None
-    return records
-
-
-def _write_atomic(path: Path, data: bytes | np.ndarray, tag: str = "x") -> None:
-    """Write ``data`` (bytes, or an array as ``.npy``, streamed without an in-memory copy) to a
-    hidden ``.<name>.<tag>.<pid>.tmp`` file, then rename it to ``path``.
-
-    ``tag`` names the shard, so a shard cleaning up after a killed run of itself never
-    touches the temporaries of another shard running in the same folder.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{tag}.{os.getpid()}.tmp")
-    try:
-        if isinstance(data, np.ndarray):
-            with tmp.open("wb") as f:
-                np.save(f, data, allow_pickle=False)
-        else:
-            tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def _png(img: np.ndarray, level: int = 0) -> bytes:
     flags = [cv2.IMWRITE_PNG_COMPRESSION, int(level)]
     if level == 0:  # row filters only help deflate; unfiltered stored PNG encodes 4x faster
@@ -182,6 +152,58 @@ def _png(img: np.ndarray, level: int = 0) -> bytes:
 
 
 # ------------------------------------------------------------------ worker side
+class Renderer:
+    """What a worker holds (spec, calibration, gyro source); renders a job to its manifest
+    record and its files, ``{relative path: PNG bytes or array for .npy}``."""
+
+    def __init__(self, spec_dict: dict[str, Any], png_level: int = DEFAULT_PNG_LEVEL) -> None:
+        self.spec = DatasetSpec.from_dict(spec_dict)
+        self.png = int(png_level)
+        self.calib = Calibration.from_dict(self.spec.calib)
+        self.source = open_source(self.spec.gyro)
+
+    def render(self, job: Job) -> tuple[dict[str, Any], dict[str, bytes | np.ndarray]]:
+        spec = self.spec
+        try:
+            image = load_image(spec.images, job.image)
+            tr = make_triplet(
+                image, self.calib, self.source, spec.params, triplet_rng(spec.seed, job.index)
+            )
+        except BlurTrackError as exc:
+            raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
+        data: dict[str, bytes | np.ndarray] = {
+            "sharp": _png(tr.sharp, self.png),
+            "blur": _png(tr.blur, self.png),
+            "heat": tr.heat,
+        }
+        if spec.extras:
+            data["mask"] = _png(tr.valid.astype(np.uint8) * 255, 1)
+            data["fit"] = tr.fit_error.astype(np.float32)
+        rels = {k: p.as_posix() for k, p in job.paths(Path(), spec.extras).items()}
+        info = dict(tr.info)
+        rec = {
+            "index": job.index,
+            "split": job.split,
+            "name": job.name,
+            "stem": job.stem,
+            "source_image": job.image,
+            "gyro_segment": info.pop("gyro_segment"),
+            "seed": [int(spec.seed), job.index],
+            "params": info,
+            "files": rels,
+        }
+        return rec, {rels[k]: v for k, v in data.items()}
+
+
+def write_files(root: Path, files: dict[str, bytes | np.ndarray], tag: str) -> None:
+    """Write a rendered triplet's files under ``root`` (each atomically)."""
+    for rel, data in files.items():
+        try:
+            write_atomic(root / rel, data, tag)
+        except OSError as exc:
+            raise SynthesisError(f"cannot write {root / rel}: {exc.strerror or exc}") from None
+
+
 _STATE: dict[str, Any] = {}
 
 
@@ -189,47 +211,13 @@ def _init_worker(
     spec_dict: dict[str, Any], out: str, tag: str = "s0of1", png_level: int = DEFAULT_PNG_LEVEL
 ) -> None:
     cv2.setNumThreads(1)
-    spec = DatasetSpec.from_dict(spec_dict)
-    _STATE.update(
-        spec=spec,
-        out=Path(out),
-        tag=tag,
-        png=png_level,
-        calib=Calibration.from_dict(spec.calib),
-        source=open_source(spec.gyro),
-    )
+    _STATE.update(renderer=Renderer(spec_dict, png_level), out=Path(out), tag=tag)
 
 
 def _work(job: Job) -> dict[str, Any]:
-    spec: DatasetSpec = _STATE["spec"]
-    out: Path = _STATE["out"]
-    try:
-        image = load_image(spec.images, job.image)
-        tr = make_triplet(
-            image, _STATE["calib"], _STATE["source"], spec.params, triplet_rng(spec.seed, job.index)
-        )
-    except BlurTrackError as exc:
-        raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
-    paths = job.paths(out, spec.extras)
-    tag = _STATE["tag"]
-    _write_atomic(paths["sharp"], _png(tr.sharp, _STATE["png"]), tag)
-    _write_atomic(paths["blur"], _png(tr.blur, _STATE["png"]), tag)
-    _write_atomic(paths["heat"], tr.heat, tag)
-    if spec.extras:
-        _write_atomic(paths["mask"], _png(tr.valid.astype(np.uint8) * 255, 1), tag)
-        _write_atomic(paths["fit"], tr.fit_error.astype(np.float32), tag)
-    info = dict(tr.info)
-    return {
-        "index": job.index,
-        "split": job.split,
-        "name": job.name,
-        "stem": job.stem,
-        "source_image": job.image,
-        "gyro_segment": info.pop("gyro_segment"),
-        "seed": [int(spec.seed), job.index],
-        "params": info,
-        "files": {k: p.relative_to(out).as_posix() for k, p in paths.items()},
-    }
+    rec, files = _STATE["renderer"].render(job)
+    write_files(_STATE["out"], files, _STATE["tag"])
+    return rec
 
 
 # ------------------------------------------------------------------ builder side
@@ -259,36 +247,108 @@ class BuildResult:
         }
 
 
-def _check_spec(out: Path, spec: DatasetSpec) -> None:
+def _check_spec(out: Path, spec: DatasetSpec, identity: str) -> None:
     path = out / "dataset.yaml"
-    want = {"format": FORMAT, "spec": spec.to_dict()}
-    if path.is_file():
-        have = read_yaml(path, "dataset.yaml")
-        if have != json.loads(json.dumps(want)):
-            raise SynthesisError(
-                f"{out} holds a dataset made with other parameters; use a new "
-                f"--out or the same options"
-            )
-    else:
+    want = json.loads(json.dumps({"format": FORMAT, "identity": identity, "spec": spec.to_dict()}))
+    if not path.is_file():
         write_yaml(path, want)
+        return
+    have = read_yaml(path, "dataset.yaml")
+    if have == want:
+        return
+    if isinstance(have, dict) and {**have, "identity": identity} == want:
+        raise SynthesisError(
+            f"{out} holds a dataset made from other inputs (photos or gyro data differ from "
+            f"{spec.images} / {spec.gyro}); use a new --out or the original inputs"
+        )
+    raise SynthesisError(
+        f"{out} holds a dataset made with other parameters; use a new --out or the same options"
+    )
 
 
-def _inside(out: Path, rel: Any) -> bool:
-    """Whether ``rel`` names an existing file inside ``out`` (manifests are untrusted)."""
-    if not isinstance(rel, str) or not rel or Path(rel).is_absolute() or ".." in Path(rel).parts:
-        return False
-    return (out / rel).is_file()
+@dataclass
+class BuildRun:
+    """A build in progress (from :func:`open_build`): the jobs left and the manifest writer;
+    :meth:`record` appends a finished triplet."""
+
+    spec: DatasetSpec
+    root: Path
+    tag: str
+    identity: str
+    mine: list[Job]
+    todo: list[Job]
+    manifest: Path
+    progress: Callable[[int, int], None] | None
+    writer: ManifestWriter
+    t0: float
+    fits: list[float] = field(default_factory=list)
+
+    def start(self) -> None:
+        """Report the work about to start (``progress(0, jobs left)``)."""
+        if self.progress:
+            self.progress(0, len(self.todo))
+
+    def record(self, rec: dict[str, Any]) -> None:
+        self.writer.append(rec)
+        self.fits.append(rec["params"]["bezier_fit"]["within_0.5px"])
+        if self.progress:
+            self.progress(len(self.fits), len(self.todo))
+
+    def result(self) -> BuildResult:
+        fits = self.fits
+        return BuildResult(
+            len(fits),
+            len(self.mine) - len(self.todo),
+            len(self.mine),
+            time.perf_counter() - self.t0,
+            self.manifest,
+            min(fits) if fits else None,
+            float(np.mean(fits)) if fits else None,
+        )
 
 
-def _finished(out: Path, records: dict[int, dict[str, Any]]) -> set[int]:
-    done = set()
-    for i, rec in records.items():
-        files = rec.get("files", {})
-        if all(_inside(out, files.get(k)) for k, _ in KINDS) and all(
-            _inside(out, f) for f in files.values()
-        ):
-            done.add(i)
-    return done
+def inputs_identity(spec: DatasetSpec, images: list[str], gyro_fingerprint: str) -> str:
+    """The identity of ``spec`` built from ``images`` and that gyro (see :mod:`store`)."""
+    return input_identity(spec.to_dict(), Path(spec.images), images, gyro_fingerprint)
+
+
+@contextlib.contextmanager
+def open_build(
+    spec: DatasetSpec,
+    out: str | Path,
+    shard: tuple[int, int] = (0, 1),
+    progress: Callable[[int, int], None] | None = None,
+) -> Iterator[BuildRun]:
+    """Check the inputs, take the dataset lock, check or write ``dataset.yaml``, repair the
+    manifest, list the jobs left, and yield the run; the lock is held until the block ends."""
+    t0 = time.perf_counter()
+    root = Path(out)
+    if root.resolve().is_relative_to(Path(spec.images).resolve()):
+        raise SynthesisError(
+            f"the dataset folder {root} must not lie inside the image folder "
+            f"{spec.images} (its images would become inputs)"
+        )
+    images = list_images(spec.images)  # inputs first: a bad one leaves no folder behind
+    source = open_source(spec.gyro)
+    identity = inputs_identity(spec, images, source.fingerprint())
+    k, n = shard
+    name = "manifest.jsonl" if n == 1 else f"manifest-shard{k}.jsonl"
+    root.mkdir(parents=True, exist_ok=True)
+    with dataset_lock(root, None if n == 1 else name):
+        _check_spec(root, spec, identity)
+        mine = [j for j in plan(spec, images, source.tag) if j.index % n == k]
+        manifest = root / name
+        records = {**read_manifest(root / "manifest.jsonl"), **read_manifest(manifest, True)}
+        done = finished(root, records, spec.count, spec.group, spec.extras)
+        todo = [j for j in mine if j.index not in done]
+        tag = f"s{k}of{n}"
+        remove_temporaries(root, tag)  # this shard's leftovers of a killed run
+        writer = ManifestWriter(manifest)
+        run = BuildRun(spec, root, tag, identity, mine, todo, manifest, progress, writer, t0)
+        try:
+            yield run
+        finally:
+            writer.close()
 
 
 def build(
@@ -304,69 +364,34 @@ def build(
     ``progress(done, total)`` is called after each triplet (the CLI draws its bar with it).
     ``png_level`` (0-9) only changes file sizes, never pixels, so it is not part of the spec.
     """
-    t0 = time.perf_counter()
-    if not 0 <= png_level <= 9:
-        raise SynthesisError(f"PNG compression level must be in [0, 9], got {png_level}")
+    check_png_level(png_level)
     if not 1 <= workers <= MAX_WORKERS:
         raise SynthesisError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
-    root = Path(out)
-    if root.resolve().is_relative_to(Path(spec.images).resolve()):
-        raise SynthesisError(
-            f"the dataset folder {root} must not lie inside the image folder "
-            f"{spec.images} (its images would become inputs)"
-        )
-    images = list_images(spec.images)  # inputs first: a bad one leaves no folder behind
-    source = open_source(spec.gyro)
-    root.mkdir(parents=True, exist_ok=True)
-    _check_spec(root, spec)
-    k, n = shard
-    mine = [j for j in plan(spec, images, source.tag) if j.index % n == k]
-    manifest = root / ("manifest.jsonl" if n == 1 else f"manifest-shard{k}.jsonl")
-    records = {**read_manifest(root / "manifest.jsonl"), **read_manifest(manifest, repair=True)}
-    done = _finished(root, records)
-    todo = [j for j in mine if j.index not in done]
-    tag = f"s{k}of{n}"
-    for tmp in root.glob(f"*/*/*/.*.{tag}.*.tmp"):  # this shard's leftovers of a killed run
-        tmp.unlink(missing_ok=True)
-    made, fits = 0, []
-    with manifest.open("a", encoding="utf-8") as f:
-
-        def record(rec: dict[str, Any]) -> None:
-            nonlocal made
-            f.write(json.dumps(rec, sort_keys=True) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-            made += 1
-            fits.append(rec["params"]["bezier_fit"]["within_0.5px"])
-            if progress:
-                progress(made, len(todo))
-
-        if progress:
-            progress(0, len(todo))
-        if workers <= 1 or len(todo) <= 1:
+    with open_build(spec, out, shard, progress) as run:
+        run.start()
+        if workers <= 1 or len(run.todo) <= 1:
             threads = cv2.getNumThreads()  # in process: leave the caller's OpenCV as it was
             try:
-                _init_worker(spec.to_dict(), str(root), tag, png_level)
-                for job in todo:
-                    record(_work(job))
+                cv2.setNumThreads(1)
+                renderer = Renderer(spec.to_dict(), png_level)
+                for job in run.todo:
+                    rec, files = renderer.render(job)
+                    write_files(run.root, files, run.tag)
+                    run.record(rec)
             finally:
                 cv2.setNumThreads(threads)
-                _STATE.clear()
         else:
             ctx = multiprocessing.get_context("spawn")
-            init = (spec.to_dict(), str(root), tag, png_level)
+            init = (spec.to_dict(), str(run.root), run.tag, png_level)
             with _single_threaded_children(), ctx.Pool(workers, _init_worker, init) as pool:
-                for rec in pool.imap_unordered(_work, todo):
-                    record(rec)
-    return BuildResult(
-        made,
-        len(mine) - len(todo),
-        len(mine),
-        time.perf_counter() - t0,
-        manifest,
-        min(fits) if fits else None,
-        float(np.mean(fits)) if fits else None,
-    )
+                for rec in pool.imap_unordered(_work, run.todo):
+                    run.record(rec)
+    return run.result()
+
+
+def check_png_level(level: int) -> None:
+    if not 0 <= level <= 9:
+        raise SynthesisError(f"PNG compression level must be in [0, 9], got {level}")
 
 
 #: Thread-pool variables of numpy's BLAS back ends; each worker is one process on one core.
@@ -387,70 +412,3 @@ def _single_threaded_children() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
-
-
-def _move(src: Path, dst: Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.replace(src, dst)
-    except OSError:  # another file system: copy to a temporary name, then rename
-        tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-        shutil.copy2(src, tmp)
-        os.replace(tmp, dst)
-
-
-def _portable(d: Any) -> Any:
-    """A dataset.yaml with its input paths cut to their last component: shards made on other
-    machines see the same inputs under other mount points."""
-    if not isinstance(d, dict) or not isinstance(d.get("spec"), dict):
-        raise SynthesisError("dataset.yaml lacks its spec")
-    spec = dict(d["spec"])
-    for k in ("images", "gyro"):
-        spec[k] = Path(str(spec.get(k, ""))).name
-    return {**d, "spec": spec}
-
-
-def merge(out: str | Path, shard_dirs: Iterable[str | Path] = ()) -> dict[str, Any]:
-    """Combine shard manifests (in ``out`` and in ``shard_dirs``, whose files are moved into
-    ``out``) into one sorted ``manifest.jsonl``; returns a summary with missing indices."""
-    root = Path(out)
-    dirs = [Path(d) for d in shard_dirs]
-    ref = key = None
-    for d in [root, *dirs]:
-        if (d / "dataset.yaml").is_file():
-            have = read_yaml(d / "dataset.yaml", "dataset.yaml")
-            if key is not None and _portable(have) != key:
-                raise SynthesisError(f"{d} was built with other parameters than the others")
-            ref, key = have, _portable(have)
-    if ref is None:
-        raise SynthesisError("no dataset.yaml found in the merged folders")
-    root.mkdir(parents=True, exist_ok=True)
-    if not (root / "dataset.yaml").is_file():
-        write_yaml(root / "dataset.yaml", ref)
-    records = read_manifest(root / "manifest.jsonl")
-    consumed = sorted(root.glob("manifest-shard*.jsonl"))
-    for m in consumed:
-        records.update(read_manifest(m))
-    for d in dirs:
-        if d.resolve() == root.resolve():
-            continue
-        for m in sorted([*d.glob("manifest-shard*.jsonl"), d / "manifest.jsonl"]):
-            for i, rec in read_manifest(m).items():
-                for rel in rec.get("files", {}).values():
-                    if _inside(d, rel):
-                        _move(d / rel, root / rel)
-                records[i] = rec
-    done = _finished(root, records)
-    lines = "".join(json.dumps(records[i], sort_keys=True) + "\n" for i in sorted(done))
-    write_text_atomic(root / "manifest.jsonl", lines)
-    for m in consumed:
-        m.unlink()
-    count = int(ref["spec"]["count"])
-    missing = sorted(set(range(count)) - done)
-    return {
-        "triplets": len(done),
-        "count": count,
-        "missing": len(missing),
-        "missing_first": missing[:20],
-        "lost_records": len(records) - len(done),
-    }

@@ -18,6 +18,7 @@ Segments that would touch a gyro gap are redrawn (up to ``MAX_DRAWS`` times).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +63,10 @@ class GyroSource:
         """Short name for dataset folders."""
         return self.kind
 
+    def fingerprint(self) -> str:
+        """What identifies the motion this source yields, independent of where it was read."""
+        return self.spec
+
 
 class TraceSource(GyroSource):
     """Segments of one recorded trace (a session's IMU or a shake file)."""
@@ -74,6 +79,13 @@ class TraceSource(GyroSource):
         self.spec = spec
         self.own_imu = own_imu
         self.t0_ns = t0_ns
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the samples read (and how they are used), not of the file's path."""
+        h = hashlib.sha256(f"{self.kind}|{self.own_imu}|{self.t0_ns}|".encode())
+        h.update(np.ascontiguousarray(self.trace.t_s, dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(self.trace.omega_radps, dtype="<f8").tobytes())
+        return f"{self.kind}:{h.hexdigest()}"
 
     def segment(
         self, rng: np.random.Generator, span_s: float, margin_s: float, timeshift_s: float = 0.0

@@ -14,7 +14,8 @@ from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.calibration import Calibration
-from blurtrack.synth.dataset import DatasetSpec, build, merge, read_manifest
+from blurtrack.synth.dataset import DatasetSpec, build, read_manifest
+from blurtrack.synth.merge import merge
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
 
 CAL = Calibration(Camera((128, 96), (110.0, 110.0, 63.5, 47.5), readout_s=0.01))
