@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.cli.progress import Progress, add_quiet_arg
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -80,6 +82,7 @@ def register(subparsers: Any) -> None:
         help="PNG deflate level 0-9 of sharp/blur (0: fastest, default)",
     )
     p.add_argument("--group", type=int, default=100, help="triplets per <name> folder")
+    add_quiet_arg(p)
     p.set_defaults(func=run)
 
     m = subparsers.add_parser(
@@ -162,8 +165,6 @@ def spec_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from blurtrack.errors import SynthesisError
     from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.dataset import build, parse_shard
@@ -172,18 +173,8 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--workers must be >= 1")
     spec = spec_from_args(args)
     shard = parse_shard(args.shard)
-    bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
-
-    def progress(done: int, total: int) -> None:
-        if not bars:
-            bars.append(tqdm(total=total, unit="triplet", desc="synth", dynamic_ncols=True))
-        bars[0].update(done - bars[0].n)
-
-    try:
-        result = build(spec, args.out, shard, args.workers, progress, args.png_compression)
-    finally:
-        for b in bars:
-            b.close()
+    with Progress("synth", "triplet", args.quiet) as bar:
+        result = build(spec, args.out, shard, args.workers, bar, args.png_compression)
     summary = {
         "command": "synth",
         "shard": list(shard),
