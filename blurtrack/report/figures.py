@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-from matplotlib.ticker import FuncFormatter, LogLocator
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator
 
 COLORS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e")
 #: Resolution of the PNGs (2× the page's 90 dpi).
@@ -106,25 +106,48 @@ def cell_medians(
     return med, n
 
 
+def grid_shape(n_streaks: int, nx: int = 16, ny: int = 9, per_cell: float = 5.0) -> tuple[int, int]:
+    """Cells of the position map: 16 × 9, made coarser (same aspect) until the average cell
+    holds ``per_cell`` streaks, down to 2 × 1."""
+    s = min(1.0, float(np.sqrt(max(n_streaks, 1) / (nx * ny * per_cell))))
+    return max(2, round(nx * s)), max(1, round(ny * s))
+
+
 def error_vs_position(df: pd.DataFrame, width: int, height: int, title: str) -> bytes:
-    """Median endpoint error in image cells (16 × 9 grid) with each cell's streak count."""
-    nx, ny = 16, 9
+    """Median endpoint error in image cells with each cell's streak count written in it."""
+    nx, ny = grid_shape(len(_finite(df)))
     med, n = cell_medians(df, width, height, nx, ny)
     fig, ax = plt.subplots(figsize=(10, 5.2))
-    im = ax.imshow(med, extent=(0, width, height, 0), cmap="viridis", aspect="auto")
-    fig.colorbar(im, ax=ax, label="median endpoint error (px)")
-    vmid = np.nanmean([np.nanmin(med), np.nanmax(med)]) if np.isfinite(med).any() else 0.0
+    ok = np.isfinite(med)
+    im = ax.imshow(
+        np.ma.masked_invalid(med),
+        extent=(0, width, height, 0),
+        cmap="viridis",
+        aspect="auto",
+        vmin=float(np.nanmin(med)) if ok.any() else 0.0,
+        vmax=float(np.nanmax(med)) if ok.any() else 1.0,
+    )
+    if ok.any():
+        fig.colorbar(im, ax=ax, label="median endpoint error (px)")
+    else:
+        ax.text(width / 2, height / 2, "too few streaks per cell", ha="center", va="center")
+    vmid = (float(np.nanmin(med)) + float(np.nanmax(med))) / 2 if ok.any() else 0.0
     for j in range(ny):
         for i in range(nx):
+            if n[j, i] == 0:
+                continue
             x, y = (i + 0.5) * width / nx, (j + 0.5) * height / ny
-            dark = not np.isfinite(med[j, i]) or med[j, i] < vmid
+            on_dark = ok[j, i] and med[j, i] < vmid
             ax.text(
                 x, y, str(n[j, i]), ha="center", va="center", fontsize=7,
-                color="white" if dark and np.isfinite(med[j, i]) else "black",
+                color="white" if on_dark else "black",
             )  # fmt: skip
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
-    ax.set_title(f"{title}; numbers: streaks per cell (blank: fewer than {MIN_CELL})", fontsize=10)
+    ax.set_title(
+        f"{title}; {nx} × {ny} cells, numbers: streaks per cell (no colour: fewer than {MIN_CELL})",
+        fontsize=10,
+    )
     return _png(fig)
 
 
@@ -155,6 +178,7 @@ def per_frame_plot(frame_stats: pd.DataFrame, title: str) -> bytes:
     for (label, grp), c in zip(frame_stats.groupby("variant", sort=False), COLORS, strict=False):
         ax.plot(grp["frame"], grp["mean_px"], ".-", color=c, label=f"{label} mean", ms=3)
     ax.set_xlabel("frame")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     _log_px_axis(ax.set_yscale, ax.yaxis)
     ax.set_ylabel("mean endpoint error (px, log)")
     ax.grid(alpha=0.3, which="major")
@@ -221,12 +245,13 @@ def model_bars(summary: dict[str, dict[str, float]], title: str) -> bytes:
         ax.barh(ys, vals, 0.26, color=c, label=key.replace("_px", ""))
         for yy, v in zip(ys, vals, strict=True):
             if np.isfinite(v):
-                ax.text(v + top * 0.01, yy, f"{v:.3f}", va="center", fontsize=7)
+                txt = f"{v:.3f}" if v >= 0.1 or v == 0 else f"{v:.2g}"
+                ax.text(v + top * 0.01, yy, txt, va="center", fontsize=7)
     ax.set_yticks(y, labels, fontsize=9)
     ax.invert_yaxis()
     ax.set_xlim(0, top * 1.12)
     ax.set_xlabel("endpoint error (px)")
     ax.grid(alpha=0.3, axis="x")
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title)
     return _png(fig)

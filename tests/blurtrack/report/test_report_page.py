@@ -97,3 +97,9 @@ def test_position_map_uses_medians_and_counts() -> None:
 
 def test_stats_helper_still_ignores_nan() -> None:
     assert stats(np.array([np.nan, 1.0]))["n"] == 1
+
+
+def test_position_grid_coarsens_for_few_streaks() -> None:
+    assert figures.grid_shape(100_000) == (16, 9)
+    nx, ny = figures.grid_shape(52)
+    assert 2 <= nx < 16 and 1 <= ny < 9 and 52 / (nx * ny) >= 4
