@@ -46,13 +46,14 @@ def test_report_detects_first_and_says_so(
     calib = tmp_path / "calib.yaml"
     load_session(session).initial_calibration().to_yaml(calib)
     out = tmp_path / "report"
-    assert main(["report", str(session), "--calib", str(calib), "--out", str(out)]) == 0
+    argv = ["report", str(session), "--calib", str(calib), "--out", str(out), "--overlays", "1"]
+    assert main(argv) == 0
     cap = capsys.readouterr()
     assert "no streak table" in cap.err and "detecting" in cap.err
     assert (session / "streaks.parquet").is_file()
     assert (out / "report.html").is_file()
     # a second report reads the table it left behind, without detecting again
-    assert main(["report", str(session), "--calib", str(calib), "--out", str(out)]) == 0
+    assert main([*argv, "--overlays", "0"]) == 0
     assert "detecting" not in capsys.readouterr().err
 
 
