@@ -22,6 +22,8 @@ def _train(args: argparse.Namespace) -> int:
 
     config = RunConfig.from_yaml(args.config)
     overrides = {}
+    if args.data is not None:
+        config = replace(config, data=replace(config.data, root=args.data))
     if args.steps is not None:
         overrides["steps"] = args.steps
     if args.out is not None:
@@ -110,6 +112,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     p = sub.add_parser("train", help="train a network from a YAML config")
     p.add_argument("--config", required=True, help="YAML with model, data, train sections")
+    p.add_argument(
+        "--data",
+        default=None,
+        help="dataset root (a blurtrack synth dataset); overrides data.root of the config",
+    )
     p.add_argument(
         "--resume",
         default=None,

@@ -37,12 +37,53 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to an option's help unless it already names its default.
+
+    Options without a meaningful default (``None``, flags that default to ``False``) are left
+    as they are; their help text says what happens when they are not given.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if has_shown_default(action) and "default" not in text.lower():
+            text = f"{text} (default: %(default)s)" if text else "default: %(default)s"
+        return text
+
+
+def has_shown_default(action: argparse.Action) -> bool:
+    """Whether an option has a default worth showing (not None, empty, a flag or SUPPRESS)."""
+    d = action.default
+    return (
+        bool(action.option_strings)
+        and action.help is not argparse.SUPPRESS
+        and d is not None
+        and d is not argparse.SUPPRESS
+        and not isinstance(d, bool)
+        and d != ""
+    )
+
+
+class CommandParser(argparse.ArgumentParser):
+    """ArgumentParser whose help shows defaults; subcommand parsers inherit it."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+    def _add_action(self, action: argparse.Action) -> argparse.Action:
+        # an option without help text is not listed by argparse: give it its default
+        if action.help is None and has_shown_default(action):
+            action.help = "default: %(default)s"
+        return super()._add_action(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="blurtrack",
         description="Calibration and validation workbench for gyro-assisted motion deblurring.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=CommandParser)
     sub.required = True
     for name in COMMAND_MODULES:
         try:

@@ -24,16 +24,16 @@ DEFAULT_DATA = REPO.parent / "shared" / "data"
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the whole pipeline on the simulated rig")
-    p.add_argument("--out", type=Path, default=Path("demo_out"))
+    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument(
         "--data",
         type=Path,
         default=DEFAULT_DATA,
-        help="the shared real data (default: ../shared/data beside the repository)",
+        help="the shared real data (default: %(default)s, ../shared/data beside the repository)",
     )
     p.add_argument("--frames", type=int, default=40, help="simulated frames")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--train-steps", type=int, default=150)
+    p.add_argument("--seed", type=int, default=1, help="simulator seed")
+    p.add_argument("--train-steps", type=int, default=150, help="GAMD training steps")
     p.set_defaults(func=run)
 
 
@@ -83,8 +83,6 @@ def run(args: argparse.Namespace) -> int:
             [
                 "detect",
                 str(sim),
-                "--out",
-                str(sim / "streaks.parquet"),
                 "--overlay",
                 str(out / "detect.png"),
             ]

@@ -6,6 +6,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
+
+from blurtrack.cli.progress import Progress, add_quiet_arg
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,10 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out",
         type=Path,
-        default=Path("streaks.parquet"),
-        help="output table (Parquet; default ./streaks.parquet); a summary is "
-        "written beside it as <stem>.summary.json",
+        default=None,
+        help="output table (Parquet; default: SESSION/streaks.parquet, where calibrate and "
+        "report look for it); a summary is written beside it as <stem>.summary.json",
     )
+    p.add_argument("--force", action="store_true", help="overwrite an existing table")
     p.add_argument(
         "--gyro",
         choices=("auto", "on", "off"),
@@ -42,6 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PNG",
         help="also draw the detected streaks over the first frame with streaks",
     )
+    add_quiet_arg(p)
     p.set_defaults(func=run)
 
 
@@ -57,22 +62,64 @@ def _frame_range(text: str | None, n: int) -> range | None:
         raise DetectionError(f"--frames must look like A:B, got {text!r}") from None
 
 
+def detect_summary_path(table: Path, session_dir: Path) -> Path:
+    """Where the detection summary goes: beside the table, or ``SESSION/derived/`` when the
+    table is the session's own ``streaks.parquet`` (no other names are written into a session).
+    """
+    if table.name == "streaks.parquet" and table.parent.resolve() == session_dir.resolve():
+        return session_dir / "derived" / "streaks.summary.json"
+    return table.with_name(table.stem + ".summary.json")
+
+
+def detect_to_table(
+    session: Any,
+    out: Path,
+    params: Any = None,
+    gyro: str = "auto",
+    frames: range | None = None,
+    quiet: bool = False,
+) -> Any:
+    """Detect the streaks of ``session`` (with a progress bar) and write the table to ``out``.
+
+    Returns the :class:`blurtrack.detect.session.DetectionResult`; shared by ``detect`` and by
+    ``calibrate``/``report`` when a session has no table yet.
+    """
+    import cv2
+
+    from blurtrack.detect.session import detect_session
+    from blurtrack.detect.table import write_table
+
+    cv2.setNumThreads(1)
+    total = len(frames) if frames is not None else len(session.frames)
+    with Progress("detect", "frame", quiet) as bar:
+        done = [0]
+
+        def on_frame(_i: int, _fs: Any) -> None:
+            done[0] += 1
+            bar(done[0], total)
+
+        result = detect_session(session, params, gyro=gyro, frames=frames, on_frame=on_frame)
+    write_table(result.table, out)
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     import cv2
 
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import draw_streaks
-    from blurtrack.detect.session import detect_session
-    from blurtrack.detect.table import write_table
     from blurtrack.errors import DetectionError
     from blurtrack.io.session import load_session
+    from blurtrack.io.yamlio import write_text_atomic
 
-    cv2.setNumThreads(1)
     session = load_session(args.session)
+    if args.out is None:
+        args.out = Path(args.session) / "streaks.parquet"
+    if args.out.exists() and not args.force:
+        raise DetectionError(f"{args.out} exists (use --force to overwrite it)")
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
     frames = _frame_range(args.frames, len(session.frames))
-    result = detect_session(session, params, gyro=args.gyro, frames=frames)
-    write_table(result.table, args.out)
+    result = detect_to_table(session, args.out, params, args.gyro, frames, args.quiet)
     summary = dict(result.summary, session=str(args.session), table=str(args.out))
     if args.overlay is not None:
         first = int(result.table["frame"].iloc[0])
@@ -81,8 +128,9 @@ def run(args: argparse.Namespace) -> int:
         if not cv2.imwrite(str(args.overlay), pic):
             raise DetectionError(f"cannot write overlay picture {args.overlay}")
         summary["overlay"] = str(args.overlay)
-    summary_path = args.out.with_name(args.out.stem + ".summary.json")
-    summary_path.write_text(json.dumps(summary, indent=2))
+    write_text_atomic(
+        detect_summary_path(args.out, Path(args.session)), json.dumps(summary, indent=2)
+    )
     s = result.summary
     print(f"detect: {s['streaks']} streaks in {s['frames']} frames -> {args.out}")
     print(

@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.cli.progress import Progress, add_quiet_arg
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -27,12 +29,11 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="skip frames the gyro does not cover instead of refusing",
     )
+    add_quiet_arg(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from blurtrack.errors import SynthesisError
     from blurtrack.io.calibration import Calibration
     from blurtrack.io.session import load_session
@@ -47,14 +48,7 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--grid needs >= 2 nodes per axis, --stride >= 1, --samples >= 3")
     session = load_session(args.session)
     calib = Calibration.from_yaml(args.calib)
-    bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
-
-    def progress(done: int, total: int) -> None:
-        if not bars:
-            bars.append(tqdm(total=total, unit="frame", desc="predict", dynamic_ncols=True))
-        bars[0].update(done - bars[0].n)
-
-    try:
+    with Progress("predict", "frame", args.quiet) as bar:
         res = predict_session(
             session,
             calib,
@@ -63,11 +57,8 @@ def run(args: argparse.Namespace) -> int:
             args.samples,
             (gx, gy),
             args.skip_uncovered,
-            progress,
+            bar,
         )
-    finally:
-        for b in bars:
-            b.close()
     summary = {
         "command": "predict",
         "session": str(args.session),

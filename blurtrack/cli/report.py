@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.cli.progress import Progress, add_quiet_arg
 from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
 
 
@@ -21,8 +22,14 @@ def register(subparsers: Any) -> None:
         help="summary JSON of the fit (default: the one written "
         "next to --calib by calibrate, if present)",
     )
-    r.add_argument("--overlays", type=int, default=3, help="frames drawn with their streaks")
+    r.add_argument(
+        "--overlays",
+        type=int,
+        default=3,
+        help="frames drawn with their streaks (the worst by mean endpoint error)",
+    )
     add_streak_source_args(r)
+    add_quiet_arg(r)
     r.set_defaults(func=run_report)
 
 
@@ -45,9 +52,17 @@ def run_report(args: argparse.Namespace) -> int:
             raise BlurTrackError(f"fit summary {fs_path} is not a JSON object")
     elif args.fit_summary:
         raise BlurTrackError(f"fit summary not found: {fs_path}")
-    summary = build_report(
-        session, table, before, after, args.out, fit_summary=fit, n_overlays=args.overlays
-    )
+    with Progress("report", "step", args.quiet) as bar:
+        summary = build_report(
+            session,
+            table,
+            before,
+            after,
+            args.out,
+            fit_summary=fit,
+            n_overlays=args.overlays,
+            progress=bar,
+        )
     for k in ("before", "after"):
         s = summary["overall"][k]
         print(
@@ -56,6 +71,12 @@ def run_report(args: argparse.Namespace) -> int:
         )
     for k, s in summary["motion_models"].items():
         print(f"  {summary['motion_model_labels'][k]}: mean {s['mean_px']:.3f} px")
+    fl = summary["flagged"]
+    if fl["n_flagged"]:
+        print(
+            f"  {fl['n_flagged']} flagged streak(s) ({', '.join(fl['excluded_flags'])}) "
+            "left out of the statistics"
+        )
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {Path(args.out) / 'report.html'}")

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from blurtrack.cli.progress import Progress, add_quiet_arg
 from blurtrack.errors import BlurTrackError
 
 
@@ -49,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="override the preset's output bit depth",
     )
     p.add_argument("--imu-rate", type=float, default=None, help="override the gyro rate (Hz)")
+    add_quiet_arg(p)
     p.set_defaults(func=run)
 
 
@@ -73,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise BlurTrackError(f"output folder {out} exists and is not empty")
     rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
-    summary = write_session(rig, out)
+    with Progress("simulate", "frame", args.quiet) as bar:
+        summary = write_session(rig, out, progress=bar)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -10,7 +12,11 @@ from typing import Any
 def add_streak_source_args(p: argparse.ArgumentParser) -> None:
     """``--streaks FILE`` or ``--from-truth``, shared by calibrate and report."""
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--streaks", help="streak table (default: SESSION/streaks.parquet)")
+    g.add_argument(
+        "--streaks",
+        help="streak table (default: SESSION/streaks.parquet, detected first with default "
+        "parameters when it does not exist)",
+    )
     g.add_argument(
         "--from-truth",
         action="store_true",
@@ -29,10 +35,40 @@ def load_session_and_streaks(args: argparse.Namespace) -> tuple[Any, Any]:
         if session.truth is None:
             raise BlurTrackError(f"--from-truth: {args.session} has no truth.yaml")
         table = streak_table.from_truth(session.truth)
+    elif args.streaks:
+        table = streak_table.read(Path(args.streaks))
     else:
-        path = Path(args.streaks) if args.streaks else Path(args.session) / "streaks.parquet"
-        table = streak_table.read(path)
+        path = Path(args.session) / "streaks.parquet"
+        if path.is_file():
+            table = streak_table.read(path)
+        elif session.meta.target_kind != "laser-grid":
+            raise BlurTrackError(
+                f"{path} does not exist and a {session.meta.target_kind!r} session has no "
+                "laser streaks to detect"
+            )
+        else:
+            table = _detect_first(session, path, bool(getattr(args, "quiet", False)))
     return session, table
+
+
+def _detect_first(session: Any, path: Path, quiet: bool) -> Any:
+    """Run ``blurtrack detect`` (default parameters) into the session's ``streaks.parquet``."""
+    from blurtrack.cli.detect import detect_summary_path, detect_to_table
+    from blurtrack.io.yamlio import write_text_atomic
+
+    print(
+        f"no streak table at {path}: detecting the streaks first "
+        f"(as `blurtrack detect {session.folder}`)",
+        file=sys.stderr,
+    )
+    result = detect_to_table(session, path, quiet=quiet)
+    summary = dict(result.summary, session=str(session.folder), table=str(path))
+    write_text_atomic(detect_summary_path(path, session.folder), json.dumps(summary, indent=2))
+    print(
+        f"detect: {result.summary['streaks']} streaks in {result.summary['frames']} frames "
+        f"-> {path}"
+    )
+    return result.table
 
 
 def summary_path(calib_path: str | Path) -> Path:

@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.cli.progress import Progress, add_quiet_arg
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -100,6 +102,7 @@ def register(subparsers: Any) -> None:
         help="PNG deflate level 0-9 of sharp/blur (0: fastest, default)",
     )
     p.add_argument("--group", type=int, default=100, help="triplets per <name> folder")
+    add_quiet_arg(p)
     p.set_defaults(func=run)
 
     m = subparsers.add_parser(
@@ -187,8 +190,6 @@ def spec_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from blurtrack.errors import SynthesisError
     from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.dataset import build, parse_shard
@@ -201,16 +202,9 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--shared-fs applies to --cluster builds only")
     spec = spec_from_args(args)
     shard = parse_shard(args.shard)
-    bars: list[Any] = []  # drawn once work starts, so an early error prints only itself
-
-    def progress(done: int, total: int) -> None:
-        if not bars:
-            bars.append(tqdm(total=total, unit="triplet", desc="synth", dynamic_ncols=True))
-        bars[0].update(done - bars[0].n)
-
-    try:
+    with Progress("synth", "triplet", args.quiet) as bar:
         if args.cluster is None:
-            result = build(spec, args.out, shard, args.workers, progress, args.png_compression)
+            result = build(spec, args.out, shard, args.workers, bar, args.png_compression)
         else:
             from blurtrack.synth.cluster import build_on_cluster
 
@@ -220,13 +214,10 @@ def run(args: argparse.Namespace) -> int:
                 args.cluster,
                 shard,
                 args.shared_fs,
-                progress,
+                bar,
                 args.png_compression,
                 args.cluster_timeout,
             )
-    finally:
-        for b in bars:
-            b.close()
     summary = {
         "command": "synth",
         "shard": list(shard),

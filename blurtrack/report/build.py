@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,9 +26,11 @@ from blurtrack.io.yamlio import write_text_atomic
 from blurtrack.report import figures
 from blurtrack.report.html import render
 from blurtrack.report.metrics import (
+    EXCLUDED_FLAGS,
     MOTION_VARIANTS,
     ReportError,
     endpoint_errors,
+    flag_stats,
     per_frame,
     stats,
 )
@@ -78,6 +81,20 @@ def _track_fn(session: Session, calib: Calibration, g: GyroTrace):
     return track
 
 
+def _unflagged(df: pd.DataFrame) -> pd.DataFrame:
+    return df[~df["flagged"].to_numpy(bool)]
+
+
+def worst_frames(errors: pd.DataFrame, n: int, min_streaks: int = 3) -> list[int]:
+    """The ``n`` frames with the largest mean endpoint error (frames with at least
+    ``min_streaks`` finite errors, or all frames when none has that many), worst first."""
+    d = errors[np.isfinite(errors["error_px"].to_numpy())]
+    g = d.groupby("frame")["error_px"].agg(["mean", "size"])
+    if (g["size"] >= min_streaks).any():
+        g = g[g["size"] >= min_streaks]
+    return [int(f) for f in g.sort_values("mean", ascending=False).index[:n]]
+
+
 def build_report(
     session: Session,
     table: pd.DataFrame,
@@ -86,27 +103,41 @@ def build_report(
     out_dir: str | Path,
     fit_summary: dict[str, Any] | None = None,
     n_overlays: int = N_OVERLAYS,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Write the report into ``out_dir``; returns the summary written to ``summary.json``.
 
     The gyro is resampled as the blur model does (:data:`~blurtrack.geometry.gyro.GYRO_UPSAMPLE`,
     the
     calibration's too), and a fitted gyro scale matrix in ``after`` is applied by the model.
+    Streaks the detector flagged (:data:`~blurtrack.report.metrics.EXCLUDED_FLAGS`, the ones
+    calibration leaves out) are kept in ``streak_errors.csv`` (column ``flagged``) and
+    summarised per flag, but left out of every other statistic and figure. ``progress(done,
+    total)`` is called after each stage.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if len(table) == 0:
         raise ReportError("no streaks to report on")
-    raw = gyro = session.gyro()
+    total = 2 + len(MOTION_VARIANTS) + 6 + max(n_overlays, 0)
+    done = 0
+
+    def step() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(min(done, total), total)
+
+    gyro = session.gyro()
     frames = session.frames
-    errs = {
-        "before": endpoint_errors(raw, table, frames, before),
-        "after": endpoint_errors(gyro, table, frames, after),
-    }
-    models = {
-        v.name: endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
-        for v in MOTION_VARIANTS
-    }
+    errs: dict[str, pd.DataFrame] = {}
+    for name, cal in (("before", before), ("after", after)):
+        errs[name] = endpoint_errors(gyro, table, frames, cal)
+        step()
+    models: dict[str, pd.DataFrame] = {}
+    for v in MOTION_VARIANTS:
+        models[v.name] = endpoint_errors(gyro, table, frames, after, v.rotation_model, v.rolling)
+        step()
     warnings: list[str] = []
     n_unc = int(np.count_nonzero(~errs["after"]["covered"]))
     if n_unc:
@@ -116,57 +147,79 @@ def build_report(
         )
     if n_unc == len(table):
         raise ReportError("the gyro covers none of the exposures of the streak table")
-    overall = {k: stats(v["error_px"].to_numpy()) for k, v in errs.items()}
-    model_stats = {v.name: stats(models[v.name]["error_px"].to_numpy()) for v in MOTION_VARIANTS}
+    flagged = errs["after"]["flagged"].to_numpy(bool)
+    if flagged.all():
+        raise ReportError(
+            f"every streak is flagged by the detector ({', '.join(EXCLUDED_FLAGS)}): "
+            "nothing to report on"
+        )
+    use = {k: _unflagged(v) for k, v in errs.items()}
+    use_models = {k: _unflagged(v) for k, v in models.items()}
+    overall = {k: stats(v["error_px"].to_numpy()) for k, v in use.items()}
+    model_stats = {k: stats(v["error_px"].to_numpy()) for k, v in use_models.items()}
     if overall["after"]["mean_px"] > overall["before"]["mean_px"]:
         warnings.append("the calibration under test predicts worse than the initial one")
     if fit_summary:
         warnings.extend(f"fit: {w}" for w in fit_summary.get("warnings", []))
+    flags = {
+        "excluded_flags": list(EXCLUDED_FLAGS),
+        "n_flagged": int(np.count_nonzero(flagged)),
+        "after": stats(errs["after"]["error_px"].to_numpy()[flagged]),
+        "by_flag": flag_stats(errs["after"], table),
+    }
 
     long = pd.concat(
         [df.assign(variant=k) for k, df in {**errs, **models}.items()], ignore_index=True
     )
     long.to_csv(out / "streak_errors.csv", index=False, float_format="%.6g")
-    fstats = per_frame({**errs, **models})
+    fstats = per_frame({**use, **use_models})
     fstats.to_csv(out / "frame_errors.csv", index=False, float_format="%.6g")
     pd.DataFrame([{"variant": k, **v} for k, v in {**overall, **model_stats}.items()]).to_csv(
         out / "overall_errors.csv", index=False, float_format="%.6g"
     )
 
     w, h = after.camera.resolution
-    figs: list[tuple[str, bytes]] = [
+    labels = {v.name: v.label for v in MOTION_VARIANTS}
+    figs: list[tuple[str, bytes]] = []
+    for title, draw in (
         (
             "Endpoint error before and after calibration",
-            figures.histogram_cdf(errs, "before vs after calibration"),
+            lambda: figures.histogram_cdf(use, "before vs after calibration"),
         ),
         (
             "Per-frame mean endpoint error",
-            figures.per_frame_plot(
+            lambda: figures.per_frame_plot(
                 fstats[fstats["variant"].isin(["before", "after"])], "per frame"
             ),
         ),
         (
             "Endpoint error against image position (after)",
-            figures.error_vs_position(errs["after"], w, h, "after calibration"),
+            lambda: figures.error_vs_position(use["after"], w, h, "after calibration"),
         ),
-        ("Endpoint error against angular speed", figures.error_vs_speed(errs, "before vs after")),
+        (
+            "Endpoint error against angular speed",
+            lambda: figures.error_vs_speed(use, "before vs after"),
+        ),
         (
             "Motion models on the same streaks (after calibration)",
-            figures.model_bars(
-                {v.label: model_stats[v.name] for v in MOTION_VARIANTS}, "motion models"
+            lambda: figures.model_bars(
+                {labels[k]: v for k, v in model_stats.items()}, "motion models"
             ),
         ),
         (
             "Motion models: error distributions",
-            figures.histogram_cdf(
-                {v.label: models[v.name] for v in MOTION_VARIANTS}, "motion models"
+            lambda: figures.histogram_cdf(
+                {labels[k]: v for k, v in use_models.items()}, "motion models"
             ),
         ),
-    ]
-    covered = errs["after"][errs["after"]["covered"]]
+    ):
+        figs.append((title, draw()))
+        step()
+    covered = use["after"][use["after"]["covered"].to_numpy(bool)]
     track = _track_fn(session, after, gyro)
-    per = covered.groupby("frame")["error_px"].size().sort_values(ascending=False)
-    for f in sorted(per.index[:n_overlays].tolist()):
+    n_drawn = int(covered["frame"].nunique())
+    for rank, f in enumerate(worst_frames(covered, n_overlays), start=1):
+        step()
         try:
             img = session.read_image(int(f))
         except BlurTrackError as exc:  # a missing or broken image only drops its figure
@@ -175,7 +228,8 @@ def build_report(
         sel = covered[covered["frame"] == f]
         figs.append(
             (
-                f"Frame {f}: measured and predicted streaks",
+                f"Frame {f} (rank {rank} of {n_drawn} frames by mean error, worst first): "
+                "measured and predicted streaks",
                 figures.overlay(
                     img,
                     sel,
@@ -184,12 +238,15 @@ def build_report(
                 ),
             )
         )
+    if progress is not None:
+        progress(total, total)
 
     summary = _clean(
         {
             "n_streaks": len(table),
             "n_frames": int(table["frame"].nunique()),
             "n_uncovered": n_unc,
+            "flagged": flags,
             "overall": overall,
             "motion_models": model_stats,
             "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},

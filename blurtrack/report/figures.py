@@ -1,4 +1,10 @@
-"""Report figures (matplotlib, Agg backend) returned as PNG bytes."""
+"""Report figures (matplotlib, Agg backend) returned as PNG bytes at twice screen resolution.
+
+Every figure is drawn at :data:`DPI` (2 × the 90 dpi it is shown at, see
+:func:`blurtrack.report.html.render`), so it stays sharp on high-density screens. Error axes are
+linear or plain logarithmic with errors below :data:`FLOOR_PX` drawn at the floor (no ``symlog``
+kink); histograms put everything beyond their range into one labelled last bin.
+"""
 
 from __future__ import annotations
 
@@ -11,13 +17,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator
 
 COLORS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e")
+#: Resolution of the PNGs (2× the page's 90 dpi).
+DPI = 180
+#: Smallest error drawn on a log axis (px); smaller errors are drawn at the floor.
+FLOOR_PX = 1e-3
+#: Position-map cells with fewer streaks than this are left blank.
+MIN_CELL = 3
 
 
 def _png(fig: plt.Figure) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
 
@@ -26,69 +39,135 @@ def _finite(df: pd.DataFrame) -> pd.DataFrame:
     return df[np.isfinite(df["error_px"].to_numpy())]
 
 
+def _px_ticks(v: float, _pos: object) -> str:
+    return f"{v:g}"
+
+
+def _log_px_axis(set_scale: Callable[..., None], axis: matplotlib.axis.Axis) -> None:
+    """A log axis in px with plain decimal tick labels (0.01, 0.1, 1, 10)."""
+    set_scale("log")
+    axis.set_major_locator(LogLocator(base=10))
+    axis.set_major_formatter(FuncFormatter(_px_ticks))
+
+
+def histogram_bins(values: np.ndarray, n: int = 50) -> tuple[np.ndarray, float]:
+    """Bin edges over ``[0, p99]`` plus one overflow bin; returns (edges, overflow start)."""
+    hi = float(np.percentile(values, 99)) if values.size else 1.0
+    hi = max(hi, 1e-3)
+    edges = np.linspace(0.0, hi, n + 1)
+    return np.append(edges, hi + hi / n), hi
+
+
 def histogram_cdf(errors: dict[str, pd.DataFrame], title: str) -> bytes:
-    """Histogram and empirical CDF of endpoint errors, one curve per label."""
+    """Histogram (overflow in a labelled last bin) and empirical CDF (log x), one curve each."""
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
     allv = np.concatenate(
         [_finite(d)["error_px"].to_numpy() for d in errors.values()] or [np.zeros(1)]
     )
-    hi = float(np.percentile(allv, 99)) if allv.size else 1.0
-    bins = np.linspace(0, max(hi, 1e-3), 60)
+    bins, hi = histogram_bins(allv)
     for (label, df), c in zip(errors.items(), COLORS, strict=False):
         e = _finite(df)["error_px"].to_numpy()
         if e.size == 0:
             continue
-        a.hist(np.clip(e, 0, bins[-1]), bins=bins, histtype="step", color=c, label=label)
-        s = np.sort(e)
+        over = int(np.count_nonzero(e > hi))
+        lab = f"{label} ({over} beyond {hi:.3g} px)" if over else label
+        a.hist(np.minimum(e, bins[-1] - 1e-9), bins=bins, histtype="step", color=c, label=lab)
+        s = np.sort(np.maximum(e, FLOOR_PX))
         b.plot(s, np.arange(1, s.size + 1) / s.size, color=c, label=label)
-    a.set_xlabel("endpoint error (px)")
+    a.axvspan(hi, bins[-1], color="#eeeeee", zorder=0)
+    ticks = [t for t in a.get_xticks() if 0 <= t < hi * 0.9]
+    a.set_xticks([*ticks, (hi + bins[-1]) / 2], [f"{t:g}" for t in ticks] + [f">{hi:.2g}"])
+    a.set_xlim(0, bins[-1])
+    a.set_xlabel("endpoint error (px); last bin: everything beyond")
     a.set_ylabel("streaks")
-    a.legend(fontsize=8)
-    b.set_xscale("symlog", linthresh=0.1)
-    b.set_xlabel("endpoint error (px)")
+    a.legend(fontsize=7, loc="upper right")
+    _log_px_axis(b.set_xscale, b.xaxis)
+    b.set_xlabel(f"endpoint error (px, log; below {FLOOR_PX:g} drawn at {FLOOR_PX:g})")
     b.set_ylabel("fraction of streaks")
-    b.grid(alpha=0.3)
+    b.grid(alpha=0.3, which="both")
     fig.suptitle(title)
     return _png(fig)
 
 
-def error_vs_position(df: pd.DataFrame, width: int, height: int, title: str) -> bytes:
-    """Mean endpoint error in image cells (16 × 9 grid) at the streaks' start positions."""
+def cell_medians(
+    df: pd.DataFrame, width: int, height: int, nx: int = 16, ny: int = 9
+) -> tuple[np.ndarray, np.ndarray]:
+    """Median endpoint error and streak count per image cell ``(ny, nx)`` (start positions);
+    NaN where a cell has fewer than :data:`MIN_CELL` streaks."""
     d = _finite(df)
-    nx, ny = 16, 9
     ix = np.clip((d["start_x"].to_numpy() / width * nx).astype(int), 0, nx - 1)
     iy = np.clip((d["start_y"].to_numpy() / height * ny).astype(int), 0, ny - 1)
-    s = np.zeros((ny, nx))
-    n = np.zeros((ny, nx))
-    np.add.at(s, (iy, ix), d["error_px"].to_numpy())
+    e = d["error_px"].to_numpy()
+    med = np.full((ny, nx), np.nan)
+    n = np.zeros((ny, nx), dtype=int)
     np.add.at(n, (iy, ix), 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m = np.where(n > 0, s / n, np.nan)
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    im = ax.imshow(m, extent=(0, width, height, 0), cmap="viridis", aspect="auto")
-    fig.colorbar(im, ax=ax, label="mean endpoint error (px)")
+    for j, i in zip(*np.nonzero(n >= MIN_CELL), strict=True):
+        med[j, i] = float(np.median(e[(iy == j) & (ix == i)]))
+    return med, n
+
+
+def grid_shape(n_streaks: int, nx: int = 16, ny: int = 9, per_cell: float = 5.0) -> tuple[int, int]:
+    """Cells of the position map: 16 × 9, made coarser (same aspect) until the average cell
+    holds ``per_cell`` streaks, down to 2 × 1."""
+    s = min(1.0, float(np.sqrt(max(n_streaks, 1) / (nx * ny * per_cell))))
+    return max(2, round(nx * s)), max(1, round(ny * s))
+
+
+def error_vs_position(df: pd.DataFrame, width: int, height: int, title: str) -> bytes:
+    """Median endpoint error in image cells with each cell's streak count written in it."""
+    nx, ny = grid_shape(len(_finite(df)))
+    med, n = cell_medians(df, width, height, nx, ny)
+    fig, ax = plt.subplots(figsize=(10, 5.2))
+    ok = np.isfinite(med)
+    im = ax.imshow(
+        np.ma.masked_invalid(med),
+        extent=(0, width, height, 0),
+        cmap="viridis",
+        aspect="auto",
+        vmin=float(np.nanmin(med)) if ok.any() else 0.0,
+        vmax=float(np.nanmax(med)) if ok.any() else 1.0,
+    )
+    if ok.any():
+        fig.colorbar(im, ax=ax, label="median endpoint error (px)")
+    else:
+        ax.text(width / 2, height / 2, "too few streaks per cell", ha="center", va="center")
+    vmid = (float(np.nanmin(med)) + float(np.nanmax(med))) / 2 if ok.any() else 0.0
+    for j in range(ny):
+        for i in range(nx):
+            if n[j, i] == 0:
+                continue
+            x, y = (i + 0.5) * width / nx, (j + 0.5) * height / ny
+            on_dark = ok[j, i] and med[j, i] < vmid
+            ax.text(
+                x, y, str(n[j, i]), ha="center", va="center", fontsize=7,
+                color="white" if on_dark else "black",
+            )  # fmt: skip
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
-    ax.set_title(title)
+    ax.set_title(
+        f"{title}; {nx} × {ny} cells, numbers: streaks per cell (no colour: fewer than {MIN_CELL})",
+        fontsize=10,
+    )
     return _png(fig)
 
 
 def error_vs_speed(errors: dict[str, pd.DataFrame], title: str) -> bytes:
-    """Endpoint error against angular speed at mid-exposure, with binned medians."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    """Endpoint error (log) against angular speed at mid-exposure, with binned medians."""
+    fig, ax = plt.subplots(figsize=(10, 4.6))
     for (label, df), c in zip(errors.items(), COLORS, strict=False):
         d = _finite(df)
         if len(d) == 0:
             continue
-        w, e = d["omega_radps"].to_numpy(), d["error_px"].to_numpy()
-        ax.scatter(w, e, s=2, alpha=0.25, color=c)
+        w, e = d["omega_radps"].to_numpy(), np.maximum(d["error_px"].to_numpy(), FLOOR_PX)
+        ax.scatter(w, e, s=2, alpha=0.25, color=c, rasterized=True)
         edges = np.quantile(w, np.linspace(0, 1, 11))
         k = np.clip(np.searchsorted(edges, w, side="right") - 1, 0, 9)
         med = [np.median(e[k == i]) if np.any(k == i) else np.nan for i in range(10)]
         ax.plot((edges[:-1] + edges[1:]) / 2, med, color=c, lw=2, label=f"{label} (median)")
-    ax.set_xlabel("angular speed |ω| (rad/s)")
-    ax.set_ylabel("endpoint error (px)")
-    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("angular speed |ω| at mid-exposure (rad/s)")
+    _log_px_axis(ax.set_yscale, ax.yaxis)
+    ax.set_ylabel("endpoint error (px, log)")
+    ax.grid(alpha=0.3, which="major")
     ax.legend(fontsize=8)
     ax.set_title(title)
     return _png(fig)
@@ -99,8 +178,10 @@ def per_frame_plot(frame_stats: pd.DataFrame, title: str) -> bytes:
     for (label, grp), c in zip(frame_stats.groupby("variant", sort=False), COLORS, strict=False):
         ax.plot(grp["frame"], grp["mean_px"], ".-", color=c, label=f"{label} mean", ms=3)
     ax.set_xlabel("frame")
-    ax.set_ylabel("mean endpoint error (px)")
-    ax.set_yscale("log")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    _log_px_axis(ax.set_yscale, ax.yaxis)
+    ax.set_ylabel("mean endpoint error (px, log)")
+    ax.grid(alpha=0.3, which="major")
     ax.legend(fontsize=8)
     ax.set_title(title)
     return _png(fig)
@@ -117,7 +198,7 @@ def overlay(
     image: np.ndarray, df: pd.DataFrame, track: Callable[[pd.DataFrame], np.ndarray], title: str
 ) -> bytes:
     """A frame with measured streaks (green, start marked) and predicted tracks (red dashed),
-    and a zoom on the longest streak.
+    and a zoom on the streak with the largest endpoint error.
 
     ``track(df) -> (N, T, 2)`` gives the predicted positions of each streak over its exposure.
     """
@@ -137,33 +218,40 @@ def overlay(
     ax.set_xlim(0, w)
     ax.set_ylim(h, 0)
     if len(df):
-        k = int(np.argmax(np.hypot(df["end_x"] - df["start_x"], df["end_y"] - df["start_y"])))
+        k = int(np.nanargmax(df["error_px"].to_numpy()))
         r = df.iloc[k]
         cx, cy = (r.start_x + r.end_x) / 2, (r.start_y + r.end_y) / 2
         half = max(12.0, 0.8 * float(np.hypot(r.end_x - r.start_x, r.end_y - r.start_y)))
         zx.set_xlim(cx - half, cx + half)
         zx.set_ylim(cy + half, cy - half)
-        zx.set_title(f"zoom: streak {int(r.streak_id)}, error {r.error_px:.3f} px", fontsize=9)
+        zx.set_title(
+            f"zoom: worst streak {int(r.streak_id)}, error {r.error_px:.3f} px", fontsize=9
+        )
     ax.set_title(title + "  (green: measured, red dashed: predicted)", fontsize=9)
     return _png(fig)
 
 
 def model_bars(summary: dict[str, dict[str, float]], title: str) -> bytes:
-    """Mean / median / p95 endpoint error per motion model."""
+    """Mean / median / p95 endpoint error per motion model: horizontal bars on a linear axis,
+    the model names on the y axis (they never overlap) and each bar's value written beside it."""
     labels = list(summary)
-    x = np.arange(len(labels))
-    fig, ax = plt.subplots(figsize=(8, 3.8))
-    for k, (key, c) in enumerate(zip(("mean_px", "median_px", "p95_px"), COLORS, strict=False)):
-        ax.bar(
-            x + (k - 1) * 0.27,
-            [summary[lbl][key] for lbl in labels],
-            0.27,
-            color=c,
-            label=key.replace("_px", ""),
-        )
-    ax.set_xticks(x, labels, fontsize=8)
-    ax.set_ylabel("endpoint error (px)")
-    ax.set_yscale("log")
-    ax.legend(fontsize=8)
+    y = np.arange(len(labels))
+    keys = ("mean_px", "median_px", "p95_px")
+    fig, ax = plt.subplots(figsize=(10, 0.9 + 0.75 * len(labels)))
+    top = max([summary[lbl][k] for lbl in labels for k in keys] + [1e-9])
+    for k, (key, c) in enumerate(zip(keys, COLORS, strict=False)):
+        vals = [summary[lbl][key] for lbl in labels]
+        ys = y + (k - 1) * 0.26
+        ax.barh(ys, vals, 0.26, color=c, label=key.replace("_px", ""))
+        for yy, v in zip(ys, vals, strict=True):
+            if np.isfinite(v):
+                txt = f"{v:.3f}" if v >= 0.1 or v == 0 else f"{v:.2g}"
+                ax.text(v + top * 0.01, yy, txt, va="center", fontsize=7)
+    ax.set_yticks(y, labels, fontsize=9)
+    ax.invert_yaxis()
+    ax.set_xlim(0, top * 1.12)
+    ax.set_xlabel("endpoint error (px)")
+    ax.grid(alpha=0.3, axis="x")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title)
     return _png(fig)

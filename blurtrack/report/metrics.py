@@ -50,6 +50,31 @@ MOTION_VARIANTS = (
 )
 
 
+#: Detector flags whose streaks calibration leaves out (:func:`calib.data.streaks_from_table`);
+#: the report lists them separately and keeps them out of every statistic and figure.
+EXCLUDED_FLAGS: tuple[str, ...] = ("clipped", "saturated", "merged")
+
+
+def flagged_mask(table: pd.DataFrame) -> np.ndarray:
+    """``(N,)`` bool: the streak carries one of :data:`EXCLUDED_FLAGS`."""
+    m = np.zeros(len(table), dtype=bool)
+    for f in EXCLUDED_FLAGS:
+        if f in table.columns:
+            m |= table[f].to_numpy(bool)
+    return m
+
+
+def flag_stats(errors: pd.DataFrame, table: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per detector flag (:data:`EXCLUDED_FLAGS`): count and endpoint-error statistics of the
+    streaks that carry it (``errors`` row-aligned with ``table``); a streak may carry several."""
+    out: dict[str, dict[str, float]] = {}
+    for f in EXCLUDED_FLAGS:
+        if f in table.columns:
+            sel = table[f].to_numpy(bool)
+            out[f] = stats(errors["error_px"].to_numpy()[sel])
+    return out
+
+
 def _relative(gyro: GyroTrace, t0_s: float) -> GyroTrace:
     return GyroTrace(gyro.t_s - t0_s, gyro.omega_radps, gyro.max_gap_s)
 
@@ -94,8 +119,9 @@ def endpoint_errors(
 
     Returns:
         DataFrame: ``frame, streak_id, start_x, start_y, end_x, end_y, pred_end_x, pred_end_y,
-        error_px, omega_radps`` (angular speed at mid-exposure) and ``covered`` (False where the
-        gyro does not cover the exposure; error NaN there).
+        error_px, omega_radps`` (angular speed at mid-exposure), ``covered`` (False where the
+        gyro does not cover the exposure; error NaN there) and ``flagged`` (the detector
+        flagged the streak, :data:`EXCLUDED_FLAGS`).
     """
     if len(table) == 0:
         raise ReportError("the streak table is empty")
@@ -142,6 +168,7 @@ def endpoint_errors(
             "error_px": err,
             "omega_radps": speed,
             "covered": covered,
+            "flagged": flagged_mask(table),
         }
     )
 
