@@ -1,16 +1,5 @@
-"""Importers that turn third-party phone recordings into session folders (DESIGN.md).
-
-Both real recordings of ``../shared/data/real`` are supported:
-
-- ``deepgyro``: DeepGyro's SHIELD tablet burst (``images/images.txt`` with ``timestamp_ns
-  exposure_ns`` per frame, ``imu/imu.txt`` Android sensor log ``type timestamp_ns x y z``).
-- ``marslogger``: the MARS logger app (``movie_metadata.csv``, ``video_frames/frame<i>.jpg``,
-  ``gyro_accel.csv``, optionally ``calib.npz``).
-
-What the sources do not say (time offset, readout, axis signs) is filled with stated
-assumptions, recorded under ``import.assumptions`` in ``session.yaml``; they are guesses for the
-calibration to refine, not truth.
-"""
+"""The MARS logger app: ``movie_metadata.csv``, ``video_frames/frame<i>.jpg``,
+``gyro_accel.csv``, optionally ``calib.npz``."""
 
 from __future__ import annotations
 
@@ -18,23 +7,12 @@ import csv
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from blurtrack.errors import ImportFormatError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io.importers.common import T_from_R, read_image, text_lines
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
-
-MAX_TEXT_BYTES = 256 * 1024**2
-
-#: DeepGyro's published camera (data README): full-resolution intrinsics; the gyro's x and y
-#: are swapped relative to the camera's. A pure swap is a reflection (det -1), so the proper
-#: rotation that realises it flips z as well: the back camera looks away from the screen,
-#: along the device's -z.
-DEEPGYRO_INTRINSICS = (1558.6899, 1558.6899, 939.6533, 518.4131)
-DEEPGYRO_R_CAM_IMU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-#: Assumed rolling-shutter readout of the SHIELD sensor at 1080p30 (not published).
-DEEPGYRO_READOUT_S = 0.020
 
 #: Assumed still-photo resolution (long, short side) of the MARS chessboard calibration.
 MARS_STILL_SIZE = (4032.0, 3024.0)
@@ -42,101 +20,6 @@ MARS_STILL_SIZE = (4032.0, 3024.0)
 #: Android device axes (x right, y up, z out of the screen, portrait) to the back camera's
 #: (x right, y down, z forward) for frames stored upright in portrait.
 ANDROID_PORTRAIT_R_CAM_IMU = np.diag([1.0, -1.0, -1.0])
-
-
-def _text_lines(path: Path) -> list[str]:
-    if not path.is_file():
-        raise ImportFormatError(f"missing file: {path}")
-    if path.stat().st_size > MAX_TEXT_BYTES:
-        raise ImportFormatError(f"{path} is larger than {MAX_TEXT_BYTES} bytes")
-    return path.read_text(encoding="utf-8", errors="strict").splitlines()
-
-
-def _read_image(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise ImportFormatError(f"missing image: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImportFormatError(f"image {path} does not decode")
-    return img
-
-
-def _T(R: np.ndarray) -> list[list[float]]:
-    T = np.eye(4)
-    T[:3, :3] = R
-    return T.tolist()
-
-
-def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
-    """Import DeepGyro's ``myrawdata`` layout into a session; returns a summary dict."""
-    src = Path(src)
-    frames: list[tuple[int, int]] = []
-    for n, line in enumerate(_text_lines(src / "images" / "images.txt"), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        try:
-            ts, exp = int(parts[0]), int(parts[1])
-        except (ValueError, IndexError):
-            raise ImportFormatError(
-                f"{src}/images/images.txt line {n}: expected "
-                f"'timestamp_ns exposure_ns', got {line!r}"
-            ) from None
-        frames.append((ts, exp))
-    gyro_t, gyro_w = [], []
-    for n, line in enumerate(_text_lines(src / "imu" / "imu.txt"), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if len(parts) != 5:
-            raise ImportFormatError(
-                f"{src}/imu/imu.txt line {n}: expected 5 fields 'type timestamp_ns x y z'"
-            )
-        try:
-            kind, ts = int(parts[0]), int(parts[1])
-            xyz = [float(v) for v in parts[2:]]
-        except ValueError:
-            raise ImportFormatError(f"{src}/imu/imu.txt line {n} is not numeric") from None
-        if kind == 4:  # Android TYPE_GYROSCOPE
-            if not np.all(np.isfinite(xyz)):
-                raise ImportFormatError(f"{src}/imu/imu.txt line {n}: non-finite gyro value")
-            gyro_t.append(ts)
-            gyro_w.append(xyz)
-    if not frames or len(gyro_t) < 2:
-        raise ImportFormatError(f"{src}: no frames or fewer than 2 gyro samples")
-    order = np.argsort(gyro_t, kind="stable")
-    first = _read_image(src / "images" / f"{1:04d}.jpg")
-    h, w = first.shape[:2]
-    assumptions = {
-        "timeshift_cam_imu_s": "0.0 (not published; to be calibrated)",
-        "readout_s": f"{DEEPGYRO_READOUT_S} (assumed for a 1080p30 phone-class sensor)",
-        "R_cam_imu": "x/y swap from the data README, completed to a rotation by z -> -z",
-    }
-    meta = SessionMeta(
-        camera=Camera((w, h), DEEPGYRO_INTRINSICS, readout_s=DEEPGYRO_READOUT_S),
-        imu=ImuConfig(
-            rate_hz=float(1e9 / np.median(np.diff(np.sort(gyro_t)))),
-            T_cam_imu=_T(DEEPGYRO_R_CAM_IMU),
-        ),
-        target_kind="natural",
-        extra={"import": {"source": "deepgyro", "path": str(src), "assumptions": assumptions}},
-    )
-    with SessionWriter(out, meta) as wr:
-        for i, (ts, exp) in enumerate(frames, start=1):
-            img = first if i == 1 else _read_image(src / "images" / f"{i:04d}.jpg")
-            if img.shape[:2] != (h, w):
-                raise ImportFormatError(
-                    f"{src}/images/{i:04d}.jpg is {img.shape[1]}x"
-                    f"{img.shape[0]}, the first frame {w}x{h}"
-                )
-            wr.add_frame(ts, img, exp)
-        wr.add_imu(np.asarray(gyro_t, np.int64)[order], np.asarray(gyro_w)[order])
-    return {
-        "frames": len(frames),
-        "gyro_samples": len(gyro_t),
-        "resolution": [w, h],
-        "assumptions": assumptions,
-    }
 
 
 def fit_radtan4(k: np.ndarray, r_max: float) -> tuple[tuple[float, float, float, float], float]:
@@ -154,7 +37,7 @@ def fit_radtan4(k: np.ndarray, r_max: float) -> tuple[tuple[float, float, float,
 def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     """Import a MARS logger recording into a session; returns a summary dict."""
     src = Path(src)
-    rows = list(csv.reader(_text_lines(src / "movie_metadata.csv")))
+    rows = list(csv.reader(text_lines(src / "movie_metadata.csv")))
     if len(rows) < 2:
         raise ImportFormatError(f"{src}/movie_metadata.csv has no frames")
     head = [h.strip() for h in rows[0]]
@@ -171,7 +54,7 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
         ]
     except (ValueError, IndexError):
         raise ImportFormatError(f"{src}/movie_metadata.csv: malformed row") from None
-    gyro = list(csv.reader(_text_lines(src / "gyro_accel.csv")))
+    gyro = list(csv.reader(text_lines(src / "gyro_accel.csv")))
     try:
         g = np.array([[float(v) for v in r[:7]] for r in gyro[1:] if r], dtype=float)
     except ValueError:
@@ -179,7 +62,7 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     if g.ndim != 2 or g.shape[1] != 7 or len(g) < 2 or not np.all(np.isfinite(g)):
         raise ImportFormatError(f"{src}/gyro_accel.csv: expected rows 't_ns,gx,gy,gz,ax,ay,az'")
     t_ns = np.array([int(r[0]) for r in gyro[1:] if r], dtype=np.int64)
-    first = _read_image(src / "video_frames" / "frame0.jpg")
+    first = read_image(src / "video_frames" / "frame0.jpg")
     h, w = first.shape[:2]
     long_side, short_side = max(w, h), min(w, h)
     assumptions: dict[str, Any] = {
@@ -225,7 +108,8 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     meta = SessionMeta(
         camera=Camera((w, h), intr, "radtan" if dist else "none", dist, readout_s=readout),
         imu=ImuConfig(
-            rate_hz=float(1e9 / np.median(np.diff(t_ns))), T_cam_imu=_T(ANDROID_PORTRAIT_R_CAM_IMU)
+            rate_hz=float(1e9 / np.median(np.diff(t_ns))),
+            T_cam_imu=T_from_R(ANDROID_PORTRAIT_R_CAM_IMU),
         ),
         target_kind="natural",
         extra={"import": {"source": "marslogger", "path": str(src), "assumptions": assumptions}},
@@ -234,7 +118,7 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     keep = np.r_[True, np.diff(t_ns[order]) > 0]  # the app repeats stamps rarely; drop repeats
     with SessionWriter(out, meta) as wr:
         for i, (ts, exp, _, _) in enumerate(meta_rows):
-            img = first if i == 0 else _read_image(src / "video_frames" / f"frame{i}.jpg")
+            img = first if i == 0 else read_image(src / "video_frames" / f"frame{i}.jpg")
             if img.shape[:2] != (h, w):
                 raise ImportFormatError(f"{src}/video_frames/frame{i}.jpg has a different size")
             wr.add_frame(ts, img, exp)
@@ -251,6 +135,3 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
         "frames_covered_by_gyro": int(sum(covered)),
         "assumptions": assumptions,
     }
-
-
-IMPORTERS = {"deepgyro": import_deepgyro, "marslogger": import_marslogger}
