@@ -9,7 +9,9 @@ Both real recordings of ``../shared/data/real`` are supported:
 
 What the sources do not say (time offset, readout, axis signs) is filled with stated
 assumptions, recorded under ``import.assumptions`` in ``session.yaml``; they are guesses for the
-calibration to refine, not truth.
+calibration to refine, not truth. No importer passes a guessed camera–IMU axis mapping as known:
+unless the source states a proper rotation (EuRoC's ``T_BS``, a Kalibr file), the session says
+``imu: {axes_known: false}`` and ``calibrate`` scores the 24 signed axis permutations.
 """
 
 from __future__ import annotations

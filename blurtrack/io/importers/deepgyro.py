@@ -14,9 +14,9 @@ from blurtrack.io.importers.common import T_from_R, read_image, text_lines
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 
 #: DeepGyro's published camera (data README): full-resolution intrinsics; the gyro's x and y
-#: are swapped relative to the camera's. A pure swap is a reflection (det -1), so the proper
-#: rotation that realises it flips z as well: the back camera looks away from the screen,
-#: along the device's -z.
+#: are swapped relative to the camera's. A pure swap is a reflection (det -1), so it is not a
+#: rotation; the proper rotation below (z flipped as well) is only the importer's best guess and
+#: is written with ``axes_known: false`` (DESIGN.md "Camera–IMU axes").
 DEEPGYRO_INTRINSICS = (1558.6899, 1558.6899, 939.6533, 518.4131)
 DEEPGYRO_R_CAM_IMU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: Assumed rolling-shutter readout of the SHIELD sensor at 1080p30 (not published).
@@ -66,13 +66,18 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
     assumptions = {
         "timeshift_cam_imu_s": "0.0 (not published; to be calibrated)",
         "readout_s": f"{DEEPGYRO_READOUT_S} (assumed for a 1080p30 phone-class sensor)",
-        "R_cam_imu": "x/y swap from the data README, completed to a rotation by z -> -z",
+        "R_cam_imu": (
+            "UNKNOWN (axes_known: false): best guess is the data README's x/y swap completed to "
+            "a rotation by z -> -z; the README's own note says this guess predicts the pan "
+            "backwards, so calibrate's axis search decides from the images"
+        ),
     }
     meta = SessionMeta(
         camera=Camera((w, h), DEEPGYRO_INTRINSICS, readout_s=DEEPGYRO_READOUT_S),
         imu=ImuConfig(
             rate_hz=float(1e9 / np.median(np.diff(np.sort(gyro_t)))),
             T_cam_imu=T_from_R(DEEPGYRO_R_CAM_IMU),
+            axes_known=False,
         ),
         target_kind="natural",
         extra={"import": {"source": "deepgyro", "path": str(src), "assumptions": assumptions}},

@@ -18,7 +18,8 @@ from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 MARS_STILL_SIZE = (4032.0, 3024.0)
 
 #: Android device axes (x right, y up, z out of the screen, portrait) to the back camera's
-#: (x right, y down, z forward) for frames stored upright in portrait.
+#: (x right, y down, z forward) for frames stored upright in portrait. Only a best guess (the
+#: app does not say how frames are rotated on disk): written with ``axes_known: false``.
 ANDROID_PORTRAIT_R_CAM_IMU = np.diag([1.0, -1.0, -1.0])
 
 
@@ -67,7 +68,10 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     long_side, short_side = max(w, h), min(w, h)
     assumptions: dict[str, Any] = {
         "timeshift_cam_imu_s": "0.0 (app note: camera and IMU share CLOCK_BOOTTIME)",
-        "R_cam_imu": "Android portrait device axes to back camera: diag(1, -1, -1)",
+        "R_cam_imu": (
+            "UNKNOWN (axes_known: false): best guess is Android portrait device axes to the "
+            "back camera, diag(1, -1, -1); calibrate's axis search decides from the images"
+        ),
     }
     calib_path = src / "calib.npz"
     dist: tuple[float, ...] = ()
@@ -110,6 +114,7 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
         imu=ImuConfig(
             rate_hz=float(1e9 / np.median(np.diff(t_ns))),
             T_cam_imu=T_from_R(ANDROID_PORTRAIT_R_CAM_IMU),
+            axes_known=False,
         ),
         target_kind="natural",
         extra={"import": {"source": "marslogger", "path": str(src), "assumptions": assumptions}},
