@@ -34,12 +34,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from blurtrack.io.rosbag_export import ExportError, export_rosbag
+    from blurtrack.io.rosbag_export import (
+        ExportError,
+        export_rosbag,
+        kalibr_companions,
+        write_kalibr_companions,
+    )
     from blurtrack.io.session import load_session
 
     if args.storage != "mcap" and not args.ros2:
         raise ExportError("--storage applies to ROS 2 bags only (add --ros2)")
     session = load_session(args.session)
+    for p in kalibr_companions(args.out):
+        if p.exists():
+            raise ExportError(f"refusing to overwrite {p}")
     with tqdm(total=len(session.frames), unit="frame", desc="export", file=sys.stderr) as bar:
         summary = export_rosbag(
             session,
@@ -55,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
         f"({'/'.join(summary['encodings']) or 'none'}), {summary['imu_samples']} IMU samples; "
         f"topics {topics}; stamps at the {summary['stamp']} of exposure"
     )
+    files = write_kalibr_companions(session, args.out)
+    print(f"  Kalibr inputs: --cams {files['camchain']} --imu {files['imu']}")
+    print(f"  IMU noise from {files['imu_noise_source']}")
     if not summary["accelerometer"]:
         print("  no accelerometer in the session: /imu0 marks linear_acceleration unknown "
               "(Kalibr's camera-IMU calibration needs it)")  # fmt: skip

@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io.calibration import ROSTOPIC as IMAGE_TOPIC
 from blurtrack.io.rosimage import encode_raw
 from blurtrack.io.session import Session
 
-IMAGE_TOPIC = "/cam0/image_raw"
 IMU_TOPIC = "/imu0"
 INFO_TOPIC = "/cam0/camera_info"
 STORAGES = ("mcap", "sqlite3")
@@ -179,3 +179,31 @@ def export_rosbag(
         "accelerometer": acc is not None,
         "stamp": stamp,
     }
+
+
+def kalibr_companions(out: str | Path) -> tuple[Path, Path]:
+    """The Kalibr files written beside a bag ``out``: ``<stem>.camchain.yaml``, ``.imu.yaml``."""
+    out = Path(out)
+    stem = out.name[: -len(".bag")] if out.name.endswith(".bag") else out.name
+    return out.with_name(stem + ".camchain.yaml"), out.with_name(stem + ".imu.yaml")
+
+
+def write_kalibr_companions(session: Session, out: str | Path) -> dict[str, str]:
+    """Kalibr's ``--cams`` and ``--imu`` inputs for the bag ``out`` (the session's own guesses
+    for the camera; T_cam_imu is marked a guess when the session's axes are unknown)."""
+    import yaml
+
+    from blurtrack.io.kalibr_imu import write_kalibr_imu
+    from blurtrack.io.yamlio import write_text_atomic
+
+    cams, imu = kalibr_companions(out)
+    for p in (cams, imu):
+        if p.exists():
+            raise ExportError(f"refusing to overwrite {p}")
+    note = "# Kalibr camchain from the session's own guesses (session.yaml), not a calibration.\n"
+    if not session.meta.imu.axes_known:
+        note += "# T_cam_imu is a GUESS: the session says imu.axes_known: false.\n"
+    body = yaml.safe_dump(session.initial_calibration().to_dict(), sort_keys=False, width=100)
+    write_text_atomic(cams, note + body)
+    source = write_kalibr_imu(session, imu, rostopic=IMU_TOPIC)
+    return {"camchain": str(cams), "imu": str(imu), "imu_noise_source": source}

@@ -120,6 +120,13 @@ def test_rosbag_export_then_import_round_trip(tmp_path: Path, ros2: bool) -> Non
         assert [m.encoding for m in msgs] == ["mono8"] * 3
         st = msgs[1].header.stamp
         assert st.sec * 10**9 + st.nanosec == s.frames.timestamp_ns.iloc[1]
+    from blurtrack.io.calibration import Calibration
+
+    cams = Calibration.from_yaml(tmp_path / "b.camchain.yaml")  # Kalibr --cams beside the bag
+    assert cams.camera == s.meta.camera
+    imu_yaml = (tmp_path / "b.imu.yaml").read_text()
+    assert "rostopic: /imu0" in imu_yaml and "update_rate: 1000.0" in imu_yaml
+    assert main(argv) == 2  # never overwrites
     out = tmp_path / "back"
     exp_ms = str(1e3 * s.exposures_s[0])
     assert main(["import", "rosbag", str(bag), str(out), "--exposure-ms", exp_ms]) == 0
