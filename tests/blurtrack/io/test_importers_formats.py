@@ -120,6 +120,18 @@ def test_rosbag_export_then_import_round_trip(tmp_path: Path, ros2: bool) -> Non
         assert [m.encoding for m in msgs] == ["mono8"] * 3
         st = msgs[1].header.stamp
         assert st.sec * 10**9 + st.nanosec == s.frames.timestamp_ns.iloc[1]
+    if ros2:  # a second, independent reader: the mcap library sees ROS 2 message definitions
+        from mcap.reader import make_reader
+
+        (mcap_file,) = bag.glob("*.mcap")
+        with mcap_file.open("rb") as f:
+            summary = make_reader(f).get_summary()
+        names = {sc.name: sc.encoding for sc in summary.schemas.values()}
+        assert names["sensor_msgs/msg/Image"] == "ros2msg"
+        counts = summary.statistics.channel_message_counts
+        by_topic = {summary.channels[c].topic: k for c, k in counts.items()}
+        assert by_topic == {"/cam0/image_raw": 3, "/cam0/camera_info": 3, "/imu0": s.imu_t_ns.size}
+
     from blurtrack.io.calibration import Calibration
 
     cams = Calibration.from_yaml(tmp_path / "b.camchain.yaml")  # Kalibr --cams beside the bag
