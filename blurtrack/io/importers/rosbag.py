@@ -68,8 +68,8 @@ def _image(msg: Any, msgtype: str) -> np.ndarray:
     )  # fmt: skip
 
 
-def _frames(reader: Any, conn: Any) -> Iterator[tuple[int, np.ndarray]]:
-    for c, bag_ns, raw in reader.messages([conn]):
+def _frames(reader: Any, conns: list[Any]) -> Iterator[tuple[int, np.ndarray]]:
+    for c, bag_ns, raw in reader.messages(conns):
         msg = reader.deserialize(raw, c.msgtype)
         yield _stamp_ns(msg, bag_ns), _image(msg, c.msgtype)
 
@@ -139,9 +139,11 @@ def import_rosbag(
         img_topic = _pick(topics, image_topic, IMAGE_TYPES, "image")
         imu_topic_ = _pick(topics, imu_topic, (IMU_TYPE,), "IMU")
         info_topics = [t for t, m in sorted(topics.items()) if m == INFO_TYPE]
-        by_topic = {c.topic: c for c in reader.connections}
+        by_topic: dict[str, list[Any]] = {}  # a ROS 1 topic may have several connections
+        for c in reader.connections:
+            by_topic.setdefault(c.topic, []).append(c)
         t_imu, w_imu, a_imu, has_acc = [], [], [], True
-        for conn, bag_ns, raw in reader.messages([by_topic[imu_topic_]]):
+        for conn, bag_ns, raw in reader.messages(by_topic[imu_topic_]):
             m = reader.deserialize(raw, conn.msgtype)
             t_imu.append(_stamp_ns(m, bag_ns))
             w_imu.append([m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z])
@@ -154,7 +156,7 @@ def import_rosbag(
         sel = sorted_unique(t_imu_a)
         info_msg = None
         if cal is None and info_topics:
-            conns = [by_topic[info_topics[0]]]
+            conns = by_topic[info_topics[0]]
             for conn, _, raw in reader.messages(conns):
                 info_msg = reader.deserialize(raw, conn.msgtype)
                 break
