@@ -261,3 +261,27 @@ def test_video_and_cli_refusals(tmp_path: Path) -> None:
     assert main(argv) == 2
     argv = ["import", "video", str(tmp_path / "clip.avi"), str(tmp_path / "d")]
     assert main([*argv, "--exposure-ms", "-1"]) == 2
+
+
+def test_ros_image_payloads_are_range_checked() -> None:
+    from blurtrack.io.rosimage import decode_raw, encode_raw
+
+    img16 = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000
+    big = img16.astype(">u2").tobytes()
+    np.testing.assert_array_equal(
+        decode_raw(4, 3, "mono16", 1, 8, np.frombuffer(big, np.uint8)), img16
+    )
+    enc, step, data = encode_raw(img16)
+    assert (enc, step) == ("mono16", 8)
+    np.testing.assert_array_equal(
+        decode_raw(4, 3, enc, 0, step, np.frombuffer(data, np.uint8)), img16
+    )
+    padded = np.zeros(3 * 10, np.uint8)  # step 10 > 4 bytes per row: padding is dropped
+    padded.reshape(3, 10)[:, :4] = 7
+    assert (decode_raw(4, 3, "mono8", 0, 10, padded) == 7).all()
+    with pytest.raises(ImportFormatError, match="do not fit"):
+        decode_raw(4, 3, "mono8", 0, 4, np.zeros(5, np.uint8))
+    with pytest.raises(ImportFormatError, match="outside"):
+        decode_raw(100_000, 3, "mono8", 0, 100_000, np.zeros(10, np.uint8))
+    with pytest.raises(ImportFormatError, match="not supported"):
+        decode_raw(4, 3, "bayer_rggb8", 0, 4, np.zeros(12, np.uint8))
