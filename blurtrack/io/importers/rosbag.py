@@ -21,6 +21,7 @@ import numpy as np
 
 from blurtrack.errors import BlurTrackError, ImportFormatError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io.cvyaml import read_cv_yaml
 from blurtrack.io.importers.common import (
     MAX_FRAMES,
     check_readout,
@@ -127,10 +128,12 @@ def import_rosbag(
     exp = exposure_ns(exposure_s, "rosbag")
     readout = check_readout(readout_s, "rosbag")
     limit = MAX_FRAMES if max_frames is None else min(int(max_frames), MAX_FRAMES)
-    cal = None
+    cal, calib_has_axes = None, False
     if calib is not None:
         try:
             cal = Calibration.from_yaml(calib)
+            cam0 = read_cv_yaml(calib, "calibration file")["cam0"]
+            calib_has_axes = "T_cam_imu" in cam0 or "T_imu_cam" in cam0  # else camera-only
         except BlurTrackError as exc:
             raise ImportFormatError(f"rosbag --calib: {exc}") from None
     reader = _open(src)
@@ -184,8 +187,11 @@ def import_rosbag(
                 rate_hz=rate_hz(t_imu_a[sel], imu_topic_),
                 T_cam_imu=cal.T_cam_imu.tolist(),
                 timeshift_cam_imu=cal.timeshift_cam_imu_s,
+                axes_known=calib_has_axes,
             )
             assumptions["camera"] = f"intrinsics, axes and time shift from {calib}"
+            if not calib_has_axes:
+                assumptions["R_cam_imu"] = f"UNKNOWN (axes_known: false): {calib} has no T_cam_imu"
         else:
             if info_msg is not None:
                 camera = _camera_from_info(info_msg, readout)

@@ -150,6 +150,14 @@ def test_rosbag_export_then_import_round_trip(tmp_path: Path, ros2: bool) -> Non
     assert r.accel_mps2 is None  # covariance[0] = -1 read back as "no accelerometer"
     assert r.meta.camera.intrinsics == pytest.approx(s.meta.camera.intrinsics)  # CameraInfo
     assert r.meta.imu.axes_known is False  # a bag does not state the axes
+    # --calib with a Kalibr camchain that states T_cam_imu: the axes are known
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    Calibration(s.meta.camera, R_cam_imu=R).to_yaml(tmp_path / "k.yaml")
+    argv = ["import", "rosbag", str(bag), str(tmp_path / "k"), "--exposure-ms", exp_ms]
+    assert main([*argv, "--calib", str(tmp_path / "k.yaml")]) == 0
+    k = load_session(tmp_path / "k")
+    assert k.meta.imu.axes_known is True
+    np.testing.assert_allclose(k.meta.imu.T_cam_imu[:3, :3], R)
 
 
 def test_rosbag_colour_compressed_topic_choice_and_middle_stamps(tmp_path: Path) -> None:
