@@ -3,6 +3,9 @@
 - OpenVINS reads ``kalibr_imucam_chain.yaml`` through ``cv::FileStorage``: the file starts with
   the ``%YAML:1.0`` directive and holds ``T_imu_cam`` (camera to IMU, the inverse of Kalibr's
   ``T_cam_imu``) as rows of a flow sequence; ``timeshift_cam_imu`` keeps Kalibr's sign.
+- Kalibr's own files are the calibration file itself (``Calibration.to_yaml``: camchain keys
+  incl. ``rostopic``, ``cam_overlaps``, ``line_delay``) and :func:`write_kalibr_imu`
+  (``imu.yaml``, from ``blurtrack.io.kalibr_imu``).
 - ROS ``camera_info`` YAML (camera_calibration_parsers): ``camera_matrix``,
   ``distortion_coefficients`` (``plumb_bob`` = OpenCV k1 k2 p1 p2 k3), ``rectification_matrix``
   and ``projection_matrix``.
@@ -20,8 +23,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import ROSTOPIC, Calibration
+from blurtrack.io.kalibr_imu import write_kalibr_imu
 from blurtrack.io.yamlio import write_text_atomic
+
+__all__ = ["camera_info_dict", "openvins_text", "write_camera_info", "write_kalibr_imu",
+           "write_openvins"]  # fmt: skip
 
 
 def _num(v: float) -> str:
@@ -51,7 +58,7 @@ def openvins_text(calib: Calibration) -> str:
         f"  resolution: [{cam.width}, {cam.height}]",
         f"  timeshift_cam_imu: {_num(calib.timeshift_cam_imu_s)}",
         f"  readout_s: {_num(cam.readout_s)}",
-        "  rostopic: /cam0/image_raw",
+        f"  rostopic: {ROSTOPIC}",
     ]
     return "\n".join(lines) + "\n"
 

@@ -34,8 +34,8 @@ class ConvertOptions:
     """Initial guesses written to ``session.yaml``; each one left None comes from the log's
     ``rig_guess`` metadata (what a simulated rig says about itself), else a default:
     intrinsics fx = fy = image width (about 53 degrees of horizontal field of view) and the
-    image centre, readout 0, R_cam_imu identity. ``exposure_ns`` is used only for frames whose
-    camera reported no exposure."""
+    image centre, readout 0, R_cam_imu identity (then ``axes_known: false``). ``exposure_ns``
+    is used only for frames whose camera reported no exposure."""
 
     intrinsics: tuple[float, float, float, float] | None = None
     readout_s: float | None = None
@@ -159,6 +159,8 @@ def log_to_session(
     R = options.R_cam_imu if options.R_cam_imu is not None else guess.get("R_cam_imu")
     if R is not None:
         T_cam_imu[:3, :3] = np.asarray(R, dtype=float)
+    else:
+        result.notes.append("camera-IMU axes unknown (identity placeholder); calibrate decides")
     if unknown_exposure:
         result.notes.append(
             f"exposure not reported by the camera; {options.exposure_ns} ns assumed as given"
@@ -179,7 +181,11 @@ def log_to_session(
     try:
         meta = SessionMeta(
             camera=Camera(resolution=(w, h), intrinsics=tuple(intrinsics), readout_s=readout_s),
-            imu=ImuConfig(rate_hz=imu_rate if imu_rate > 0 else 200.0, T_cam_imu=T_cam_imu),
+            imu=ImuConfig(
+                rate_hz=imu_rate if imu_rate > 0 else 200.0,
+                T_cam_imu=T_cam_imu,
+                axes_known=R is not None,
+            ),
             target_kind=options.target_kind,
             extra={"recording": recording},
         )

@@ -1,25 +1,26 @@
 """The recorder's crash-safe log: an MCAP file with small chunks, readable when truncated.
 
-The recorder closes a chunk and hands it to the operating system every ``flush_interval_s``
-(0.25 s by default), so a recorder killed with SIGKILL loses at most the chunk it was filling.
-:func:`scan_log` and :func:`iter_frames` read a log record by record and stop, saying why, at the
-first record that is cut off or fails its CRC; :func:`recover_log` rewrites what survived into a
-complete, indexed MCAP file.
+The recorder closes a chunk and hands it to the OS every ``flush_interval_s`` (0.25 s by
+default), so a recorder killed with SIGKILL loses at most the chunk it was filling. :func:`scan_log`
+and :func:`iter_frames` read record by record and stop, saying why, at the first record that is
+cut off or fails its CRC; :func:`recover_log` rewrites what survived into a complete MCAP file.
 
-Channels (message log time = host time of arrival, ns):
-- ``/imu``: JSON ``{"index", "t_dev_us", "host_ns", "gyro_radps", "accel_mps2"}`` per read.
-- ``/cam0``: ``blurtrack-frame/1``: a little-endian header ``<qqqqBBHHBB`` (index,
-  timestamp_ns, exposure_ns, host_ns, stamp source 0 host / 1 driver, encoding 0 PNG / 1 raw,
-  height, width, channels, bytes per channel) followed by the PNG bytes or the raw C-order
-  pixels (raw is the default: PNG-encoding 1280 x 720 noisy frames costs ~60 ms each, more
-  than a frame period, so the recorder stores pixels and the conversion encodes offline).
-- ``/stats``: JSON snapshots of driver counters; ``/events``: JSON ``{"level", "message"}``.
+Channels (``rigs/reclog_schema.py``; every one JSON with a declared ``jsonschema``, so
+Foxglove shows and plots them; message log time = host time, ns):
+- ``/cam0``: ``foxglove.RawImage`` (raw pixels, the default: PNG-encoding 1280 x 720 noisy
+  frames costs ~60 ms each, more than a frame period) or ``foxglove.CompressedImage`` (PNG),
+  each preceded by its ``/cam0/info`` (``blurtrack.FrameInfo``: index, timestamp, exposure, host
+  time, stamp source); a frame counts only once both are in the log.
+- ``/imu``: ``blurtrack.ImuSample``, one message per sample, stamped with its device time
+  (``timestamp``, ``publish_time``) and logged at its own host arrival time.
+- ``/stats``: ``blurtrack.RecorderStats``; ``/events``: ``foxglove.Log``.
 The metadata record ``recording`` (string map) describes the rig; ``format`` must be
-``blurtrack-reclog/1``.
+``blurtrack-reclog/2`` (version 1 logs, with binary frames, are refused).
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import struct
@@ -30,15 +31,15 @@ from typing import Any
 
 import numpy as np
 from mcap.exceptions import McapError
-from mcap.records import Channel, Message, Metadata
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from rigs import reclog_schema as sch
 from rigs.camera_types import CameraFrame
 from rigs.errors import RecorderLogError
 
-LOG_FORMAT = "blurtrack-reclog/1"
-FRAME_HEADER = struct.Struct("<qqqqBBHHBB")
+LOG_FORMAT = "blurtrack-reclog/2"
 ENCODINGS = {"png": 0, "raw": 1}
 MAX_FRAME_PIXELS = 1 << 26  # refuse absurd sizes from a damaged header before allocating
 _READ_ERRORS = (
@@ -50,11 +51,7 @@ _READ_ERRORS = (
     KeyError,
     IndexError,
 )
-_JSON_SCHEMA = {
-    "/imu": {"type": "object", "title": "blurtrack.ImuBatch"},
-    "/stats": {"type": "object", "title": "blurtrack.Stats"},
-    "/events": {"type": "object", "title": "blurtrack.Event"},
-}
+_IMAGE_KEYS = {"foxglove.CompressedImage": "/cam0:png", "foxglove.RawImage": "/cam0:raw"}
 
 
 class RecLogWriter:
@@ -75,32 +72,41 @@ class RecLogWriter:
         self._w = Writer(self._file, chunk_size=4 << 20, compression=CompressionType.NONE)
         self._w.start(profile="", library="blurtrack-rigs")
         self._channels: dict[str, int] = {}
-        for topic, schema in _JSON_SCHEMA.items():
-            sid = self._w.register_schema(
-                schema["title"], "jsonschema", json.dumps(schema).encode()
-            )
-            self._channels[topic] = self._w.register_channel(topic, "json", sid)
-        fsid = self._w.register_schema("blurtrack.Frame", "", b"")
-        self._channels["/cam0"] = self._w.register_channel("/cam0", "blurtrack-frame/1", fsid)
+        for topic, schema in sch.CHANNELS.items():
+            self._register(topic, topic, schema)
         self._w.add_metadata("recording", {"format": LOG_FORMAT, **metadata})
         self._seq = 0
         self._final_size = 0
         self.flush()
 
-    def write_message(self, topic: str, t_ns: int, data: bytes) -> None:
-        """Append an already encoded message to one of the log's channels (used by recover)."""
-        if topic not in self._channels:
-            raise RecorderLogError(f"unknown log channel {topic!r}")
-        self._add(topic, t_ns, data)
+    def _register(self, key: str, topic: str, schema: dict[str, Any]) -> None:
+        sid = self._w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+        self._channels[key] = self._w.register_channel(topic, "json", sid)
 
-    def _add(self, topic: str, t_ns: int, data: bytes) -> None:
+    def write_message(
+        self, key: str, t_ns: int, data: bytes, publish_ns: int | None = None
+    ) -> None:
+        """Append an already encoded message (used by recover); ``key`` is a topic or, for
+        images, ``/cam0:raw`` / ``/cam0:png``."""
+        if key in _IMAGE_KEYS.values() and key not in self._channels:
+            raw = key == "/cam0:raw"
+            self._register(key, "/cam0", sch.RAW_IMAGE if raw else sch.COMPRESSED_IMAGE)
+        if key not in self._channels:
+            raise RecorderLogError(f"unknown log channel {key!r}")
+        self._add(key, t_ns, data, publish_ns)
+
+    def _add(self, key: str, t_ns: int, data: bytes, publish_ns: int | None = None) -> None:
         self._seq += 1
         self._w.add_message(
-            self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq
+            self._channels[key],
+            log_time=int(t_ns),
+            data=data,
+            publish_time=int(t_ns if publish_ns is None else publish_ns),
+            sequence=self._seq,
         )
 
-    def _json(self, topic: str, t_ns: int, obj: dict[str, Any]) -> None:
-        self._add(topic, t_ns, json.dumps(obj, allow_nan=False).encode())
+    def _json(self, topic: str, t_ns: int, obj: dict[str, Any], publish_ns: int | None = None):
+        self._add(topic, t_ns, sch.dumps(obj), publish_ns)
 
     def write_imu(
         self,
@@ -111,45 +117,60 @@ class RecLogWriter:
         gyro_radps: np.ndarray,
         accel_mps2: np.ndarray | None,
     ) -> None:
-        accel = None
+        """One ``/imu`` message per sample (``t_ns``, the batch's arrival, is not needed: each
+        sample is logged at its own host time and stamped with its device time)."""
+        acc = None
         if accel_mps2 is not None and np.all(np.isfinite(accel_mps2)):
-            accel = accel_mps2.tolist()
-        self._json(
-            "/imu",
-            t_ns,
-            {
-                "index": index.tolist(),
-                "t_dev_us": t_dev_us.tolist(),
-                "host_ns": host_ns.tolist(),
-                "gyro_radps": gyro_radps.tolist(),
-                "accel_mps2": accel,
-            },
-        )
+            acc = np.asarray(accel_mps2, float)
+        for k in range(len(index)):
+            dev_ns = int(t_dev_us[k]) * 1000
+            msg = {
+                "timestamp": sch.time_of(dev_ns),
+                "index": int(index[k]),
+                "t_dev_us": int(t_dev_us[k]),
+                "host_ns": int(host_ns[k]),
+                "gyro_radps": sch.xyz(gyro_radps[k]),
+                "accel_mps2": None if acc is None else sch.xyz(acc[k]),
+            }
+            self._json("/imu", int(host_ns[k]), msg, publish_ns=dev_ns)
 
     def write_frame(self, frame: CameraFrame, data: bytes, encoding: str = "raw") -> None:
         """Log a frame; ``data`` is the PNG file (``png``) or ``frame.image.tobytes()``."""
         img = frame.image
-        h, w = img.shape[:2]
         channels = 1 if img.ndim == 2 else img.shape[2]
-        header = FRAME_HEADER.pack(
-            frame.index,
-            frame.timestamp_ns,
-            frame.exposure_ns,
-            frame.host_ns,
-            1 if frame.stamp_source == "driver" else 0,
-            ENCODINGS[encoding],
-            h,
-            w,
-            channels,
-            img.dtype.itemsize,
+        if encoding == "raw" and (channels, img.dtype.itemsize) not in sch.RAW_ENCODINGS:
+            import cv2  # no Foxglove raw encoding for this layout (16-bit colour): PNG, lossless
+
+            ok, buf = cv2.imencode(".png", img)
+            if not ok:
+                raise RecorderLogError(f"cannot PNG-encode frame {frame.index}")
+            data, encoding = buf.tobytes(), "png"
+        info = {
+            "index": int(frame.index),
+            "timestamp_ns": int(frame.timestamp_ns),
+            "exposure_ns": int(frame.exposure_ns),
+            "host_ns": int(frame.host_ns),
+            "stamp_source": "driver" if frame.stamp_source == "driver" else "host",
+        }
+        self._json("/cam0/info", frame.host_ns, info, publish_ns=frame.timestamp_ns)
+        _, payload = sch.image_message(
+            frame.timestamp_ns, data, encoding, img.shape, img.dtype.itemsize
         )
-        self._add("/cam0", frame.host_ns, header + data)
+        self.write_message(f"/cam0:{encoding}", frame.host_ns, payload, frame.timestamp_ns)
 
     def write_stats(self, t_ns: int, stats: dict[str, Any]) -> None:
         self._json("/stats", t_ns, stats)
 
     def write_event(self, t_ns: int, level: str, message: str) -> None:
-        self._json("/events", t_ns, {"level": level, "message": message})
+        msg = {
+            "timestamp": sch.time_of(t_ns),
+            "level": sch.LEVELS.get(level, 0),
+            "message": message,
+            "name": "blurtrack-recorder",
+            "file": "",
+            "line": 0,
+        }
+        self._json("/events", t_ns, msg)
 
     def flush(self) -> None:
         self._w.flush()
@@ -246,9 +267,11 @@ def _records(path: Path) -> Iterator[tuple[str, Any]]:
 
 
 def _walk(path: Path) -> Iterator[tuple[str, Any]]:
-    """Messages as (topic, Message), then ("", reason); validates the format."""
+    """Messages as (key, Message), then ("", reason); validates the format. The key is the
+    topic, or ``/cam0:raw`` / ``/cam0:png`` for images (by their channel's schema)."""
     path = Path(path)
-    topics: dict[int, str] = {}
+    schemas: dict[int, str] = {}
+    keys: dict[int, str] = {}
     seen_meta = False
     for kind, rec in _records(path):
         if kind == "end":
@@ -262,14 +285,49 @@ def _walk(path: Path) -> Iterator[tuple[str, Any]]:
         if isinstance(rec, Metadata) and rec.name == "recording":
             if rec.metadata.get("format") != LOG_FORMAT:
                 raise RecorderLogError(
-                    f"{path}: unsupported log format {rec.metadata.get('format')!r}"
+                    f"{path}: unsupported log format {rec.metadata.get('format')!r} "
+                    f"(this version reads {LOG_FORMAT!r})"
                 )
             seen_meta = True
             yield "meta", rec
+        elif isinstance(rec, Schema):
+            schemas[rec.id] = rec.name
         elif isinstance(rec, Channel):
-            topics[rec.id] = rec.topic
-        elif isinstance(rec, Message) and rec.channel_id in topics:
-            yield topics[rec.channel_id], rec
+            name = schemas.get(rec.schema_id, "")
+            keys[rec.id] = _IMAGE_KEYS.get(name, rec.topic) if rec.topic == "/cam0" else rec.topic
+        elif isinstance(rec, Message) and rec.channel_id in keys:
+            yield keys[rec.channel_id], rec
+
+
+def _paired(path: Path) -> Iterator[tuple[str, Any, dict[str, Any] | None]]:
+    """``_walk`` with each image paired with the ``/cam0/info`` just before it (an info whose
+    image never came, cut off by a crash, is dropped); other messages pass with None."""
+    info: dict[str, Any] | None = None
+    for key, rec in _walk(path):
+        if key == "/cam0/info":
+            try:
+                info = json.loads(rec.data)
+                if not set(sch.FRAME_INFO["required"]) <= set(info):
+                    raise ValueError("missing keys")
+            except (ValueError, TypeError):
+                raise RecorderLogError(f"{path}: malformed /cam0/info message") from None
+            continue
+        if key.startswith("/cam0:"):
+            if info is not None:
+                yield key, rec, info
+            info = None
+            continue
+        yield key, rec, None
+
+
+def _scan_items(path: Path) -> Iterator[tuple[str, Any, dict[str, Any] | None, Any]]:
+    """``_paired`` with the JSON of IMU, stats and event messages parsed (images are not)."""
+    for key, rec, info in _paired(path):
+        try:
+            obj = json.loads(rec.data) if key in ("/imu", "/stats", "/events") else None
+        except ValueError as exc:
+            raise RecorderLogError(f"{path}: malformed {key} message ({exc})") from None
+        yield key, rec, info, obj
 
 
 def scan_log(path: str | Path) -> LogScan:
@@ -281,30 +339,32 @@ def scan_log(path: str | Path) -> LogScan:
     stats: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
     damage, n = "", 0
-    for topic, rec in _walk(Path(path)):
-        if topic == "":
+    nan3 = [np.nan] * 3
+    for key, rec, info, obj in _scan_items(Path(path)):
+        if key == "":
             damage = rec
             break
-        if topic == "meta":
+        if key == "meta":
             meta = dict(rec.metadata)
             continue
         n += 1
-        if topic == "/imu":
-            obj = json.loads(rec.data)
-            cols["index"] += obj["index"]
-            cols["t_dev_us"] += obj["t_dev_us"]
-            cols["host_ns"] += obj["host_ns"]
-            cols["gyro"] += obj["gyro_radps"]
-            k = len(obj["index"])
-            cols["acc"] += obj["accel_mps2"] or [[np.nan] * 3] * k
-        elif topic == "/cam0":
-            _, ts, exp, *_ = FRAME_HEADER.unpack_from(rec.data)
-            frame_ts.append(ts)
-            frame_exp.append(exp)
-        elif topic == "/stats":
-            stats.append(json.loads(rec.data))
-        elif topic == "/events":
-            events.append(json.loads(rec.data))
+        if key == "/imu":
+            try:
+                g, a = obj["gyro_radps"], obj["accel_mps2"]
+                row = (obj["index"], obj["t_dev_us"], obj["host_ns"], [g["x"], g["y"], g["z"]])
+                row += (nan3 if a is None else [a["x"], a["y"], a["z"]],)
+            except (KeyError, TypeError) as exc:
+                raise RecorderLogError(f"{path}: malformed /imu message ({exc})") from None
+            for col, v in zip(("index", "t_dev_us", "host_ns", "gyro", "acc"), row, strict=True):
+                cols[col].append(v)
+        elif info is not None:
+            frame_ts.append(int(info["timestamp_ns"]))
+            frame_exp.append(int(info["exposure_ns"]))
+        elif key == "/stats":
+            stats.append(obj)
+        elif key == "/events":
+            level = sch.LEVEL_NAMES.get(obj.get("level"), "unknown")
+            events.append({"level": level, "message": obj.get("message", "")})
     m = len(cols["index"])
     acc = np.asarray(cols["acc"], dtype=np.float64).reshape(m, 3)
     return LogScan(
@@ -324,22 +384,28 @@ def scan_log(path: str | Path) -> LogScan:
     )
 
 
+def _frame_record(key: str, rec: Any, info: dict[str, Any]) -> FrameRecord:
+    img = json.loads(rec.data)
+    data = base64.b64decode(img["data"], validate=True)
+    src = "driver" if info.get("stamp_source") == "driver" else "host"
+    head = (int(info["index"]), int(info["timestamp_ns"]), int(info["exposure_ns"]))
+    if key == "/cam0:png":
+        return FrameRecord(*head, int(info["host_ns"]), src, ENCODINGS["png"], (0, 0, 0), 1, data)
+    if img["encoding"] not in sch.RAW_LAYOUT:
+        raise RecorderLogError(f"frame {head[0]}: unknown raw encoding {img['encoding']!r}")
+    c, itemsize = sch.RAW_LAYOUT[img["encoding"]]
+    shape = (int(img["height"]), int(img["width"]), c)
+    return FrameRecord(*head, int(info["host_ns"]), src, ENCODINGS["raw"], shape, itemsize, data)
+
+
 def iter_frames(path: str | Path) -> Iterator[FrameRecord]:
     """The logged frames in order, up to the first damaged record."""
-    for topic, rec in _walk(Path(path)):
-        if topic == "/cam0":
-            index, ts, exp, host, src, enc, h, w, c, size = FRAME_HEADER.unpack_from(rec.data)
-            yield FrameRecord(
-                index,
-                ts,
-                exp,
-                host,
-                "driver" if src else "host",
-                enc,
-                (h, w, c),
-                size,
-                bytes(rec.data[FRAME_HEADER.size :]),
-            )
+    for key, rec, info in _paired(Path(path)):
+        if info is not None:
+            try:
+                yield _frame_record(key, rec, info)
+            except (KeyError, ValueError, TypeError) as exc:
+                raise RecorderLogError(f"{path}: malformed frame message ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -362,20 +428,20 @@ def recover_log(path: str | Path, out_path: str | Path) -> RecoverResult:
     scan_meta: dict[str, str] = {}
     writer: RecLogWriter | None = None
     damage, n, imu_n, frames = "", 0, 0, 0
-    for topic, rec in _walk(path):
-        if topic == "meta":
+    for key, rec in _walk(path):
+        if key == "meta":
             scan_meta = {k: v for k, v in rec.metadata.items() if k != "format"}
             writer = RecLogWriter(out_path, scan_meta)
             continue
-        if topic == "":
+        if key == "":
             damage = rec
             break
         assert writer is not None  # the metadata record comes first in our logs
-        writer.write_message(topic, rec.log_time, rec.data)
+        writer.write_message(key, rec.log_time, rec.data, rec.publish_time)
         n += 1
-        if topic == "/imu":
-            imu_n += len(json.loads(rec.data)["index"])
-        elif topic == "/cam0":
+        if key == "/imu":
+            imu_n += 1
+        elif key.startswith("/cam0:"):
             frames += 1
     if writer is None:
         raise RecorderLogError(f"{path} holds no recording metadata")

@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "blurtrack.cli.predict",
     "blurtrack.cli.synth",
     "rigs.cli",
+    "blurtrack.cli.export",
     "blurtrack.cli.demo",
 )
 

@@ -6,6 +6,12 @@ only its rotation matters to the pure-rotation blur model, its translation is ca
 ``timeshift_cam_imu`` follows Kalibr's sign: ``t_imu = t_cam + shift``. The optional extra key
 ``gyro_scale_matrix`` is the ``M`` of ``ω_meas = M R_cam_imuᵀ ω_cam + bias`` (gyro scale and
 cross-axis error, IMU frame); it is written only when it differs from the identity.
+
+Written for Kalibr's readers as well: ``rostopic``, ``cam_overlaps``, ``distortion_model:
+radtan`` with zeros for an undistorted camera (Kalibr's ``none`` branch is broken), and
+``line_delay`` (s per row, Kalibr's rolling-shutter key) beside ``readout_s``. Read back: this
+file, Kalibr's ``camchain(-imucam).yaml`` (cam0) and OpenVINS/OpenCV chain files (``%YAML:1.0``
+header, ``T_imu_cam`` = the inverse of ``T_cam_imu``). An all-zero radtan reads as ``none``.
 """
 
 from __future__ import annotations
@@ -20,7 +26,11 @@ import numpy as np
 from blurtrack.errors import BlurTrackError, ConfigError
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.rotation import is_rotation
-from blurtrack.io.yamlio import read_yaml, write_yaml
+from blurtrack.io.cvyaml import read_cv_yaml
+from blurtrack.io.yamlio import write_yaml
+
+#: The image topic written into calibration files (the one ``blurtrack export rosbag`` uses).
+ROSTOPIC = "/cam0/image_raw"
 
 
 @dataclass(frozen=True)
@@ -88,14 +98,20 @@ class Calibration:
     # ----------------------------------------------------------------- YAML
     def to_dict(self) -> dict[str, Any]:
         cam = self.camera
+        radtan = cam.distortion_model == "radtan" and cam.distortion_coeffs
         entry: dict[str, Any] = {
             "camera_model": "pinhole",
             "intrinsics": [float(v) for v in cam.intrinsics],
-            "distortion_model": cam.distortion_model,
-            "distortion_coeffs": [float(v) for v in cam.distortion_coeffs],
+            "distortion_model": "radtan",
+            "distortion_coeffs": (
+                [float(v) for v in cam.distortion_coeffs] if radtan else [0.0, 0.0, 0.0, 0.0]
+            ),
             "resolution": [int(v) for v in cam.resolution],
             "T_cam_imu": [[float(v) for v in row] for row in self.T_cam_imu],
             "timeshift_cam_imu": float(self.timeshift_cam_imu_s),
+            "rostopic": ROSTOPIC,
+            "cam_overlaps": [],
+            "line_delay": float(cam.readout_s) / int(cam.height),
             "readout_s": float(cam.readout_s),
             "gyro_bias_radps": [float(v) for v in self.gyro_bias_radps],
         }
@@ -119,13 +135,10 @@ class Calibration:
             camera = Camera(
                 resolution=tuple(c["resolution"]),
                 intrinsics=tuple(c["intrinsics"]),
-                distortion_model=c.get("distortion_model", "none"),
-                distortion_coeffs=tuple(c.get("distortion_coeffs") or ()),
-                readout_s=c.get("readout_s", 0.0),
+                **_distortion(c),
+                readout_s=_readout_s(c),
             )
-            T = np.array(c.get("T_cam_imu", np.eye(4).tolist()), dtype=float)
-            if T.shape != (4, 4):
-                raise ConfigError(f"{source}: T_cam_imu must be 4x4, got shape {T.shape}")
+            T = _T_cam_imu(c, source)
             return cls(
                 camera=camera,
                 R_cam_imu=T[:3, :3],
@@ -148,10 +161,46 @@ class Calibration:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Calibration:
-        return cls.from_dict(read_yaml(path, "calibration file"), source=str(path))
+        """This project's file, a Kalibr camchain, or an OpenVINS ``%YAML:1.0`` chain file."""
+        return cls.from_dict(read_cv_yaml(path, "calibration file"), source=str(path))
 
     def to_yaml(self, path: str | Path) -> None:
         write_yaml(path, self.to_dict())
+
+
+def _distortion(c: dict[str, Any]) -> dict[str, Any]:
+    """``distortion_model``/``coeffs``; an all-zero radtan (Kalibr's undistorted) is ``none``."""
+    model = c.get("distortion_model", "none")
+    coeffs = tuple(float(v) for v in c.get("distortion_coeffs") or ())
+    if model == "radtan" and not any(coeffs):
+        model, coeffs = "none", ()
+    return {"distortion_model": model, "distortion_coeffs": coeffs}
+
+
+def _readout_s(c: dict[str, Any]) -> float:
+    """``readout_s``, else Kalibr's ``line_delay`` (s per row) times the image height."""
+    if "readout_s" in c or "line_delay" not in c:
+        return float(c.get("readout_s", 0.0))
+    line_delay = float(c["line_delay"])
+    if not (math.isfinite(line_delay) and 0.0 <= line_delay < 1e-3):
+        raise ConfigError(f"line_delay must be in [0, 1 ms) per row, got {line_delay}")
+    return line_delay * int(c["resolution"][1])
+
+
+def _T_cam_imu(c: dict[str, Any], source: str) -> np.ndarray:
+    """Kalibr's ``T_cam_imu``, or the inverse of OpenVINS's ``T_imu_cam``."""
+    inverse = "T_cam_imu" not in c and "T_imu_cam" in c
+    T = np.array(c.get("T_imu_cam") if inverse else c.get("T_cam_imu", np.eye(4).tolist()), float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        key = "T_imu_cam" if inverse else "T_cam_imu"
+        raise ConfigError(f"{source}: {key} must be a finite 4x4 matrix, got shape {T.shape}")
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ConfigError(f"{source}: the last row of the transform must be [0, 0, 0, 1]")
+    if inverse:
+        T = np.eye(4)
+        R, p = np.array(c["T_imu_cam"], float)[:3, :3], np.array(c["T_imu_cam"], float)[:3, 3]
+        T[:3, :3], T[:3, 3] = R.T, -R.T @ p
+    return T
 
 
 def _plain(obj: Any) -> Any:

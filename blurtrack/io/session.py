@@ -40,11 +40,12 @@ MAX_CSV_BYTES = 2 * 1024**3
 
 @dataclass(frozen=True)
 class ImuConfig:
-    """What the rig says about its IMU (initial guesses, not truth)."""
+    """What the rig says about its IMU (guesses; ``axes_known: false``: axes to be searched)."""
 
     rate_hz: float = 200.0
     T_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
     timeshift_cam_imu: float = 0.0
+    axes_known: bool = True
 
     def __post_init__(self) -> None:
         T = np.array(self.T_cam_imu, dtype=float)
@@ -53,6 +54,8 @@ class ImuConfig:
         rate = float(self.rate_hz)
         if not (math.isfinite(rate) and rate > 0):
             raise SessionError(f"imu.rate_hz must be positive, got {self.rate_hz}")
+        if not isinstance(self.axes_known, bool):
+            raise SessionError(f"imu.axes_known must be true or false, got {self.axes_known!r}")
         T.setflags(write=False)
         object.__setattr__(self, "T_cam_imu", T)
         object.__setattr__(self, "rate_hz", rate)
@@ -89,6 +92,7 @@ class SessionMeta:
                 "rate_hz": self.imu.rate_hz,
                 "T_cam_imu": self.imu.T_cam_imu.tolist(),
                 "timeshift_cam_imu": self.imu.timeshift_cam_imu,
+                "axes_known": self.imu.axes_known,
             },
             "target": {"kind": self.target_kind},
         }
@@ -114,6 +118,7 @@ class SessionMeta:
                 rate_hz=i.get("rate_hz", 200.0),
                 T_cam_imu=i.get("T_cam_imu", np.eye(4).tolist()),
                 timeshift_cam_imu=i.get("timeshift_cam_imu", 0.0),
+                axes_known=i.get("axes_known", True),
             )
             kind = (d.get("target") or {}).get("kind", "laser-grid")
         except KeyError as exc:

@@ -6,12 +6,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 import yaml
 
+from blurtrack.errors import ConfigError
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.rotation import so3_exp
 from blurtrack.io.calibration import Calibration
-from calib.export import write_camera_info, write_openvins
+from calib.export import write_camera_info, write_kalibr_imu, write_openvins
 
 
 def _calib() -> Calibration:
@@ -58,3 +60,84 @@ def test_camera_info(tmp_path: Path) -> None:
     assert (d["image_width"], d["image_height"]) == (1280, 720)
     P = np.array(d["projection_matrix"]["data"]).reshape(3, 4)
     np.testing.assert_allclose(P[:, :3], c.camera.K)
+
+
+def test_calibration_file_has_kalibr_keys_and_reads_back(tmp_path: Path) -> None:
+    c = _calib()
+    undistorted = c.with_(distortion_model="none", distortion_coeffs=())
+    undistorted.to_yaml(tmp_path / "c.yaml")
+    d = yaml.safe_load((tmp_path / "c.yaml").read_text())["cam0"]
+    assert d["rostopic"] == "/cam0/image_raw" and d["cam_overlaps"] == []
+    assert d["distortion_model"] == "radtan" and d["distortion_coeffs"] == [0.0] * 4
+    assert d["line_delay"] == pytest.approx(0.021 / 720)  # s per row
+    back = Calibration.from_yaml(tmp_path / "c.yaml")
+    assert back.camera == undistorted.camera  # all-zero radtan reads as none
+
+
+def test_kalibr_camchain_reads_back(tmp_path: Path) -> None:
+    # The layout kalibr_calibrate_imu_camera writes (camchain-imucam.yaml), two cameras.
+    text = """cam0:
+  T_cam_imu:
+  - [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975]
+  - [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768]
+  - [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949]
+  - [0.0, 0.0, 0.0, 1.0]
+  cam_overlaps: [1]
+  camera_model: pinhole
+  distortion_coeffs: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+  distortion_model: radtan
+  intrinsics: [458.654, 457.296, 367.215, 248.375]
+  resolution: [752, 480]
+  line_delay: 2.0e-05
+  rostopic: /cam0/image_raw
+  timeshift_cam_imu: 0.0031
+cam1:
+  T_cn_cnm1:
+  - [1.0, 0.0, 0.0, 0.11]
+  - [0.0, 1.0, 0.0, 0.0]
+  - [0.0, 0.0, 1.0, 0.0]
+  - [0.0, 0.0, 0.0, 1.0]
+  camera_model: pinhole
+  intrinsics: [457.587, 456.134, 379.999, 255.238]
+  resolution: [752, 480]
+  rostopic: /cam1/image_raw
+"""
+    (tmp_path / "camchain-imucam.yaml").write_text(text)
+    c = Calibration.from_yaml(tmp_path / "camchain-imucam.yaml")
+    assert c.camera.intrinsics == (458.654, 457.296, 367.215, 248.375)
+    assert c.camera.distortion_model == "radtan"
+    assert c.camera.readout_s == pytest.approx(2e-5 * 480)
+    assert c.timeshift_cam_imu_s == 0.0031
+    assert c.R_cam_imu[0, 1] == pytest.approx(-0.999880929698, abs=1e-6)
+    (tmp_path / "fisheye.yaml").write_text(text.replace("radtan", "equidistant"))
+    with pytest.raises(ConfigError):
+        Calibration.from_yaml(tmp_path / "fisheye.yaml")
+
+
+def test_own_openvins_file_reads_back(tmp_path: Path) -> None:
+    c = _calib()
+    p = tmp_path / "calib.openvins.yaml"
+    write_openvins(c, p)
+    assert p.read_text().startswith("%YAML:1.0\n")
+    back = Calibration.from_yaml(p)
+    np.testing.assert_allclose(back.T_cam_imu, c.T_cam_imu, atol=1e-12)
+    assert back.camera == c.camera
+    assert back.timeshift_cam_imu_s == c.timeshift_cam_imu_s
+    (tmp_path / "evil.yaml").write_text("%YAML:1.0\n!!python/object/apply:os.system ['true']\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        Calibration.from_yaml(tmp_path / "evil.yaml")
+
+
+def test_kalibr_imu_file(tmp_path: Path) -> None:
+    from blurtrack.io.kalibr_imu import DEFAULT_NOISE, NOISE_KEYS
+    from blurtrack.io.session import load_session
+    from blurtrack.testing.mini_session import write_synthetic_session
+
+    write_synthetic_session(tmp_path / "s", n_frames=1, resolution=(32, 24))
+    source = write_kalibr_imu(load_session(tmp_path / "s"), tmp_path / "imu.yaml")
+    d = yaml.safe_load((tmp_path / "imu.yaml").read_text())
+    assert set(d) == {*NOISE_KEYS, "rostopic", "update_rate"}
+    assert d["rostopic"] == "/imu0" and d["update_rate"] == 1000.0
+    assert source.startswith("defaults") and d["gyroscope_noise_density"] == pytest.approx(
+        DEFAULT_NOISE["gyroscope_noise_density"]
+    )

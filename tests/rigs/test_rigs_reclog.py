@@ -104,3 +104,64 @@ def test_raw_frame_with_inconsistent_size_is_refused(tmp_path: Path) -> None:
     (rec,) = iter_frames(tmp_path / "b.mcap")
     with pytest.raises(RecorderLogError, match="do not make a 4x4x1 image"):
         rec.image()
+
+
+def test_every_channel_decodes_with_the_mcap_reader_and_validates(tmp_path: Path) -> None:
+    """What Foxglove needs: registered JSON schemas with declared properties, Foxglove's image
+    and log schemas, one IMU message per sample at device time, images that decode."""
+    import base64
+    import json
+
+    import cv2
+    import jsonschema
+    from mcap.reader import make_reader
+
+    images, gyro = _write(tmp_path / "a.mcap")
+    w = RecLogWriter(tmp_path / "p.mcap", {})
+    png_img = np.arange(30, dtype=np.uint8).reshape(6, 5)
+    png = cv2.imencode(".png", png_img)[1].tobytes()
+    w.write_frame(CameraFrame(0, png_img, 10, 7, 11, "host"), png, "png")
+    w.write_event(12, "error", "boom")
+    w.finish()
+    seen: dict[str, int] = {}
+    for log, expected_images in (("a.mcap", images), ("p.mcap", [png_img])):
+        decoded = []
+        with open(tmp_path / log, "rb") as f:
+            for schema, channel, msg in make_reader(f).iter_messages():
+                assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+                js = json.loads(schema.data)
+                assert js["title"] == schema.name and js["properties"]  # declared, not empty
+                obj = json.loads(msg.data)
+                jsonschema.validate(obj, js)
+                seen[schema.name] = seen.get(schema.name, 0) + 1
+                if schema.name == "blurtrack.ImuSample":
+                    assert msg.publish_time == obj["t_dev_us"] * 1000  # device time
+                    t = obj["timestamp"]
+                    assert t["sec"] * 10**9 + t["nsec"] == obj["t_dev_us"] * 1000
+                    assert msg.log_time == obj["host_ns"]
+                    np.testing.assert_array_equal(
+                        [obj["gyro_radps"][k] for k in "xyz"], gyro[obj["index"]]
+                    )
+                elif schema.name == "foxglove.RawImage":
+                    raw = base64.b64decode(obj["data"])
+                    assert obj["encoding"] in ("mono8", "bgr8", "mono16")
+                    assert obj["step"] * obj["height"] == len(raw)
+                    dtype = np.dtype("<u2") if obj["encoding"] == "mono16" else np.uint8
+                    decoded.append(
+                        np.frombuffer(raw, dtype).reshape(obj["height"], obj["width"], -1)
+                    )
+                elif schema.name == "foxglove.CompressedImage":
+                    assert obj["format"] == "png"
+                    buf = np.frombuffer(base64.b64decode(obj["data"]), np.uint8)
+                    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+                    decoded.append(img if img.ndim == 3 else img[..., None])
+        for got, img in zip(decoded, expected_images, strict=True):
+            np.testing.assert_array_equal(got, img if img.ndim == 3 else img[..., None])
+    # 16-bit colour has no Foxglove raw encoding: those frames went in as lossless PNG
+    assert seen["blurtrack.ImuSample"] == 60  # one message per sample
+    assert seen["foxglove.RawImage"] == 3 and seen["foxglove.CompressedImage"] == 4
+    assert seen["blurtrack.FrameInfo"] == 7 and seen["foxglove.Log"] == 1
+    frames = list(iter_frames(tmp_path / "a.mcap"))
+    for rec, img in zip(frames, images, strict=True):
+        np.testing.assert_array_equal(rec.image(), img)  # PNG fallback is lossless
+    assert scan_log(tmp_path / "p.mcap").events == [{"level": "error", "message": "boom"}]

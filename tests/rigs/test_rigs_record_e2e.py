@@ -212,6 +212,7 @@ def test_convert_requires_exposure_when_camera_reports_none(tmp_path: Path) -> N
     s = load_session(tmp_path / "s2")
     assert res.frames == 3 and s.frames.exposure_ns.tolist() == [2000] * 3
     assert s.accel_mps2 is None
+    assert s.meta.imu.axes_known is False  # no --R-cam-imu, no rig guess: not passed as known
 
 
 @pytest.mark.parametrize(

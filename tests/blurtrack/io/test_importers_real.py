@@ -36,9 +36,12 @@ def test_deepgyro_import_and_overlays(shared_data: Path, tmp_path: Path, capsys)
     assert s.meta.camera.intrinsics[0] == pytest.approx(1558.6899)
     R = s.meta.imu.T_cam_imu[:3, :3]
     assert np.linalg.det(R) == pytest.approx(1.0)
-    # ω_cam x/y are the IMU's y/x, as the data README says.
+    # ω_cam x/y are the IMU's y/x, as the data README says; only a guess, marked as such.
     np.testing.assert_allclose(R[:2, :2], [[0, 1], [1, 0]])
+    assert s.meta.imu.axes_known is False
+    assert "UNKNOWN" in s.meta.extra["import"]["assumptions"]["R_cam_imu"]
     text = capsys.readouterr().out
+    assert "axes unknown" in text and "labelled" in text
     assert "frame 0 not drawn: gyro covers" in text  # the burst starts before the gyro log
     overlays = sorted((out / "overlays").glob("overlay_*.png"))
     assert 3 <= len(overlays) < 7
@@ -54,6 +57,7 @@ def test_marslogger_import(shared_data: Path, tmp_path: Path) -> None:
     assert s.meta.camera.readout_s == pytest.approx(0.005628402)
     assert s.accel_mps2 is not None and s.accel_mps2.shape == s.omega_radps.shape
     assert summary["frames"] == 10 and summary["frames_covered_by_gyro"] < 10
+    assert s.meta.imu.axes_known is False
 
 
 def test_radtan_refit_is_exact_for_a_four_coefficient_model() -> None:

@@ -180,3 +180,15 @@ def test_validate_reports_undecodable_frames_and_uncovered_exposures(tmp_path: P
     csv.write_text("\n".join(lines[:8]) + "\n")  # gyro ends after 30 ms
     rep = validate_session(folder)
     assert any("gyro covers" in w for w in rep.warnings)
+
+
+def test_axes_known_defaults_true_and_is_validated(tmp_path: Path) -> None:
+    base = {
+        "format": "blurtrack-session/1",
+        "camera": {"resolution": [4, 3], "intrinsics": [2.0, 2.0, 1.5, 1.0]},
+    }
+    assert SessionMeta.from_dict(base).imu.axes_known is True  # sessions written before the key
+    meta = SessionMeta.from_dict({**base, "imu": {"axes_known": False}})
+    assert meta.imu.axes_known is False and meta.to_dict()["imu"]["axes_known"] is False
+    with pytest.raises(SessionError, match="axes_known must be true or false"):
+        SessionMeta.from_dict({**base, "imu": {"axes_known": "no"}})
