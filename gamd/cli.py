@@ -14,6 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io.atomic import write_text_atomic
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -53,7 +54,9 @@ def _train(args: argparse.Namespace) -> int:
             "final_loss_mean10": mean,
             "checkpoint": str(res.checkpoint),
         }
-        (Path(config.train.out_dir) / "summary.json").write_text(json.dumps(summary, indent=2))
+        write_text_atomic(
+            Path(config.train.out_dir) / "summary.json", json.dumps(summary, indent=2)
+        )
     return 0
 
 

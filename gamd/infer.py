@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import torch
 
+from blurtrack.io.atomic import write_text_atomic
 from gamd.checkpoint import load_model
 from gamd.data import read_heat, to_tensor
 from gamd.errors import GamdDataError
@@ -128,7 +129,7 @@ def deblur_session(
         skipped=skipped,
         heat_scale_px=config.data.heat_scale_px,
     )
-    (out / "summary.json").write_text(summary.to_json())
+    write_text_atomic(out / "summary.json", summary.to_json())
     return summary
 
 

@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from blurtrack.io.atomic import write_text_atomic
+
 
 def _floats4(text: str) -> tuple[float, float, float, float]:
     try:
@@ -113,9 +115,7 @@ def _check_new_folder(folder: Path) -> None:
 
 
 def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
-    (folder / "summary.json").write_text(
-        json.dumps(summary, indent=2, default=str) + "\n", encoding="utf-8"
-    )
+    write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
 
 
 def run_record(args: argparse.Namespace) -> int:

@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from blurtrack.io.atomic import write_text_atomic
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             raise DetectionError(f"cannot write overlay picture {args.overlay}")
         summary["overlay"] = str(args.overlay)
     summary_path = args.out.with_name(args.out.stem + ".summary.json")
-    summary_path.write_text(json.dumps(summary, indent=2))
+    write_text_atomic(summary_path, json.dumps(summary, indent=2))
     s = result.summary
     print(f"detect: {s['streaks']} streaks in {s['frames']} frames -> {args.out}")
     print(

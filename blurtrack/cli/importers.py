@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from blurtrack.io.atomic import write_text_atomic
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import", help="convert a third-party recording into a session folder")
@@ -34,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         summary["overlays"] = draw_session_overlays(
             session, session.initial_calibration(), args.out / "overlays", list(range(n))
         )
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2))
     print(
         f"imported {summary['frames']} frames and {summary['gyro_samples']} gyro samples "
         f"from {args.src} into {args.out}"

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io.atomic import write_text_atomic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         raise BlurTrackError(f"output folder {out} exists and is not empty")
     rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
     summary = write_session(rig, out)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")
     print(

@@ -27,6 +27,7 @@ import pandas as pd
 
 from blurtrack.errors import BlurTrackError, ConfigError, SessionError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io import atomic
 from blurtrack.io.yamlio import read_yaml, write_yaml
 
 FORMAT = "blurtrack-session/1"
@@ -199,9 +200,7 @@ class SessionWriter:
         ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if not ok:
             raise SessionError(f"frame {ts}: PNG encoding failed")
-        tmp = path.with_name(f".{name}.tmp")
-        tmp.write_bytes(buf.tobytes())
-        os.replace(tmp, path)
+        atomic.write_bytes_atomic(path, buf.tobytes())
         self._cam.write(f"{ts},{name},{int(exposure_ns)}\n")
         self._cam.flush()
         self._last_frame_ns = ts

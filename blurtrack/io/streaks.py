@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io import atomic
 
 COLUMNS: dict[str, str] = {
     "frame": "int64",
@@ -77,11 +78,9 @@ def validate(df: pd.DataFrame) -> pd.DataFrame:
 
 def write(df: pd.DataFrame, path: str | Path) -> None:
     """Write a validated table as Parquet (atomically)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    validate(df).to_parquet(tmp, index=False)
-    tmp.replace(p)
+    table = validate(df)
+    with atomic.atomic_path(path) as tmp:
+        table.to_parquet(tmp, index=False)
 
 
 def read(path: str | Path) -> pd.DataFrame:

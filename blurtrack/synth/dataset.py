@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from blurtrack.errors import BlurTrackError, SynthesisError
+from blurtrack.io import atomic
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.yamlio import read_yaml, write_text_atomic, write_yaml
 from blurtrack.synth.images import list_images, load_image, split_of
@@ -152,23 +153,16 @@ def read_manifest(path: Path, repair: bool = False) -> dict[int, dict[str, Any]]
 
 def _write_atomic(path: Path, data: bytes | np.ndarray, tag: str = "x") -> None:
     """Write ``data`` (bytes, or an array as ``.npy``, streamed without an in-memory copy) to a
-    hidden ``.<name>.<tag>.<pid>.tmp`` file, then rename it to ``path``.
+    hidden ``.<name>.<tag>.<random>.tmp`` file, then rename it to ``path``
+    (:mod:`blurtrack.io.atomic`).
 
     ``tag`` names the shard, so a shard cleaning up after a killed run of itself never
     touches the temporaries of another shard running in the same folder.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{tag}.{os.getpid()}.tmp")
-    try:
-        if isinstance(data, np.ndarray):
-            with tmp.open("wb") as f:
-                np.save(f, data, allow_pickle=False)
-        else:
-            tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    if isinstance(data, np.ndarray):
+        atomic.write_atomic(path, lambda f: np.save(f, data, allow_pickle=False), tag)
+    else:
+        atomic.write_bytes_atomic(path, data, tag)
 
 
 def _png(img: np.ndarray, level: int = 0) -> bytes:
@@ -394,9 +388,8 @@ def _move(src: Path, dst: Path) -> None:
     try:
         os.replace(src, dst)
     except OSError:  # another file system: copy to a temporary name, then rename
-        tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-        shutil.copy2(src, tmp)
-        os.replace(tmp, dst)
+        with atomic.atomic_path(dst) as tmp:
+            shutil.copy2(src, tmp)
 
 
 def _portable(d: Any) -> Any:

@@ -10,9 +10,7 @@ or skipped and listed with ``skip_uncovered``.
 
 from __future__ import annotations
 
-import io
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,6 +21,7 @@ import pandas as pd
 
 from blurtrack.errors import CoverageError, SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io import atomic
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import Session
 from blurtrack.synth.render import source_positions
@@ -66,11 +65,7 @@ def uncovered_frames(session: Session, model: BlurModel) -> list[int]:
 
 
 def _save_npy(path: Path, arr: np.ndarray) -> None:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(buf.getvalue())
-    os.replace(tmp, path)
+    atomic.write_atomic(path, lambda f: np.save(f, arr, allow_pickle=False))
 
 
 def predict_session(
@@ -138,9 +133,8 @@ def predict_session(
         if rows
         else pd.DataFrame(columns=["timestamp_ns", "x", "y", "tau", "qx", "qy"])
     )
-    tmp = root / ".trajectories.parquet.tmp"
-    table.to_parquet(tmp, index=False)
-    os.replace(tmp, root / "trajectories.parquet")
+    with atomic.atomic_path(root / "trajectories.parquet") as tmp:
+        table.to_parquet(tmp, index=False)
     stats = {
         "frames": len(frames),
         "predicted": len(written),
