@@ -15,6 +15,7 @@ from pathlib import Path
 
 from blurtrack.errors import BlurTrackError
 from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -65,6 +66,7 @@ def _eval(args: argparse.Namespace) -> int:
     from gamd.data import DeblurDataset
     from gamd.evaluate import evaluate, summary_table
 
+    check_output(args.out, folder=True, force=args.force)
     model, config, step = load_model(args.checkpoint)
     dataset = DeblurDataset(
         args.data,
@@ -87,6 +89,7 @@ def _eval(args: argparse.Namespace) -> int:
 def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
+    check_output(args.out, folder=True, force=args.force)
     s = deblur_session(
         args.checkpoint,
         args.session,
@@ -134,6 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="folder for per_image.csv and summary.json")
     p.add_argument("--limit", type=int, default=None, help="only the first N images")
     p.add_argument("--no-progress", action="store_true")
+    add_force_arg(p)
     p.set_defaults(func=_eval)
     p = sub.add_parser("deblur", help="deblur a recorded session with predicted heat maps")
     p.add_argument("session", help="session folder")
@@ -146,6 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip frames without a heat map (predict --skip-uncovered)",
     )
+    add_force_arg(p)
     p.set_defaults(func=_deblur)
     return parser
 

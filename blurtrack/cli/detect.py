@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -44,6 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PNG",
         help="also draw the detected streaks over the first frame with streaks",
     )
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
@@ -66,10 +68,18 @@ def run(args: argparse.Namespace) -> int:
     from blurtrack.detect.overlay import draw_streaks
     from blurtrack.detect.session import detect_session
     from blurtrack.detect.table import write_table
-    from blurtrack.errors import DetectionError
+    from blurtrack.io.images import write_image
     from blurtrack.io.session import load_session
 
     cv2.setNumThreads(1)
+    check_output(
+        args.out,
+        force=args.force,
+        inputs=[args.params],
+        siblings=[args.out.stem + ".summary.json"],
+    )
+    if args.overlay is not None:
+        check_output(args.overlay, force=args.force, what="--overlay")
     session = load_session(args.session)
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
     frames = _frame_range(args.frames, len(session.frames))
@@ -79,9 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if args.overlay is not None:
         first = int(result.table["frame"].iloc[0])
         pic = draw_streaks(session.read_image(first), result.table[result.table["frame"] == first])
-        args.overlay.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(args.overlay), pic):
-            raise DetectionError(f"cannot write overlay picture {args.overlay}")
+        write_image(args.overlay, pic)
         summary["overlay"] = str(args.overlay)
     summary_path = args.out.with_name(args.out.stem + ".summary.json")
     write_text_atomic(summary_path, json.dumps(summary, indent=2))

@@ -25,11 +25,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from blurtrack.io.atomic import atomic_dir
+    from blurtrack.io.guard import check_new_folder
     from blurtrack.io.importers import IMPORTERS
     from blurtrack.io.session import load_session
     from blurtrack.overlay import draw_session_overlays
 
-    summary = IMPORTERS[args.kind](args.src, args.out)
+    check_new_folder(args.out, "session folder")
+    with atomic_dir(args.out) as tmp:  # a failure leaves no half session behind
+        summary = IMPORTERS[args.kind](args.src, tmp)
     session = load_session(args.out)
     if args.overlays:
         n = min(args.overlays, len(session.frames))

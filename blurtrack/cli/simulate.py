@@ -6,7 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-from blurtrack.errors import BlurTrackError
 from blurtrack.io.atomic import write_text_atomic
 
 
@@ -54,6 +53,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from blurtrack.io.atomic import atomic_dir
+    from blurtrack.io.guard import check_new_folder
     from rigs.sim.preset import SimPreset, get_preset
     from rigs.sim.rig import SimRig
     from rigs.sim.writer import write_session
@@ -70,11 +71,10 @@ def run(args: argparse.Namespace) -> int:
     }
     if changes:
         preset = preset.replace(**changes)
-    out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise BlurTrackError(f"output folder {out} exists and is not empty")
+    out = check_new_folder(args.out)
     rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
-    summary = write_session(rig, out)
+    with atomic_dir(out) as tmp:  # a failure (full disk, Ctrl-C) leaves no half session
+        summary = dict(write_session(rig, tmp), session=str(out))
     write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")

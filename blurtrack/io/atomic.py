@@ -42,11 +42,19 @@ class OutputError(BlurTrackError, OSError):
 def output_error(path: str | os.PathLike[str], exc: OSError, what: str = "write") -> OutputError:
     """One-line :class:`OutputError` for an ``OSError`` met while writing ``path``."""
     reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.errno == errno_mod.ENOSPC:
-        reason = "no space left on the device"
+    if exc.errno == errno_mod.ENOSPC or (exc.errno is None and _disk_full(Path(path).parent)):
+        reason = "no space left on the device"  # numpy reports short writes without errno
     err = OutputError(f"cannot {what} {os.fsdecode(path)!r}: {reason}")
     err.errno = exc.errno
     return err
+
+
+def _disk_full(folder: Path) -> bool:
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < (1 << 16)
 
 
 def temp_name(name: str, tag: str = "") -> str:
@@ -84,7 +92,9 @@ def _make_parent(path: Path) -> None:
 def atomic_path(path: str | os.PathLike[str], tag: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on a clean exit, fsync and rename it to ``path``.
 
-    For writers that want a path (``DataFrame.to_parquet``, ``torch.save``, ``np.save``). The
+    For writers that want a path (``torch.save``, ``shutil.copy2``); prefer
+    :func:`write_atomic` with a file handle for libraries that cannot encode non-UTF-8 names
+    (pyarrow, OpenCV). The
     temporary file already exists (empty, umask permissions) when the body runs. On any
     exception it is removed; ``OSError`` becomes :class:`OutputError`.
     """
@@ -105,8 +115,39 @@ def atomic_path(path: str | os.PathLike[str], tag: str = "") -> Iterator[Path]:
             os.close(fd)
         os.replace(tmp, target)
     except BaseException as exc:
+        # judged before the cleanup frees the space a full disk ran out of
+        err = output_error(target, exc) if isinstance(exc, OSError) else None
         with suppress(OSError):
             tmp.unlink(missing_ok=True)
+        if err is not None and not isinstance(exc, OutputError):
+            raise err from None
+        raise
+    _fsync_dir(target.parent)
+
+
+@contextmanager
+def atomic_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a hidden temporary folder beside ``path``; on a clean exit rename it to ``path``.
+
+    For outputs that are whole folders (a converted or imported session): a reader finds
+    either no folder (or the empty one it named) or the complete one, never half a session
+    claiming to be whole. ``path`` must not exist or be an empty folder. On any exception the
+    temporary folder is removed; ``OSError`` becomes :class:`OutputError`.
+    """
+    import shutil
+
+    target = Path(path)
+    _make_parent(target)
+    tmp = target.with_name(temp_name(target.name))
+    try:
+        tmp.mkdir(0o777)
+    except OSError as exc:
+        raise output_error(target, exc, "create the folder") from None
+    try:
+        yield tmp
+        os.replace(tmp, target)  # an empty target folder is replaced atomically too
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise output_error(target, exc) from None
         raise
@@ -133,3 +174,22 @@ def write_text_atomic(
 ) -> Path:
     """Write ``text`` to ``path`` atomically (see the module docstring)."""
     return write_bytes_atomic(path, text.encode(encoding), tag)
+
+
+def _finite_or_none(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if obj == obj and obj not in (float("inf"), float("-inf")) else None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+
+
+def write_json_atomic(path: str | os.PathLike[str], obj: Any, **dumps: Any) -> Path:
+    """``obj`` as strict JSON (NaN and infinities become ``null``: always valid JSON)."""
+    import json
+
+    dumps.setdefault("indent", 2)
+    text = json.dumps(_finite_or_none(obj), allow_nan=False, **dumps) + "\n"
+    return write_text_atomic(path, text)

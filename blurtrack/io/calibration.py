@@ -122,14 +122,14 @@ class Calibration:
                 distortion_coeffs=tuple(c.get("distortion_coeffs") or ()),
                 readout_s=c.get("readout_s", 0.0),
             )
-            T = np.array(c.get("T_cam_imu", np.eye(4).tolist()), dtype=float)
+            T = np.array(c["T_cam_imu"], dtype=float)  # required: no silent identity
             if T.shape != (4, 4):
                 raise ConfigError(f"{source}: T_cam_imu must be 4x4, got shape {T.shape}")
             return cls(
                 camera=camera,
                 R_cam_imu=T[:3, :3],
                 t_cam_imu_m=T[:3, 3],
-                timeshift_cam_imu_s=float(c.get("timeshift_cam_imu", 0.0)),
+                timeshift_cam_imu_s=float(c["timeshift_cam_imu"]),  # required: no silent 0
                 gyro_bias_radps=np.array(c.get("gyro_bias_radps", [0.0, 0.0, 0.0]), float),
                 sigma=dict(c.get("sigma") or {}),
                 gyro_scale_matrix=np.array(

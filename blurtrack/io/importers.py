@@ -18,11 +18,11 @@ import csv
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from blurtrack.errors import ImportFormatError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io.images import ImageError, read_image
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 
 MAX_TEXT_BYTES = 256 * 1024**2
@@ -55,10 +55,10 @@ def _text_lines(path: Path) -> list[str]:
 def _read_image(path: Path) -> np.ndarray:
     if not path.is_file():
         raise ImportFormatError(f"missing image: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImportFormatError(f"image {path} does not decode")
-    return img
+    try:
+        return read_image(path)
+    except ImageError as exc:
+        raise ImportFormatError(str(exc)) from None
 
 
 def _T(R: np.ndarray) -> list[list[float]]:
@@ -189,8 +189,18 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     calib_path = src / "calib.npz"
     dist: tuple[float, ...] = ()
     if calib_path.is_file():
-        with np.load(calib_path, allow_pickle=False) as z:
-            mtx, k = np.asarray(z["mtx"], float), np.asarray(z["dist"], float).ravel()
+        try:
+            with np.load(calib_path, allow_pickle=False) as z:
+                mtx, k = np.asarray(z["mtx"], float), np.asarray(z["dist"], float).ravel()
+        except (OSError, ValueError, KeyError, TypeError, EOFError) as exc:
+            raise ImportFormatError(
+                f"{calib_path} is not a calib.npz with 'mtx' and 'dist' arrays ({exc})"
+            ) from None
+        if mtx.shape != (3, 3) or not (np.all(np.isfinite(mtx)) and np.all(np.isfinite(k))):
+            raise ImportFormatError(
+                f"{calib_path}: 'mtx' must be a finite 3x3 matrix and 'dist' finite, "
+                f"got shapes {mtx.shape}, {k.shape}"
+            )
         # The chessboard calibration is of full-sensor 4032x3024 stills (data README); the
         # video is the centred 16:9 crop of the sensor scaled to long_side.
         still_long, still_short = MARS_STILL_SIZE

@@ -104,6 +104,10 @@ def predict_session(
         ts = int(frames["timestamp_ns"].iloc[i])
         t, e = float(session.frame_times_s[i]), float(session.exposures_s[i])
         heat, err = model.heat_maps(t, e, n_t, None, stride)
+        if not np.all(np.isfinite(heat)):
+            raise SynthesisError(
+                f"frame {ts}: the heat maps are not finite (calibration or gyro out of range)"
+            )
         _save_npy(root / "heat" / f"{ts}.npy", heat)
         t_ref = model.default_reference_time(t, e)
         mx, my = source_positions(model, t, e, t_ref, gu, gv, tau)
@@ -133,8 +137,7 @@ def predict_session(
         if rows
         else pd.DataFrame(columns=["timestamp_ns", "x", "y", "tau", "qx", "qy"])
     )
-    with atomic.atomic_path(root / "trajectories.parquet") as tmp:
-        table.to_parquet(tmp, index=False)
+    atomic.write_atomic(root / "trajectories.parquet", lambda f: table.to_parquet(f, index=False))
     stats = {
         "frames": len(frames),
         "predicted": len(written),
