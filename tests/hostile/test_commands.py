@@ -9,6 +9,7 @@ subprocesses in test_process.py.
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -56,7 +57,8 @@ class Env:
 
     def edit_streaks(self, change: Callable, name: str = "bad.parquet") -> Path:
         df = streak_table.read(self.S / "streaks.parquet")
-        change(df)
+        changed = change(df)
+        df = df if changed is None else changed
         p = self.root / name
         df.to_parquet(p, index=False)
         return p
@@ -208,6 +210,16 @@ CASES: list[tuple[str, str, Callable[[Env], list[str]], int, str]] = [
         ],
         2,
         "also an input",
+    ),
+    (
+        "out-via-symlink",
+        "predict",
+        lambda e: (
+            os.symlink(e.S / "imu0", e.root / "L"),
+            ["predict", str(e.S), "--calib", str(e.calib), "--out", str(e.root / "L" / "p")],
+        )[-1],
+        2,
+        "recorded part 'imu0'",
     ),
     # --- over an existing result without --force
     (
@@ -619,7 +631,7 @@ def test_failed_calibrate_keeps_the_previous_summary(
     good = {"status": "ok"}
     summary = env.root / "calib.summary.json"
     summary.write_text(str(good))
-    one = env.edit_streaks(lambda df: df.drop(df.index[1:], inplace=True))
+    one = env.edit_streaks(lambda df: df.iloc[:1])
     keep = tree_hashes(env.root)
     rc = main(["calibrate", str(env.S), "--streaks", str(one), "--out", str(env.calib), "--force"])
     err = capsys.readouterr().err
@@ -694,3 +706,23 @@ def test_malformed_mars_calib(tmp_path: Path, capsys: pytest.CaptureFixture) -> 
         assert rc == 2 and len(err.splitlines()) == 1 and "calib.npz" in err, err
         assert not (tmp_path / "out").exists()
     assert debris(tmp_path) == []
+
+
+def test_gamd_deblur_into_the_session(env: Env, capsys: pytest.CaptureFixture) -> None:
+    """The issue's case: ``gamd deblur --out S/cam0/data`` replaced a raw frame."""
+    from gamd.cli import main as gamd_main
+
+    before = tree_hashes(env.S)
+    rc = gamd_main(
+        [
+            "deblur",
+            str(env.S),
+            "--checkpoint",
+            str(env.root / "none.pt"),
+            "--out",
+            str(env.S / "cam0" / "data"),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.splitlines()) == 1 and "recorded part 'cam0'" in err, err
+    assert tree_hashes(env.S) == before and debris(env.root) == []

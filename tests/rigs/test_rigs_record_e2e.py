@@ -185,7 +185,10 @@ def test_record_refuses_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[
             ["record", "--camera", "sim://camera", "--out", str(tmp_path / "full")],
             "not empty",
         ),
-        (["record", "--imu", "bogus://x", "--out", str(tmp_path / "b")], "unknown IMU scheme"),
+        (
+            ["record", "--imu", "bogus://x", "--no-convert", "--out", str(tmp_path / "b")],
+            "unknown IMU scheme",
+        ),
         (["recover", str(tmp_path / "full" / "x")], "not a BlurTrack recorder log"),
         (["recover", str(tmp_path / "missing.mcap")], "cannot open log"),
     ]
