@@ -13,9 +13,11 @@ properly before :meth:`Recorder.run` returns.
 
 from __future__ import annotations
 
+import errno
 import queue
 import threading
 from collections.abc import Callable
+from contextlib import suppress
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -275,28 +277,41 @@ class Recorder:
                     camera_end_ns, timed_tail = now, True
         except KeyboardInterrupt:
             stopped_by = "stop"
+        except OSError as exc:  # the log's disk is full or gone: stop, keep what is flushed
+            error, stopped_by = self._log_failed(exc), "error"
         finally:
             self._stop.set()
             for t in threads:
                 t.join(timeout=5.0)
-            while True:  # what the devices delivered before they stopped is kept
-                try:
-                    kind, payload = self._q.get_nowait()
-                except queue.Empty:
-                    break
-                if kind == "error" and error is None:
-                    error, stopped_by = payload, "error"
-                    log.write_event(self.clock.now_ns(), "error", payload)
-                self._write(log, kind, payload, counts)
-            end_ns = self.clock.now_ns()
-            self._flush(log, end_ns, start_ns, counts, flushed)
-            log.write_event(end_ns, "info", f"recording stopped ({stopped_by})")
-            log.finish()
+            try:
+                while True:  # what the devices delivered before they stopped is kept
+                    try:
+                        kind, payload = self._q.get_nowait()
+                    except queue.Empty:
+                        break
+                    if kind == "error" and error is None:
+                        error, stopped_by = payload, "error"
+                        log.write_event(self.clock.now_ns(), "error", payload)
+                    self._write(log, kind, payload, counts)
+                end_ns = self.clock.now_ns()
+                self._flush(log, end_ns, start_ns, counts, flushed)
+                log.write_event(end_ns, "info", f"recording stopped ({stopped_by})")
+                log.finish()
+            except OSError as exc:  # the log stays as far as it was flushed: recover reads it
+                end_ns = self.clock.now_ns()
+                if error is None:
+                    error, stopped_by = self._log_failed(exc), "error"
+                with suppress(OSError):
+                    log._file.close()
         status = self._snapshot(end_ns, start_ns, counts, flushed, log)
         if self.on_status is not None:
             self.on_status(status)
         imu_stats = self.imu.stats if self.imu is not None else {}
         return RecordResult(self.log_path, status, imu_stats, stopped_by, error)
+
+    def _log_failed(self, exc: OSError) -> str:
+        reason = "no space left on the device" if exc.errno == errno.ENOSPC else exc.strerror
+        return f"cannot write the log {self.log_path}: {reason or exc}"
 
     def _imu_done(self, camera_end_ns: int, timed: bool = False) -> bool:
         """After the camera ended: has the IMU delivered what belongs to the recording?"""

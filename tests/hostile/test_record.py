@@ -83,3 +83,28 @@ def test_recover_onto_a_full_disk(
     assert rc == 2 and len(err.splitlines()) == 1 and "no space left" in err, err
     assert not (full_dir / "s").exists(), "a half session was left behind"
     assert debris(tmp_path) == []
+
+
+def test_record_onto_a_full_disk(
+    tmp_path: Path, full_dir: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The log's disk fills while recording: one line, exit 2, no half session, no debris."""
+    rc = main(
+        [
+            "record",
+            "--imu",
+            "sim://imu?rate=1000",
+            "--camera",
+            "sim://camera?fps=30&width=160&height=120",
+            "--out",
+            str(tmp_path / "s"),
+            "--log",
+            str(full_dir / "rec.mcap"),
+            "--duration",
+            "1",
+        ]
+    )
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert "no space left" in err or "No space left" in err
+    assert not (tmp_path / "s").exists() and debris(tmp_path) == []
