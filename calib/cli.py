@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
@@ -111,7 +110,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from blurtrack.io.yamlio import write_text_atomic
+    from blurtrack.io.atomic import write_json_atomic
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.errors import CalibError
@@ -154,7 +153,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     # a failed fit never replaces the summary of the calibration it leaves in place
     failed = res.status == "failed"
     details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
-    write_text_atomic(details, json.dumps(summary, indent=2, default=float))
+    write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
     _print_table(res, summary.get("initial", {}), truth)
     if failed:
         raise CalibError(

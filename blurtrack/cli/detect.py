@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.guard import add_force_arg, check_output
 
 
@@ -92,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         write_image(args.overlay, pic)
         summary["overlay"] = str(args.overlay)
     summary_path = args.out.with_name(args.out.stem + ".summary.json")
-    write_text_atomic(summary_path, json.dumps(summary, indent=2))
+    write_json_atomic(summary_path, summary)
     s = result.summary
     print(f"detect: {s['streaks']} streaks in {s['frames']} frames -> {args.out}")
     print(

@@ -84,3 +84,14 @@ def test_read_only_folder(readonly_dir: Path) -> None:
     assert "\n" not in str(ei.value)
     with pytest.raises(atomic.OutputError, match="cannot create the folder"):
         atomic.write_text_atomic(readonly_dir / "sub" / "x.json", "{}")
+
+
+def test_json_is_always_valid(tmp_path: Path) -> None:
+    import json
+
+    import numpy as np
+
+    p = atomic.write_json_atomic(
+        tmp_path / "s.json", {"a": float("nan"), "b": [np.float32(np.inf), 1.5], "c": np.arange(2)}
+    )
+    assert json.loads(p.read_text()) == {"a": None, "b": [None, 1.5], "c": [0, 1]}
