@@ -726,3 +726,15 @@ def test_gamd_deblur_into_the_session(env: Env, capsys: pytest.CaptureFixture) -
     err = capsys.readouterr().err
     assert rc == 2 and len(err.splitlines()) == 1 and "recorded part 'cam0'" in err, err
     assert tree_hashes(env.S) == before and debris(env.root) == []
+
+
+def test_253_character_names_work(env: Env, capsys: pytest.CaptureFixture) -> None:
+    """Long names are written (temporary names stay within 255 bytes), not a traceback."""
+    out = env.root / ("p" * 253)
+    rc = main(["predict", str(env.S), "--calib", str(env.calib), "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    assert (out / "summary.json").is_file() and debris(env.root) == []
+    table = env.root / ("t" * 240 + ".parquet")  # its .summary.json sibling has 253 bytes
+    rc = main(["detect", str(env.S), "--out", str(table)])
+    assert rc == 0, capsys.readouterr().err
+    assert table.is_file() and debris(env.root) == []

@@ -108,3 +108,37 @@ def test_record_onto_a_full_disk(
     assert rc == 2 and len(err.splitlines()) == 1, err
     assert "no space left" in err or "No space left" in err
     assert not (tmp_path / "s").exists() and debris(tmp_path) == []
+
+
+def test_ctrl_c_keeps_the_imu_past_the_last_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """SIGINT (Ctrl-C) stops the camera first; the IMU covers the last exposure."""
+    import os
+    import signal
+    import threading
+
+    out = tmp_path / "s"
+    timer = threading.Timer(1.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        rc = main(
+            [
+                "record",
+                "--imu",
+                "sim://imu?rate=1000",
+                "--camera",
+                "sim://camera?fps=30&width=64&height=48",
+                "--out",
+                str(out),
+                "--duration",
+                "20",
+            ]
+        )
+    finally:
+        timer.cancel()
+    text = capsys.readouterr().out
+    assert rc == 0 and "stopped by stop" in text, text
+    s = load_session(out)
+    last_end = s.frame_times_s[-1] + s.exposures_s[-1] + s.meta.imu.timeshift_cam_imu
+    assert s.imu_times_s[-1] >= last_end + 0.2
