@@ -10,6 +10,7 @@ import numpy as np
 from blurtrack.errors import CoverageError
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.io.calibration import Calibration
+from blurtrack.io.images import write_image
 from blurtrack.io.session import Session
 
 
@@ -67,6 +68,6 @@ def draw_session_overlays(
             skipped[int(i)] = str(exc)
             continue
         path = out / f"overlay_{i:03d}.png"
-        cv2.imwrite(str(path), draw_tracks(session.read_image(i), tracks))
+        write_image(path, draw_tracks(session.read_image(i), tracks))
         written.append(str(path))
     return {"written": written, "skipped": skipped}

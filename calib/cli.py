@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
+from blurtrack.io.guard import add_force_arg, check_output
 from calib.params import DEFAULT_FIT
 
 #: Display scale and unit of each parameter in the printed table.
@@ -77,6 +77,7 @@ def register(subparsers: Any) -> None:
         "tracks where the streak table has midpoints and consecutive frames "
         "see the same dots, else endpoints with a warning",
     )
+    add_force_arg(p)
     p.set_defaults(func=run_calibrate)
 
 
@@ -109,7 +110,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from blurtrack.io.yamlio import write_text_atomic
+    from blurtrack.io.atomic import write_json_atomic
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.errors import CalibError
@@ -118,6 +119,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.params import theta_from
     from calib.result import named
 
+    stem = Path(args.out).stem
+    check_output(
+        args.out,
+        force=args.force,
+        inputs=[args.streaks],
+        siblings=[
+            stem + s for s in (".openvins.yaml", ".camera_info.yaml", ".failed.summary.json")
+        ],
+    )
     session, table = load_session_and_streaks(args)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
@@ -140,13 +150,16 @@ def run_calibrate(args: argparse.Namespace) -> int:
         summary["truth"] = truth
         summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
     out = Path(args.out)
-    write_text_atomic(summary_path(out), json.dumps(summary, indent=2, default=float))
+    # a failed fit never replaces the summary of the calibration it leaves in place
+    failed = res.status == "failed"
+    details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
+    write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
     _print_table(res, summary.get("initial", {}), truth)
-    if res.status == "failed":
+    if failed:
         raise CalibError(
             "calibration failed: "
             + "; ".join(res.warnings)
-            + f" (details in {summary_path(out)}; no calibration written)"
+            + f" (details in {details}; no calibration written)"
         )
     write_calibration(res, out)
     write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))

@@ -7,12 +7,12 @@ the weights: inference rebuilds the same network and uses the same heat-map norm
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from blurtrack.io import atomic
 from gamd.config import RunConfig
 from gamd.errors import CheckpointError, GamdError
 from gamd.nets import DeblurNet, build_model
@@ -23,10 +23,8 @@ FORMAT = "gamd-checkpoint/1"
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     """Write ``state`` (plus the format tag) to ``path`` atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"format": FORMAT, **state}, tmp)
-    os.replace(tmp, path)
+    with atomic.atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, **state}, tmp)
     return path
 
 

@@ -14,6 +14,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -55,7 +57,9 @@ def _train(args: argparse.Namespace) -> int:
             "final_loss_mean10": mean,
             "checkpoint": str(res.checkpoint),
         }
-        (Path(config.train.out_dir) / "summary.json").write_text(json.dumps(summary, indent=2))
+        write_text_atomic(
+            Path(config.train.out_dir) / "summary.json", json.dumps(summary, indent=2)
+        )
     return 0
 
 
@@ -64,6 +68,7 @@ def _eval(args: argparse.Namespace) -> int:
     from gamd.data import DeblurDataset
     from gamd.evaluate import evaluate, summary_table
 
+    check_output(args.out, folder=True, force=args.force)
     model, config, step = load_model(args.checkpoint)
     dataset = DeblurDataset(
         args.data,
@@ -86,6 +91,7 @@ def _eval(args: argparse.Namespace) -> int:
 def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
+    check_output(args.out, folder=True, force=args.force)
     s = deblur_session(
         args.checkpoint,
         args.session,
@@ -138,6 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="folder for per_image.csv and summary.json")
     p.add_argument("--limit", type=int, default=None, help="only the first N images")
     p.add_argument("--no-progress", action="store_true")
+    add_force_arg(p)
     p.set_defaults(func=_eval)
     p = sub.add_parser("deblur", help="deblur a recorded session with predicted heat maps")
     p.add_argument("session", help="session folder")
@@ -150,6 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip frames without a heat map (predict --skip-uncovered)",
     )
+    add_force_arg(p)
     p.set_defaults(func=_deblur)
     return parser
 

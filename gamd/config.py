@@ -18,6 +18,7 @@ from typing import Any
 
 import yaml
 
+from blurtrack.io.atomic import write_text_atomic
 from gamd.errors import GamdConfigError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX
 from gamd.losses import LOSSES
@@ -172,4 +173,4 @@ class RunConfig:
         return cls.from_dict(d)
 
     def to_yaml(self, path: str | Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
+from blurtrack.io.images import ImageError, read_image
 from gamd.errors import GamdDataError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX, augment, normalise_heat
 
@@ -40,9 +41,10 @@ class TripletFiles:
 
 def read_rgb(path: Path) -> np.ndarray:
     """Read an image as float32 RGB ``(H, W, 3)`` in [0, 1] (8- or 16-bit, gray or colour)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise GamdDataError(f"cannot read image {path}")
+    try:
+        img = read_image(path)
+    except ImageError as exc:
+        raise GamdDataError(str(exc)) from None
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     elif img.shape[2] == 4:

@@ -22,6 +22,7 @@ import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from tqdm import tqdm
 
+from blurtrack.io.atomic import write_text_atomic
 from gamd.data import DeblurDataset
 from gamd.nets import DeblurNet
 
@@ -124,7 +125,7 @@ def evaluate(
             )
             w.writeheader()
             w.writerows(rows)
-        (out / "summary.json").write_text(json.dumps(result.summary(), indent=2))
+        write_text_atomic(out / "summary.json", json.dumps(result.summary(), indent=2))
     return result
 
 

@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 import torch
 
+from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.images import write_image
 from gamd.checkpoint import load_model
 from gamd.data import read_heat, to_tensor
 from gamd.errors import GamdDataError
@@ -39,8 +41,7 @@ def frame_to_rgb(image: np.ndarray) -> np.ndarray:
 def write_rgb(path: Path, rgb: np.ndarray) -> None:
     """Write float RGB in [0, 1] as an 8-bit PNG."""
     bgr = cv2.cvtColor((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR)
-    if not cv2.imwrite(str(path), bgr):
-        raise GamdDataError(f"cannot write {path}")
+    write_image(path, bgr)
 
 
 def deblur_array(
@@ -128,7 +129,7 @@ def deblur_session(
         skipped=skipped,
         heat_scale_px=config.data.heat_scale_px,
     )
-    (out / "summary.json").write_text(summary.to_json())
+    write_text_atomic(out / "summary.json", summary.to_json())
     return summary
 
 

@@ -4,11 +4,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import signal
 import sys
 from pathlib import Path
 from typing import Any
+
+from blurtrack.io.atomic import atomic_dir, write_text_atomic
 
 
 def _floats4(text: str) -> tuple[float, float, float, float]:
@@ -106,19 +109,17 @@ def _options(args: argparse.Namespace) -> Any:  # rigs.convert.ConvertOptions (l
 
 
 def _check_new_folder(folder: Path) -> None:
-    from rigs.errors import RigError
+    from blurtrack.io.guard import check_new_folder
 
-    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
-        raise RigError(f"refusing to write a session into non-empty {folder}")
+    check_new_folder(folder, "session folder")
 
 
 def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
-    (folder / "summary.json").write_text(
-        json.dumps(summary, indent=2, default=str) + "\n", encoding="utf-8"
-    )
+    write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from blurtrack.io.guard import check_output
     from rigs.camera import open_camera
     from rigs.convert import log_to_session
     from rigs.errors import RigError
@@ -128,6 +129,8 @@ def run_record(args: argparse.Namespace) -> int:
 
     if not args.imu and not args.camera:
         raise RigError("give --imu URL, --camera URL or both")
+    if not args.camera and not args.no_convert:  # refuse now, not after the whole duration
+        raise RigError("a session needs camera frames: give --camera URL (or --no-convert)")
     out: Path = args.out
     log_path: Path = args.log or out.with_name(out.name + ".mcap")
     options = _options(args)
@@ -135,6 +138,7 @@ def run_record(args: argparse.Namespace) -> int:
         _check_new_folder(out)
     if log_path.exists():
         raise RigError(f"log {log_path} already exists; choose another --log")
+    check_output(log_path, what="--log")
     try:
         config = RecorderConfig(flush_interval_s=args.flush_interval, duration_s=args.duration)
     except ValueError as exc:
@@ -193,10 +197,16 @@ def run_record(args: argparse.Namespace) -> int:
             f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
             f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps"
         )
+    if imu is not None and s.imu_samples == 0 and result.error is None:
+        raise RigError(
+            f"the IMU {args.imu} delivered no samples in {s.elapsed_s:.1f} s; "
+            f"no session written (the log {log_path} is kept)"
+        )
     summary: dict[str, Any] = {"command": "record", "recording": result.as_dict()}
     if not args.no_convert:
         try:
-            conv = log_to_session(log_path, out, options)
+            with atomic_dir(out) as tmp:  # a full disk leaves no half session behind
+                conv = dataclasses.replace(log_to_session(log_path, tmp, options), folder=out)
         except RigError as exc:
             if result.error is None:
                 raise
@@ -221,6 +231,7 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from blurtrack.io.guard import check_output
     from rigs.convert import log_to_session
     from rigs.reclog import recover_log
 
@@ -229,11 +240,13 @@ def run_recover(args: argparse.Namespace) -> int:
     out: Path = args.out or log.with_name(log.stem + ".recovered.mcap")
     if args.session is not None:
         _check_new_folder(args.session)
+    check_output(out, inputs=[log], what="--out")
     res = recover_log(log, out)
     state = "was complete" if res.was_complete else f"was cut short: {res.damage}"
     print(f"{log} {state}; kept {res.imu_samples} IMU samples and {res.frames} frames in {out}")
     if args.session is not None:
-        conv = log_to_session(out, args.session, options)
+        with atomic_dir(args.session) as tmp:  # a full disk leaves no half session behind
+            conv = dataclasses.replace(log_to_session(out, tmp, options), folder=args.session)
         _write_summary(
             args.session,
             {

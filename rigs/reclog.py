@@ -205,12 +205,14 @@ class FrameRecord:
         """(H, W) or (H, W, C) uint8/uint16; RecorderLogError if the bytes do not fit."""
         h, w, c = self.shape
         if self.encoding == ENCODINGS["png"]:
-            import cv2
+            from blurtrack.io.images import ImageError, decode_image
 
-            img = cv2.imdecode(np.frombuffer(self.data, np.uint8), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise RecorderLogError(f"frame {self.index} is not a valid PNG")
-            return img
+            try:
+                return decode_image(
+                    self.data, max_pixels=MAX_FRAME_PIXELS, what=f"frame {self.index}"
+                )
+            except ImageError as exc:
+                raise RecorderLogError(str(exc)) from None
         if self.encoding != ENCODINGS["raw"] or self.itemsize not in (1, 2):
             raise RecorderLogError(f"frame {self.index} has an unknown encoding")
         if h * w * c > MAX_FRAME_PIXELS or len(self.data) != h * w * c * self.itemsize:

@@ -13,9 +13,11 @@ properly before :meth:`Recorder.run` returns.
 
 from __future__ import annotations
 
+import errno
 import queue
 import threading
 from collections.abc import Callable
+from contextlib import suppress
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -127,14 +129,16 @@ class Recorder:
         self.config = config or RecorderConfig()
         self.clock = clock or MonotonicClock()
         self.on_status = on_status
-        self._stop = threading.Event()
+        self._stop = threading.Event()  # every device thread ends
+        self._cam_stop = threading.Event()  # the camera ends; the IMU records a little longer
         self._q: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._frame_slots = threading.Semaphore(self.config.frame_queue)
         self.status = RecorderStatus()
 
     def stop(self) -> None:
-        """Ask for a clean stop (thread- and signal-safe)."""
-        self._stop.set()
+        """Ask for a clean stop (thread- and signal-safe): the camera stops at once, the IMU
+        ``after_camera_end_s`` later, so the last frame's exposure has gyro coverage."""
+        self._cam_stop.set()
 
     # ----------------------------------------------------------------- device threads
     def _imu_loop(self) -> None:
@@ -155,7 +159,7 @@ class Recorder:
         assert self.camera is not None
         params = [cv2.IMWRITE_PNG_COMPRESSION, self.config.png_compression]
         try:
-            while not self._stop.is_set():
+            while not (self._stop.is_set() or self._cam_stop.is_set()):
                 frame = self.camera.read()
                 if frame is None:
                     self._q.put(("camera-ended", None))
@@ -170,7 +174,7 @@ class Recorder:
                 else:
                     data = np.ascontiguousarray(frame.image).tobytes()
                 while not self._frame_slots.acquire(timeout=0.1):  # writer is behind
-                    if self._stop.is_set():
+                    if self._stop.is_set() or self._cam_stop.is_set():
                         return
                 self._q.put(("frame", (frame, data)))
         except DeviceDisconnectedError as exc:
@@ -239,6 +243,7 @@ class Recorder:
         next_status = start_ns + round(cfg.status_interval_s * 1e9)
         stopped_by, error = "stop", None
         camera_end_ns: int | None = None
+        timed_tail = False  # stopped by the user or the duration: the IMU's tail is timed
         try:
             while True:
                 try:
@@ -249,11 +254,11 @@ class Recorder:
                     error, stopped_by = payload, "error"
                     log.write_event(self.clock.now_ns(), "error", payload)
                     break
-                if kind == "camera-ended" and cfg.stop_when_camera_ends:
+                if kind == "camera-ended" and cfg.stop_when_camera_ends and camera_end_ns is None:
                     stopped_by = "camera-ended"
                     camera_end_ns = self.clock.now_ns()
                 self._write(log, kind, payload, counts)
-                if camera_end_ns is not None and self._imu_done(camera_end_ns):
+                if camera_end_ns is not None and self._imu_done(camera_end_ns, timed_tail):
                     break
                 now = self.clock.now_ns()
                 if now >= next_flush:
@@ -263,42 +268,57 @@ class Recorder:
                     next_status = now + round(cfg.status_interval_s * 1e9)
                     if self.on_status is not None:
                         self.on_status(self._snapshot(now, start_ns, counts, flushed, log))
-                if self._stop.is_set():
-                    break
-                if cfg.duration_s is not None and now - start_ns >= cfg.duration_s * 1e9:
-                    stopped_by = "duration"
-                    break
+                if camera_end_ns is None and (
+                    self._cam_stop.is_set()
+                    or (cfg.duration_s is not None and now - start_ns >= cfg.duration_s * 1e9)
+                ):
+                    stopped_by = "stop" if self._cam_stop.is_set() else "duration"
+                    self._cam_stop.set()
+                    camera_end_ns, timed_tail = now, True
         except KeyboardInterrupt:
             stopped_by = "stop"
+        except OSError as exc:  # the log's disk is full or gone: stop, keep what is flushed
+            error, stopped_by = self._log_failed(exc), "error"
         finally:
             self._stop.set()
             for t in threads:
                 t.join(timeout=5.0)
-            while True:  # what the devices delivered before they stopped is kept
-                try:
-                    kind, payload = self._q.get_nowait()
-                except queue.Empty:
-                    break
-                if kind == "error" and error is None:
-                    error, stopped_by = payload, "error"
-                    log.write_event(self.clock.now_ns(), "error", payload)
-                self._write(log, kind, payload, counts)
-            end_ns = self.clock.now_ns()
-            self._flush(log, end_ns, start_ns, counts, flushed)
-            log.write_event(end_ns, "info", f"recording stopped ({stopped_by})")
-            log.finish()
+            try:
+                while True:  # what the devices delivered before they stopped is kept
+                    try:
+                        kind, payload = self._q.get_nowait()
+                    except queue.Empty:
+                        break
+                    if kind == "error" and error is None:
+                        error, stopped_by = payload, "error"
+                        log.write_event(self.clock.now_ns(), "error", payload)
+                    self._write(log, kind, payload, counts)
+                end_ns = self.clock.now_ns()
+                self._flush(log, end_ns, start_ns, counts, flushed)
+                log.write_event(end_ns, "info", f"recording stopped ({stopped_by})")
+                log.finish()
+            except OSError as exc:  # the log stays as far as it was flushed: recover reads it
+                end_ns = self.clock.now_ns()
+                if error is None:
+                    error, stopped_by = self._log_failed(exc), "error"
+                with suppress(OSError):
+                    log._file.close()
         status = self._snapshot(end_ns, start_ns, counts, flushed, log)
         if self.on_status is not None:
             self.on_status(status)
         imu_stats = self.imu.stats if self.imu is not None else {}
         return RecordResult(self.log_path, status, imu_stats, stopped_by, error)
 
-    def _imu_done(self, camera_end_ns: int) -> bool:
+    def _log_failed(self, exc: OSError) -> str:
+        reason = "no space left on the device" if exc.errno == errno.ENOSPC else exc.strerror
+        return f"cannot write the log {self.log_path}: {reason or exc}"
+
+    def _imu_done(self, camera_end_ns: int, timed: bool = False) -> bool:
         """After the camera ended: has the IMU delivered what belongs to the recording?"""
         imu = self.imu
         if imu is None or imu.exhausted:
             return True
-        if imu.finite:
+        if not timed and imu.finite:
             return False  # a source that ends by itself: wait for its last sample
         return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
 

@@ -5,6 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests are seeded (the same examples on every machine and run) and keep no local
+# example database, so a result never depends on what an earlier run happened to find.
+settings.register_profile("blurtrack", derandomize=True, database=None)
+settings.load_profile("blurtrack")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"

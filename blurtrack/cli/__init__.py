@@ -114,11 +114,28 @@ def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
     return f"this command needs the optional package '{top}': pip install 'blurtrack[{extra}]'"
 
 
+def quiet_stdout() -> None:
+    """Point stdout at /dev/null after its reader went away, so nothing more can fail."""
+    import os
+
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe (``| head``) shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        quiet_stdout()
+        return 141  # 128 + SIGPIPE, as for any pipeline writer whose reader went away
     except BlurTrackError as exc:
         print(f"blurtrack {args.command}: error: {exc}", file=sys.stderr)
         return 2

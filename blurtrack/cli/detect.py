@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
+from blurtrack.io.atomic import write_json_atomic
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,7 +28,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="output table (Parquet; default: SESSION/streaks.parquet, where calibrate and "
         "report look for it); a summary is written beside it as <stem>.summary.json",
     )
-    p.add_argument("--force", action="store_true", help="overwrite an existing table")
     p.add_argument(
         "--gyro",
         choices=("auto", "on", "off"),
@@ -47,6 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also draw the detected streaks over the first frame with streaks",
     )
     add_quiet_arg(p)
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
@@ -104,19 +105,18 @@ def detect_to_table(
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import draw_streaks
-    from blurtrack.errors import DetectionError
+    from blurtrack.io.images import write_image
     from blurtrack.io.session import load_session
-    from blurtrack.io.yamlio import write_text_atomic
 
-    session = load_session(args.session)
     if args.out is None:
         args.out = Path(args.session) / "streaks.parquet"
-    if args.out.exists() and not args.force:
-        raise DetectionError(f"{args.out} exists (use --force to overwrite it)")
+    summary_path = detect_summary_path(args.out, Path(args.session))
+    check_output(args.out, force=args.force, inputs=[args.params], siblings=[summary_path.name])
+    if args.overlay is not None:
+        check_output(args.overlay, force=args.force, what="--overlay")
+    session = load_session(args.session)
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
     frames = _frame_range(args.frames, len(session.frames))
     result = detect_to_table(session, args.out, params, args.gyro, frames, args.quiet)
@@ -124,13 +124,9 @@ def run(args: argparse.Namespace) -> int:
     if args.overlay is not None:
         first = int(result.table["frame"].iloc[0])
         pic = draw_streaks(session.read_image(first), result.table[result.table["frame"] == first])
-        args.overlay.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(args.overlay), pic):
-            raise DetectionError(f"cannot write overlay picture {args.overlay}")
+        write_image(args.overlay, pic)
         summary["overlay"] = str(args.overlay)
-    write_text_atomic(
-        detect_summary_path(args.out, Path(args.session)), json.dumps(summary, indent=2)
-    )
+    write_json_atomic(summary_path, summary)
     s = result.summary
     print(f"detect: {s['streaks']} streaks in {s['frames']} frames -> {args.out}")
     print(

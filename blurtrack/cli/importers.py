@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from blurtrack.io.atomic import write_text_atomic
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import", help="convert a third-party recording into a session folder")
@@ -118,11 +120,15 @@ def label_image(path: Path, text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from blurtrack.io.atomic import atomic_dir
+    from blurtrack.io.guard import check_new_folder
     from blurtrack.io.importers import IMPORTERS
     from blurtrack.io.session import load_session
     from blurtrack.overlay import draw_session_overlays
 
-    summary = IMPORTERS[args.kind](args.src, args.out, **importer_kwargs(args))
+    check_new_folder(args.out, "session folder")
+    with atomic_dir(args.out) as tmp:  # a failure leaves no half session behind
+        summary = IMPORTERS[args.kind](args.src, tmp, **importer_kwargs(args))
     session = load_session(args.out)
     axes_known = session.meta.imu.axes_known
     summary["axes_known"] = axes_known
@@ -134,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         if not axes_known:
             for path in summary["overlays"]["written"]:
                 label_image(Path(path), GUESS_LABEL)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2))
     print(
         f"imported {summary['frames']} frames and {summary['gyro_samples']} gyro samples "
         f"from {args.src} into {args.out}"

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def register(subparsers: Any) -> None:
@@ -30,14 +30,15 @@ def register(subparsers: Any) -> None:
         help="skip frames the gyro does not cover instead of refusing",
     )
     add_quiet_arg(p)
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from blurtrack.errors import SynthesisError
+    from blurtrack.io.atomic import write_json_atomic
     from blurtrack.io.calibration import Calibration
     from blurtrack.io.session import load_session
-    from blurtrack.io.yamlio import write_text_atomic
     from blurtrack.synth.predict import predict_session
 
     try:
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError(f"--grid must be NXxNY, got {args.grid!r}") from None
     if gx < 2 or gy < 2 or args.stride < 1 or args.samples < 3:
         raise SynthesisError("--grid needs >= 2 nodes per axis, --stride >= 1, --samples >= 3")
+    check_output(args.out, folder=True, force=args.force)
     session = load_session(args.session)
     calib = Calibration.from_yaml(args.calib)
     with Progress("predict", "frame", args.quiet) as bar:
@@ -66,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         **res.stats,
         "skipped_timestamps_ns": res.skipped,
     }
-    write_text_atomic(Path(args.out) / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(Path(args.out) / "summary.json", summary)
     fit = res.stats["bezier_fit_within_0.5px"]
     print(
         f"predict: {len(res.written)} of {res.stats['frames']} frames -> {args.out} "

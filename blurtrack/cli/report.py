@@ -9,6 +9,7 @@ from typing import Any
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
 from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
+from blurtrack.io.guard import add_force_arg, check_output
 
 
 def register(subparsers: Any) -> None:
@@ -30,17 +31,28 @@ def register(subparsers: Any) -> None:
     )
     add_streak_source_args(r)
     add_quiet_arg(r)
+    add_force_arg(r)
     r.set_defaults(func=run_report)
 
 
 def run_report(args: argparse.Namespace) -> int:
     from blurtrack.errors import BlurTrackError
+    from blurtrack.io import streaks as streak_table
     from blurtrack.io.calibration import Calibration
     from blurtrack.report.build import build_report
 
+    check_output(args.out, folder=True, force=args.force)
     session, table = load_session_and_streaks(args)
     after = Calibration.from_yaml(args.calib)
     before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
+    want = tuple(session.meta.camera.resolution)
+    for name, cal in (("--calib", after), ("--before", before)):
+        if tuple(cal.camera.resolution) != want:
+            raise BlurTrackError(
+                f"{name} is a calibration for {cal.camera.resolution[0]}x"
+                f"{cal.camera.resolution[1]} frames; {args.session} has {want[0]}x{want[1]}"
+            )
+    streak_table.check_matches_session(table, session.frames, want)
     fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
     fit = None
     if fs_path.is_file():

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
-from blurtrack.errors import BlurTrackError
+from blurtrack.io.atomic import write_text_atomic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,6 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from blurtrack.io.atomic import atomic_dir
+    from blurtrack.io.guard import check_new_folder
     from rigs.sim.preset import SimPreset, get_preset
     from rigs.sim.rig import SimRig
     from rigs.sim.writer import write_session
@@ -71,13 +73,12 @@ def run(args: argparse.Namespace) -> int:
     }
     if changes:
         preset = preset.replace(**changes)
-    out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise BlurTrackError(f"output folder {out} exists and is not empty")
+    out = check_new_folder(args.out)
     rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
-    with Progress("simulate", "frame", args.quiet) as bar:
-        summary = write_session(rig, out, progress=bar)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with Progress("simulate", "frame", args.quiet) as bar, atomic_dir(out) as tmp:
+        # a failure (full disk, Ctrl-C) leaves no half session
+        summary = dict(write_session(rig, tmp, progress=bar), session=str(out))
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")
     print(

@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from blurtrack.errors import ConfigError
+from blurtrack.io.atomic import write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,7 @@ class DetectParams:
             raise ConfigError(f"invalid detect parameters: {exc}") from exc
 
     def to_yaml(self, path: str | Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=True))
+        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=True))
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> DetectParams:

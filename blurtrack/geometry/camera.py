@@ -21,6 +21,10 @@ from blurtrack.errors import GeometryError
 from blurtrack.geometry.kernels import project_c, row_start_c, unproject_c
 
 DISTORTION_MODELS = ("none", "radtan")
+#: Largest image side accepted (px), and largest focal length per image side (a 0.01-degree
+#: field of view): numbers beyond them are typos or hostile, and would hang the models.
+MAX_SIDE_PX = 65536
+MAX_FOCAL_PER_SIDE = 10_000
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,16 @@ class Camera:
             )
         if self.intrinsics[0] <= 0 or self.intrinsics[1] <= 0:
             raise GeometryError(f"focal lengths must be positive, got {self.intrinsics[:2]}")
+        if max(w, h) > MAX_SIDE_PX:
+            raise GeometryError(f"camera resolution {w}x{h} is over {MAX_SIDE_PX} px a side")
+        side = max(w, h)
+        fx, fy, cx, cy = self.intrinsics
+        if max(fx, fy) > MAX_FOCAL_PER_SIDE * side or max(abs(cx), abs(cy)) > 10 * side:
+            raise GeometryError(
+                f"camera intrinsics {list(self.intrinsics)} are out of range for {w}x{h} "
+                f"(focal lengths up to {MAX_FOCAL_PER_SIDE}x, principal point within 10x "
+                "the image size)"
+            )
         if self.distortion_model not in DISTORTION_MODELS:
             raise GeometryError(
                 f"distortion_model must be one of {DISTORTION_MODELS}, got "
@@ -68,8 +82,8 @@ class Camera:
                 f"distortion_model {self.distortion_model} takes {want} "
                 f"coefficients, got {len(self.distortion_coeffs)}"
             )
-        if not all(math.isfinite(v) for v in self.distortion_coeffs):
-            raise GeometryError("distortion coefficients must be finite")
+        if not all(math.isfinite(v) and abs(v) <= 1e3 for v in self.distortion_coeffs):
+            raise GeometryError("distortion coefficients must be finite, at most 1e3 in size")
         if not (math.isfinite(self.readout_s) and 0.0 <= self.readout_s < 1.0):
             raise GeometryError(f"readout_s must be in [0, 1) s, got {self.readout_s}")
 

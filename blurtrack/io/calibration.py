@@ -143,7 +143,7 @@ class Calibration:
                 camera=camera,
                 R_cam_imu=T[:3, :3],
                 t_cam_imu_m=T[:3, 3],
-                timeshift_cam_imu_s=float(c.get("timeshift_cam_imu", 0.0)),
+                timeshift_cam_imu_s=float(c["timeshift_cam_imu"]),  # required: no silent 0
                 gyro_bias_radps=np.array(c.get("gyro_bias_radps", [0.0, 0.0, 0.0]), float),
                 sigma=dict(c.get("sigma") or {}),
                 gyro_scale_matrix=np.array(
@@ -190,7 +190,12 @@ def _readout_s(c: dict[str, Any]) -> float:
 def _T_cam_imu(c: dict[str, Any], source: str) -> np.ndarray:
     """Kalibr's ``T_cam_imu``, or the inverse of OpenVINS's ``T_imu_cam``."""
     inverse = "T_cam_imu" not in c and "T_imu_cam" in c
-    T = np.array(c.get("T_imu_cam") if inverse else c.get("T_cam_imu", np.eye(4).tolist()), float)
+    if not inverse and "T_cam_imu" not in c:
+        raise ConfigError(f"{source}: lacks the key 'T_cam_imu' (required: no silent identity)")
+    try:
+        T = np.array(c["T_imu_cam"] if inverse else c["T_cam_imu"], dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{source}: the camera-IMU transform is not a numeric matrix") from None
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         key = "T_imu_cam" if inverse else "T_cam_imu"
         raise ConfigError(f"{source}: {key} must be a finite 4x4 matrix, got shape {T.shape}")

@@ -27,6 +27,7 @@ import pandas as pd
 
 from blurtrack.errors import BlurTrackError, ConfigError, SessionError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io import atomic, images
 from blurtrack.io.yamlio import read_yaml, write_yaml
 
 FORMAT = "blurtrack-session/1"
@@ -201,9 +202,7 @@ class SessionWriter:
         ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if not ok:
             raise SessionError(f"frame {ts}: PNG encoding failed")
-        tmp = path.with_name(f".{name}.tmp")
-        tmp.write_bytes(buf.tobytes())
-        os.replace(tmp, path)
+        atomic.write_bytes_atomic(path, buf.tobytes())
         self._cam.write(f"{ts},{name},{int(exposure_ns)}\n")
         self._cam.flush()
         self._last_frame_ns = ts
@@ -302,9 +301,10 @@ class Session:
     def read_image(self, i: int) -> np.ndarray:
         """Frame ``i`` as stored (uint8/uint16, gray or BGR)."""
         path = self.image_path(i)
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise SessionError(f"image {path} does not decode")
+        try:
+            img = images.read_image(path)
+        except images.ImageError as exc:
+            raise SessionError(str(exc)) from None
         w, h = self.meta.camera.resolution
         if img.shape[:2] != (h, w):
             raise SessionError(
@@ -374,8 +374,18 @@ def _numeric(df: pd.DataFrame, col: int, path: Path, integer: bool) -> np.ndarra
             f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
             f"is not a finite number"
         )
-    if integer:
-        return np.asarray([int(v) for v in df[col]], dtype=np.int64)
+    if integer:  # nanosecond stamps and exposures: whole numbers that fit int64
+        text = df[col].astype(str).str.strip()
+        whole = text.str.fullmatch(r"[+-]?\d{1,19}").to_numpy(bool)
+        values = [int(v) if ok else 0 for v, ok in zip(text, whole, strict=True)]
+        fits = whole & np.array([-(2**63) <= v < 2**63 for v in values], dtype=bool)
+        if not fits.all():
+            line = int(np.flatnonzero(~fits)[0]) + 2
+            raise SessionError(
+                f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
+                f"is not a whole number of nanoseconds within int64"
+            )
+        return np.asarray(values, dtype=np.int64)
     return s.to_numpy(dtype=float)
 
 

@@ -31,6 +31,10 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.errors import BlurTrackError
+from blurtrack.io import atomic
+
+#: Largest endpoint coordinate accepted (px): the largest camera side (geometry.camera).
+MAX_COORD_PX = 65536
 
 COLUMNS: dict[str, str] = {
     "frame": "int64",
@@ -72,16 +76,40 @@ def validate(df: pd.DataFrame) -> pd.DataFrame:
     xy = out[["start_x", "start_y", "end_x", "end_y"]].to_numpy(float)
     if not np.all(np.isfinite(xy)):
         raise StreakTableError("streak table has NaN or infinite endpoints")
+    if xy.size and np.abs(xy).max() > MAX_COORD_PX:
+        raise StreakTableError(
+            f"streak table has endpoints {np.abs(xy).max():.4g} px from the origin "
+            f"(beyond {MAX_COORD_PX} px: not from any camera image)"
+        )
     return out
+
+
+def check_matches_session(df: pd.DataFrame, frames: pd.DataFrame, resolution: Any) -> None:
+    """Refuse a table of another (or an older) recording: frame numbers, timestamps and image
+    bounds must match the session's ``frames`` (``Session.frames``) and ``resolution``."""
+    ts = frames["timestamp_ns"].to_numpy(np.int64)
+    idx = df["frame"].to_numpy(np.int64)
+    if np.any((idx < 0) | (idx >= ts.size)):
+        raise StreakTableError(f"streak table names frames outside 0..{ts.size - 1}")
+    if np.any(df["timestamp_ns"].to_numpy(np.int64) != ts[idx]):
+        raise StreakTableError(
+            "streak table timestamps do not match the session's cam0/data.csv "
+            "(a stale table or another recording: run detect again)"
+        )
+    w, h = (int(v) for v in resolution)
+    xy = df[["start_x", "start_y", "end_x", "end_y"]].to_numpy(float)
+    if xy.size and (
+        np.any(xy[:, ::2] < -w) | np.any(xy[:, ::2] > 2 * w)
+        or np.any(xy[:, 1::2] < -h) | np.any(xy[:, 1::2] > 2 * h)
+    ):
+        raise StreakTableError(f"streak table has endpoints far outside the {w}x{h} frames")
 
 
 def write(df: pd.DataFrame, path: str | Path) -> None:
     """Write a validated table as Parquet (atomically)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    validate(df).to_parquet(tmp, index=False)
-    tmp.replace(p)
+    table = validate(df)
+    # a file handle, not a path: pyarrow cannot encode non-UTF-8 file names
+    atomic.write_atomic(path, lambda f: table.to_parquet(f, index=False))
 
 
 def read(path: str | Path) -> pd.DataFrame:
@@ -89,7 +117,8 @@ def read(path: str | Path) -> pd.DataFrame:
     if not p.is_file():
         raise StreakTableError(f"streak table not found: {p}")
     try:
-        df = pd.read_parquet(p)
+        with open(p, "rb") as f:  # a handle: pyarrow cannot encode non-UTF-8 file names
+            df = pd.read_parquet(f)
     except Exception as exc:  # pyarrow raises several unrelated types on corrupt files
         raise StreakTableError(
             f"streak table {p} is not readable Parquet: {str(exc).splitlines()[0]}"

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from blurtrack.errors import ConfigError
+from blurtrack.io import atomic
 
 #: Largest YAML file read (bytes); parameter files are tiny, truth files of long simulations
 #: are a few MB.
@@ -39,18 +38,8 @@ def write_yaml(path: str | Path, data: Any) -> None:
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """UTF-8 ``text`` to ``path`` through the one atomic writer (:mod:`blurtrack.io.atomic`)."""
+    atomic.write_text_atomic(path, text)
 
 
 # The C loader is faster for big truth files; both are the safe loader.

@@ -8,7 +8,6 @@ with rolling shutter, on the same streaks.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -20,6 +19,7 @@ import pandas as pd
 from blurtrack.errors import BlurTrackError
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
+from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import Session
 from blurtrack.io.yamlio import write_text_atomic
@@ -266,5 +266,5 @@ def build_report(
         }
     )
     write_text_atomic(out / "report.html", render(summary, figs, fstats))
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    write_json_atomic(out / "summary.json", summary)  # strict JSON: NaN becomes null
     return summary

@@ -27,6 +27,7 @@ import numpy as np
 
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.camera import Camera
+from blurtrack.io.images import ImageError, read_image
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 #: Largest accepted source photograph (pixels), checked before decoding fully.
@@ -67,15 +68,10 @@ def load_image(folder: str | Path, rel_path: str) -> np.ndarray:
     if rel.is_absolute() or ".." in rel.parts:
         raise SynthesisError(f"image path {rel_path!r} must stay inside {folder}")
     p = Path(folder) / rel
-    data = np.fromfile(p, dtype=np.uint8) if p.is_file() else None
-    if data is None:
-        raise SynthesisError(f"image not found: {p}")
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR)
-    if img is None:
-        raise SynthesisError(f"image {p} does not decode")
-    if img.shape[0] * img.shape[1] > MAX_PIXELS:
-        raise SynthesisError(f"image {p} is larger than {MAX_PIXELS} pixels")
-    return img
+    try:
+        return read_image(p, cv2.IMREAD_COLOR, MAX_PIXELS, "photograph")
+    except ImageError as exc:
+        raise SynthesisError(str(exc)) from None
 
 
 def fit_to_size(

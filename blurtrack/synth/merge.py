@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.errors import BlurTrackError, SynthesisError
+from blurtrack.io import atomic
 from blurtrack.io.yamlio import read_yaml, write_text_atomic, write_yaml
 from blurtrack.synth.dataset import FORMAT, DatasetSpec
 from blurtrack.synth.store import dataset_lock, finished, read_manifest
@@ -52,12 +53,8 @@ def _move(src: Path, dst: Path) -> None:
     try:
         os.replace(src, dst)
     except OSError:  # another file system: copy to a temporary name, then rename
-        tmp = dst.with_name(f".{dst.name}.merge.{os.getpid()}.tmp")
-        try:
+        with atomic.atomic_path(dst, "merge") as tmp:
             shutil.copy2(src, tmp)
-            os.replace(tmp, dst)
-        finally:
-            tmp.unlink(missing_ok=True)
 
 
 def merge(

@@ -10,9 +10,7 @@ or skipped and listed with ``skip_uncovered``.
 
 from __future__ import annotations
 
-import io
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,6 +21,7 @@ import pandas as pd
 
 from blurtrack.errors import CoverageError, SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.io import atomic
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import Session
 from blurtrack.synth.render import source_positions
@@ -66,11 +65,7 @@ def uncovered_frames(session: Session, model: BlurModel) -> list[int]:
 
 
 def _save_npy(path: Path, arr: np.ndarray) -> None:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(buf.getvalue())
-    os.replace(tmp, path)
+    atomic.write_atomic(path, lambda f: np.save(f, arr, allow_pickle=False))
 
 
 def predict_session(
@@ -109,6 +104,10 @@ def predict_session(
         ts = int(frames["timestamp_ns"].iloc[i])
         t, e = float(session.frame_times_s[i]), float(session.exposures_s[i])
         heat, err = model.heat_maps(t, e, n_t, None, stride)
+        if not np.all(np.isfinite(heat)):
+            raise SynthesisError(
+                f"frame {ts}: the heat maps are not finite (calibration or gyro out of range)"
+            )
         _save_npy(root / "heat" / f"{ts}.npy", heat)
         t_ref = model.default_reference_time(t, e)
         mx, my = source_positions(model, t, e, t_ref, gu, gv, tau)
@@ -138,9 +137,7 @@ def predict_session(
         if rows
         else pd.DataFrame(columns=["timestamp_ns", "x", "y", "tau", "qx", "qy"])
     )
-    tmp = root / ".trajectories.parquet.tmp"
-    table.to_parquet(tmp, index=False)
-    os.replace(tmp, root / "trajectories.parquet")
+    atomic.write_atomic(root / "trajectories.parquet", lambda f: table.to_parquet(f, index=False))
     stats = {
         "frames": len(frames),
         "predicted": len(written),

@@ -29,7 +29,6 @@ import hashlib
 import json
 import os
 import re
-import secrets
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import SynthesisError
+from blurtrack.io import atomic
 
 KINDS = (("sharp", ".png"), ("blur", ".png"), ("heat", ".npy"))
 #: Optional extra files (``extras=True``): validity mask (0/255 PNG) and Bezier fit error (px).
@@ -47,21 +47,15 @@ _NAME = re.compile(r"[a-z]+_[0-9]{4,}")
 
 
 def write_atomic(path: Path, data: bytes | np.ndarray, tag: str = "x") -> None:
-    """Write ``data`` (bytes, or an array as ``.npy``, streamed without an in-memory copy) to a
-    hidden temporary next to ``path``, then rename it to ``path``. The temporary is removed on
-    every error; permissions follow the umask."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{tag}.{os.getpid()}-{secrets.token_hex(3)}.tmp")
-    try:
-        if isinstance(data, np.ndarray):
-            with tmp.open("wb") as f:
-                np.save(f, data, allow_pickle=False)
-        else:
-            tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``data`` (bytes, or an array as ``.npy``, streamed without an in-memory copy)
+    through the project's atomic writer (:mod:`blurtrack.io.atomic`: a hidden
+    ``.<name>.<tag>.<random>.tmp`` beside ``path``, fsynced, renamed; removed on every error;
+    permissions from the umask). ``tag`` names the shard, so a shard cleaning up after a killed
+    run of itself never touches another shard's temporaries."""
+    if isinstance(data, np.ndarray):
+        atomic.write_atomic(path, lambda f: np.save(f, data, allow_pickle=False), tag)
+    else:
+        atomic.write_bytes_atomic(path, data, tag)
 
 
 def remove_temporaries(root: Path, tag: str) -> None:

@@ -180,8 +180,15 @@ def test_record_refuses_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[
     (tmp_path / "full" / "x").write_text("x")
     cases = [
         (["record", "--out", str(tmp_path / "a")], "give --imu"),
-        (["record", "--imu", "sim://imu", "--out", str(tmp_path / "full")], "non-empty"),
-        (["record", "--imu", "bogus://x", "--out", str(tmp_path / "b")], "unknown IMU scheme"),
+        (["record", "--imu", "sim://imu", "--out", str(tmp_path / "c")], "needs camera frames"),
+        (
+            ["record", "--camera", "sim://camera", "--out", str(tmp_path / "full")],
+            "not empty",
+        ),
+        (
+            ["record", "--imu", "bogus://x", "--no-convert", "--out", str(tmp_path / "b")],
+            "unknown IMU scheme",
+        ),
         (["recover", str(tmp_path / "full" / "x")], "not a BlurTrack recorder log"),
         (["recover", str(tmp_path / "missing.mcap")], "cannot open log"),
     ]
@@ -239,24 +246,36 @@ def test_recorder_needs_a_device(tmp_path: Path) -> None:
         Recorder(tmp_path / "x.mcap", None, None)
 
 
-def test_unplug_without_frames_reports_both_problems_and_keeps_the_log(
+def test_imu_only_record_fails_fast(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A session needs frames: an IMU-only record is refused at once, not after --duration."""
+    import time
+
+    t0 = time.monotonic()
+    rc = cli_main(
+        ["record", "--imu", "sim://imu?rate=500", "--out", str(tmp_path / "s"), "--duration", "60"]
+    )
+    err = capsys.readouterr().err
+    assert rc == 2 and "needs camera frames" in err and len(err.splitlines()) == 1
+    assert time.monotonic() - t0 < 30 and not (tmp_path / "s").exists()
+
+
+def test_unplug_without_frames_keeps_the_log(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    out = tmp_path / "session"
     rc = cli_main(
         [
             "record",
             "--imu",
             "sim://imu?rate=500&unplug=0.2",
+            "--no-convert",
             "--out",
-            str(out),
+            str(tmp_path / "session"),
             "--duration",
             str(DEADLINE_S),
         ]
     )
     err = capsys.readouterr().err
-    assert rc == 2 and "disconnected" in err and "no session written" in err
-    assert "no camera frames" in err
+    assert rc == 2 and "disconnected" in err
     k = scan_log(tmp_path / "session.mcap").imu_index
     np.testing.assert_array_equal(k, np.arange(k.size))
     assert 0 < k.size <= 100

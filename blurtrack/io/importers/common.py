@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from blurtrack.errors import ImportFormatError
+from blurtrack.io.images import ImageError
+from blurtrack.io.images import read_image as read_checked_image
 
 MAX_TEXT_BYTES = 256 * 1024**2
 
@@ -23,10 +24,10 @@ def text_lines(path: Path) -> list[str]:
 def read_image(path: Path) -> np.ndarray:
     if not path.is_file():
         raise ImportFormatError(f"missing image: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImportFormatError(f"image {path} does not decode")
-    return img
+    try:
+        return read_checked_image(path)  # size checked from the header before decoding
+    except ImageError as exc:
+        raise ImportFormatError(str(exc)) from None
 
 
 def T_from_R(R: np.ndarray) -> list[list[float]]:

@@ -76,8 +76,18 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
     calib_path = src / "calib.npz"
     dist: tuple[float, ...] = ()
     if calib_path.is_file():
-        with np.load(calib_path, allow_pickle=False) as z:
-            mtx, k = np.asarray(z["mtx"], float), np.asarray(z["dist"], float).ravel()
+        try:
+            with np.load(calib_path, allow_pickle=False) as z:
+                mtx, k = np.asarray(z["mtx"], float), np.asarray(z["dist"], float).ravel()
+        except (OSError, ValueError, KeyError, TypeError, EOFError) as exc:
+            raise ImportFormatError(
+                f"{calib_path} is not a calib.npz with 'mtx' and 'dist' arrays ({exc})"
+            ) from None
+        if mtx.shape != (3, 3) or not (np.all(np.isfinite(mtx)) and np.all(np.isfinite(k))):
+            raise ImportFormatError(
+                f"{calib_path}: 'mtx' must be a finite 3x3 matrix and 'dist' finite, "
+                f"got shapes {mtx.shape}, {k.shape}"
+            )
         # The chessboard calibration is of full-sensor 4032x3024 stills (data README); the
         # video is the centred 16:9 crop of the sensor scaled to long_side.
         still_long, still_short = MARS_STILL_SIZE
