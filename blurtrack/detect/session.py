@@ -11,12 +11,14 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
+    CUE_SUBSTEP_S,
     GYRO_SIGMA_REL,
     GYRO_SIGMA_REL_REFINED,
     FrameTiming,
     combine,
     continuity_cues,
     gyro_cues,
+    gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.table import build_table, frame_rows
@@ -48,6 +50,49 @@ def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
             raise CoverageError("--gyro on, but the session has no gyro samples")
         return None
     return session.initial_calibration(), session.gyro()
+
+
+def _shift_status(model: Any, shift: Any, searched: bool) -> str:
+    """``found`` / ``undetermined`` (flat cost) / ``not searched`` / ``too few streaks`` /
+    ``no gyro``: what became of the time-shift scan."""
+    if model is None:
+        return "no gyro"
+    if not searched:
+        return "not searched"
+    return "too few streaks" if shift is None else str(shift.status)
+
+
+def _covers(model: Any, tm: FrameTiming) -> bool:
+    """Whether the model's gyro covers a frame's exposure (all rows, camera clock)."""
+    shift = float(model.calib.timeshift_cam_imu_s)
+    t0 = tm.t_s + shift
+    return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
+
+
+def _gyro_llrs(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    sigma_rel: float,
+) -> list[np.ndarray | None]:
+    """Gyro and profile LLRs of the covered frames, batched; frame by frame (None where the
+    gyro falls short after all, e.g. a point predicted outside the frame) if a batch fails."""
+    try:
+        return list(
+            gyro_cues_batch(
+                [found[k] for k in covered], [timings[k] for k in covered], model, sigma_rel
+            )
+        )
+    except CoverageError:
+        pass
+    out: list[np.ndarray | None] = []
+    for k in covered:
+        try:
+            out.append(gyro_cues(found[k], timings[k], model, sigma_rel))
+        except CoverageError:
+            out.append(None)
+    return out
 
 
 def detect_session(
@@ -99,20 +144,31 @@ def detect_session(
 
         calib, trace = inputs
         shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None
-        if shift is not None:
+        found_shift = shift is not None and shift.status == "found"
+        if found_shift:
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
-        model = BlurModel(calib, trace)
+        model = BlurModel(calib, trace, max_substep_s=CUE_SUBSTEP_S)
+        sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL
+        covered = []
         for k, (fs, tm) in enumerate(zip(found, timings, strict=True)):
             if len(fs) == 0:
                 continue
-            try:
-                llrs[k][:, 0:2] = gyro_cues(
-                    fs, tm, model, GYRO_SIGMA_REL_REFINED if shift is not None else GYRO_SIGMA_REL
-                )
-            except CoverageError as exc:
-                if gyro == "on":
-                    raise CoverageError(f"frame {idx[k]}: {exc}") from None
+            if _covers(model, tm):
+                covered.append(k)
+            elif gyro == "on":
+                raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+            else:
                 uncovered.append(idx[k])
+        for k, llr in zip(
+            covered, _gyro_llrs(found, timings, covered, model, sigma_rel), strict=True
+        ):
+            if llr is None:
+                if gyro == "on":
+                    raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+                uncovered.append(idx[k])
+            else:
+                llrs[k][:, 0:2] = llr
+        uncovered.sort()
     # Continuity twice: any neighbouring end first, then (with that tentative orientation)
     # only the previous frame's ends and the next frame's starts.
     for k, c in enumerate(continuity_cues(found, timings)):
@@ -145,6 +201,7 @@ def detect_session(
         if inputs is None
         else float(inputs[0].timeshift_cam_imu_s),
         "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
+        "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),
