@@ -42,6 +42,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PNG",
         help="also draw the detected streaks over the first frame with streaks",
     )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="processes that decode and detect frames in parallel (default: the CPU cores; "
+        "the table does not depend on it)",
+    )
     p.set_defaults(func=run)
 
 
@@ -62,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import draw_streaks
-    from blurtrack.detect.session import detect_session
+    from blurtrack.detect.session import default_workers, detect_session
     from blurtrack.detect.table import write_table
     from blurtrack.errors import DetectionError
     from blurtrack.io.session import load_session
@@ -71,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     session = load_session(args.session)
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
     frames = _frame_range(args.frames, len(session.frames))
-    result = detect_session(session, params, gyro=args.gyro, frames=frames)
+    workers = default_workers() if args.workers is None else args.workers
+    result = detect_session(session, params, gyro=args.gyro, frames=frames, workers=workers)
     write_table(result.table, args.out)
     summary = dict(result.summary, session=str(args.session), table=str(args.out))
     if args.overlay is not None:
@@ -90,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
         f"{s['orientation_confidence_median']:.3f}"
     )
     print(f"  flags: {s['flags']}")
+    if s["gyro_timeshift_status"] == "found":
+        print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms (coarse scan)")
+    elif s["gyro_timeshift_status"] != "no gyro":
+        print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
     if s["frames_without_streaks"]:
         print(
             f"  warning: {len(s['frames_without_streaks'])} frame(s) without streaks: "

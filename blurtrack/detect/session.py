@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import multiprocessing as mp
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +29,45 @@ from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import CoverageError, DetectionError
 
 GYRO_MODES = ("auto", "on", "off")
+
+#: What a forked worker process detects from (set before the pool forks; never pickled).
+_WORKER_STATE: dict[str, Any] = {}
+
+
+def default_workers() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _worker_detect(i: int) -> FrameStreaks:
+    return detect_frame(_WORKER_STATE["session"].read_image(i), _WORKER_STATE["params"])
+
+
+def detect_frames(
+    session: Any, idx: list[int], params: DetectParams, workers: int = 1
+) -> Iterator[FrameStreaks]:
+    """Decode and detect the frames ``idx`` of a session, in order, in ``workers`` processes.
+
+    Frames are independent, so the workers' results are exactly those of one process. Workers
+    are forked (they inherit the loaded session, nothing is pickled but the results); where
+    the platform cannot fork, or for a single worker or frame, the frames are detected here.
+    """
+    if workers < 1:
+        raise DetectionError(f"workers must be >= 1, got {workers}")
+    n = min(workers, len(idx))
+    if n <= 1 or "fork" not in mp.get_all_start_methods():
+        for i in idx:
+            yield detect_frame(session.read_image(i), params)
+        return
+    _WORKER_STATE.update(session=session, params=params)
+    try:
+        with ProcessPoolExecutor(n, mp_context=mp.get_context("fork")) as pool:
+            yield from pool.map(_worker_detect, idx, chunksize=max(1, min(8, len(idx) // (4 * n))))
+    finally:
+        _WORKER_STATE.clear()
 
 
 @dataclass
@@ -102,6 +144,7 @@ def detect_session(
     frames: range | None = None,
     on_frame: Callable[[int, FrameStreaks], None] | None = None,
     refine_timeshift: bool = True,
+    workers: int = 1,
 ) -> DetectionResult:
     """Detect and orient the streaks of every frame of a loaded session.
 
@@ -112,6 +155,8 @@ def detect_session(
             (every frame must be covered: :class:`CoverageError` otherwise), ``off``.
         frames: subset of frame indices (default: all).
         on_frame: progress callback ``(index, streaks)``.
+        workers: processes that decode and detect frames in parallel (1: in this process);
+            the result does not depend on it.
         refine_timeshift: before using the gyro, scan the camera-IMU time shift around the
             session's guess (:mod:`blurtrack.detect.timeshift`); the guess may be off by more
             than an exposure.
@@ -130,8 +175,7 @@ def detect_session(
     inputs = _gyro_inputs(session, gyro)
     found: list[FrameStreaks] = []
     timings: list[FrameTiming] = []
-    for i in idx:
-        fs = detect_frame(session.read_image(i), p)
+    for i, fs in zip(idx, detect_frames(session, idx, p, workers), strict=True):
         found.append(fs)
         timings.append(FrameTiming(float(t_s[i]), float(exp_s[i])))
         if on_frame is not None:

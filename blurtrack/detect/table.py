@@ -35,10 +35,20 @@ EXTRA_COLUMNS: dict[str, str] = {
 }
 
 
+def _nested_lists(arrays: Sequence[np.ndarray], decimals: int) -> list[list]:
+    """Per-streak arrays rounded and turned into Python lists (one rounding and one
+    ``tolist`` for the whole frame, then sliced)."""
+    if not arrays:
+        return []
+    flat = np.round(np.concatenate(arrays), decimals).tolist()
+    ends = np.cumsum([len(a) for a in arrays]).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+
+
 def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation) -> pd.DataFrame:
     """The rows of one frame, ``fs`` already oriented (end A = start)."""
     N = len(fs)
-    pts = [np.round(p, 4).tolist() for p in fs.points]
+    pts = _nested_lists(fs.points, 4)
     data = {
         "frame": np.full(N, frame, np.int64),
         "timestamp_ns": np.full(N, timestamp_ns, np.int64),
@@ -49,7 +59,7 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
         "end_y": fs.end_b[:, 1],
         "length_px": fs.length_px,
         "centerline": pts,
-        "profile": [np.round(p, 6).tolist() for p in fs.profile],
+        "profile": _nested_lists(fs.profile, 6),
         "orientation_confidence": ori.confidence,
         "orientation_source": list(ori.source),
         "clipped": fs.flags["clipped"],
