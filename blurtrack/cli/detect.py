@@ -109,6 +109,12 @@ def run(args: argparse.Namespace) -> int:
             f"{s['frames_without_streaks'][:10]}",
             file=sys.stderr,
         )
+    if s["frames_overexposed"]:
+        print(
+            f"  warning: {len(s['frames_overexposed'])} over-exposed frame(s) (mostly "
+            f"saturated): {s['frames_overexposed'][:10]}",
+            file=sys.stderr,
+        )
     if s["frames_without_gyro"]:
         print(
             f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "

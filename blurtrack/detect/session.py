@@ -30,6 +30,9 @@ from blurtrack.errors import CoverageError, DetectionError
 
 GYRO_MODES = ("auto", "on", "off")
 
+#: A frame with more than this fraction of its pixels saturated is reported as over-exposed.
+OVEREXPOSED_FRACTION = 0.25
+
 #: What a forked worker process detects from (set before the pool forks; never pickled).
 _WORKER_STATE: dict[str, Any] = {}
 
@@ -232,14 +235,19 @@ def detect_session(
         conf.append(ori.confidence)
     table = build_table(parts)
     empty = [idx[k] for k, fs in enumerate(found) if len(fs) == 0]
+    overexposed = [
+        idx[k] for k, fs in enumerate(found) if fs.saturated_fraction > OVEREXPOSED_FRACTION
+    ]
     if len(table) == 0:
-        raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames")
+        why = f" ({len(overexposed)} over-exposed)" if overexposed else ""
+        raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames{why}")
     allc = np.concatenate(conf)
     summary = {
         "frames": len(idx),
         "streaks": len(table),
         "frames_without_streaks": empty,
         "frames_without_gyro": uncovered,
+        "frames_overexposed": overexposed,
         "gyro": "off" if model is None else gyro,
         "gyro_timeshift_initial_s": None
         if inputs is None

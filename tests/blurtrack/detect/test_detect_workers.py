@@ -67,3 +67,55 @@ def test_all_zero_gyro_leaves_the_time_shift_undetermined(
     assert len(res.table) > 0 and np.all(res.table.llr_gyro == 0)
     assert main(["detect", str(folder), "--out", str(tmp_path / "z.parquet")]) == 0
     assert "camera-IMU time shift: undetermined" in capsys.readouterr().out
+
+
+def _rewrite_frames(folder: Path, edit) -> None:
+    import cv2
+
+    for k, png in enumerate(sorted((folder / "cam0" / "data").glob("*.png"))):
+        img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png), edit(k, img))
+
+
+def test_dark_and_saturated_frames_are_reported(session_folder: Path, tmp_path: Path, capsys):
+    import shutil
+
+    folder = tmp_path / "bad"
+    shutil.copytree(session_folder, folder)
+    names = sorted(p.name for p in (folder / "cam0" / "data").glob("*.png"))
+    order = load_session(folder).frames
+    dark = names.index(str(order["filename"].iloc[1]))
+    sat = names.index(str(order["filename"].iloc[3]))
+
+    def edit(k: int, img: np.ndarray) -> np.ndarray:
+        if k == dark:
+            return np.zeros_like(img)
+        if k == sat:
+            return np.full_like(img, 255)
+        return img
+
+    _rewrite_frames(folder, edit)
+    res = detect_session(load_session(folder), workers=2)
+    assert res.summary["frames_without_streaks"] == [1, 3]
+    assert res.summary["frames_overexposed"] == [3]
+    assert set(res.table.frame) == {0, 2, 4}
+    assert main(["detect", str(folder), "--out", str(tmp_path / "b.parquet")]) == 0
+    err = capsys.readouterr().err
+    assert "2 frame(s) without streaks" in err and "1 over-exposed frame(s)" in err
+
+
+@pytest.mark.parametrize("kind", ["uint16", "colour"])
+def test_16_bit_and_colour_sessions_match_gray(session_folder: Path, tmp_path: Path, kind: str):
+    import shutil
+
+    folder = tmp_path / kind
+    shutil.copytree(session_folder, folder)
+    if kind == "uint16":
+        _rewrite_frames(folder, lambda k, img: img.astype(np.uint16) * 257)
+    else:
+        _rewrite_frames(folder, lambda k, img: np.dstack([img // 3, img, img // 2]))
+    a = detect_session(load_session(session_folder), gyro="off", refine_timeshift=False).table
+    b = detect_session(load_session(folder), gyro="off", refine_timeshift=False).table
+    assert len(a) == len(b)
+    d = np.hypot(a.start_x - b.start_x, a.start_y - b.start_y)
+    assert float(np.median(d)) < 0.05
