@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
@@ -64,10 +63,17 @@ class FrameStreaks:
 def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
     """Whether a ~1 px sampled centre line comes back within 1.5 px of itself after more than
     ``min_arc_px`` of arc (a loop)."""
-    if len(points) < 3:
+    n = len(points)
+    if n < 3:
         return False
-    pairs = cKDTree(points).query_pairs(1.5, output_type="ndarray")
-    return bool(np.any(np.abs(pairs[:, 0] - pairs[:, 1]) > min_arc_px)) if len(pairs) else False
+    gap = int(np.floor(min_arc_px)) + 1  # index separation beyond min_arc_px (~1 px apart)
+    for a in range(0, n, 512):  # exhaustive, in blocks of rows
+        q = points[a : a + 512]
+        d2 = (q[:, None, 0] - points[None, :, 0]) ** 2 + (q[:, None, 1] - points[None, :, 1]) ** 2
+        i, j = np.nonzero(d2 <= 1.5**2)
+        if np.any(np.abs(i + a - j) >= gap):
+            return True
+    return False
 
 
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:

@@ -26,7 +26,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from blurtrack.detect.frame import FrameStreaks
 
@@ -200,6 +199,22 @@ def _extrapolated_ends(
     return ext_a, ext_b, unc
 
 
+#: Query rows per block of :func:`nearest_distance` (bounds its distance matrix).
+NEAREST_BLOCK = 512
+
+
+def nearest_distance(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance ``(N,)`` from each of ``queries (N, 2)`` to the nearest of ``points (M, 2)``
+    (exhaustive, in blocks: a frame's few hundred ends need no spatial index)."""
+    out = np.empty(queries.shape[0])
+    for a in range(0, queries.shape[0], NEAREST_BLOCK):
+        q = queries[a : a + NEAREST_BLOCK]
+        dx = q[:, 0:1] - points[None, :, 0]
+        dy = q[:, 1:2] - points[None, :, 1]
+        out[a : a + NEAREST_BLOCK] = np.sqrt(np.min(dx * dx + dy * dy, axis=1))
+    return out
+
+
 def continuity_cues(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
@@ -214,16 +229,16 @@ def continuity_cues(
     """
     out = [np.zeros(len(fs)) for fs in frames]
 
-    def tree(k: int, want: str) -> cKDTree | None:
+    def tree(k: int, want: str) -> np.ndarray | None:
         fs = frames[k]
         if len(fs) == 0:
             return None
         if swaps is None:
-            return cKDTree(np.concatenate([fs.end_a, fs.end_b]))
+            return np.concatenate([fs.end_a, fs.end_b])
         sw = swaps[k][:, None]
         starts = np.where(sw, fs.end_b, fs.end_a)
         ends = np.where(sw, fs.end_a, fs.end_b)
-        return cKDTree(ends if want == "ends" else starts)
+        return ends if want == "ends" else starts
 
     for k, fs in enumerate(frames):
         if len(fs) == 0:
@@ -240,8 +255,8 @@ def continuity_cues(
                 continue
             ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap)
             gate = 3.0 * unc
-            d_a = np.minimum(t.query(ext_a)[0], gate)
-            d_b = np.minimum(t.query(ext_b)[0], gate)
+            d_a = np.minimum(nearest_distance(ext_a, t), gate)
+            d_b = np.minimum(nearest_distance(ext_b, t), gate)
             # Previous frame (sign +1): an end near ext_a supports "A is the start".
             out[k] += sign * (d_b**2 - d_a**2) / (2 * unc**2)
     return [np.clip(o, -MAX_CUE_LLR, MAX_CUE_LLR) for o in out]
