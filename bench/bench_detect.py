@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -185,23 +186,32 @@ def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
     out = work / f"{folder.name}.bench.parquet"
     variants = {"workers_1": ["--workers", "1"], "workers_default": []}
     times: dict[str, list[float]] = {"baseline": [], **{k: [] for k in variants}}
+    cpu: dict[str, list[float]] = {k: [] for k in times}
     for _ in range(repeat):  # interleaved, so that machine load affects all alike
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         _baseline_files(paths)
         times["baseline"].append(time.perf_counter() - t0)
+        cpu["baseline"].append(time.process_time() - c0)
         for name, extra in variants.items():
             cmd = [sys.executable, "-m", "blurtrack", "detect", str(folder), "--out", str(out)]
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             subprocess.run(cmd + extra, check=True, cwd=ROOT, capture_output=True)
             times[name].append(time.perf_counter() - t0)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu[name].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
     med = {k: float(np.median(v)) for k, v in times.items()}
+    med_cpu = {k: float(np.median(v)) for k, v in cpu.items()}
     n = len(paths)
-    res: dict[str, Any] = {"frames": n, "cores": os.cpu_count()}
+    res: dict[str, Any] = {"frames": n, "cores": os.cpu_count(), "load_1min": os.getloadavg()[0]}
     for k, v in med.items():
         res[f"{k}_s"] = v
         res[f"{k}_fps"] = n / v
+        res[f"{k}_cpu_s"] = med_cpu[k]
     for k in variants:
+        # Wall ratio (what a user waits) and CPU ratio (core-seconds; independent of load).
         res[f"ratio_{k}"] = med[k] / med["baseline"]
+        res[f"cpu_ratio_{k}"] = med_cpu[k] / med_cpu["baseline"]
     res["streaks_per_frame"] = len(pd.read_parquet(out)) / n
     return res
 
