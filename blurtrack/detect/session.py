@@ -97,6 +97,12 @@ def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
     return session.initial_calibration(), session.gyro()
 
 
+def _nan_median(x: pd.Series) -> float | None:
+    v = x.to_numpy(float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
+
+
 def _shift_status(model: Any, shift: Any, searched: bool) -> str:
     """``found`` / ``undetermined`` (flat cost) / ``not searched`` / ``too few streaks`` /
     ``no gyro``: what became of the time-shift scan."""
@@ -262,6 +268,9 @@ def detect_session(
             for c in ("clipped", "saturated", "merged", "crossing", "looped", "faint")
         },
         "hot_pixels": int(sum(fs.hot_pixels for fs in found)),
+        "quality_ok": int(table["quality_ok"].sum()),
+        "thick_saturated": int(table["thick_saturated"].sum()),
+        "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),
         "params": p.to_dict(),
     }

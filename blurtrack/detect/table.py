@@ -5,7 +5,8 @@ Extra columns beyond :data:`blurtrack.io.streaks.COLUMNS` (see docs/detection.md
 signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-smoothed
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
 ``mid_y`` (time midpoint: where the dot was at mid-exposure), ``llr_gyro``,
-``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right).
+``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
+``shape_deviation_px``, ``thick_saturated``, ``quality_ok`` (:mod:`blurtrack.detect.quality`).
 The column ``merged`` of the core schema means "merged with or crossing another streak".
 """
 
@@ -18,6 +19,7 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import Orientation
+from blurtrack.detect.quality import add_quality
 from blurtrack.io import streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
@@ -32,6 +34,9 @@ EXTRA_COLUMNS: dict[str, str] = {
     "llr_gyro": "float64",
     "llr_profile": "float64",
     "llr_continuity": "float64",
+    "shape_deviation_px": "float64",
+    "thick_saturated": "bool",
+    "quality_ok": "bool",
 }
 
 
@@ -89,7 +94,7 @@ def build_table(parts: Sequence[pd.DataFrame]) -> pd.DataFrame:
         for c, dt in EXTRA_COLUMNS.items():
             df[c] = pd.Series(dtype=dt)
         return df
-    df = pd.concat(parts, ignore_index=True)
+    df = add_quality(pd.concat(parts, ignore_index=True))
     return streaks.validate(df)
 
 
