@@ -139,11 +139,16 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _gray(img: np.ndarray) -> np.ndarray:
+    """Colour frames (BGR) to one channel for the baseline."""
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+
+
 def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[str, float]:
     cv2.setNumThreads(1)
 
     def base(img: np.ndarray) -> None:
-        g = cv2.GaussianBlur(img, (0, 0), 1.0)
+        g = cv2.GaussianBlur(_gray(img), (0, 0), 1.0)
         thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
         cv2.connectedComponentsWithStats((g > thr).view(np.uint8), connectivity=8)
 
@@ -172,7 +177,7 @@ def _baseline_files(paths: list[Path]) -> None:
     """The baseline over image files: decode, smooth, threshold, label (one core)."""
     for path in paths:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        g = cv2.GaussianBlur(img, (0, 0), 1.0)
+        g = cv2.GaussianBlur(_gray(img), (0, 0), 1.0)
         thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
         _, mask = cv2.threshold(g, thr, 255, cv2.THRESH_BINARY)
         cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
