@@ -228,6 +228,11 @@ def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
     res = detect_session(session, params, gyro=gyro)
     wall = time.perf_counter() - t0
     out = evaluate(res.table, session.truth or {"frames": []})
+    # The same measures over the subsets a consumer would keep (flags, quality column).
+    for name, keep in (("not_faint", ~res.table["faint"]), ("quality_ok", res.table["quality_ok"])):
+        sub = evaluate(res.table[keep], session.truth or {"frames": []})
+        for k in ("precision_unclipped", "recall_inside", "endpoint_error_median_px"):
+            out[f"{name}_{k}"] = sub[k]
     frames = [session.read_image(i) for i in range(len(session.frames))]
     out.update(speed(frames, params, repeat))
     out.update(
@@ -301,6 +306,10 @@ def main() -> int:
                                     "precision_unclipped",
                                     "time_ratio",
                                     "detect_fps",
+                                    "not_faint_precision_unclipped",
+                                    "quality_ok_precision_unclipped",
+                                    "quality_ok_recall_inside",
+                                    "quality_ok_endpoint_error_median_px",
                                 )
                             },
                         }
