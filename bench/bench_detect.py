@@ -8,15 +8,23 @@ run ``detect_session`` and compare with ``truth.yaml``:
 - start/end resolved correctly, for true streaks longer than 5 px;
 - recall (true inside streaks found) and precision (unclipped detections that are real);
 - speed: frames/s of the per-frame detection on one core, and the same frames through a plain
-  ``cv2.GaussianBlur`` + ``cv2.connectedComponentsWithStats`` pass in the same run (ratio).
+  ``cv2.GaussianBlur`` + ``cv2.connectedComponentsWithStats`` pass in the same run (ratio);
+- whole command (``--command``): the wall time of the command a user runs, ``blurtrack detect
+  SESSION`` as a subprocess (start-up, decoding, detection, orientation, time-shift scan,
+  writing), with ``--workers 1`` and with the default workers (all cores), against the
+  single-core baseline ``cv2.imread`` + ``GaussianBlur`` + ``threshold`` +
+  ``connectedComponentsWithStats`` over the same image files, interleaved in the same run.
 
-Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``
+Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``;
+``python bench/bench_detect.py --command --presets dense hard --seeds 1 --frames 100``
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import time
@@ -25,6 +33,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -130,11 +139,16 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _gray(img: np.ndarray) -> np.ndarray:
+    """Colour frames (BGR) to one channel for the baseline."""
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+
+
 def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[str, float]:
     cv2.setNumThreads(1)
 
     def base(img: np.ndarray) -> None:
-        g = cv2.GaussianBlur(img, (0, 0), 1.0)
+        g = cv2.GaussianBlur(_gray(img), (0, 0), 1.0)
         thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
         cv2.connectedComponentsWithStats((g > thr).view(np.uint8), connectivity=8)
 
@@ -159,6 +173,54 @@ def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[s
     }
 
 
+def _baseline_files(paths: list[Path]) -> None:
+    """The baseline over image files: decode, smooth, threshold, label (one core)."""
+    for path in paths:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        g = cv2.GaussianBlur(_gray(img), (0, 0), 1.0)
+        thr = float(np.median(g[::8, ::8])) + 10.0 * (256 if img.dtype == np.uint16 else 1)
+        _, mask = cv2.threshold(g, thr, 255, cv2.THRESH_BINARY)
+        cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+
+
+def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
+    """Wall time of ``blurtrack detect`` (subprocess) against the file baseline, interleaved."""
+    cv2.setNumThreads(1)
+    session = load_session(folder)
+    paths = [session.image_path(i) for i in range(len(session.frames))]
+    out = work / f"{folder.name}.bench.parquet"
+    variants = {"workers_1": ["--workers", "1"], "workers_default": []}
+    times: dict[str, list[float]] = {"baseline": [], **{k: [] for k in variants}}
+    cpu: dict[str, list[float]] = {k: [] for k in times}
+    for _ in range(repeat):  # interleaved, so that machine load affects all alike
+        t0, c0 = time.perf_counter(), time.process_time()
+        _baseline_files(paths)
+        times["baseline"].append(time.perf_counter() - t0)
+        cpu["baseline"].append(time.process_time() - c0)
+        for name, extra in variants.items():
+            cmd = [sys.executable, "-m", "blurtrack", "detect", str(folder), "--out", str(out)]
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            subprocess.run(cmd + extra, check=True, cwd=ROOT, capture_output=True)
+            times[name].append(time.perf_counter() - t0)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu[name].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    med_cpu = {k: float(np.median(v)) for k, v in cpu.items()}
+    n = len(paths)
+    res: dict[str, Any] = {"frames": n, "cores": os.cpu_count(), "load_1min": os.getloadavg()[0]}
+    for k, v in med.items():
+        res[f"{k}_s"] = v
+        res[f"{k}_fps"] = n / v
+        res[f"{k}_cpu_s"] = med_cpu[k]
+    for k in variants:
+        # Wall ratio (what a user waits) and CPU ratio (core-seconds; independent of load).
+        res[f"ratio_{k}"] = med[k] / med["baseline"]
+        res[f"cpu_ratio_{k}"] = med_cpu[k] / med_cpu["baseline"]
+    res["streaks_per_frame"] = len(pd.read_parquet(out)) / n
+    return res
+
+
 def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
     session = load_session(folder)
     params = DetectParams()
@@ -166,6 +228,11 @@ def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
     res = detect_session(session, params, gyro=gyro)
     wall = time.perf_counter() - t0
     out = evaluate(res.table, session.truth or {"frames": []})
+    # The same measures over the subsets a consumer would keep (flags, quality column).
+    for name, keep in (("not_faint", ~res.table["faint"]), ("quality_ok", res.table["quality_ok"])):
+        sub = evaluate(res.table[keep], session.truth or {"frames": []})
+        for k in ("precision_unclipped", "recall_inside", "endpoint_error_median_px"):
+            out[f"{name}_{k}"] = sub[k]
     frames = [session.read_image(i) for i in range(len(session.frames))]
     out.update(speed(frames, params, repeat))
     out.update(
@@ -190,7 +257,27 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3, help="speed passes over the frames")
     ap.add_argument("--work", type=Path, default=ROOT / "bench_out" / "detect")
     ap.add_argument("--session", type=Path, default=None, help="benchmark this session only")
+    ap.add_argument(
+        "--command",
+        action="store_true",
+        help="time the whole `blurtrack detect` command against the file baseline",
+    )
     args = ap.parse_args()
+    if args.command:
+        args.work.mkdir(parents=True, exist_ok=True)
+        runs = []
+        for preset in args.presets:
+            for seed in args.seeds:
+                folder = simulate(args.work, preset, args.frames, seed)
+                r = {
+                    "preset": preset,
+                    "seed": seed,
+                    **command_speed(folder, args.repeat, args.work),
+                }
+                print(json.dumps(r), file=sys.stderr)
+                runs.append(r)
+        print(json.dumps({"command_runs": runs}, indent=2))
+        return 0
     results: dict[str, Any] = {"runs": []}
     if args.session is not None:
         one = run_one(args.session, args.gyro, args.repeat)
@@ -219,6 +306,10 @@ def main() -> int:
                                     "precision_unclipped",
                                     "time_ratio",
                                     "detect_fps",
+                                    "not_faint_precision_unclipped",
+                                    "quality_ok_precision_unclipped",
+                                    "quality_ok_recall_inside",
+                                    "quality_ok_endpoint_error_median_px",
                                 )
                             },
                         }

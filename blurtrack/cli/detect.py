@@ -48,6 +48,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_quiet_arg(p)
     add_force_arg(p)
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="processes that decode and detect frames in parallel (default: the CPU cores; "
+        "the table does not depend on it)",
+    )
     p.set_defaults(func=run)
 
 
@@ -79,15 +87,17 @@ def detect_to_table(
     gyro: str = "auto",
     frames: range | None = None,
     quiet: bool = False,
+    workers: int | None = None,
 ) -> Any:
     """Detect the streaks of ``session`` (with a progress bar) and write the table to ``out``.
 
-    Returns the :class:`blurtrack.detect.session.DetectionResult`; shared by ``detect`` and by
-    ``calibrate``/``report`` when a session has no table yet.
+    ``workers`` processes detect frames in parallel (default: the CPU cores; the table does not
+    depend on it). Returns the :class:`blurtrack.detect.session.DetectionResult`; shared by
+    ``detect`` and by ``calibrate``/``report`` when a session has no table yet.
     """
     import cv2
 
-    from blurtrack.detect.session import detect_session
+    from blurtrack.detect.session import default_workers, detect_session
     from blurtrack.detect.table import write_table
 
     cv2.setNumThreads(1)
@@ -99,7 +109,14 @@ def detect_to_table(
             done[0] += 1
             bar(done[0], total)
 
-        result = detect_session(session, params, gyro=gyro, frames=frames, on_frame=on_frame)
+        result = detect_session(
+            session,
+            params,
+            gyro=gyro,
+            frames=frames,
+            on_frame=on_frame,
+            workers=default_workers() if workers is None else workers,
+        )
     write_table(result.table, out)
     return result
 
@@ -119,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     session = load_session(args.session)
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
     frames = _frame_range(args.frames, len(session.frames))
-    result = detect_to_table(session, args.out, params, args.gyro, frames, args.quiet)
+    result = detect_to_table(session, args.out, params, args.gyro, frames, args.quiet, args.workers)
     summary = dict(result.summary, session=str(args.session), table=str(args.out))
     if args.overlay is not None:
         first = int(result.table["frame"].iloc[0])
@@ -134,10 +151,20 @@ def run(args: argparse.Namespace) -> int:
         f"{s['orientation_confidence_median']:.3f}"
     )
     print(f"  flags: {s['flags']}")
+    if s["gyro_timeshift_status"] == "found":
+        print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms (coarse scan)")
+    elif s["gyro_timeshift_status"] != "no gyro":
+        print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
     if s["frames_without_streaks"]:
         print(
             f"  warning: {len(s['frames_without_streaks'])} frame(s) without streaks: "
             f"{s['frames_without_streaks'][:10]}",
+            file=sys.stderr,
+        )
+    if s["frames_overexposed"]:
+        print(
+            f"  warning: {len(s['frames_overexposed'])} over-exposed frame(s) (mostly "
+            f"saturated): {s['frames_overexposed'][:10]}",
             file=sys.stderr,
         )
     if s["frames_without_gyro"]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.endpoints import fit_edges, unclip_profiles
@@ -28,7 +27,8 @@ class FrameStreaks:
     Arrays have one row per streak (N). ``points``/``profile`` are per-streak lists of
     ``(n, 2)`` / ``(n,)`` arrays. ``flags`` maps each name of :data:`FLAG_NAMES` to ``(N,)``
     bools. ``snr``: peak of the smoothed signal in noise sigmas. ``sigma_c_px``: the frame's
-    cross-section sigma in the smoothed image. ``shape``: ``(H, W)``.
+    cross-section sigma in the smoothed image. ``shape``: ``(H, W)``. ``saturated_fraction``:
+    the fraction of the frame's pixels at the saturation level (an over-exposed frame).
     """
 
     shape: tuple[int, int]
@@ -46,6 +46,7 @@ class FrameStreaks:
     noise: float
     hot_pixels: int
     short: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    saturated_fraction: float = 0.0
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])
@@ -62,10 +63,17 @@ class FrameStreaks:
 def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
     """Whether a ~1 px sampled centre line comes back within 1.5 px of itself after more than
     ``min_arc_px`` of arc (a loop)."""
-    if len(points) < 3:
+    n = len(points)
+    if n < 3:
         return False
-    pairs = cKDTree(points).query_pairs(1.5, output_type="ndarray")
-    return bool(np.any(np.abs(pairs[:, 0] - pairs[:, 1]) > min_arc_px)) if len(pairs) else False
+    gap = int(np.floor(min_arc_px)) + 1  # index separation beyond min_arc_px (~1 px apart)
+    for a in range(0, n, 512):  # exhaustive, in blocks of rows
+        q = points[a : a + 512]
+        d2 = (q[:, None, 0] - points[None, :, 0]) ** 2 + (q[:, None, 1] - points[None, :, 1]) ** 2
+        i, j = np.nonzero(d2 <= 1.5**2)
+        if np.any(np.abs(i + a - j) >= gap):
+            return True
+    return False
 
 
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
@@ -76,7 +84,9 @@ def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarra
     return np.maximum.reduceat(saturated[comps.ys, comps.xs], comps.starts)
 
 
-def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> FrameStreaks:
+def _empty(
+    shape: tuple[int, int], sigma_c: float, noise: float, hot: int, sat_frac: float
+) -> FrameStreaks:
     z2 = np.zeros((0, 2))
     return FrameStreaks(
         shape,
@@ -93,6 +103,7 @@ def _empty(shape: tuple[int, int], sigma_c: float, noise: float, hot: int) -> Fr
         sigma_c,
         noise,
         hot,
+        saturated_fraction=sat_frac,
     )
 
 
@@ -110,12 +121,13 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     keep_frame_buffers()  # once per process: no page faults for per-frame buffers
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.signal.shape
+    sat_frac = float(np.count_nonzero(prep.saturated)) / (H * W)
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
     sigma_c = sigma_guess = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
     if comps.ids.size == 0:
-        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels)
+        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     polylines, folded = axis_polylines(prep.smooth, comps, sigma_c)
     owner: list[int] = []  # component index of each line
     lines: list[np.ndarray] = []
@@ -193,7 +205,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)
     keep = np.flatnonzero(fit.valid)
     if keep.size == 0:
-        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels)
+        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     own = np.asarray(owner)[keep]
     end_a = trimmed.end_a[keep]
     end_b = trimmed.end_b[keep]
@@ -237,4 +249,5 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         noise=prep.noise,
         hot_pixels=prep.hot_pixels,
         short=fit.short[keep],
+        saturated_fraction=sat_frac,
     )

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import multiprocessing as mp
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,12 +14,14 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
+    CUE_SUBSTEP_S,
     GYRO_SIGMA_REL,
     GYRO_SIGMA_REL_REFINED,
     FrameTiming,
     combine,
     continuity_cues,
     gyro_cues,
+    gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.table import build_table, frame_rows
@@ -24,6 +29,48 @@ from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import CoverageError, DetectionError
 
 GYRO_MODES = ("auto", "on", "off")
+
+#: A frame with more than this fraction of its pixels saturated is reported as over-exposed.
+OVEREXPOSED_FRACTION = 0.25
+
+#: What a forked worker process detects from (set before the pool forks; never pickled).
+_WORKER_STATE: dict[str, Any] = {}
+
+
+def default_workers() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _worker_detect(i: int) -> FrameStreaks:
+    return detect_frame(_WORKER_STATE["session"].read_image(i), _WORKER_STATE["params"])
+
+
+def detect_frames(
+    session: Any, idx: list[int], params: DetectParams, workers: int = 1
+) -> Iterator[FrameStreaks]:
+    """Decode and detect the frames ``idx`` of a session, in order, in ``workers`` processes.
+
+    Frames are independent, so the workers' results are exactly those of one process. Workers
+    are forked (they inherit the loaded session, nothing is pickled but the results); where
+    the platform cannot fork, or for a single worker or frame, the frames are detected here.
+    """
+    if workers < 1:
+        raise DetectionError(f"workers must be >= 1, got {workers}")
+    n = min(workers, len(idx))
+    if n <= 1 or "fork" not in mp.get_all_start_methods():
+        for i in idx:
+            yield detect_frame(session.read_image(i), params)
+        return
+    _WORKER_STATE.update(session=session, params=params)
+    try:
+        with ProcessPoolExecutor(n, mp_context=mp.get_context("fork")) as pool:
+            yield from pool.map(_worker_detect, idx, chunksize=max(1, min(8, len(idx) // (4 * n))))
+    finally:
+        _WORKER_STATE.clear()
 
 
 @dataclass
@@ -50,6 +97,55 @@ def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
     return session.initial_calibration(), session.gyro()
 
 
+def _nan_median(x: pd.Series) -> float | None:
+    v = x.to_numpy(float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
+
+
+def _shift_status(model: Any, shift: Any, searched: bool) -> str:
+    """``found`` / ``undetermined`` (flat cost) / ``not searched`` / ``too few streaks`` /
+    ``no gyro``: what became of the time-shift scan."""
+    if model is None:
+        return "no gyro"
+    if not searched:
+        return "not searched"
+    return "too few streaks" if shift is None else str(shift.status)
+
+
+def _covers(model: Any, tm: FrameTiming) -> bool:
+    """Whether the model's gyro covers a frame's exposure (all rows, camera clock)."""
+    shift = float(model.calib.timeshift_cam_imu_s)
+    t0 = tm.t_s + shift
+    return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
+
+
+def _gyro_llrs(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    sigma_rel: float,
+) -> list[np.ndarray | None]:
+    """Gyro and profile LLRs of the covered frames, batched; frame by frame (None where the
+    gyro falls short after all, e.g. a point predicted outside the frame) if a batch fails."""
+    try:
+        return list(
+            gyro_cues_batch(
+                [found[k] for k in covered], [timings[k] for k in covered], model, sigma_rel
+            )
+        )
+    except CoverageError:
+        pass
+    out: list[np.ndarray | None] = []
+    for k in covered:
+        try:
+            out.append(gyro_cues(found[k], timings[k], model, sigma_rel))
+        except CoverageError:
+            out.append(None)
+    return out
+
+
 def detect_session(
     session: Any,
     params: DetectParams | None = None,
@@ -57,6 +153,7 @@ def detect_session(
     frames: range | None = None,
     on_frame: Callable[[int, FrameStreaks], None] | None = None,
     refine_timeshift: bool = True,
+    workers: int = 1,
 ) -> DetectionResult:
     """Detect and orient the streaks of every frame of a loaded session.
 
@@ -67,6 +164,8 @@ def detect_session(
             (every frame must be covered: :class:`CoverageError` otherwise), ``off``.
         frames: subset of frame indices (default: all).
         on_frame: progress callback ``(index, streaks)``.
+        workers: processes that decode and detect frames in parallel (1: in this process);
+            the result does not depend on it.
         refine_timeshift: before using the gyro, scan the camera-IMU time shift around the
             session's guess (:mod:`blurtrack.detect.timeshift`); the guess may be off by more
             than an exposure.
@@ -85,8 +184,7 @@ def detect_session(
     inputs = _gyro_inputs(session, gyro)
     found: list[FrameStreaks] = []
     timings: list[FrameTiming] = []
-    for i in idx:
-        fs = detect_frame(session.read_image(i), p)
+    for i, fs in zip(idx, detect_frames(session, idx, p, workers), strict=True):
         found.append(fs)
         timings.append(FrameTiming(float(t_s[i]), float(exp_s[i])))
         if on_frame is not None:
@@ -99,20 +197,31 @@ def detect_session(
 
         calib, trace = inputs
         shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None
-        if shift is not None:
+        found_shift = shift is not None and shift.status == "found"
+        if found_shift:
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
-        model = BlurModel(calib, trace)
+        model = BlurModel(calib, trace, max_substep_s=CUE_SUBSTEP_S)
+        sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL
+        covered = []
         for k, (fs, tm) in enumerate(zip(found, timings, strict=True)):
             if len(fs) == 0:
                 continue
-            try:
-                llrs[k][:, 0:2] = gyro_cues(
-                    fs, tm, model, GYRO_SIGMA_REL_REFINED if shift is not None else GYRO_SIGMA_REL
-                )
-            except CoverageError as exc:
-                if gyro == "on":
-                    raise CoverageError(f"frame {idx[k]}: {exc}") from None
+            if _covers(model, tm):
+                covered.append(k)
+            elif gyro == "on":
+                raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+            else:
                 uncovered.append(idx[k])
+        for k, llr in zip(
+            covered, _gyro_llrs(found, timings, covered, model, sigma_rel), strict=True
+        ):
+            if llr is None:
+                if gyro == "on":
+                    raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+                uncovered.append(idx[k])
+            else:
+                llrs[k][:, 0:2] = llr
+        uncovered.sort()
     # Continuity twice: any neighbouring end first, then (with that tentative orientation)
     # only the previous frame's ends and the next frame's starts.
     for k, c in enumerate(continuity_cues(found, timings)):
@@ -132,19 +241,25 @@ def detect_session(
         conf.append(ori.confidence)
     table = build_table(parts)
     empty = [idx[k] for k, fs in enumerate(found) if len(fs) == 0]
+    overexposed = [
+        idx[k] for k, fs in enumerate(found) if fs.saturated_fraction > OVEREXPOSED_FRACTION
+    ]
     if len(table) == 0:
-        raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames")
+        why = f" ({len(overexposed)} over-exposed)" if overexposed else ""
+        raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames{why}")
     allc = np.concatenate(conf)
     summary = {
         "frames": len(idx),
         "streaks": len(table),
         "frames_without_streaks": empty,
         "frames_without_gyro": uncovered,
+        "frames_overexposed": overexposed,
         "gyro": "off" if model is None else gyro,
         "gyro_timeshift_initial_s": None
         if inputs is None
         else float(inputs[0].timeshift_cam_imu_s),
         "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
+        "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),
@@ -153,6 +268,9 @@ def detect_session(
             for c in ("clipped", "saturated", "merged", "crossing", "looped", "faint")
         },
         "hot_pixels": int(sum(fs.hot_pixels for fs in found)),
+        "quality_ok": int(table["quality_ok"].sum()),
+        "thick_saturated": int(table["thick_saturated"].sum()),
+        "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),
         "params": p.to_dict(),
     }

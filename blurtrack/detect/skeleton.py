@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from skimage.morphology import skeletonize
 
 # 8-neighbour offsets in circular order (for the crossing number).
 _RING = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
@@ -91,6 +90,8 @@ def trace_paths(mask: np.ndarray, spur_px: float, merge_px: float) -> list[Trace
     Returns:
         The paths, longest first (empty if the skeleton is degenerate).
     """
+    from skimage.morphology import skeletonize  # only folded streaks need it (slow import)
+
     skel = skeletonize(mask)
     yx, nb, crossings = _neighbours(skel)
     K = yx.shape[0]

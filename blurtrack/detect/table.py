@@ -5,7 +5,8 @@ Extra columns beyond :data:`blurtrack.io.streaks.COLUMNS` (see docs/detection.md
 signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-smoothed
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
 ``mid_y`` (time midpoint: where the dot was at mid-exposure), ``llr_gyro``,
-``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right).
+``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
+``shape_deviation_px``, ``thick_saturated``, ``quality_ok`` (:mod:`blurtrack.detect.quality`).
 The column ``merged`` of the core schema means "merged with or crossing another streak".
 """
 
@@ -18,6 +19,7 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import Orientation
+from blurtrack.detect.quality import add_quality
 from blurtrack.io import streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
@@ -32,13 +34,26 @@ EXTRA_COLUMNS: dict[str, str] = {
     "llr_gyro": "float64",
     "llr_profile": "float64",
     "llr_continuity": "float64",
+    "shape_deviation_px": "float64",
+    "thick_saturated": "bool",
+    "quality_ok": "bool",
 }
+
+
+def _nested_lists(arrays: Sequence[np.ndarray], decimals: int) -> list[list]:
+    """Per-streak arrays rounded and turned into Python lists (one rounding and one
+    ``tolist`` for the whole frame, then sliced)."""
+    if not arrays:
+        return []
+    flat = np.round(np.concatenate(arrays), decimals).tolist()
+    ends = np.cumsum([len(a) for a in arrays]).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
 
 
 def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation) -> pd.DataFrame:
     """The rows of one frame, ``fs`` already oriented (end A = start)."""
     N = len(fs)
-    pts = [np.round(p, 4).tolist() for p in fs.points]
+    pts = _nested_lists(fs.points, 4)
     data = {
         "frame": np.full(N, frame, np.int64),
         "timestamp_ns": np.full(N, timestamp_ns, np.int64),
@@ -49,7 +64,7 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
         "end_y": fs.end_b[:, 1],
         "length_px": fs.length_px,
         "centerline": pts,
-        "profile": [np.round(p, 6).tolist() for p in fs.profile],
+        "profile": _nested_lists(fs.profile, 6),
         "orientation_confidence": ori.confidence,
         "orientation_source": list(ori.source),
         "clipped": fs.flags["clipped"],
@@ -79,7 +94,7 @@ def build_table(parts: Sequence[pd.DataFrame]) -> pd.DataFrame:
         for c, dt in EXTRA_COLUMNS.items():
             df[c] = pd.Series(dtype=dt)
         return df
-    df = pd.concat(parts, ignore_index=True)
+    df = add_quality(pd.concat(parts, ignore_index=True))
     return streaks.validate(df)
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import GYRO_SIGMA_PX, FrameTiming
+from blurtrack.detect.orientation import CUE_SUBSTEP_S, GYRO_SIGMA_PX, FrameTiming
 
 #: Streaks used per frame and frames used (spread over the session).
 MAX_STREAKS_PER_FRAME = 30
@@ -24,16 +24,25 @@ MAX_FRAMES = 6
 MIN_LENGTH_PX = 5.0
 
 
+#: Least drop of the scan's cost from its median to its minimum (a chi-square-like sum: 9 is
+#: three sigmas for one parameter) for the minimum to mean anything. A gyro that reads zero
+#: (or a motion too small to blur) predicts the same streaks at every shift: a flat cost, whose
+#: argmin is noise.
+MIN_CONTRAST = 9.0
+
+
 @dataclass(frozen=True)
 class TimeshiftEstimate:
-    """``timeshift_s`` (t_imu = t_cam + shift), the initial guess, the scanned grid and its
-    costs, and how many streaks were used."""
+    """``timeshift_s`` (t_imu = t_cam + shift; None when ``status`` is ``undetermined``), the
+    initial guess, the scanned grid and its costs, how many streaks were used, and ``status``:
+    ``found``, or ``undetermined`` (the cost is flat: the gyro does not tell shifts apart)."""
 
-    timeshift_s: float
+    timeshift_s: float | None
     initial_s: float
     grid_s: np.ndarray
     cost: np.ndarray
     n_streaks: int
+    status: str = "found"
 
 
 @dataclass(frozen=True)
@@ -48,20 +57,32 @@ class _Batch:
     exposure_s: np.ndarray
 
 
-def _cost(model: object, b: _Batch) -> float:
-    """Orientation-free endpoint mismatch (robust: each streak capped at 25)."""
+def _costs(model: object, b: _Batch, deltas_s: np.ndarray) -> np.ndarray:
+    """Orientation-free endpoint mismatch at each trial shift ``initial + delta`` (robust: each
+    streak capped at 25), all shifts in one model call.
+
+    A shift of the camera-IMU offset by ``delta`` is the same as evaluating the model (built
+    with the initial shift) at camera times moved by ``delta``.
+    """
     cam = model.camera  # type: ignore[attr-defined]
+    n, g = b.mid.shape[0], deltas_s.size
     t_ref = (
         b.frame_t_s
         + cam.readout_s * np.clip(b.mid[:, 1], 0, cam.height - 1) / cam.height
         + 0.5 * b.exposure_s
     )
+    d = np.repeat(deltas_s, n)
     start, end, _, _ = model.streak_endpoints(  # type: ignore[attr-defined]
-        b.mid, t_ref, b.frame_t_s, b.exposure_s
+        np.tile(b.mid, (g, 1)),
+        np.tile(t_ref, g) + d,
+        np.tile(b.frame_t_s, g) + d,
+        np.tile(b.exposure_s, g),
     )
-    ca = np.sum((b.end_a - start) ** 2, axis=1) + np.sum((b.end_b - end) ** 2, axis=1)
-    cb = np.sum((b.end_b - start) ** 2, axis=1) + np.sum((b.end_a - end) ** 2, axis=1)
-    return float(np.sum(np.minimum(np.minimum(ca, cb) / b.sig2, 25.0)))
+    A, B = np.tile(b.end_a, (g, 1)), np.tile(b.end_b, (g, 1))
+    ca = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
+    cb = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
+    per = np.minimum(np.minimum(ca, cb) / np.tile(b.sig2, g), 25.0)
+    return per.reshape(g, n).sum(axis=1)
 
 
 def estimate_timeshift(
@@ -72,12 +93,12 @@ def estimate_timeshift(
     search_s: float = 0.05,
     step_s: float = 0.003,
 ) -> TimeshiftEstimate | None:
-    """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage.
+    """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage,
+    ``status="undetermined"`` (and no shift) if the cost does not depend on the shift.
 
     ``calib`` is a :class:`blurtrack.io.calibration.Calibration` (its ``timeshift_cam_imu_s``
     is the initial guess), ``gyro`` a :class:`blurtrack.geometry.gyro.GyroTrace`.
     """
-    from blurtrack.errors import CoverageError
     from blurtrack.geometry.blur_model import BlurModel
 
     initial = float(calib.timeshift_cam_imu_s)  # type: ignore[attr-defined]
@@ -124,20 +145,28 @@ def estimate_timeshift(
         exposure_s=np.concatenate([np.full(len(sel), tm.exposure_s) for _, sel, tm in parts]),
     )
 
-    def cost_at(shift: float) -> float:
-        model = BlurModel(calib.with_(timeshift_cam_imu_s=shift), gyro)  # type: ignore[attr-defined]
-        try:
-            return _cost(model, batch)
-        except CoverageError:
-            return float("inf")
+    model = BlurModel(calib, gyro, max_substep_s=CUE_SUBSTEP_S, check_coverage=False)
+    t_lo_s = float(np.min(batch.frame_t_s)) + initial
+    t_hi_s = float(np.max(batch.frame_t_s + batch.exposure_s)) + readout + initial
+
+    def costs_at(shifts: np.ndarray) -> np.ndarray:
+        delta = shifts - initial
+        ok = np.array([gyro.covers(t_lo_s + d, t_hi_s + d) for d in delta])  # type: ignore[attr-defined]
+        cost = np.full(shifts.size, np.inf)
+        if ok.any():
+            cost[ok] = _costs(model, batch, delta[ok])
+        return cost
 
     grid = initial + np.arange(-search_s, search_s + 1e-12, step_s)
-    cost = np.array([cost_at(s) for s in grid])
+    cost = costs_at(grid)
     if not np.any(np.isfinite(cost)):
         return None
+    finite = cost[np.isfinite(cost)]
+    if float(np.median(finite) - np.min(finite)) < MIN_CONTRAST:
+        return TimeshiftEstimate(None, initial, grid, cost, n, "undetermined")
     best = float(grid[int(np.argmin(cost))])
     fine = best + np.arange(-step_s, step_s + 1e-12, step_s / 4)
-    fine_cost = np.array([cost_at(s) for s in fine])
+    fine_cost = costs_at(fine)
     best = float(fine[int(np.argmin(fine_cost))])
     return TimeshiftEstimate(
         timeshift_s=best,
@@ -145,4 +174,5 @@ def estimate_timeshift(
         grid_s=np.concatenate([grid, fine]),
         cost=np.concatenate([cost, fine_cost]),
         n_streaks=n,
+        status="found",
     )

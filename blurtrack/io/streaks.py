@@ -19,6 +19,9 @@ clipped                bool        touches the image border
 saturated              bool        has saturated pixels
 merged                 bool        merged with or crossing another streak
 faint                  bool        low contrast
+shape_deviation_px     float64     optional: start-to-end vector's distance from the frame's
+                                   consensus (px; NaN unknown)
+quality_ok             bool        optional: fit for calibration (:func:`usable`)
 =====================  ==========  ==========================================================
 """
 
@@ -55,6 +58,19 @@ COLUMNS: dict[str, str] = {
     "faint": "bool",
 }
 FLAG_COLUMNS = ("clipped", "saturated", "merged", "faint")
+#: Optional quality columns (``blurtrack detect`` writes them, older tables lack them; checked
+#: when present, and :func:`usable` works either way): distance of the streak's start-to-end
+#: vector from its frame's consensus (px, NaN = unknown), and whether the streak is fit for
+#: calibration.
+OPTIONAL_COLUMNS: dict[str, str] = {"shape_deviation_px": "float64", "quality_ok": "bool"}
+
+
+def usable(df: pd.DataFrame) -> pd.Series:
+    """Streaks fit for calibration: ``quality_ok`` where the table has it, else (older tables)
+    neither ``clipped`` nor ``merged``."""
+    if "quality_ok" in df.columns:
+        return df["quality_ok"].astype(bool)
+    return ~(df["clipped"].astype(bool) | df["merged"].astype(bool))
 
 
 class StreakTableError(BlurTrackError):
@@ -69,6 +85,12 @@ def validate(df: pd.DataFrame) -> pd.DataFrame:
     out = df.copy()
     for c, dt in COLUMNS.items():
         if dt != "object":
+            try:
+                out[c] = out[c].astype(dt)
+            except (TypeError, ValueError) as exc:
+                raise StreakTableError(f"streak table column {c!r}: {exc}") from None
+    for c, dt in OPTIONAL_COLUMNS.items():
+        if c in out.columns:
             try:
                 out[c] = out[c].astype(dt)
             except (TypeError, ValueError) as exc:

@@ -22,6 +22,7 @@ from typing import Any
 from blurtrack.errors import ConfigError
 from blurtrack.io.yamlio import read_yaml, write_yaml
 from rigs.sim.errors import SimError
+from rigs.sim.optics import Optics
 
 MOTION_SOURCES = ("synthetic", "shake")
 
@@ -80,6 +81,14 @@ class SimPreset:
     bit_depth: int = 8
     # --- rendering
     substep_px: float = 0.25  # largest dot displacement between render sub-steps
+    # --- real optics (rigs/sim/optics.py; all off by default)
+    speckle_contrast: float = 0.0  # laser speckle: std of the dots' mean-1 intensity field
+    speckle_px: float = 1.5  # speckle grain (px, sigma of its correlation)
+    lens_blur_px: float = 0.0  # extra blur sigma at the corners (grows as r^2 from the centre)
+    chromatic_px: float = 0.0  # lateral chromatic aberration at the corner (px, colour only)
+    colour_response: tuple[float, ...] = ()  # (r, g, b) response to the dots: Bayer sensor
+    blooming: float = 0.0  # fraction of the charge above the full well spilled along columns
+    jpeg_quality: int = 0  # 0 = lossless; else JPEG quality of the stored frames (8-bit)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -142,6 +151,23 @@ class SimPreset:
         _check(self.full_well_e > 0 and self.read_noise_e >= 0, "full_well_e > 0, noise >= 0")
         _check(self.bit_depth in (8, 16), "bit_depth must be 8 or 16")
         _check(0.01 <= self.substep_px <= 2.0, "substep_px must be in [0.01, 2]")
+        try:
+            self.optics()
+        except SimError as exc:
+            raise SimError(f"preset: {exc}") from None
+        _check(self.jpeg_quality == 0 or self.bit_depth == 8, "jpeg_quality needs bit_depth 8")
+
+    def optics(self) -> Optics:
+        """The real-optics effects of this preset (:class:`rigs.sim.optics.Optics`)."""
+        return Optics(
+            speckle_contrast=self.speckle_contrast,
+            speckle_px=self.speckle_px,
+            lens_blur_px=self.lens_blur_px,
+            chromatic_px=self.chromatic_px,
+            colour_response=self.colour_response,
+            blooming=self.blooming,
+            jpeg_quality=self.jpeg_quality,
+        )
 
     # ----------------------------------------------------------------- YAML
     def to_dict(self) -> dict[str, Any]:
@@ -287,8 +313,42 @@ PRESETS: dict[str, SimPreset] = {
 }
 
 
+#: ``dense``: ``realistic`` optics and motion with a denser grid (20 x 15 dots, ~290 streaks per
+#: 1280 x 720 frame) and a 1 kHz gyro: the speed benchmark's input (bench/bench_detect.py).
+PRESETS["dense"] = PRESETS["realistic"].replace(
+    name="dense", dot_cols=20, dot_rows=15, imu_rate_hz=1000.0
+)
+
+
+#: ``optics``: ``realistic`` seen through real optics: a red laser on an RGGB sensor (Bayer
+#: mosaic, bilinear demosaicing), speckle, corners blurred, colour fringes, blooming and JPEG
+#: (quality 85); brighter dots so that some saturate and bloom. ``phone``: the same, harder:
+#: stronger speckle and lens blur, JPEG quality 70, a dense grid.
+PRESETS["optics"] = PRESETS["realistic"].replace(
+    name="optics",
+    dot_flux_eps=2.0e7,
+    speckle_contrast=0.25,
+    speckle_px=1.2,
+    lens_blur_px=1.0,
+    chromatic_px=0.6,
+    colour_response=(1.0, 0.18, 0.06),
+    blooming=0.3,
+    jpeg_quality=85,
+)
+PRESETS["phone"] = PRESETS["optics"].replace(
+    name="phone",
+    dot_cols=20,
+    dot_rows=15,
+    imu_rate_hz=1000.0,
+    speckle_contrast=0.4,
+    lens_blur_px=1.6,
+    chromatic_px=1.0,
+    jpeg_quality=70,
+)
+
+
 def get_preset(name: str) -> SimPreset:
-    """A built-in preset by name (``clean``, ``realistic``, ``hard``)."""
+    """A built-in preset by name (``clean``, ``realistic``, ``hard``, ``dense``, ...)."""
     try:
         return PRESETS[name]
     except KeyError:

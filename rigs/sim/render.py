@@ -10,7 +10,8 @@ a rolling shutter is resolved row by row. Patches are accumulated with ``np.binc
 (vectorised; OpenCV has no sub-pixel weighted splat).
 
 Radiometry (:func:`expose`): ambient light, Poisson shot noise, Gaussian read noise, full-well
-saturation, then quantisation to 8 or 16 bits.
+saturation, then quantisation to 8 or 16 bits; real-optics effects around it
+(:mod:`rigs.sim.optics`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from scipy.special import ndtr
 from blurtrack.geometry.camera import Camera
 from rigs.sim.dots import TrueFrameStreaks, dot_pixels
 from rigs.sim.motion import TrueMotion
+from rigs.sim.optics import Optics, bloom, demosaic_and_encode, field_blur, mosaic, speckle
 
 #: Patch half-width in dot sigmas (the Gaussian beyond it holds < 5e-4 of the light per side).
 PATCH_SIGMAS = 3.5
@@ -219,6 +221,7 @@ def expose(
     shot_noise: bool,
     bit_depth: int,
     rng: np.random.Generator | None,
+    optics: Optics | None = None,
 ) -> np.ndarray:
     """Sensor model: mean electrons ``(H, W)`` -> ``uint8``/``uint16`` image.
 
@@ -227,8 +230,13 @@ def expose(
     Shot noise is exact Poisson below ``POISSON_EXACT_BELOW_E`` electrons and its Gaussian limit
     ``N(λ, λ)`` above (skewness < 0.1 there, far below one digital step; it is ~5x faster and
     lets shot and read noise share one normal draw). ``rng = None`` gives the noise-free image.
+    ``optics`` (:mod:`rigs.sim.optics`): speckle, field-varying lens blur, chromatic fringes and
+    a Bayer mosaic before the sensor, blooming at its full well, demosaicing and JPEG after it;
+    a colour sensor gives ``(H, W, 3)`` BGR frames.
     """
-    e = np.asarray(signal_e, dtype=np.float32) + np.asarray(ambient_e, dtype=np.float32)
+    o = optics or Optics()
+    dots = field_blur(speckle(np.asarray(signal_e, dtype=np.float32), o, rng), o)
+    e = mosaic(dots, ambient_e, o) if o.colour else dots + np.asarray(ambient_e, np.float32)
     if rng is not None and (shot_noise or read_noise_e > 0):
         var = (
             e + np.float32(read_noise_e**2)
@@ -244,6 +252,7 @@ def expose(
                     read_noise_e
                 ) * rng.standard_normal(lam.shape, dtype=np.float32)
         e = noisy
+    e = bloom(e, full_well_e, o)
     top = (1 << bit_depth) - 1
     dn = np.clip(np.rint(e * np.float32(top / full_well_e)), 0, top)
-    return dn.astype(np.uint8 if bit_depth == 8 else np.uint16)
+    return demosaic_and_encode(dn.astype(np.uint8 if bit_depth == 8 else np.uint16), o)

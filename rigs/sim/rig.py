@@ -249,7 +249,14 @@ class SimRig:
         p = self.preset
         rng = _rng(self.seed, 3, round(t_s * 1e9)) if noise else None
         return expose(
-            signal, self._ambient, p.full_well_e, p.read_noise_e, p.shot_noise, p.bit_depth, rng
+            signal,
+            self._ambient,
+            p.full_well_e,
+            p.read_noise_e,
+            p.shot_noise,
+            p.bit_depth,
+            rng,
+            p.optics(),
         )
 
     # --------------------------------------------------------------- truth

@@ -1,0 +1,88 @@
+"""Per-streak quality: how far each streak's shape is from its frame's consensus, and one flag
+that says whether a streak is fit for calibration.
+
+Within one frame every dot draws nearly the same curve (the camera's rotation moves every dot
+alike, up to perspective and the rolling shutter), so a streak whose start-to-end vector is far
+from the frame's consensus is a merged chain, a fragment, a hook or noise.
+
+- ``shape_deviation_px``: ``|v - c(x)|`` for the streak's start-to-end vector ``v`` and the
+  frame's consensus ``c`` at its time midpoint ``x``: an affine field ``c0 + A x`` (a roll about
+  the optical axis and perspective change the vector linearly across the frame, to first
+  order) fitted robustly (three rounds, dropping residuals over 3 x their median) to the
+  frame's unflagged streaks, each vector's sign chosen to agree with the dominant direction so
+  that a wrong start/end does not count as a shape error; NaN when fewer than
+  :data:`MIN_REFERENCE` streaks can vote.
+- ``thick_saturated``: saturated and wider than :data:`THICK_WIDTH_RATIO` x the frame's dot
+  width: a blown-out core whose centre line and ends are unreliable.
+- ``quality_ok``: none of ``clipped``, ``merged``, ``crossing``, ``looped``,
+  ``thick_saturated``, and a shape within ``max(SHAPE_TOL_PX, SHAPE_TOL_REL |c|)`` of the
+  consensus (where it is known).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+#: Fewest unflagged streaks in a frame for a shape consensus.
+MIN_REFERENCE = 5
+#: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
+THICK_WIDTH_RATIO = 2.0
+#: Shape tolerance of ``quality_ok``: absolute (px) and relative to the consensus length.
+SHAPE_TOL_PX = 3.0
+SHAPE_TOL_REL = 0.25
+
+
+def _frame_quality(d: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+    flagged = (d["clipped"] | d["merged"] | d["crossing"] | d["looped"]).to_numpy(bool)
+    width = d["width_px"].to_numpy(float)
+    sat = d["saturated"].to_numpy(bool)
+    ref_w = width[~sat & np.isfinite(width)]
+    ref_w = ref_w if ref_w.size else width[np.isfinite(width)]
+    w0 = float(np.median(ref_w)) if ref_w.size else np.nan
+    with np.errstate(invalid="ignore"):
+        thick = sat & (width > THICK_WIDTH_RATIO * w0)
+    dev = np.full(len(d), np.nan)
+    ok = ~(flagged | thick)
+    voters = ok
+    if int(voters.sum()) >= MIN_REFERENCE:
+        ref = v[voters]
+        # Dominant direction from the second-moment matrix (orientation-free), then signs.
+        _, vecs = np.linalg.eigh(ref.T @ ref)
+        axis = vecs[:, -1]
+        sign = np.where(v @ axis < 0, -1.0, 1.0)[:, None]
+        vs = v * sign
+        mid = d[["mid_x", "mid_y"]].to_numpy(float)
+        X = np.column_stack([np.ones(len(d)), (mid - mid[voters].mean(axis=0)) / 100.0])
+        use = voters.copy()
+        for _ in range(3):  # robust affine field: refit without the worst
+            coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+            r = np.hypot(*(vs - X @ coef).T)
+            cut = max(3.0 * float(np.median(r[use])), 0.5)
+            use = voters & (r <= cut)
+            if int(use.sum()) < MIN_REFERENCE:
+                use = voters
+                break
+        c = X @ coef
+        dev = np.minimum(np.hypot(*(v - c * sign).T), np.hypot(*(v + c * sign).T))
+        tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
+        ok = ok & (dev <= tol)
+    return dev, thick, ok
+
+
+def add_quality(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with ``shape_deviation_px``, ``thick_saturated`` and ``quality_ok`` columns."""
+    out = table.copy()
+    n = len(out)
+    dev, thick, ok = np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool)
+    if n:
+        frames = out["frame"].to_numpy()
+        order = np.argsort(frames, kind="stable")
+        bounds = np.flatnonzero(np.diff(frames[order])) + 1
+        for rows in np.split(order, bounds):
+            dev[rows], thick[rows], ok[rows] = _frame_quality(out.iloc[rows])
+    out["shape_deviation_px"] = dev
+    out["thick_saturated"] = thick
+    out["quality_ok"] = ok
+    return out

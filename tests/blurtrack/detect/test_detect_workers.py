@@ -1,0 +1,121 @@
+"""Frame-parallel detection and the time-shift scan's bad inputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blurtrack.cli import main
+from blurtrack.detect.session import detect_session
+from blurtrack.errors import DetectionError
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
+
+
+@pytest.fixture(scope="module")
+def session_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("workers") / "s"
+    write_synthetic_session(folder, n_frames=5, seed=4, timeshift_s=0.01)
+    return folder
+
+
+def test_workers_give_the_same_table_as_one_process(session_folder: Path) -> None:
+    session = load_session(session_folder)
+    one = detect_session(session, workers=1)
+    seen: list[int] = []
+    two = detect_session(session, workers=2, on_frame=lambda i, fs: seen.append(i))
+    assert seen == list(range(5))  # progress in frame order
+    pd.testing.assert_frame_equal(one.table, two.table, check_exact=True)
+    assert one.summary == two.summary
+    three = detect_session(session, workers=3, frames=range(1, 4))
+    pd.testing.assert_frame_equal(
+        three.table,
+        detect_session(session, workers=1, frames=range(1, 4)).table,
+        check_exact=True,
+    )
+
+
+def test_bad_worker_count_is_an_error(session_folder: Path) -> None:
+    with pytest.raises(DetectionError, match="workers"):
+        detect_session(load_session(session_folder), workers=0)
+
+
+def test_timeshift_found_and_printed(session_folder: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "t.parquet"
+    assert main(["detect", str(session_folder), "--out", str(out), "--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "camera-IMU time shift: +10." in text or "camera-IMU time shift: +9." in text
+
+
+def test_all_zero_gyro_leaves_the_time_shift_undetermined(
+    session_folder: Path, tmp_path: Path, capsys
+) -> None:
+    folder = tmp_path / "zero"
+    import shutil
+
+    shutil.copytree(session_folder, folder)
+    csv = folder / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    rows = [ln.split(",")[0] + ",0,0,0" for ln in lines[1:]]
+    csv.write_text("\n".join([lines[0], *rows]) + "\n")
+    res = detect_session(load_session(folder))
+    assert res.summary["gyro_timeshift_status"] == "undetermined"
+    assert res.summary["gyro_timeshift_s"] is None
+    assert len(res.table) > 0 and np.all(res.table.llr_gyro == 0)
+    assert main(["detect", str(folder), "--out", str(tmp_path / "z.parquet")]) == 0
+    assert "camera-IMU time shift: undetermined" in capsys.readouterr().out
+
+
+def _rewrite_frames(folder: Path, edit) -> None:
+    import cv2
+
+    for k, png in enumerate(sorted((folder / "cam0" / "data").glob("*.png"))):
+        img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png), edit(k, img))
+
+
+def test_dark_and_saturated_frames_are_reported(session_folder: Path, tmp_path: Path, capsys):
+    import shutil
+
+    folder = tmp_path / "bad"
+    shutil.copytree(session_folder, folder)
+    names = sorted(p.name for p in (folder / "cam0" / "data").glob("*.png"))
+    order = load_session(folder).frames
+    dark = names.index(str(order["filename"].iloc[1]))
+    sat = names.index(str(order["filename"].iloc[3]))
+
+    def edit(k: int, img: np.ndarray) -> np.ndarray:
+        if k == dark:
+            return np.zeros_like(img)
+        if k == sat:
+            return np.full_like(img, 255)
+        return img
+
+    _rewrite_frames(folder, edit)
+    res = detect_session(load_session(folder), workers=2)
+    assert res.summary["frames_without_streaks"] == [1, 3]
+    assert res.summary["frames_overexposed"] == [3]
+    assert set(res.table.frame) == {0, 2, 4}
+    assert main(["detect", str(folder), "--out", str(tmp_path / "b.parquet")]) == 0
+    err = capsys.readouterr().err
+    assert "2 frame(s) without streaks" in err and "1 over-exposed frame(s)" in err
+
+
+@pytest.mark.parametrize("kind", ["uint16", "colour"])
+def test_16_bit_and_colour_sessions_match_gray(session_folder: Path, tmp_path: Path, kind: str):
+    import shutil
+
+    folder = tmp_path / kind
+    shutil.copytree(session_folder, folder)
+    if kind == "uint16":
+        _rewrite_frames(folder, lambda k, img: img.astype(np.uint16) * 257)
+    else:
+        _rewrite_frames(folder, lambda k, img: np.dstack([img // 3, img, img // 2]))
+    a = detect_session(load_session(session_folder), gyro="off", refine_timeshift=False).table
+    b = detect_session(load_session(folder), gyro="off", refine_timeshift=False).table
+    assert len(a) == len(b)
+    d = np.hypot(a.start_x - b.start_x, a.start_y - b.start_y)
+    assert float(np.median(d)) < 0.05
