@@ -29,6 +29,7 @@ from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
+from calib.grid import GridEvaluator
 from calib.params import (
     DEFAULT_FIT,
     GROUPS,
@@ -262,7 +263,7 @@ def calibrate(
         sub_idx = np.sort(rng.choice(sub_idx, SUBSAMPLE, replace=False))
     sub = train.subset(sub_idx)
     iters = 0
-    ev = JacobianEvaluator(coarse)
+    ev = GridEvaluator(g, initial.R_cam_imu, cam.dist, cam.height)
     stage1 = tuple(i for i in free if i in (0, 1, 2))
     delta = max(2.0 * ini.median_error_px, 0.5)
     if stage1:
@@ -325,9 +326,9 @@ def calibrate(
             cam.height,
             choose_substeps(both, cam.height, readout_bound),
         )
-    ev_fine = JacobianEvaluator(
-        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None else 0
-    )
+    ev_fine: GridEvaluator | JacobianEvaluator = ev
+    if options.centreline and streaks.centre is not None:
+        ev_fine = JacobianEvaluator(model, streaks.centre.shape[1])
     inl = np.ones(len(train), dtype=bool)
     tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)

@@ -16,7 +16,7 @@ import numpy as np
 from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.jacobian import JacobianEvaluator
-from calib.params import THETA_NAMES
+from calib.params import THETA_NAMES, bounded_step
 
 
 def pseudo_huber(rho: np.ndarray, delta: float) -> np.ndarray:
@@ -84,13 +84,14 @@ def levenberg_marquardt(
                 continue
             trial = theta.copy()
             trial[fr] += step_s / d
-            if trial[1] <= 0 or trial[2] <= 0:
+            # Bounds table (calib.params.BOUNDS): the readout is projected onto [0, 1) s
+            # (rejecting such steps stalled global-shutter fits at their start); a
+            # non-positive focal length is refused.
+            trial = bounded_step(trial)
+            if trial is None:
                 lam *= 10
                 continue
-            # The readout is a duration in [0, 1) s: a step past a bound is projected onto it.
-            # Rejecting it instead stalled the whole fit at its start on a global-shutter
-            # camera (readout 0, where noise pulls every Gauss-Newton step below 0).
-            trial[5] = min(max(trial[5], 0.0), 0.999)
+            step_s = (trial[fr] - theta[fr]) * d  # the step taken, after projection
             r_try = ev.residual(trial, streaks)
             c_try = float(np.sum(pseudo_huber(np.linalg.norm(r_try, axis=1), delta_px)))
             if np.isfinite(c_try) and c_try <= cost:
