@@ -86,7 +86,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
     from blurtrack.errors import BlurTrackError
     from blurtrack.io.calibration import Calibration
-    from calib.params import rotation_error_rad, theta_from
+    from calib.params import LAYOUT, rotation_error_rad, scale_entries, theta_from
     from calib.result import named
 
     truth = session.truth
@@ -97,14 +97,13 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     except BlurTrackError:
         return None
     th = theta_from(cal)
-    th[9:12] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
+    th[LAYOUT["rotation"]] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
     gyro = (truth.get("simulator") or {}).get("gyro") or {}
     try:
         M = np.array(gyro.get("scale_matrix", np.eye(3)), dtype=float).reshape(3, 3)
     except (TypeError, ValueError):
         M = np.eye(3)
-    S = (M + M.T) / 2 - np.eye(3)
-    th[12:18] = [S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]]
+    th[LAYOUT["scale"]] = scale_entries(M)
     return named(th)
 
 

@@ -33,6 +33,7 @@ from calib.grid import GridEvaluator
 from calib.params import (
     DEFAULT_FIT,
     GROUPS,
+    LAYOUT,
     THETA_NAMES,
     apply_theta,
     parse_fit,
@@ -252,7 +253,12 @@ def calibrate(
         choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S),
     )
     ini = init_mod.initialise(
-        coarse, train, theta0, 0 in free, 1 in free or 2 in free, options.shift_window_s
+        coarse,
+        train,
+        theta0,
+        LAYOUT["timeshift_s"] in free,
+        LAYOUT["fx"] in free or LAYOUT["fy"] in free,
+        options.shift_window_s,
     )
     theta = ini.theta
     timings["init"] = clock() - t_start
@@ -264,7 +270,7 @@ def calibrate(
     sub = train.subset(sub_idx)
     iters = 0
     ev = GridEvaluator(g, initial.R_cam_imu, cam.dist, cam.height)
-    stage1 = tuple(i for i in free if i in (0, 1, 2))
+    stage1 = tuple(i for i in free if i in GROUPS["timeshift"] + GROUPS["fx"] + GROUPS["fy"])
     delta = max(2.0 * ini.median_error_px, 0.5)
     if stage1:
         lm = levenberg_marquardt(ev, sub, theta, stage1, delta, max_iter=15, step_tol=0.05)
@@ -403,7 +409,7 @@ def calibrate(
                 free,
                 lm.weights,
                 cam.height,
-                float(theta[5]),
+                float(theta[LAYOUT["readout_s"]]),
                 start=(lm.residual, lm.jacobian),
             )
         except CalibError as exc:
@@ -425,7 +431,12 @@ def calibrate(
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
     R = apply_theta(initial, theta).R_cam_imu
     w_cam = np.stack(
-        omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]), theta[0])(t_mid),
+        omega_cam_fn(
+            g.omega_components,
+            constant_mat3(R),
+            tuple(theta[LAYOUT["bias"]]),
+            theta[LAYOUT["timeshift_s"]],
+        )(t_mid),
         axis=1,
     )
     warnings.extend(uncertainty.excitation_warnings(w_cam))
