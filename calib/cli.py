@@ -130,7 +130,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         frame_noise=args.frame_noise,
         residuals=args.residuals,
     )
-    res = calibrate(streaks, session.gyro(), initial, options)
+    res = calibrate(streaks, session.gyro(), initial, options, progress=_render_progress)
     summary = res.to_dict()
     summary["options"] = dataclasses.asdict(options)
     summary["initial"] = named(theta_from(initial))
@@ -154,12 +154,25 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_progress(p: Any) -> None:
+    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
+    import sys
+
+    what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
+    print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)
+
+
 def write_calibration(res: Any, path: Path) -> None:
     """The calibration YAML (a fitted gyro scale is its ``gyro_scale_matrix``)."""
     res.calibration.to_yaml(path)
 
 
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
+    if res.holdout_fit_values is not None:
+        print(
+            "written: the refit on every frame; hold-out errors below are of the fit on "
+            "the training frames"
+        )
     print(
         f"calibration {res.status}: {res.iterations} iterations, "
         f"{res.train.n} inlier streaks, {res.n_outliers} outliers "

@@ -54,8 +54,10 @@ def initialise(
     search_shift: bool,
     search_focal: bool,
     window_s: float = 0.06,
+    search: bool = True,
 ) -> InitResult:
-    """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale."""
+    """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale
+    (``search=False``: none, only the median error at ``theta0``)."""
     sub = streaks.subset(moving_subsample(streaks, MAX_INIT_STREAKS))
     theta = np.asarray(theta0, float).copy()
     curve: list[tuple[float, float]] = []
@@ -81,6 +83,7 @@ def initialise(
             scores.append(_score(model, th, sub))
         theta[LAYOUT["focal"]] = base * float(cands[int(np.argmin(scores))])
 
+    search_shift, search_focal = search_shift and search, search_focal and search
     if search_shift:
         scan_shift(theta[LAYOUT["timeshift_s"]], window_s, 2e-3)
     if search_focal:
