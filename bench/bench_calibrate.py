@@ -15,6 +15,16 @@ JSON document.
     PYTHONPATH=. python bench/bench_calibrate.py --presets clean,realistic --seeds 0,1,2 \\
         --frames 100,400 --work /tmp/bench_calib [--fit ...] [--centreline] \\
         [--streaks detected]
+
+``--command`` times the whole ``blurtrack calibrate`` command (a subprocess, what a user runs:
+the session without truth.yaml, the true streaks as its streak table) on sessions simulated at
+each ``--imu-rates`` gyro rate (``--imu-rate`` of ``blurtrack simulate``) and reports wall and
+CPU seconds, time per track, stage times, the written calibration's errors against the truth
+and the |z| of each estimate (medians over ``--repeat`` runs and seeds); the baseline timed in
+the same run is the lowest gyro rate (``per_track_ratio``):
+
+    PYTHONPATH=. python bench/bench_calibrate.py --command --presets realistic --seeds 0 \\
+        --frames 150 --imu-rates 200,1000 --work /tmp/bench_calib
 """
 
 from __future__ import annotations
@@ -51,7 +61,9 @@ TARGETS = {
 }
 
 
-def simulate(out: Path, preset: str, seed: int, frames: int) -> Path:
+def simulate(
+    out: Path, preset: str, seed: int, frames: int, imu_rate_hz: float | None = None
+) -> Path:
     if (out / "truth.yaml").is_file():
         return out
     cmd = [
@@ -69,8 +81,143 @@ def simulate(out: Path, preset: str, seed: int, frames: int) -> Path:
     ]
     if SHAKE.is_file():
         cmd += ["--shake", str(SHAKE)]
+    if imu_rate_hz is not None:
+        cmd += ["--imu-rate", f"{imu_rate_hz:g}"]
     subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
     return out
+
+
+def user_session(session_dir: Path, work: Path) -> Path:
+    """What a user calibrates: the simulated session without its ``truth.yaml`` (symlinks to
+    the rest) and the simulator's true streaks written as its ``streaks.parquet``, so the
+    command reads a streak table as it does after ``blurtrack detect`` and no truth (parsing
+    a 150-frame truth.yaml alone takes about 10 s)."""
+    out = work / "user" / session_dir.name
+    if (out / "streaks.parquet").is_file():
+        return out
+    out.mkdir(parents=True, exist_ok=True)
+    for item in session_dir.iterdir():
+        if item.name not in ("truth.yaml", "streaks.parquet") and not (out / item.name).exists():
+            (out / item.name).symlink_to(item.resolve())
+    table = streak_table.from_truth(load_session(session_dir).truth)
+    streak_table.write(table, out / "streaks.parquet")
+    return out
+
+
+def run_command(session_dir: Path, user_dir: Path, out_dir: Path, extra: list[str]) -> dict:
+    """The WHOLE ``blurtrack calibrate`` command a user runs (a subprocess, on
+    :func:`user_session`): wall and CPU seconds (the child's user + system), its stage
+    timings (summary.json), and the written calibration's errors against the simulator's
+    truth with the |z| of each estimate."""
+    import resource
+
+    from calib.cli import truth_values
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out = out_dir / "calib.yaml"
+    cmd = [sys.executable, "-m", "blurtrack", "calibrate", str(user_dir), "--out", str(out)]
+    cmd += extra
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    summary = json.loads((out_dir / "calib.summary.json").read_text())
+    session = load_session(session_dir)
+    truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
+    run: dict = {
+        "session": session_dir.name,
+        "returncode": proc.returncode,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "status": summary["status"],
+        "n_tracks": summary.get("n_tracks", 0),
+        "n_streaks": summary["train_all"]["n"] + summary["holdout_all"]["n"],
+        "gyro_rate_hz": session.gyro().rate_hz,
+        "iterations": summary["iterations"],
+        "stage_s": summary["timings_s"],
+        "holdout_mean_px": summary["holdout_inliers"]["mean_px"],
+    }
+    n_units = run["n_tracks"] or run["n_streaks"]
+    run["wall_per_track_ms"] = 1e3 * wall / max(n_units, 1)
+    run["cpu_per_track_ms"] = 1e3 * cpu / max(n_units, 1)
+    if out.is_file():
+        cal = Calibration.from_yaml(out)
+        err = _errors(cal, truth, effective_rotation(session.truth, truth.R_cam_imu))
+        run["error"] = err
+        run["within_target"] = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}
+        tv = truth_values(session, session.initial_calibration()) or {}
+        z = {
+            k: abs(summary["values"][k] - tv[k]) / s
+            for k, s in summary["sigma"].items()
+            if k in tv and s > 0 and not k.startswith(("rot", "scale"))
+        }
+        run["z_scores"] = z
+        run["max_z"] = max(z.values()) if z else None
+        run["within_3sigma"] = all(v <= 3 for v in z.values())
+    return run
+
+
+def command_bench(args: argparse.Namespace) -> dict:
+    """``--command``: the whole command on each preset, length, gyro rate and seed, repeated
+    ``--repeat`` times (medians). The baseline timed in the same run is the same command on the
+    lowest gyro rate: ``per_track_ratio`` is time per track at each rate over that."""
+    runs = []
+    rates = [float(r) for r in args.imu_rates.split(",")]
+    extra = ["--fit", args.fit, "--residuals", args.residuals]
+    for preset in args.presets.split(","):
+        for frames in (int(f) for f in args.frames.split(",")):
+            for rate in rates:
+                for seed in (int(s) for s in args.seeds.split(",")):
+                    name = f"{preset}_s{seed}_f{frames}_g{rate:g}"
+                    d = simulate(args.work / name, preset, seed, frames, rate)
+                    user = user_session(d, args.work)
+                    reps = [
+                        run_command(d, user, args.work / "out" / name, extra)
+                        for _ in range(args.repeat)
+                    ]
+                    run = dict(reps[-1])
+                    for key in ("wall_s", "cpu_s", "wall_per_track_ms", "cpu_per_track_ms"):
+                        run[key] = float(np.median([r[key] for r in reps]))
+                        run[key + "_all"] = [r[key] for r in reps]
+                    run.update(preset=preset, seed=seed, frames=frames, imu_rate_hz=rate)
+                    runs.append(run)
+                    print(
+                        f"# {name}: {run['status']}, {run['wall_s']:.1f} s wall, "
+                        f"{run['wall_per_track_ms']:.3f} ms/track, max z {run.get('max_z')}",
+                        file=sys.stderr,
+                    )
+    groups = {}
+    for key in sorted({(r["preset"], r["frames"], r["imu_rate_hz"]) for r in runs}):
+        rs = [r for r in runs if (r["preset"], r["frames"], r["imu_rate_hz"]) == key]
+        groups[f"{key[0]}/{key[1]}/{key[2]:g}Hz"] = {
+            "runs": len(rs),
+            "median_wall_s": float(np.median([r["wall_s"] for r in rs])),
+            "median_cpu_s": float(np.median([r["cpu_s"] for r in rs])),
+            "median_wall_per_track_ms": float(np.median([r["wall_per_track_ms"] for r in rs])),
+            "median_cpu_per_track_ms": float(np.median([r["cpu_per_track_ms"] for r in rs])),
+            "median_n_tracks": float(np.median([r["n_tracks"] for r in rs])),
+            "median_holdout_mean_px": float(np.median([r["holdout_mean_px"] for r in rs])),
+            "max_abs_error": {
+                k: float(max(abs(r["error"][k]) for r in rs if "error" in r)) for k in TARGETS
+            },
+            "within_3sigma": sum(bool(r.get("within_3sigma")) for r in rs),
+            "max_z": float(max(r.get("max_z") or 0.0 for r in rs)),
+            "median_stage_s": {
+                k: float(np.median([r["stage_s"].get(k, np.nan) for r in rs]))
+                for k in rs[0]["stage_s"]
+            },
+        }
+    base = {}
+    for name, g in groups.items():
+        preset, frames, _ = name.split("/")
+        ref = groups[f"{preset}/{frames}/{min(rates):g}Hz"]
+        base[name] = {
+            k: g[f"median_{k}_per_track_ms"] / ref[f"median_{k}_per_track_ms"]
+            for k in ("wall", "cpu")
+        }
+    return {"mode": "command", "by_group": groups, "per_track_ratio": base, "runs": runs}
 
 
 def detect(session_dir: Path) -> tuple[Path, float]:
@@ -241,7 +388,19 @@ def main() -> int:
         default="truth",
         help="calibrate from the simulator's true streaks or from blurtrack detect",
     )
+    ap.add_argument(
+        "--command",
+        action="store_true",
+        help="time the whole 'blurtrack calibrate' command (subprocess; true streaks as the "
+        "session's streak table, truth.yaml hidden) instead "
+        "of the library call, at each --imu-rates gyro rate",
+    )
+    ap.add_argument("--imu-rates", default="200,1000", help="gyro rates (Hz) for --command")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per session (--command)")
     args = ap.parse_args()
+    if args.command:
+        print(json.dumps(command_bench(args), indent=1, default=float))
+        return 0
     opts = FitOptions(
         fit=args.fit,
         centreline=args.centreline,

@@ -87,7 +87,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
     from blurtrack.errors import BlurTrackError
     from blurtrack.io.calibration import Calibration
-    from calib.params import rotation_error_rad, theta_from
+    from calib.params import LAYOUT, rotation_error_rad, scale_entries, theta_from
     from calib.result import named
 
     truth = session.truth
@@ -98,14 +98,13 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     except BlurTrackError:
         return None
     th = theta_from(cal)
-    th[9:12] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
+    th[LAYOUT["rotation"]] = rotation_error_rad(cal.R_cam_imu, initial.R_cam_imu)
     gyro = (truth.get("simulator") or {}).get("gyro") or {}
     try:
         M = np.array(gyro.get("scale_matrix", np.eye(3)), dtype=float).reshape(3, 3)
     except (TypeError, ValueError):
         M = np.eye(3)
-    S = (M + M.T) / 2 - np.eye(3)
-    th[12:18] = [S[0, 0], S[1, 1], S[2, 2], S[0, 1], S[0, 2], S[1, 2]]
+    th[LAYOUT["scale"]] = scale_entries(M)
     return named(th)
 
 
@@ -141,7 +140,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         frame_noise=args.frame_noise,
         residuals=args.residuals,
     )
-    res = calibrate(streaks, session.gyro(), initial, options)
+    res = calibrate(streaks, session.gyro(), initial, options, progress=_render_progress)
     summary = res.to_dict()
     summary["options"] = dataclasses.asdict(options)
     summary["initial"] = named(theta_from(initial))
@@ -168,12 +167,25 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_progress(p: Any) -> None:
+    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
+    import sys
+
+    what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
+    print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)
+
+
 def write_calibration(res: Any, path: Path) -> None:
     """The calibration YAML (a fitted gyro scale is its ``gyro_scale_matrix``)."""
     res.calibration.to_yaml(path)
 
 
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
+    if res.holdout_fit_values is not None:
+        print(
+            "written: the refit on every frame; hold-out errors below are of the fit on "
+            "the training frames"
+        )
     print(
         f"calibration {res.status}: {res.iterations} iterations, "
         f"{res.train.n} inlier streaks, {res.n_outliers} outliers "

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,9 +29,11 @@ from calib import init as init_mod
 from calib import uncertainty
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
+from calib.grid import GridEvaluator
 from calib.params import (
     DEFAULT_FIT,
     GROUPS,
+    LAYOUT,
     THETA_NAMES,
     apply_theta,
     parse_fit,
@@ -94,6 +96,9 @@ class FitOptions:
     #: also warns when tracks are under :data:`MIN_TRACK_SHARE` of the streaks). The result's
     #: ``residuals`` names the choice. Initialisation always uses endpoints.
     residuals: str = "auto"
+    #: After the hold-out evaluation, refit on every frame (what is written); see
+    #: :func:`calibrate`.
+    refit_all: bool = True
 
     def __post_init__(self) -> None:
         if self.residuals not in RESIDUALS:
@@ -182,21 +187,95 @@ def scale_check(
     ]
 
 
+@dataclass(frozen=True)
+class Progress:
+    """One progress report of :func:`calibrate`: the stage, its LM iteration (0: the stage
+    starts), the cost after it and the seconds since the fit started."""
+
+    stage: str
+    iteration: int
+    cost: float
+    elapsed_s: float
+
+
+ProgressFn = Callable[[Progress], None]
+
+
 def calibrate(
     streaks: StreakSet,
     gyro: GyroTrace,
     initial: Calibration,
     options: FitOptions = FitOptions(),
     clock: Callable[[], float] = time.perf_counter,
+    progress: ProgressFn | None = None,
 ) -> CalibResult:
     """Fit the blur model to measured streak endpoints (see the module docstring).
+
+    With a hold-out (``options.holdout_fraction > 0``) and ``options.refit_all``, the fit on
+    the training frames is evaluated on the held-out frames, then refitted on every frame
+    from its estimate (the final stage only; the coarse stages and unobservable parameters
+    are those of the training fit): the returned calibration, values and sigma are the
+    refit's, the hold-out statistics those of the training fit (``holdout_fit_values``).
 
     Args:
         streaks: measured streaks, times relative to ``streaks.t0_s``.
         gyro: the session's gyro trace on the absolute IMU clock.
         initial: initial guess (the rig's ``session.yaml``); distortion is kept fixed.
+        progress: called with a :class:`Progress` at each stage start and LM iteration.
     """
     t_start = clock()
+    res = _fit(streaks, gyro, initial, options, clock, progress, None)
+    if not (options.refit_all and options.holdout_fraction > 0 and res.status != "failed"):
+        return res
+    warm = (np.array([res.values[n] for n in THETA_NAMES]), res.fixed_unobservable)
+    full = _fit(
+        streaks,
+        gyro,
+        initial,
+        replace(options, holdout_fraction=0.0),
+        clock,
+        progress,
+        warm,
+        t_start,
+    )
+    timings = {**res.timings_s, **{f"refit_{k}": v for k, v in full.timings_s.items()}}
+    timings["total"] = clock() - t_start
+    return replace(
+        full,
+        holdout=res.holdout,
+        holdout_all=res.holdout_all,
+        holdout_fit_values=dict(res.values),
+        init_shift_curve=res.init_shift_curve,
+        iterations=res.iterations + full.iterations,
+        warnings=tuple(dict.fromkeys(res.warnings + full.warnings)),
+        timings_s=timings,
+    )
+
+
+def _fit(
+    streaks: StreakSet,
+    gyro: GyroTrace,
+    initial: Calibration,
+    options: FitOptions,
+    clock: Callable[[], float],
+    progress: ProgressFn | None,
+    warm: tuple[np.ndarray, tuple[str, ...]] | None,
+    t_origin: float | None = None,
+) -> CalibResult:
+    """One fit (:func:`calibrate`); ``warm``: start the final stage at this theta with these
+    parameters held (a refit), skipping the search and the coarse stages."""
+    t_start = clock()
+    t0 = t_start if t_origin is None else t_origin
+
+    def report(stage: str) -> Callable[[int, float], None] | None:
+        if progress is None:
+            return None
+        return lambda it, cost: progress(Progress(stage, it, cost, clock() - t0))
+
+    def start(stage: str) -> None:
+        if progress is not None:
+            progress(Progress(stage, 0, float("nan"), clock() - t0))
+
     timings: dict[str, float] = {}
     warnings: list[str] = []
     free = parse_fit(options.fit)
@@ -250,8 +329,15 @@ def calibrate(
         cam.height,
         choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S),
     )
+    start("refit on all frames" if warm else "initial search")
     ini = init_mod.initialise(
-        coarse, train, theta0, 0 in free, 1 in free or 2 in free, options.shift_window_s
+        coarse,
+        train,
+        theta0,
+        LAYOUT["timeshift_s"] in free,
+        LAYOUT["fx"] in free or LAYOUT["fy"] in free,
+        options.shift_window_s,
+        search=warm is None,
     )
     theta = ini.theta
     timings["init"] = clock() - t_start
@@ -262,23 +348,32 @@ def calibrate(
         sub_idx = np.sort(rng.choice(sub_idx, SUBSAMPLE, replace=False))
     sub = train.subset(sub_idx)
     iters = 0
-    ev = JacobianEvaluator(coarse)
-    stage1 = tuple(i for i in free if i in (0, 1, 2))
+    ev = GridEvaluator(g, initial.R_cam_imu, cam.dist, cam.height)
+    stage1 = tuple(i for i in free if i in GROUPS["timeshift"] + GROUPS["fx"] + GROUPS["fy"])
     delta = max(2.0 * ini.median_error_px, 0.5)
-    if stage1:
-        lm = levenberg_marquardt(ev, sub, theta, stage1, delta, max_iter=15, step_tol=0.05)
+    if warm is not None:
+        theta = warm[0].copy()
+        dropped = [THETA_NAMES.index(n) for n in warm[1]]
+        free = tuple(i for i in free if i not in dropped)
+    else:
+        start("coarse")
+        if stage1:
+            lm = levenberg_marquardt(
+                ev, sub, theta, stage1, delta, 15, 0.05, progress=report("coarse: shift, focal")
+            )
+            theta, iters = lm.theta, iters + lm.iterations
+        lm = levenberg_marquardt(ev, sub, theta, free, delta, 20, 0.02, progress=report("coarse"))
         theta, iters = lm.theta, iters + lm.iterations
-    lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
-    theta, iters = lm.theta, iters + lm.iterations
-    dropped = uncertainty.unobservable(uncertainty.information(lm.jacobian, lm.weights, free), free)
-    if dropped:
+        info = uncertainty.information(lm.jacobian, lm.weights, free)
+        dropped = uncertainty.unobservable(info, free)
+    if dropped and warm is None:
         names = [THETA_NAMES[i] for i in dropped]
         warnings.append(
             f"not observable from this motion, kept at the initial value: {', '.join(names)}"
         )
         theta[dropped] = theta0[dropped]
         free = tuple(i for i in free if i not in dropped)
-        lm = levenberg_marquardt(ev, sub, theta, free, delta, max_iter=20, step_tol=0.02)
+        lm = levenberg_marquardt(ev, sub, theta, free, delta, 20, 0.02, progress=report("coarse"))
         theta, iters = lm.theta, iters + lm.iterations
     timings["coarse"] = clock() - t_start - timings["init"]
 
@@ -325,9 +420,9 @@ def calibrate(
             cam.height,
             choose_substeps(both, cam.height, readout_bound),
         )
-    ev_fine = JacobianEvaluator(
-        model, streaks.centre.shape[1] if options.centreline and streaks.centre is not None else 0
-    )
+    ev_fine: GridEvaluator | JacobianEvaluator = ev
+    if options.centreline and streaks.centre is not None:
+        ev_fine = JacobianEvaluator(model, streaks.centre.shape[1])
     inl = np.ones(len(train), dtype=bool)
     tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
@@ -373,6 +468,7 @@ def calibrate(
             max_iter=options.max_iter,
             step_tol=max(0.1 * sig_fit, 1e-5),
             lam0=1e-6,
+            progress=report(f"{'refit' if warm is not None else 'fine'} round {round_ + 1}"),
         )
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         timings[f"fine{round_}_iterations"] = lm.iterations
@@ -402,7 +498,7 @@ def calibrate(
                 free,
                 lm.weights,
                 cam.height,
-                float(theta[5]),
+                float(theta[LAYOUT["readout_s"]]),
                 start=(lm.residual, lm.jacobian),
             )
         except CalibError as exc:
@@ -424,7 +520,12 @@ def calibrate(
     t_mid = train.frame_t_s + cam.readout_s / 2 + train.exposure_s / 2
     R = apply_theta(initial, theta).R_cam_imu
     w_cam = np.stack(
-        omega_cam_fn(g.omega_components, constant_mat3(R), tuple(theta[6:9]), theta[0])(t_mid),
+        omega_cam_fn(
+            g.omega_components,
+            constant_mat3(R),
+            tuple(theta[LAYOUT["bias"]]),
+            theta[LAYOUT["timeshift_s"]],
+        )(t_mid),
         axis=1,
     )
     warnings.extend(uncertainty.excitation_warnings(w_cam))

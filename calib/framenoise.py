@@ -31,12 +31,12 @@ import numpy as np
 
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.jacobian import JacobianEvaluator
-from calib.params import THETA_NAMES
+from calib.params import GROUPS
+from calib.solve import Evaluator, lm_driver
 from calib.uncertainty import MODEL_FLOOR_PX
 
 #: Bias entries of theta (their Jacobian columns span the per-frame rate offset).
-BIAS = (6, 7, 8)
+BIAS = GROUPS["bias"]
 #: Candidate factors on the moment estimate of the prior precision (1e6: practically OLS).
 PRIOR_SCALES = (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e6)
 #: Readout (fraction of the exposure) below which the drift mode is left out.
@@ -183,7 +183,7 @@ class GLSResult:
 
 
 def gls_refine(
-    ev: JacobianEvaluator,
+    ev: Evaluator,
     streaks: StreakSet,
     theta0: np.ndarray,
     free: tuple[int, ...],
@@ -200,54 +200,37 @@ def gls_refine(
     the robust weights ``weights`` held; returns the estimate and its frame-clustered sandwich
     covariance (``A⁻¹ Σ_f g_f g_fᵀ A⁻¹``), never below the plain ``σ² A⁻¹``. ``start``: the
     residual and Jacobian at ``theta0`` if already known. Converged when every scaled step is
-    below ``step_tol`` noise sigmas (a negligible step keeps the previous Jacobian, as
-    :func:`calib.solve.levenberg_marquardt` does).
+    below ``step_tol`` noise sigmas; the loop is :func:`calib.solve.lm_driver` (bounds
+    table, singular-system guard).
     """
     if not all(i in free for i in BIAS):
         raise CalibError("the frame-noise model needs the gyro bias among the fitted parameters")
     theta = np.asarray(theta0, float).copy()
-    fr = np.asarray(free)
     r, J = start if start is not None else ev.evaluate(theta, streaks, free)
     fm = FrameModel.estimate(
         r, nuisance_columns(J, streaks, height, readout_s), streaks.frame, weights
     )
     fm, scale = choose_prior(fm, J, r, free)
-    lam, converged, it = 1e-6, False, 0
-    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
-        A, g, _, cost = fm.normal_equations(J, r, free)
-        d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        As, gs = A / np.outer(d, d), g / d
-        improved = small = False
-        for _ in range(10):
-            step_s = -np.linalg.solve(As + lam * np.eye(fr.size), gs)
-            trial = theta.copy()
-            trial[fr] += step_s / d
-            if trial[1] <= 0 or trial[2] <= 0 or not 0 <= trial[5] < 1:
-                lam *= 10
-                continue
-            r_try = ev.residual(trial, streaks)
-            c_try = fm.cost(r_try)
-            if np.isfinite(c_try) and c_try <= cost:
-                theta, improved = trial, True
-                small = bool(
-                    np.all(np.abs(step_s) < step_tol * max(np.sqrt(fm.sigma2), MODEL_FLOOR_PX))
-                )
-                lam = max(lam / 10, 1e-9)
-                break
-            lam *= 10
-        if not improved:
-            converged = True
-            break
-        if small:
-            r, converged = r_try, True
-            break
-        r, J = ev.evaluate(theta, streaks, free)
-        fm = FrameModel(
-            fm.groups, nuisance_columns(J, streaks, height, readout_s), fm.d, fm.prior, fm.sigma2
-        )
-    if not np.all(np.isfinite(theta)):
-        raise CalibError(
-            "frame-noise refinement diverged: " + ", ".join(THETA_NAMES[i] for i in free)
-        )
+    state = {"r": r, "J": J, "fm": fm, "first": True}
+
+    def linearise(th: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        if not state["first"]:
+            state["r"], state["J"] = ev.evaluate(th, streaks, free)
+            f = state["fm"]
+            B = nuisance_columns(state["J"], streaks, height, readout_s)
+            state["fm"] = FrameModel(f.groups, B, f.d, f.prior, f.sigma2)
+        state["first"] = False
+        A, g, _, cost = state["fm"].normal_equations(state["J"], state["r"], free)
+        return A, g, cost
+
+    def trial_cost(th: np.ndarray) -> float:
+        state["r_try"] = ev.residual(th, streaks)
+        return state["fm"].cost(state["r_try"])
+
+    tol = step_tol * max(np.sqrt(fm.sigma2), MODEL_FLOOR_PX)
+    res = lm_driver(theta, free, linearise, trial_cost, tol, max_iter, rel_tol=0.0, lam0=1e-6)
+    theta, it, converged = res.theta, res.iterations, res.converged
+    fm, J = state["fm"], state["J"]
+    r = state["r_try"] if res.ended_on_small_step else state["r"]
     cov, sig = sandwich(fm, J, r, free)
     return GLSResult(theta, it, converged, sig, cov, fm, scale)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.data import StreakSet
+from calib.params import LAYOUT
 from calib.problem import ResidualModel
 
 #: Streaks scored per candidate.
@@ -53,8 +54,10 @@ def initialise(
     search_shift: bool,
     search_focal: bool,
     window_s: float = 0.06,
+    search: bool = True,
 ) -> InitResult:
-    """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale."""
+    """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale
+    (``search=False``: none, only the median error at ``theta0``)."""
     sub = streaks.subset(moving_subsample(streaks, MAX_INIT_STREAKS))
     theta = np.asarray(theta0, float).copy()
     curve: list[tuple[float, float]] = []
@@ -64,28 +67,29 @@ def initialise(
         scores = []
         for s in cands:
             th = theta.copy()
-            th[0] = s
+            th[LAYOUT["timeshift_s"]] = s
             scores.append(_score(model, th, sub))
         if half >= window_s:
             curve.extend(zip(cands.tolist(), scores, strict=True))
-        theta[0] = float(cands[int(np.argmin(scores))])
+        theta[LAYOUT["timeshift_s"]] = float(cands[int(np.argmin(scores))])
 
     def scan_focal(half: float, step: float) -> None:
-        base = theta[1:3].copy()
+        base = theta[LAYOUT["focal"]].copy()
         cands = 1.0 + np.arange(-half, half + step / 2, step)
         scores = []
         for k in cands:
             th = theta.copy()
-            th[1:3] = base * k
+            th[LAYOUT["focal"]] = base * k
             scores.append(_score(model, th, sub))
-        theta[1:3] = base * float(cands[int(np.argmin(scores))])
+        theta[LAYOUT["focal"]] = base * float(cands[int(np.argmin(scores))])
 
+    search_shift, search_focal = search_shift and search, search_focal and search
     if search_shift:
-        scan_shift(theta[0], window_s, 2e-3)
+        scan_shift(theta[LAYOUT["timeshift_s"]], window_s, 2e-3)
     if search_focal:
         scan_focal(0.16, 0.01)
     if search_shift:
-        scan_shift(theta[0], 3e-3, 2e-4)
+        scan_shift(theta[LAYOUT["timeshift_s"]], 3e-3, 2e-4)
     if search_focal:
         scan_focal(0.012, 0.002)
     return InitResult(theta, _score(model, theta, sub), tuple(curve))

@@ -14,7 +14,10 @@ default.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -45,24 +48,112 @@ THETA_NAMES: tuple[str, ...] = (
 )
 N_THETA = len(THETA_NAMES)
 
+#: Largest plausible gyro scale / cross-axis error (MEMS datasheets: a few percent at most).
+MAX_SCALE_ERROR = 0.1
+
+#: The named layout of ``theta``: every scalar by its name, and the blocks. Modules address
+#: theta only through it (``theta[LAYOUT["bias"]]``), never by bare indices.
+LAYOUT: dict[str, Any] = {
+    **{name: i for i, name in enumerate(THETA_NAMES)},
+    "focal": slice(1, 3),
+    "intrinsics": slice(1, 5),
+    "bias": slice(6, 9),
+    "rotation": slice(9, 12),
+    "scale": slice(12, 18),
+}
+#: ``scale`` entries in ``theta`` order: (row, column) of ``S`` (symmetric).
+SCALE_ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+@dataclass(frozen=True)
+class Bound:
+    """Admissible range of one parameter and what a solver step past it does: ``project``
+    (clip onto the bound: a duration at 0 must be reachable) or ``reject`` (the step is
+    refused and the damping raised)."""
+
+    lo: float
+    hi: float
+    policy: str
+
+    def __post_init__(self) -> None:
+        if self.policy not in ("project", "reject") or not self.lo < self.hi:
+            raise ValueError(f"invalid bound {self}")
+
+
+#: Bounds table of the solver (every parameter not listed is unbounded). The readout is a
+#: duration in [0, 1) s: rejecting steps below 0 stalled global-shutter fits at their start
+#: (noise pulls every Gauss–Newton step below 0), so it is projected. Focal lengths must be
+#: positive. A gyro scale error beyond :data:`MAX_SCALE_ERROR` is implausible (and
+#: :func:`apply_theta` calls it divergence): steps there are refused, so a weakly determined
+#: scale (motion without roll) stays in range.
+BOUNDS: dict[str, Bound] = {
+    "fx": Bound(0.0, math.inf, "reject"),
+    "fy": Bound(0.0, math.inf, "reject"),
+    "readout_s": Bound(0.0, 0.999, "project"),
+    **{
+        f"scale_{a}": Bound(-MAX_SCALE_ERROR, MAX_SCALE_ERROR, "reject")
+        for a in ("xx", "yy", "zz", "xy", "xz", "yz")
+    },
+}
+
+
+def bounded_step(theta: np.ndarray) -> np.ndarray | None:
+    """``theta`` with projected bounds applied, or ``None`` when a ``reject`` bound is broken
+    (strictly inside for ``reject``, closed for ``project``)."""
+    out = np.asarray(theta, float).copy()
+    for name, b in BOUNDS.items():
+        i = LAYOUT[name]
+        if b.policy == "project":
+            out[i] = min(max(out[i], b.lo), b.hi)
+        elif not b.lo < out[i] < b.hi:
+            return None
+    return out
+
+
+def scale_tuple(theta: Sequence[Any]) -> tuple:
+    """``I + S`` of a theta as a row-major 9-tuple (numbers or CasADi scalars)."""
+    sxx, syy, szz, sxy, sxz, syz = (theta[i] for i in range(*LAYOUT["scale"].indices(N_THETA)))
+    return (1 + sxx, sxy, sxz, sxy, 1 + syy, syz, sxz, syz, 1 + szz)
+
+
+def inverse3(M: Sequence[Any]) -> tuple:
+    """Exact inverse of a 3×3 matrix given as a row-major 9-tuple (adjugate over the
+    determinant; numbers, arrays or CasADi scalars). The gyro scale's ``(I + S)⁻¹`` in both
+    backends, as :class:`blurtrack.geometry.blur_model.BlurModel` applies it.
+
+    >>> bool(np.allclose(np.reshape(inverse3((2, 0, 0, 0, 4, 0, 0, 1, 1)), (3, 3)),
+    ...                  np.linalg.inv([[2, 0, 0], [0, 4, 0], [0, 1, 1]])))
+    True
+    """
+    a, b, c, d, e, f, g, h, i = M
+    co = (e * i - f * h, c * h - b * i, b * f - c * e)
+    det = a * co[0] + d * co[1] + g * co[2]
+    adj = (
+        *co,
+        f * g - d * i,
+        a * i - c * g,
+        c * d - a * f,
+        d * h - e * g,
+        b * g - a * h,
+        a * e - b * d,
+    )
+    return tuple(x / det for x in adj)
+
+
 #: ``--fit`` groups and the theta entries each selects.
 GROUPS: dict[str, tuple[int, ...]] = {
-    "timeshift": (0,),
-    "fx": (1,),
-    "fy": (2,),
-    "cx": (3,),
-    "cy": (4,),
-    "readout": (5,),
-    "bias": (6, 7, 8),
-    "rotation": (9, 10, 11),
-    "scale": (12, 13, 14, 15, 16, 17),
+    "timeshift": (LAYOUT["timeshift_s"],),
+    "fx": (LAYOUT["fx"],),
+    "fy": (LAYOUT["fy"],),
+    "cx": (LAYOUT["cx"],),
+    "cy": (LAYOUT["cy"],),
+    "readout": (LAYOUT["readout_s"],),
+    **{g: tuple(range(N_THETA))[LAYOUT[g]] for g in ("bias", "rotation", "scale")},
 }
 #: Every group. ``scale`` is in: ``gyro_scale_matrix`` is part of the calibration file and the
 #: blur model, and an unmodelled scale error biases the focal lengths (docs/calibration.md).
 DEFAULT_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation,scale"
 
-#: Largest plausible gyro scale / cross-axis error (MEMS datasheets: a few percent at most).
-MAX_SCALE_ERROR = 0.1
 
 #: Typical magnitude of each parameter's uncertainty, used to scale steps and report units.
 THETA_UNITS: dict[str, str] = {
@@ -106,26 +197,20 @@ def theta_from(calib: Calibration) -> np.ndarray:
     rotation first with :func:`symmetric_scale_form`.
     """
     cam = calib.camera
-    M = np.asarray(calib.gyro_scale_matrix, dtype=float)
+    th = np.zeros(N_THETA)
+    th[LAYOUT["timeshift_s"]] = calib.timeshift_cam_imu_s
+    th[LAYOUT["intrinsics"]] = cam.intrinsics
+    th[LAYOUT["readout_s"]] = cam.readout_s
+    th[LAYOUT["bias"]] = calib.gyro_bias_radps
+    th[LAYOUT["scale"]] = scale_entries(calib.gyro_scale_matrix)
+    return th
+
+
+def scale_entries(M: np.ndarray) -> np.ndarray:
+    """``(6,)`` theta scale entries of the symmetric part of ``M - I``."""
+    M = np.asarray(M, dtype=float).reshape(3, 3)
     S = (M + M.T) / 2 - np.eye(3)
-    return np.array(
-        [
-            calib.timeshift_cam_imu_s,
-            *cam.intrinsics,
-            cam.readout_s,
-            *calib.gyro_bias_radps,
-            0.0,
-            0.0,
-            0.0,
-            S[0, 0],
-            S[1, 1],
-            S[2, 2],
-            S[0, 1],
-            S[0, 2],
-            S[1, 2],
-        ],
-        dtype=float,
-    )
+    return np.array([S[r, c] for r, c in SCALE_ENTRIES])
 
 
 def symmetric_scale_form(calib: Calibration) -> Calibration:
@@ -155,8 +240,7 @@ def symmetric_scale_form(calib: Calibration) -> Calibration:
 
 def scale_matrix(theta: np.ndarray) -> np.ndarray:
     """``I + S`` (3, 3) of a theta (gyro scale and cross-axis error, IMU frame)."""
-    sxx, syy, szz, sxy, sxz, syz = np.asarray(theta, float)[12:18]
-    return np.eye(3) + np.array([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]])
+    return np.array(scale_tuple(np.asarray(theta, float)), dtype=float).reshape(3, 3)
 
 
 def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
@@ -165,9 +249,10 @@ def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
     th = np.asarray(theta, dtype=float)
     if th.shape != (N_THETA,) or not np.all(np.isfinite(th)):
         raise CalibError(f"parameter vector must be {N_THETA} finite numbers")
-    if th[1] <= 0 or th[2] <= 0:
-        raise CalibError(f"fit diverged: focal lengths {th[1]:.1f}, {th[2]:.1f} px")
-    readout = float(th[5])
+    fx, fy = th[LAYOUT["focal"]]
+    if fx <= 0 or fy <= 0:
+        raise CalibError(f"fit diverged: focal lengths {fx:.1f}, {fy:.1f} px")
+    readout = float(th[LAYOUT["readout_s"]])
     if not 0.0 <= readout < 1.0:
         raise CalibError(f"fit diverged: readout {readout * 1e3:.3f} ms is outside [0, 1000) ms")
     S = scale_matrix(th) - np.eye(3)
@@ -176,12 +261,12 @@ def apply_theta(base: Calibration, theta: np.ndarray) -> Calibration:
             f"fit diverged: gyro scale/cross-axis error of "
             f"{np.max(np.abs(S)) * 100:.0f} % (the data contradict the model)"
         )
-    R = so3_exp(th[9:12]) @ base.R_cam_imu
+    R = so3_exp(th[LAYOUT["rotation"]]) @ base.R_cam_imu
     return base.with_(
-        intrinsics=tuple(float(v) for v in th[1:5]),
+        intrinsics=tuple(float(v) for v in th[LAYOUT["intrinsics"]]),
         readout_s=readout,
-        timeshift_cam_imu_s=float(th[0]),
-        gyro_bias_radps=th[6:9].copy(),
+        timeshift_cam_imu_s=float(th[LAYOUT["timeshift_s"]]),
+        gyro_bias_radps=th[LAYOUT["bias"]].copy(),
         R_cam_imu=R,
         gyro_scale_matrix=scale_matrix(th),
     )

@@ -41,7 +41,7 @@ from blurtrack.geometry.kernels import (
     warp_c,
 )
 from calib.data import StreakSet
-from calib.params import N_THETA
+from calib.params import LAYOUT, N_THETA, inverse3, scale_tuple
 
 
 class CasadiBackend:
@@ -72,15 +72,13 @@ def _streak_motion(
     ops: Any,
 ) -> tuple:
     """Camera-frame ω function, intrinsics and the warp interval ``(t_s, t_e)`` of streaks."""
-    shift, fx, fy, cx, cy, readout = theta[0:6]
-    bias = (theta[6], theta[7], theta[8])
-    dR = so3_exp_c(theta[9], theta[10], theta[11], ops)
-    sxx, syy, szz, sxy, sxz, syz = theta[12:18]
-    S = (sxx, sxy, sxz, sxy, syy, syz, sxz, syz, szz)
-    S2 = matmul3(S, S)
-    # (I + S)^-1 to second order (|S| ~ 1e-2 leaves 1e-6): omega_cam = R (I + S)^-1 (w - b).
-    inv = tuple((1.0 if k in (0, 4, 8) else 0.0) - S[k] + S2[k] for k in range(9))
-    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inv)
+    L = LAYOUT
+    shift, readout = theta[L["timeshift_s"]], theta[L["readout_s"]]
+    fx, fy, cx, cy = (theta[i] for i in range(*L["intrinsics"].indices(N_THETA)))
+    bias = tuple(theta[i] for i in range(*L["bias"].indices(N_THETA)))
+    dR = so3_exp_c(*(theta[i] for i in range(*L["rotation"].indices(N_THETA))), ops)
+    # omega_cam = R (I + S)^-1 (w - b), the exact inverse (as BlurModel applies it).
+    R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inverse3(scale_tuple(theta)))
     ft, exp, row_s, row_e = cols[4:8]
     t_s = row_start_c(ft, row_s, readout, height)
     t_e = row_start_c(ft, row_e, readout, height) + exp
@@ -105,7 +103,7 @@ def endpoint_residual(
             arrays ``(N,)`` or CasADi columns; times on the camera clock, seconds; ``row_s``,
             ``row_e`` date the start and the end (a streak's own ``start_y``, ``end_y``).
         omega_imu_at: IMU-clock time -> ``(wx, wy, wz)`` measured rate, rad/s.
-        R0_cam_imu: ``(3, 3)`` initial camera–IMU rotation, perturbed by ``theta[9:12]``.
+        R0_cam_imu: ``(3, 3)`` initial camera–IMU rotation, perturbed by the ``rotation`` block.
         dist: fixed radtan coefficients (``()`` for none).
         height: image height H in rows.
         n_sub: integration sub-steps per warp (fixed for a CasADi graph).

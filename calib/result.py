@@ -84,6 +84,9 @@ class CalibResult:
     tracks: ErrorStats | None = None
     n_tracks: int = 0
     n_track_outliers: int = 0
+    #: The values of the training-frames fit that the hold-out statistics evaluate, when the
+    #: result is the refit on every frame (:func:`calib.fit.calibrate`); ``None`` otherwise.
+    holdout_fit_values: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         if self.status not in ("ok", "warning", "failed"):
@@ -110,6 +113,8 @@ class CalibResult:
             "n_tracks": self.n_tracks,
             "n_track_outliers": self.n_track_outliers,
             "tracks_inliers": None if self.tracks is None else self.tracks.to_dict(),
+            "refitted_on_all_frames": self.holdout_fit_values is not None,
+            "holdout_fit_values": self.holdout_fit_values,
             "warnings": list(self.warnings),
             "timings_s": dict(self.timings_s),
             "calibration": self.calibration.to_dict(),

@@ -9,14 +9,27 @@ mapped over the streaks). The robust loss is pseudo-Huber on each streak's error
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.jacobian import JacobianEvaluator
-from calib.params import THETA_NAMES
+from calib.jacobian import JacobianEvaluator as JacobianEvaluator  # re-exported
+from calib.params import THETA_NAMES, bounded_step
+
+
+class Evaluator(Protocol):
+    """What the solver needs of a residual model (:class:`calib.grid.GridEvaluator`,
+    :class:`calib.jacobian.JacobianEvaluator`)."""
+
+    def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray: ...
+
+    def evaluate(
+        self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 def pseudo_huber(rho: np.ndarray, delta: float) -> np.ndarray:
@@ -39,43 +52,54 @@ class LMResult:
     weights: np.ndarray  # (N,)
 
 
-def levenberg_marquardt(
-    ev: JacobianEvaluator,
-    streaks: StreakSet,
+#: A linearisation at theta: ``(A (p, p), g (p,), cost)`` of the free entries (Gauss–Newton
+#: information, gradient, cost there).
+Linearise = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, float]]
+
+
+@dataclass(frozen=True)
+class DriverResult:
+    theta: np.ndarray
+    iterations: int
+    converged: bool
+    #: True when the last accepted step was negligible: the caller's last linearisation is of
+    #: the previous point, the last ``trial_cost`` call of the returned theta.
+    ended_on_small_step: bool
+
+
+def lm_driver(
     theta0: np.ndarray,
     free: tuple[int, ...],
-    delta_px: float,
+    linearise: Linearise,
+    trial_cost: Callable[[np.ndarray], float],
+    step_tol: float,
     max_iter: int = 30,
-    step_tol: float = 1e-6,
     rel_tol: float = 1e-8,
     lam0: float = 1e-3,
-) -> LMResult:
-    """Minimise the pseudo-Huber endpoint cost over the ``free`` entries of theta.
+    progress: Callable[[int, float], None] | None = None,
+) -> DriverResult:
+    """The one Levenberg–Marquardt loop of the calibration (robust fit and GLS refinement).
 
-    Convergence: every parameter step, scaled by ``sqrt`` of its Gauss–Newton information,
-    below ``step_tol`` (pixels of residual; a step below a few percent of the residual sigma
-    is far below the parameter's own 1-sigma), a relative cost decrease below ``rel_tol``,
-    or no further cost decrease.
+    Steps are solved in Jacobian-column-scaled coordinates (Marquardt) with the bounds table
+    :data:`calib.params.BOUNDS` applied to every trial (the readout projected onto its bound,
+    a non-positive focal length or implausible scale refused), a singular system raising the
+    damping (``LinAlgError`` guard). Converged when every scaled step actually taken is below
+    ``step_tol``, the relative cost decrease is below ``rel_tol``, or no step decreases the
+    cost. ``progress(iteration, cost)`` is called after every iteration.
     """
     if not free:
         raise CalibError("no parameter left to fit")
     theta = np.asarray(theta0, float).copy()
     fr = np.asarray(free)
     lam = lam0
-    r, J = ev.evaluate(theta, streaks, tuple(free))
-    cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
-    converged = False
+    converged = small = False
     it = 0
-    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
-        rho = np.linalg.norm(r, axis=1)
-        w = huber_weights(rho, delta_px)
-        Jf = J[:, :, fr]
-        A = np.einsum("n,nki,nkj->ij", w, Jf, Jf)
-        g = np.einsum("n,nki,nk->i", w, Jf, r)
+    A, g, cost = linearise(theta)
+    for it in range(1, max_iter + 1):
         d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        As = A / np.outer(d, d)
-        gs = g / d
+        As, gs = A / np.outer(d, d), g / d
         improved = False
+        rel = 0.0
         for _ in range(12):
             try:
                 step_s = -np.linalg.solve(As + lam * np.eye(fr.size), gs)
@@ -84,15 +108,12 @@ def levenberg_marquardt(
                 continue
             trial = theta.copy()
             trial[fr] += step_s / d
-            if trial[1] <= 0 or trial[2] <= 0:
+            trial = bounded_step(trial)
+            if trial is None:
                 lam *= 10
                 continue
-            # The readout is a duration in [0, 1) s: a step past a bound is projected onto it.
-            # Rejecting it instead stalled the whole fit at its start on a global-shutter
-            # camera (readout 0, where noise pulls every Gauss-Newton step below 0).
-            trial[5] = min(max(trial[5], 0.0), 0.999)
-            r_try = ev.residual(trial, streaks)
-            c_try = float(np.sum(pseudo_huber(np.linalg.norm(r_try, axis=1), delta_px)))
+            step_s = (trial[fr] - theta[fr]) * d  # the step taken, after projection
+            c_try = trial_cost(trial)
             if np.isfinite(c_try) and c_try <= cost:
                 improved = True
                 theta, small = trial, bool(np.all(np.abs(step_s) < step_tol))
@@ -101,21 +122,65 @@ def levenberg_marquardt(
                 lam = max(lam / 10, 1e-9)
                 break
             lam *= 10
+        if progress is not None:
+            progress(it, cost)
         if not improved:
-            converged = True
+            converged, small = True, False
             break
         if small or rel < rel_tol:
-            # A negligible last step: keep the Jacobian of the previous point (it differs by
-            # far less than its own uncertainty) and the exact residual of the new one.
-            r = r_try
-            converged = True
+            # A negligible last step: keep the linearisation of the previous point (it
+            # differs by far less than its own uncertainty).
+            converged, small = True, True
             break
-        r, J = ev.evaluate(theta, streaks, tuple(free))
-        # A new centre-line association changes the cost at the same parameters.
-        cost = float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
-    w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
+        A, g, cost = linearise(theta)
     if not np.all(np.isfinite(theta)):
         raise CalibError(
             "fit diverged to non-finite parameters: " + ", ".join(THETA_NAMES[i] for i in free)
         )
-    return LMResult(theta, it, converged, cost, r, J, w)
+    return DriverResult(theta, it, converged, small)
+
+
+def levenberg_marquardt(
+    ev: Evaluator,
+    streaks: StreakSet,
+    theta0: np.ndarray,
+    free: tuple[int, ...],
+    delta_px: float,
+    max_iter: int = 30,
+    step_tol: float = 1e-6,
+    rel_tol: float = 1e-8,
+    lam0: float = 1e-3,
+    progress: Callable[[int, float], None] | None = None,
+) -> LMResult:
+    """Minimise the pseudo-Huber endpoint cost over the ``free`` entries of theta
+    (:func:`lm_driver`; IRLS weights from each linearisation).
+
+    ``step_tol`` is in pixels of residual (a step below a few percent of the residual sigma
+    is far below the parameter's own 1-sigma).
+    """
+    fr = list(free)
+    state: dict[str, np.ndarray] = {}
+
+    def cost_of(r: np.ndarray) -> float:
+        return float(np.sum(pseudo_huber(np.linalg.norm(r, axis=1), delta_px)))
+
+    def linearise(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        r, J = ev.evaluate(theta, streaks, tuple(free))
+        state["r"], state["J"] = r, J
+        w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
+        Jf = J[:, :, fr]
+        A = np.einsum("n,nki,nkj->ij", w, Jf, Jf)
+        g = np.einsum("n,nki,nk->i", w, Jf, r)
+        # A new centre-line association changes the cost at the same parameters.
+        return A, g, cost_of(r)
+
+    def trial_cost(theta: np.ndarray) -> float:
+        state["r_try"] = ev.residual(theta, streaks)
+        return cost_of(state["r_try"])
+
+    res = lm_driver(
+        theta0, free, linearise, trial_cost, step_tol, max_iter, rel_tol, lam0, progress
+    )
+    r = state["r_try"] if res.ended_on_small_step else state["r"]
+    w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
+    return LMResult(res.theta, res.iterations, res.converged, cost_of(r), r, state["J"], w)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -207,3 +209,22 @@ def test_scale_check_flags_a_large_unfitted_scale() -> None:
     w = np.ones(len(s))
     assert any("scale" in m for m in scale_check(ev, th_of(p.truth), s, w, free))
     assert scale_check(ev, th_of(p.truth), s, w, tuple(range(18))) == []
+
+
+def test_refit_on_all_frames_and_progress_reports() -> None:
+    p = make_problem(seed=6, n_frames=10, dots_per_frame=30, shift_error_s=0.01, focal_error=0.02)
+    events = []
+    res = calibrate(p.streaks, p.gyro, p.initial, FitOptions(), progress=events.append)
+    stages = [e.stage for e in events]
+    assert stages[0] == "initial search" and "coarse" in stages
+    assert "fine round 1" in stages and "refit on all frames" in stages
+    assert any(e.iteration > 0 and np.isfinite(e.cost) for e in events)
+    assert all(b.elapsed_s >= a.elapsed_s for a, b in itertools.pairwise(events))
+    # The written values are the refit's; the hold-out figures evaluate the training fit.
+    assert res.holdout_fit_values is not None and res.holdout.n > 0
+    assert res.values != res.holdout_fit_values
+    assert res.train.n > res.holdout.n  # every frame's streaks
+    alone = calibrate(p.streaks, p.gyro, p.initial, FitOptions(refit_all=False))
+    assert alone.holdout_fit_values is None
+    assert alone.holdout.mean_px == res.holdout.mean_px
+    assert alone.values == res.holdout_fit_values

@@ -1,0 +1,291 @@
+"""Fast residuals and exact-in-form Jacobians from orientation integrated once on a fixed grid.
+
+The residual of a streak or track warps a point ``m`` from ``t_a`` to ``t_b`` (camera clock)
+with the relative camera rotation ``R_ci Q R_ciᵀ``, where ``Q = Φ(τ_a)ᵀ Φ(τ_b)`` is the
+relative rotation of the *corrected* gyro frame, ``τ = t + shift`` (IMU clock) and
+``dΦ/dτ = Φ [ω(τ)]×`` with ``ω = A ω_meas + c``, ``A = (I + S)⁻¹`` (exact inverse),
+``c = −A b``. Only ``A`` and ``c`` enter the integration, so once per evaluation:
+
+1. ``Φ`` on a grid of fixed IMU-clock nodes ``t_k = k h`` (:data:`GRID_STEP_S`, independent of
+   the gyro's rate): each cell's step is ``exp(ω(t_k + h/2) h)`` (the midpoint rule of
+   :func:`blurtrack.geometry.kernels.relative_rotation`), composed by a parallel prefix scan
+   (cumulative products in ``log2`` passes);
+2. ``Φ(τ)`` at any time by the partial cell's own midpoint step,
+   ``Φ(τ) = Φ_k exp(ω((t_k + τ)/2) (τ − t_k))`` (continuous across nodes, second order);
+3. for Jacobians, the cumulative integrals ``∫Φ`` (9 channels) and ``∫Φ[:, i] ω_meas,j``
+   (27): a perturbation ``δω = δA ω_meas + δc`` moves ``Q`` to ``Q exp([δφ]×)`` with
+   ``δφ = Φ(τ_b)ᵀ ∫_{τ_a}^{τ_b} Φ δω dτ`` (first order), and the end times move it by
+   ``ω(τ_b) δτ_b − Qᵀ ω(τ_a) δτ_a``.
+
+The cost of an evaluation is linear in the number of residuals plus one pass over the grid
+(the recording's duration over ``h``), whatever the gyro rate. The Jacobian is CasADi's
+``ca.jacobian`` of one small scalar SX function per residual (``Function.map`` over all):
+``Q(θ) = Q_c exp([δφ(θ)]×)`` with ``δφ`` linear in ``(A(θ) − A_c, c(θ) − c_c, δτ_a, δτ_b)``
+and the grid's integrals as data, then the camera rotation, unprojection and projection of
+:mod:`blurtrack.geometry.kernels`. Its value at the current ``θ_c`` is the numpy residual, and
+its first derivatives are exact up to the grid's quadrature.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.kernels import (
+    NUMPY_OPS,
+    constant_mat3,
+    matmul3,
+    matvec3,
+    project_c,
+    so3_exp_c,
+    transpose3,
+    unproject_c,
+)
+from calib.data import StreakSet
+from calib.params import LAYOUT, N_THETA, inverse3, scale_tuple
+from calib.problem import CA_OPS
+
+#: Grid step (s) of the orientation integration: half the 1 ms sub-step of the per-streak
+#: model, fixed in IMU time (nodes at multiples of it), whatever the gyro's rate.
+GRID_STEP_S = 5e-4
+#: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
+N_DATA = 6 + 9 + 27 + 9 + 3 + 3
+
+
+def _mat(a: np.ndarray) -> tuple:
+    """``(9, …)`` array -> 9-tuple of arrays."""
+    return tuple(a[i] for i in range(9))
+
+
+def prefix_products(steps: np.ndarray) -> np.ndarray:
+    """Cumulative products ``Φ_k = E_0 E_1 … E_{k-1}`` of rotation steps ``(9, M)`` (row-major
+    components), returned ``(9, M + 1)`` with ``Φ_0 = I``: a Hillis–Steele scan, ``log2 M``
+    vectorised passes."""
+    m = steps.shape[1]
+    P = steps.copy()
+    d = 1
+    while d < m:
+        prod = matmul3(_mat(P[:, :-d]), _mat(P[:, d:]))
+        P[:, d:] = np.stack(prod)
+        d *= 2
+    eye = np.eye(3).reshape(9, 1)
+    return np.concatenate([eye, P], axis=1)
+
+
+class GridEvaluator:
+    """Residuals ``(N, 2)`` and Jacobians ``(N, 2, N_THETA)`` of streak sets (endpoint form
+    of :func:`calib.problem.endpoint_residual`, any ``StreakSet``, tracks included) by the
+    grid integration of the module docstring. Interface of :class:`calib.jacobian.
+    JacobianEvaluator` (``residual``, ``evaluate``, ``n_residuals``)."""
+
+    n_residuals = 2
+
+    def __init__(
+        self,
+        gyro: GyroTrace,
+        R0_cam_imu: np.ndarray,
+        dist: tuple[float, ...],
+        height: int,
+        step_s: float = GRID_STEP_S,
+    ) -> None:
+        self.gyro = gyro
+        self.R0_cam_imu = np.asarray(R0_cam_imu, float)
+        self.dist = tuple(dist)
+        self.height = int(height)
+        self.h = float(step_s)
+        self._th = ca.SX.sym("theta", N_THETA)
+        self._thc = ca.SX.sym("theta_c", N_THETA)
+        self._d = ca.SX.sym("d", N_DATA)
+        self._r = self._residual_sx()
+        self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
+
+    # ------------------------------------------------------------------ grid
+    def _omega(self, t_imu: np.ndarray, A: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Corrected rate ``A ω_meas(t) + c`` ``(…, 3)`` and the measured rate ``(…, 3)``."""
+        w = self.gyro.omega_at(t_imu.reshape(-1)).reshape(*t_imu.shape, 3)
+        return w @ A.T + c, w
+
+    def _grid(self, theta: np.ndarray, tau: np.ndarray, integrals: bool) -> dict[str, Any]:
+        A = np.array(inverse3(scale_tuple(theta))).reshape(3, 3)
+        c = -A @ theta[LAYOUT["bias"]]
+        h = self.h
+        k_lo = int(np.floor(np.min(tau) / h)) - 1
+        k_hi = int(np.ceil(np.max(tau) / h)) + 1
+        nodes = np.arange(k_lo, k_hi + 1) * h
+        w_mid, wm_mid = self._omega(nodes[:-1] + h / 2, A, c)
+        steps = np.stack(so3_exp_c(*(w_mid.T * h), NUMPY_OPS))
+        phi = prefix_products(steps)  # (9, M + 1)
+        out: dict[str, Any] = {"A": A, "c": c, "k_lo": k_lo, "phi": phi, "nodes": nodes}
+        if integrals:
+            ph_mid = (phi[:, :-1] + phi[:, 1:]) * (h / 2)  # (9, M) cell integrals of Φ
+            cols = ph_mid.reshape(3, 3, -1)  # [row r, column i, cell]
+            ca_cells = cols[:, :, None, :] * wm_mid.T[None, None, :, :]  # (r, i, j, cell)
+            cells = np.concatenate([ph_mid, ca_cells.reshape(27, -1)], axis=0)  # (36, M)
+            cum = np.zeros((36, cells.shape[1] + 1))
+            np.cumsum(cells, axis=1, out=cum[:, 1:])
+            out["cum"] = cum
+        return out
+
+    def _at(self, grid: dict[str, Any], tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``Φ(τ)`` ``(9, N)`` and the corrected rate at ``τ`` ``(N, 3)``."""
+        h, k_lo, phi = self.h, grid["k_lo"], grid["phi"]
+        k = np.floor(tau / h).astype(np.int64)
+        t_k = k * h
+        dt = tau - t_k
+        w_half, _ = self._omega((t_k + tau) / 2, grid["A"], grid["c"])
+        part = so3_exp_c(*(w_half.T * dt), NUMPY_OPS)
+        P = np.stack(matmul3(_mat(phi[:, k - k_lo]), part))
+        w_end, _ = self._omega(tau, grid["A"], grid["c"])
+        return P, w_end
+
+    def _cum_at(self, grid: dict[str, Any], tau: np.ndarray) -> np.ndarray:
+        """Cumulative integrals ``(36, N)`` at ``τ`` (linear within a cell)."""
+        pos = tau / self.h - grid["k_lo"]
+        i = np.floor(pos).astype(np.int64)
+        f = pos - i
+        cum = grid["cum"]
+        return cum[:, i] * (1 - f) + cum[:, i + 1] * f
+
+    def _times(self, theta: np.ndarray, streaks: StreakSet) -> tuple[np.ndarray, np.ndarray]:
+        rows = streaks.rows / self.height
+        ro, sh = theta[LAYOUT["readout_s"]], theta[LAYOUT["timeshift_s"]]
+        tau_a = streaks.frame_t_s + ro * rows[:, 0] + sh
+        tau_b = streaks.frame_t_s + ro * rows[:, 1] + streaks.exposure_s + sh
+        return tau_a, tau_b
+
+    # -------------------------------------------------------------- residual
+    def _warp(self, theta: np.ndarray, streaks: StreakSet, Q: tuple, ops: Any = NUMPY_OPS):
+        R = matmul3(so3_exp_c(*theta[LAYOUT["rotation"]], ops), constant_mat3(self.R0_cam_imu))
+        R_cam = matmul3(matmul3(R, Q), transpose3(R))
+        K = tuple(theta[LAYOUT["intrinsics"]])
+        ray = unproject_c(streaks.start[:, 0], streaks.start[:, 1], K, self.dist)
+        X, Y, Z = matvec3(transpose3(R_cam), ray)
+        u, v = project_c(X, Y, Z, K, self.dist)
+        return np.stack([u - streaks.end[:, 0], v - streaks.end[:, 1]], axis=1)
+
+    def _relative(self, theta: np.ndarray, streaks: StreakSet, integrals: bool):
+        theta = np.asarray(theta, float)
+        tau_a, tau_b = self._times(theta, streaks)
+        grid = self._grid(theta, np.concatenate([tau_a, tau_b]), integrals)
+        Pa, wa = self._at(grid, tau_a)
+        Pb, wb = self._at(grid, tau_b)
+        Q = np.stack(matmul3(transpose3(_mat(Pa)), _mat(Pb)))
+        return grid, tau_a, tau_b, Pb, Q, wa, wb
+
+    def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
+        """Residuals ``(N, 2)`` (px)."""
+        if len(streaks) == 0:
+            return np.zeros((0, 2))
+        _, _, _, _, Q, _, _ = self._relative(theta, streaks, False)
+        return self._warp(np.asarray(theta, float), streaks, _mat(Q))
+
+    # -------------------------------------------------------------- jacobian
+    def _residual_sx(self) -> ca.SX:
+        th, thc, d = self._th, self._thc, self._d
+        L = LAYOUT
+        sx, sy, ex, ey, ya, yb = (d[i] for i in range(6))
+        Qc = tuple(d[6 + i] for i in range(9))
+        GA = [[d[15 + 9 * r + k] for k in range(9)] for r in range(3)]  # δφ_r / δA_(i,j)
+        Gc = [[d[42 + 3 * r + k] for k in range(3)] for r in range(3)]
+        wb = [d[51 + r] for r in range(3)]
+        qwa = [d[54 + r] for r in range(3)]  # Q_cᵀ ω(τ_a)
+
+        def affine(t: ca.SX) -> tuple[tuple, list]:
+            A = inverse3(scale_tuple(t))
+            b = [t[i] for i in range(L["bias"].start, L["bias"].stop)]
+            c = [-(A[3 * r] * b[0] + A[3 * r + 1] * b[1] + A[3 * r + 2] * b[2]) for r in range(3)]
+            return A, c
+
+        A, c = affine(th)
+        Ac, cc = affine(thc)
+        dA = [A[k] - Ac[k] for k in range(9)]
+        dc = [c[k] - cc[k] for k in range(3)]
+        i_sh, i_ro = L["timeshift_s"], L["readout_s"]
+        d_sh, d_ro = th[i_sh] - thc[i_sh], th[i_ro] - thc[i_ro]
+        dta, dtb = d_sh + d_ro * ya, d_sh + d_ro * yb
+        phi = [
+            sum(GA[r][k] * dA[k] for k in range(9))
+            + sum(Gc[r][k] * dc[k] for k in range(3))
+            + wb[r] * dtb
+            - qwa[r] * dta
+            for r in range(3)
+        ]
+        Q = matmul3(Qc, so3_exp_c(phi[0], phi[1], phi[2], CA_OPS))
+        rot = L["rotation"]
+        R = matmul3(
+            so3_exp_c(th[rot.start], th[rot.start + 1], th[rot.start + 2], CA_OPS),
+            constant_mat3(self.R0_cam_imu),
+        )
+        R_cam = matmul3(matmul3(R, Q), transpose3(R))
+        K = tuple(th[i] for i in range(L["intrinsics"].start, L["intrinsics"].stop))
+        ray = unproject_c(sx, sy, K, self.dist)
+        X, Y, Z = matvec3(transpose3(R_cam), ray)
+        u, v = project_c(X, Y, Z, K, self.dist)
+        return ca.vertcat(u - ex, v - ey)
+
+    def _map(self, free: tuple[int, ...], n: int) -> ca.Function:
+        key = (free, n)
+        if key not in self._maps:
+            J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
+            f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
+            self._maps = {k: v for k, v in self._maps.items() if k[0] == free}
+            # theta and theta_c are shared by every residual (not repeated).
+            self._maps[key] = f.map("calib_grid_jac_map", "serial", n, [0, 1], [])
+        return self._maps[key]
+
+    def _data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
+        """``(N_DATA, N)``: points, normalised rows, ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``,
+        ``ω(τ_b)``, ``Q_cᵀ ω(τ_a)``."""
+        grid, tau_a, tau_b, Pb, Q, wa, wb = self._relative(theta, streaks, True)
+        dcum = self._cum_at(grid, tau_b) - self._cum_at(grid, tau_a)  # (36, N)
+        PbT = Pb.reshape(3, 3, -1)  # [row, col, n]: δφ = Φ_bᵀ ∫ …
+        I_phi = dcum[:9].reshape(3, 3, -1)  # [row r, col i]
+        I_A = dcum[9:].reshape(3, 3, 3, -1)  # [row r, col i, j]
+        # δφ_s = Σ_r Φ_b[r, s] ∫ (Φ δω)_r,  (Φ δω)_r = Σ_ij Φ[r, i] (δA_ij ω_j + δc_i δ_ij)
+        Gc = np.einsum("rsn,rin->sin", PbT, I_phi).reshape(9, -1)
+        GA = np.einsum("rsn,rijn->sijn", PbT, I_A).reshape(27, -1)
+        Qm = Q.reshape(3, 3, -1)
+        qwa = np.einsum("arn,na->rn", Qm, wa)
+        rows = streaks.rows / self.height
+        return np.concatenate(
+            [
+                streaks.start.T,
+                streaks.end.T,
+                rows.T,
+                Q,
+                GA,
+                Gc,
+                wb.T,
+                qwa,
+            ],
+            axis=0,
+        )
+
+    def evaluate(
+        self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...] = tuple(range(N_THETA))
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(N, 2)`` and Jacobian ``(N, 2, N_THETA)`` (zero columns for fixed
+        parameters) at ``theta``."""
+        theta = np.asarray(theta, float)
+        n = len(streaks)
+        data = self._data(theta, streaks)
+        p = len(free)
+        # Zero-copy call through CasADi's buffers (column-major (k, n) is C-order (n, k));
+        # converting numpy arrays to and from DM cost 20x the evaluation itself.
+        buf, run = self._map(tuple(free), n).buffer()
+        th = np.ascontiguousarray(theta)
+        d = np.ascontiguousarray(data.T)
+        r = np.zeros((n, 2))
+        J = np.zeros((n * p, 2))
+        for k, a in enumerate((th, th, d)):
+            buf.set_arg(k, memoryview(a))
+        buf.set_res(0, memoryview(r))
+        buf.set_res(1, memoryview(J))
+        run()
+        # J is the (2, n p) column-major block row: residual n's (2, p) block at columns n p…
+        full = np.zeros((n, 2, N_THETA))
+        full[:, :, list(free)] = J.reshape(n, p, 2).transpose(0, 2, 1)
+        return r, full
