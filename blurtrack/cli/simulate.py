@@ -49,6 +49,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="override the preset's output bit depth",
     )
     p.add_argument("--imu-rate", type=float, default=None, help="override the gyro rate (Hz)")
+    p.add_argument(
+        "--target",
+        choices=("laser-grid", "natural"),
+        default="laser-grid",
+        help="what the camera films: the laser-dot grid (default) or a natural scene (a "
+        "BSDS500 photograph on a far plane, rigs.sim.natural)",
+    )
+    p.add_argument(
+        "--background",
+        type=Path,
+        default=None,
+        help="photograph for --target natural (default: one of "
+        "../shared/data/backgrounds/bsds500/val chosen by the seed)",
+    )
     p.set_defaults(func=run)
 
 
@@ -72,7 +86,16 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise BlurTrackError(f"output folder {out} exists and is not empty")
-    rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
+    if args.target == "natural":
+        from rigs.sim.natural import NaturalRig
+
+        rig = NaturalRig(
+            preset, args.seed, args.frames, shake=args.shake, background=args.background
+        )
+    else:
+        if args.background is not None:
+            raise BlurTrackError("--background applies to --target natural only")
+        rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
     summary = write_session(rig, out)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     t = summary["true"]
