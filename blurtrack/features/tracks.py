@@ -97,7 +97,7 @@ class FeatureTracks:
 def to_gray8(image: np.ndarray) -> np.ndarray:
     """A frame as 8-bit gray: BGR(A) converted, 16-bit scaled by its own 99.9th percentile."""
     img = np.asarray(image)
-    if img.ndim == 3:
+    if img.ndim == 3 and img.shape[2] in (3, 4):
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
     if img.ndim != 2:
@@ -134,7 +134,7 @@ def track_pair(
     lk = dict(
         winSize=(params.window_px, params.window_px),
         maxLevel=params.levels,
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001),
     )
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(img_a, img_b, p0, None, **lk)
     p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img_b, img_a, p1, None, **lk)
