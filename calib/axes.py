@@ -32,6 +32,7 @@ import numpy as np
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.geometry.kernels import n_substeps, relative_rotation
+from blurtrack.geometry.rotation import so3_log
 from calib.errors import CalibError
 
 #: Fewest frame pairs with a measured rotation.
@@ -44,6 +45,9 @@ MIN_MOTION_PX = 1.0
 MIN_MARGIN = 2.0
 #: Winner score / median motion above which no candidate explains the images.
 MAX_WINNER_FRACTION = 0.4
+#: Range of the common gain between measured and gyro rotations that the search allows for
+#: (focal length or gyro scale off by up to this much).
+GAIN_RANGE = (0.67, 1.5)
 #: Coarse and fine shift-search steps (s).
 COARSE_STEP_S = 2e-3
 FINE_STEP_S = 2e-4
@@ -284,11 +288,15 @@ def gyro_rotations(
     return np.stack(R, axis=-1).reshape(-1, 3, 3)
 
 
-def _angles(R_img: np.ndarray, M_imu: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``(C, K)`` angles (rad) between measured rotations and each candidate's prediction."""
-    pred = np.einsum("cij,kjl,cml->ckim", P, np.swapaxes(M_imu, 1, 2), P)
-    tr = np.einsum("kji,ckji->ck", R_img, pred)
-    return np.arccos(np.clip((tr - 1) / 2, -1.0, 1.0))
+def _misfit(rv_img: np.ndarray, rv_gyro: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``(C,)`` median misfit (rad) of measured rotation vectors ``(K, 3)`` against each
+    candidate's prediction ``g · P r_gyro`` with its best common gain ``g`` in
+    :data:`GAIN_RANGE` (a focal-length or gyro-scale error scales every rotation alike)."""
+    pred = np.einsum("cij,kj->cki", P, rv_gyro)
+    num = np.einsum("cki,ki->c", pred, rv_img)
+    den = np.einsum("cki,cki->c", pred, pred)
+    gain = np.clip(num / np.maximum(den, 1e-300), *GAIN_RANGE)
+    return np.median(np.linalg.norm(rv_img[None] - gain[:, None, None] * pred, axis=2), axis=1)
 
 
 def search_axes(
@@ -318,12 +326,15 @@ def search_axes(
     ta, tb, Ri = rots.t_a_s[ok], rots.t_b_s[ok], rots.R_img[ok]
     P = proper_axis_permutations()
 
+    rv_img = so3_log(Ri)
+
     def score(shift: float, which: np.ndarray) -> np.ndarray:
-        M = gyro_rotations(g, ta, tb, shift)
-        return np.median(_angles(Ri, M, P[which]), axis=1) * fx
+        # b = R_img a with R_img = (P M Pᵀ)ᵀ: the measured rotation vector is P · log(Mᵀ).
+        rv_gyro = so3_log(np.swapaxes(gyro_rotations(g, ta, tb, shift), 1, 2))
+        return _misfit(rv_img, rv_gyro, P[which]) * fx
 
     shifts, scores = scan_candidates(score, shift0_s, window_s)
-    ang = np.linalg.norm(_rotvec(Ri), axis=1)
+    ang = np.linalg.norm(rv_img, axis=1)
     return ranked(shifts, scores, float(np.median(ang) * fx), int(np.count_nonzero(ok)), source)
 
 
@@ -368,12 +379,6 @@ def ranked(
         n_pairs=n_pairs,
         source=source,
     )
-
-
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    from blurtrack.geometry.rotation import so3_log
-
-    return so3_log(R)
 
 
 def check_axes(search: AxisSearch) -> None:

@@ -171,7 +171,8 @@ def discover_axes(
     window_s: float,
     source: str,
 ) -> tuple[AxisSearch, Calibration]:
-    """Axis search (refusing an undecided one) and the initial calibration it implies."""
+    """Axis search (refusing an undecided one) and the initial calibration it implies (the
+    winner's axes and time shift)."""
     g = relative_gyro(gyro, t0_s)
     search = search_axes(
         rots, g, initial.camera.intrinsics[0], initial.timeshift_cam_imu_s, window_s, source
@@ -235,7 +236,7 @@ def calibrate_natural(
     opts = FitOptions(
         fit=options.fit,
         holdout_fraction=options.holdout_fraction,
-        shift_window_s=min(options.shift_window_s, 0.01),
+        shift_window_s=min(options.shift_window_s, 0.02),
         max_iter=options.max_iter,
         seed=options.seed,
         residuals="endpoints",

@@ -37,9 +37,14 @@ class TrackParams:
     min_distance_px: float = 10.0
     block_size: int = 7
     window_px: int = 21
-    levels: int = 3
+    levels: int = 5
     fb_max_px: float = 0.5
     border_px: float = 4.0
+    #: Frames whose longer side exceeds this are tracked downscaled (area averaging) and the
+    #: points scaled back: strong blur leaves no detail finer than that, and the pyramid then
+    #: reaches inter-frame motions of a few hundred pixels (DeepGyro's 1080p frames move
+    #: ~220 px between frames).
+    max_side_px: int = 1280
 
     def __post_init__(self) -> None:
         if not 8 <= self.max_corners <= 20000:
@@ -50,6 +55,8 @@ class TrackParams:
             raise FeatureTrackError(f"window_px must be odd and >= 5, got {self.window_px}")
         if not 0 <= self.levels <= 6:
             raise FeatureTrackError(f"levels must be in [0, 6], got {self.levels}")
+        if self.max_side_px < 64:
+            raise FeatureTrackError(f"max_side_px must be >= 64, got {self.max_side_px}")
         if not self.fb_max_px > 0 or self.min_distance_px < 1 or self.border_px < 0:
             raise FeatureTrackError("fb_max_px must be positive, min_distance_px >= 1")
 
@@ -115,10 +122,26 @@ def track_pair(
     """Corners of ``img_a`` tracked into ``img_b`` (both 8-bit gray, same size).
 
     Returns ``pts_a (M, 2)``, ``pts_b (M, 2)`` and the forward–backward errors ``(M,)`` of the
-    points that pass the check.
+    points that pass the check, in ``img_a``'s pixels (see ``TrackParams.max_side_px``).
     """
     if img_a.shape != img_b.shape:
         raise FeatureTrackError(f"frames differ in size: {img_a.shape} and {img_b.shape}")
+    k = params.max_side_px / max(img_a.shape)
+    if k < 1:
+        size = (round(img_a.shape[1] * k), round(img_a.shape[0] * k))
+        ka, kb = size[0] / img_a.shape[1], size[1] / img_a.shape[0]
+        small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in (img_a, img_b)]
+        a, b, e = _track(small[0], small[1], params)
+        # Pixel centres: x_full + 0.5 = (x_small + 0.5) / k.
+        back = np.array([1 / ka, 1 / kb])
+        return (a + 0.5) * back - 0.5, (b + 0.5) * back - 0.5, e * float(back.mean())
+    return _track(img_a, img_b, params)
+
+
+def _track(
+    img_a: np.ndarray, img_b: np.ndarray, params: TrackParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`track_pair` at the images' own resolution."""
     H, W = img_a.shape
     c = cv2.goodFeaturesToTrack(
         img_a,
