@@ -78,6 +78,21 @@ def register(subparsers: Any) -> None:
         "see the same dots, else endpoints with a warning",
     )
     add_force_arg(p)
+    p.add_argument(
+        "--target",
+        choices=("auto", "laser-grid", "natural"),
+        default="auto",
+        help="what the frames show: laser-grid streaks, or a natural scene (feature tracks "
+        "between frames); auto (default): session.yaml's target.kind",
+    )
+    p.add_argument(
+        "--axes",
+        choices=("search", "session"),
+        default="search",
+        help="camera-IMU axes: search (default) scores the 24 signed axis permutations "
+        "against the images and starts from the winner (refusing an ambiguous one); session "
+        "keeps session.yaml's T_cam_imu",
+    )
     p.set_defaults(func=run_calibrate)
 
 
@@ -114,7 +129,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.data import streaks_from_table
     from calib.errors import CalibError
     from calib.export import write_camera_info, write_openvins
-    from calib.fit import FitOptions, calibrate
+    from calib.fit import FitOptions, calibrate, check_fit_inputs
+    from calib.natural_cli import is_natural, laser_axes, run_natural
     from calib.params import theta_from
     from calib.result import named
 
@@ -127,6 +143,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
             stem + s for s in (".openvins.yaml", ".camera_info.yaml", ".failed.summary.json")
         ],
     )
+    if is_natural(args):
+        return run_natural(args, _print_table, write_calibration)
     session, table = load_session_and_streaks(args)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
@@ -140,10 +158,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
         frame_noise=args.frame_noise,
         residuals=args.residuals,
     )
+    check_fit_inputs(streaks, options)  # bad input fails alone, before the axis search speaks
+    axes, initial = laser_axes(args, streaks, session, initial)
     res = calibrate(streaks, session.gyro(), initial, options, progress=_render_progress)
     summary = res.to_dict()
     summary["options"] = dataclasses.asdict(options)
     summary["initial"] = named(theta_from(initial))
+    if axes is not None:
+        summary["axes"] = axes
     truth = truth_values(session, initial)
     if truth is not None:
         summary["truth"] = truth

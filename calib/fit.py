@@ -201,6 +201,20 @@ class Progress:
 ProgressFn = Callable[[Progress], None]
 
 
+def check_fit_inputs(streaks: StreakSet, options: FitOptions) -> set[str]:
+    """Refuse unusable input before any work (raises :class:`CalibError`); returns the parsed
+    ``--fit`` groups. ``calibrate`` calls it first; the CLI calls it before the axis search."""
+    free = parse_fit(options.fit)
+    if options.centreline and streaks.centre is None:
+        raise CalibError("centre-line residuals asked for, but the streaks carry no centre lines")
+    if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
+        raise CalibError(
+            f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
+            f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames"
+        )
+    return free
+
+
 def calibrate(
     streaks: StreakSet,
     gyro: GyroTrace,
@@ -278,16 +292,9 @@ def _fit(
 
     timings: dict[str, float] = {}
     warnings: list[str] = []
-    free = parse_fit(options.fit)
+    free = check_fit_inputs(streaks, options)
     initial = symmetric_scale_form(initial)
     cam = initial.camera
-    if options.centreline and streaks.centre is None:
-        raise CalibError("centre-line residuals asked for, but the streaks carry no centre lines")
-    if len(streaks) < MIN_STREAKS or streaks.n_frames < MIN_FRAMES:
-        raise CalibError(
-            f"too few streaks to calibrate: {len(streaks)} in {streaks.n_frames} "
-            f"frame(s); need at least {MIN_STREAKS} in {MIN_FRAMES} frames"
-        )
     g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
     cov = covered_mask(streaks, g, cam, initial.timeshift_cam_imu_s, options.shift_window_s)
     if not np.all(cov):

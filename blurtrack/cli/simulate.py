@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
+from blurtrack.errors import BlurTrackError
 from blurtrack.io.atomic import write_text_atomic
 
 
@@ -51,6 +52,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--imu-rate", type=float, default=None, help="override the gyro rate (Hz)")
     add_quiet_arg(p)
+    p.add_argument(
+        "--target",
+        choices=("laser-grid", "natural"),
+        default="laser-grid",
+        help="what the camera films: the laser-dot grid or a natural scene (a "
+        "BSDS500 photograph on a far plane, rigs.sim.natural)",
+    )
+    p.add_argument(
+        "--background",
+        type=Path,
+        default=None,
+        help="photograph for --target natural (default: one of "
+        "../shared/data/backgrounds/bsds500/val chosen by the seed)",
+    )
     p.set_defaults(func=run)
 
 
@@ -74,7 +89,16 @@ def run(args: argparse.Namespace) -> int:
     if changes:
         preset = preset.replace(**changes)
     out = check_new_folder(args.out)
-    rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
+    if args.target == "natural":
+        from rigs.sim.natural import NaturalRig
+
+        rig = NaturalRig(
+            preset, args.seed, args.frames, shake=args.shake, background=args.background
+        )
+    else:
+        if args.background is not None:
+            raise BlurTrackError("--background applies to --target natural only")
+        rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
     with Progress("simulate", "frame", args.quiet) as bar, atomic_dir(out) as tmp:
         # a failure (full disk, Ctrl-C) leaves no half session
         summary = dict(write_session(rig, tmp, progress=bar), session=str(out))

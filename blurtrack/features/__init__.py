@@ -1,0 +1,1 @@
+"""Natural-scene features: point tracks between consecutive frames (no laser target)."""

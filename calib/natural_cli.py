@@ -1,0 +1,141 @@
+"""The natural-scene and axis-search parts of ``blurtrack calibrate`` (CLI layer of
+:mod:`calib.natural` and :mod:`calib.axes`; registered through :mod:`calib.cli`)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from blurtrack.cli.sources import summary_path
+
+#: --fit default for natural scenes: the gyro scale is not observable from a few hundred
+#: inter-frame rotations of hand shake (it trades with the focal lengths).
+NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
+
+
+def is_natural(args: argparse.Namespace) -> bool:
+    """Whether ``--target`` (or session.yaml's ``target.kind`` under ``auto``) says natural."""
+    if args.target != "auto":
+        return args.target == "natural"
+    from blurtrack.io.session import load_session
+
+    return load_session(args.session).meta.target_kind == "natural"
+
+
+def print_axes(axes: Any) -> None:
+    w = axes.winner
+    print(
+        f"axis search ({axes.source}, {axes.n_pairs} frame pairs, median rotation "
+        f"{axes.motion_px:.2f} px): R_cam_imu {[list(map(int, r)) for r in w.R_cam_imu]}, "
+        f"shift {w.timeshift_s * 1e3:+.1f} ms, score {w.score_px:.3f} px, runner-up "
+        f"{axes.runner_up.score_px:.3f} px (margin {axes.margin:.1f})"
+    )
+
+
+def laser_axes(
+    args: argparse.Namespace, streaks: Any, session: Any, initial: Any
+) -> tuple[dict | None, Any]:
+    """The axis search on a laser session's streak midpoints (``--axes search``).
+
+    Returns the search as a dict (``None`` when skipped) and the initial calibration to fit
+    from. Tables without midpoints skip the search with a warning.
+    """
+    if args.axes != "search":
+        return None, initial
+    if streaks.mid is None:
+        print(
+            "warning: the streak table has no time midpoints: axis search skipped, "
+            "session.yaml's T_cam_imu kept",
+            file=sys.stderr,
+        )
+        return None, initial
+    from calib.axes import check_axes
+    from calib.axes_laser import search_axes_laser
+    from calib.data import relative_gyro
+    from calib.tracks import mean_rows
+
+    search = search_axes_laser(
+        streaks.mid,
+        mean_rows(streaks),
+        streaks.frame,
+        streaks.frame_t_s,
+        streaks.exposure_s,
+        initial.camera,
+        relative_gyro(session.gyro(), streaks.t0_s),
+        initial.timeshift_cam_imu_s,
+        args.shift_window_ms * 1e-3,
+    )
+    check_axes(search)
+    start = initial.with_(R_cam_imu=search.R_cam_imu, timeshift_cam_imu_s=search.winner.timeshift_s)
+    print_axes(search)
+    return search.to_dict(), start
+
+
+def run_natural(
+    args: argparse.Namespace,
+    print_table: Callable[[Any, dict, dict | None], None],
+    write_calibration: Callable[[Any, Path], None],
+) -> int:
+    """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
+    from blurtrack.io.atomic import write_json_atomic
+    from blurtrack.io.session import load_session
+    from calib.cli import truth_values
+    from calib.errors import CalibError
+    from calib.export import write_camera_info, write_openvins
+    from calib.fit import FitOptions
+    from calib.natural import calibrate_natural
+    from calib.params import DEFAULT_FIT, theta_from
+    from calib.result import named
+
+    if args.axes != "search":
+        raise CalibError("natural-scene calibration always decides the axes (--axes search)")
+    if args.centreline or args.frame_noise or args.streaks or args.from_truth:
+        raise CalibError(
+            "--centreline, --frame-noise, --streaks and --from-truth apply to laser sessions"
+        )
+    session = load_session(args.session)
+    options = FitOptions(
+        fit=NATURAL_FIT if args.fit == DEFAULT_FIT else args.fit,
+        holdout_fraction=args.holdout,
+        shift_window_s=args.shift_window_ms * 1e-3,
+        residuals=args.residuals,
+    )
+    nat = calibrate_natural(session, options)
+    res = nat.result
+    summary = res.to_dict()
+    summary.update(nat.summary())
+    summary["target"] = "natural"
+    summary["options"] = dataclasses.asdict(options)
+    summary["initial"] = named(theta_from(res.initial))
+    truth = truth_values(session, res.initial)
+    if truth is not None:
+        summary["truth"] = truth
+        summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
+    out = Path(args.out)
+    # a failed fit never replaces the summary of the calibration it leaves in place
+    failed = res.status == "failed"
+    details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
+    write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
+    f = summary["features"]
+    print(
+        f"feature tracks: {f['tracks']} in {f['frames'] - 1} frame pairs (median "
+        f"{f['per_pair_median']:.0f} per pair, {f['displacement_px_median']:.1f} px motion)"
+    )
+    print_axes(nat.axes)
+    print("(the endpoint errors below are feature-track errors)")
+    print_table(res, summary["initial"], truth)
+    if failed:
+        raise CalibError(
+            "calibration failed: "
+            + "; ".join(res.warnings)
+            + f" (details in {details}; no calibration written)"
+        )
+    write_calibration(res, out)
+    write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
+    write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
+    print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
+    return 0

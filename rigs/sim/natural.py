@@ -1,0 +1,176 @@
+"""The simulated natural-scene rig: a textured far scene instead of the laser grid.
+
+:class:`NaturalRig` is a :class:`~rigs.sim.rig.SimRig` (same true calibration, true motion, gyro
+model, sensor noise and session writer) whose frames show a BSDS500 photograph on a plane at
+infinity (``z = 1`` in the world frame, the scene direction ``w`` seen at texture pixel
+``c_t + s_t · (w_x / w_z, w_y / w_z)``; pure rotation, DESIGN's scene model). Pixel ``x`` of
+row ``r`` at time ``t`` looks along ``w = R_c(t) K⁻¹ x̃`` (``R_c`` from
+:meth:`rigs.sim.motion.TrueMotion.orientation`); a blurred frame averages ``n`` such sharp
+views at the sub-times ``t_row + exposure · (k + ½) / n`` of each row (rolling shutter:
+``t_row = t + readout · r / H``), ``n`` chosen so that consecutive views move by at most
+:data:`SUBSTEP_PX`. The texture is bilinearly interpolated (mirrored beyond its edges) at
+:data:`TEXEL_PX` camera pixels per texel. Distortion is not rendered: natural presets use
+``distortion_coeffs: ()``.
+
+Per row the texture coordinates are ratios of functions linear in the column ``u``
+(``w = u · A_row + B_row``), so a sub-view costs a few array operations and one ``cv2.remap``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from blurtrack.io.session import SessionMeta
+from rigs.sim.errors import SimError
+from rigs.sim.preset import SimPreset
+from rigs.sim.rig import SimRig
+from rigs.sim.shake import ShakeTrace
+
+#: Where the project's data README puts BSDS500, relative to the repository's parent.
+BSDS_RELPATH = Path("shared") / "data" / "backgrounds" / "bsds500"
+#: Camera pixels per texel at the image centre.
+TEXEL_PX = 1.5
+#: Largest image motion (px) between two sub-views of one exposure.
+SUBSTEP_PX = 0.75
+MAX_SUBVIEWS = 96
+#: Mean scene brightness as a fraction of the full well.
+SCENE_LEVEL = 0.55
+MAX_TEXTURE_BYTES = 64 * 1024 * 1024
+
+
+def default_background_dir() -> Path:
+    """``<repository>/../shared/data/backgrounds/bsds500`` (may not exist)."""
+    return Path(__file__).resolve().parents[3] / BSDS_RELPATH
+
+
+def pick_background(seed: int, folder: Path | None = None) -> Path:
+    """A BSDS500 photograph of the ``val`` split chosen by ``seed`` (``test`` is kept for
+    evaluating the deblurring networks)."""
+    root = default_background_dir() if folder is None else Path(folder)
+    split = root / "val" if (root / "val").is_dir() else root
+    files = sorted(p for p in split.glob("*.jpg") if p.is_file())
+    if not files:
+        raise SimError(f"no background photographs (*.jpg) found in {split}")
+    return files[int(seed) % len(files)]
+
+
+def load_texture(path: Path) -> np.ndarray:
+    """A photograph as float32 gray in ``[0, 1]`` ``(Ht, Wt)``."""
+    p = Path(path)
+    if not p.is_file():
+        raise SimError(f"background {p} does not exist")
+    if p.stat().st_size > MAX_TEXTURE_BYTES:
+        raise SimError(f"background {p} is larger than {MAX_TEXTURE_BYTES >> 20} MiB")
+    img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+    if img is None or min(img.shape) < 16:
+        raise SimError(f"background {p} does not decode as an image of at least 16x16")
+    return img.astype(np.float32) / 255.0
+
+
+class NaturalRig(SimRig):
+    """A simulated rig filming a textured far scene (see the module docstring).
+
+    Args:
+        background: a photograph, or ``None`` for :func:`pick_background` by ``seed``.
+    """
+
+    def __init__(
+        self,
+        preset: SimPreset,
+        seed: int,
+        n_frames: int,
+        shake: ShakeTrace | str | Path | None = None,
+        background: str | Path | None = None,
+    ) -> None:
+        if preset.distortion_coeffs:
+            raise SimError("the natural-scene renderer draws no lens distortion")
+        super().__init__(preset, seed, n_frames, shake=shake)
+        self.background = Path(background) if background else pick_background(seed)
+        self.texture = load_texture(self.background)
+        fx = self.camera.intrinsics[0]
+        self.texel_scale = fx / TEXEL_PX  # texels per unit tangent
+        Ht, Wt = self.texture.shape
+        self.texture_centre = ((Wt - 1) / 2, (Ht - 1) / 2)
+        level = SCENE_LEVEL * preset.full_well_e
+        self._scene_e = level / max(float(np.mean(self.texture)), 1e-3)
+
+    # ------------------------------------------------------------- guesses
+    def nominal_meta(self) -> SessionMeta:
+        m = super().nominal_meta()
+        return SessionMeta(m.camera, m.imu, "natural", extra=m.extra)
+
+    # ------------------------------------------------------------- render
+    def _view(self, R_rows: np.ndarray) -> np.ndarray:
+        """Sharp texture values ``(H, W)`` for per-row orientations ``R_rows (H, 3, 3)``."""
+        cam = self.camera
+        fx, fy, cx, cy = cam.intrinsics
+        W, H = cam.width, cam.height
+        v = (np.arange(H) - cy) / fy
+        # ray(u, v) = (u - cx)/fx e_x + (v, 1) part; w = R ray = u * A + B per row.
+        A = R_rows[:, :, 0] / fx
+        B = R_rows[:, :, 0] * (-cx / fx) + R_rows[:, :, 1] * v[:, None] + R_rows[:, :, 2]
+        u = np.arange(W, dtype=np.float32)[None, :]
+        A, B = A.astype(np.float32), B.astype(np.float32)
+        wz = A[:, 2:3] * u + B[:, 2:3]
+        s = np.float32(self.texel_scale) / wz
+        mx = (A[:, 0:1] * u + B[:, 0:1]) * s + np.float32(self.texture_centre[0])
+        my = (A[:, 1:2] * u + B[:, 1:2]) * s + np.float32(self.texture_centre[1])
+        return cv2.remap(
+            self.texture, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
+        )
+
+    def subviews(self, t_start_s: float) -> int:
+        """Sub-views of the frame starting at ``t_start_s`` (see :data:`SUBSTEP_PX`)."""
+        p = self.preset
+        span = p.exposure_s + self.camera.readout_s
+        t = t_start_s + np.linspace(0.0, span, 64)
+        w = np.linalg.norm(self.omega_cam_at(t), axis=1).max()
+        fx, fy = self.camera.intrinsics[:2]
+        diag = math.hypot(self.camera.width, self.camera.height) / 2
+        px = w * p.exposure_s * (max(fx, fy) + diag * diag / max(fx, fy))
+        return int(np.clip(math.ceil(px / SUBSTEP_PX), 2, MAX_SUBVIEWS))
+
+    def render_electrons(self, t_start_s: float) -> np.ndarray:
+        """Mean photo-electrons ``(H, W)`` of the blurred frame (no ambient, no noise)."""
+        p, cam = self.preset, self.camera
+        H = cam.height
+        n = self.subviews(t_start_s)
+        row_t = t_start_s + cam.readout_s * np.arange(H) / H
+        acc = np.zeros((H, cam.width), np.float32)
+        for k in range(n):
+            acc += self._view(self.motion.orientation(row_t + p.exposure_s * (k + 0.5) / n))
+        return acc * np.float32(self._scene_e / n)
+
+    def sharp_electrons(self, t_ref_s: float) -> np.ndarray:
+        """The scene without motion blur, every row seen at ``t_ref_s``."""
+        H = self.camera.height
+        R = np.broadcast_to(self.motion.orientation(np.array([t_ref_s]))[0], (H, 3, 3))
+        return self._view(np.ascontiguousarray(R)) * np.float32(self._scene_e)
+
+    # --------------------------------------------------------------- truth
+    def frame_truth(self, index: int) -> dict[str, Any]:
+        ts_ns = int(self.frame_times_ns[index])
+        return {
+            "index": int(index),
+            "timestamp_ns": ts_ns,
+            "exposure_ns": self.exposure_ns,
+            "subviews": self.subviews(ts_ns * 1e-9),
+            "streaks": [],
+        }
+
+    def simulator_info(self) -> dict[str, Any]:
+        info = super().simulator_info()
+        info.pop("dots", None)
+        info["scene"] = {
+            "kind": "natural",
+            "model": "far plane (pure rotation)",
+            "background": self.background.name,
+            "texel_px": TEXEL_PX,
+            "texture_size": list(self.texture.shape[::-1]),
+        }
+        return info

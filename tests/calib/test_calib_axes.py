@@ -1,0 +1,98 @@
+"""Axis discovery (calib.axes): the 24 proper permutations, robust rotation fits, the search
+on simulated motion with known truth, and its refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.rotation import so3_exp
+from calib.axes import (
+    AxisSearchError,
+    ImageRotations,
+    check_axes,
+    fit_rotation,
+    nearest_axis_permutation,
+    proper_axis_permutations,
+    search_axes,
+)
+from rigs.sim.preset import NOMINAL_R_CAM_IMU, get_preset
+from rigs.sim.rig import SimRig
+
+
+def test_permutations_are_the_24_distinct_proper_ones() -> None:
+    P = proper_axis_permutations()
+    assert P.shape == (24, 3, 3)
+    assert np.allclose(np.linalg.det(P), 1.0)
+    assert np.allclose(np.einsum("kji,kjl->kil", P, P), np.eye(3))
+    assert len({p.tobytes() for p in P}) == 24
+    R = so3_exp(np.array([0.02, -0.01, 0.03])) @ np.array(NOMINAL_R_CAM_IMU)
+    assert np.allclose(P[nearest_axis_permutation(R)], NOMINAL_R_CAM_IMU)
+
+
+def test_fit_rotation_ignores_outliers() -> None:
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((80, 3)) * [0.3, 0.2, 0] + [0, 0, 1]
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    R = so3_exp(np.array([0.01, -0.03, 0.02]))
+    b = a @ R.T + rng.normal(0, 1e-4, a.shape)
+    b[:20] += rng.normal(0, 0.02, (20, 3))  # 25 % wrong matches
+    Rf, inl = fit_rotation(a, b, 1e-3)
+    assert not inl[:20].any() and inl[20:].mean() > 0.95
+    assert np.degrees(np.linalg.norm(so3_exp(np.zeros(3)) - Rf.T @ R)) < 0.01
+
+
+def _sim(seed: int, frames: int = 30):
+    rig = SimRig(get_preset("realistic"), seed, frames)
+    t = rig.frame_times_ns * 1e-9
+    exp = rig.preset.exposure_s
+    mid = rig.camera.readout_s / 2 + exp / 2
+    ta, tb = t[:-1] + mid, t[1:] + mid
+    Ra, Rb = rig.motion.orientation(ta), rig.motion.orientation(tb)
+    R_img = np.einsum("kji,kjl->kil", Rb, Ra)  # R_c(t_b)^T R_c(t_a)
+    rng = np.random.default_rng(seed)
+    R_img = so3_exp(rng.normal(0, 2e-4, (ta.size, 3))) @ R_img  # registration noise
+    rots = ImageRotations(ta, tb, R_img, np.full(ta.size, 100), np.arange(ta.size))
+    ti = rig.gyro_times_ns() * 1e-9
+    gyro = GyroTrace(ti, rig.sample_gyro(ti))
+    return rig, rots, gyro
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_search_finds_the_true_axes_and_offset(seed: int) -> None:
+    rig, rots, gyro = _sim(seed)
+    fx = rig.camera.intrinsics[0]
+    res = search_axes(rots, gyro, fx, 0.0, 0.06, "test")
+    check_axes(res)
+    assert np.allclose(res.R_cam_imu, NOMINAL_R_CAM_IMU)
+    assert res.margin > 3
+    assert abs(res.winner.timeshift_s - rig.calibration.timeshift_cam_imu_s) < 2e-3
+    d = res.to_dict()
+    assert len(d["candidates"]) == 24 and d["winner"]["score_px"] == res.winner.score_px
+
+
+def test_wrong_gyro_is_refused() -> None:
+    rig, rots, _ = _sim(0)
+    _, _, other = _sim(7)  # another recording's gyro, same clock
+    res = search_axes(rots, other, rig.camera.intrinsics[0], 0.0, 0.06, "test")
+    with pytest.raises(AxisSearchError, match="explains|ambiguous"):
+        check_axes(res)
+
+
+def test_no_rotation_and_no_coverage_are_refused() -> None:
+    rig, rots, gyro = _sim(0)
+    still = ImageRotations(
+        rots.t_a_s,
+        rots.t_b_s,
+        np.broadcast_to(np.eye(3), rots.R_img.shape),
+        rots.n_points,
+        rots.frame_a,
+    )
+    quiet = GyroTrace(gyro.t_s, gyro.omega_radps * 1e-4)
+    res = search_axes(still, quiet, rig.camera.intrinsics[0], 0.0, 0.06, "test")
+    with pytest.raises(AxisSearchError, match="no rotation"):
+        check_axes(res)
+    late = GyroTrace(gyro.t_s + 100.0, gyro.omega_radps)
+    with pytest.raises(AxisSearchError, match="does not cover"):
+        search_axes(rots, late, rig.camera.intrinsics[0], 0.0, 0.06, "test")

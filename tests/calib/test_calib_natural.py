@@ -1,0 +1,105 @@
+"""Natural-scene calibration end to end: ``blurtrack calibrate`` on a simulated textured far
+scene (known truth), the axis search overriding a wrong session.yaml, and every bad input
+refused with one line and exit 2 (no calibration written)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blurtrack.cli import main
+from blurtrack.io.yamlio import read_yaml, write_yaml
+from rigs.sim.natural import NaturalRig
+from rigs.sim.preset import NOMINAL_R_CAM_IMU, get_preset
+from rigs.sim.writer import write_session
+
+SMALL = dict(width=320, height=180, focal_px=250.0)
+
+
+def _simulate(folder: Path, seed: int, frames: int, **changes) -> Path:
+    preset = get_preset("realistic").replace(**SMALL, **changes)
+    write_session(NaturalRig(preset, seed, frames), folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def natural(tmp_path_factory, shared_data) -> Path:
+    return _simulate(tmp_path_factory.mktemp("natural") / "s", 5, 30)
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_calibrate_natural_session_recovers_the_truth(natural, tmp_path, capsys) -> None:
+    s = _copy(natural, tmp_path / "s")
+    meta = read_yaml(s / "session.yaml", "session.yaml")
+    meta["imu"]["T_cam_imu"] = np.eye(4).tolist()  # a wrong guess: the images must decide
+    write_yaml(s / "session.yaml", meta)
+    out = tmp_path / "c" / "calib.yaml"
+    assert main(["calibrate", str(s), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "axis search (feature tracks" in text
+    summary = json.loads((tmp_path / "c" / "calib.summary.json").read_text())
+    ax = summary["axes"]
+    assert np.allclose(ax["winner"]["R_cam_imu"], NOMINAL_R_CAM_IMU)
+    assert ax["margin"] > 2 and len(ax["candidates"]) == 24
+    err = summary["error_vs_truth"]
+    assert abs(err["timeshift_s"]) < 1e-3
+    assert abs(err["readout_s"]) < 2e-3
+    assert abs(err["fx"]) / summary["truth"]["fx"] < 0.02
+    assert abs(err["cx"]) < 3 and abs(err["cy"]) < 3
+    assert summary["features"]["tracks"] > 500
+    assert out.exists()
+
+
+def _refused(session: Path, tmp_path: Path, capsys, match: str) -> None:
+    out = tmp_path / "c" / "calib.yaml"
+    assert main(["calibrate", str(session), "--out", str(out), "--target", "natural"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and match in err, err
+    assert not out.exists()
+
+
+def test_too_few_frames(natural, tmp_path, capsys) -> None:
+    s = _copy(natural, tmp_path / "s")
+    csv = s / "cam0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:4]) + "\n")
+    _refused(s, tmp_path, capsys, "too few frames")
+
+
+def test_textureless_frames(natural, tmp_path, capsys) -> None:
+    import cv2
+
+    s = _copy(natural, tmp_path / "s")
+    for p in (s / "cam0" / "data").glob("*.png"):
+        cv2.imwrite(str(p), np.full((180, 320), 128, np.uint8))
+    _refused(s, tmp_path, capsys, "too few feature tracks")
+
+
+def test_gyro_not_covering_the_frames(natural, tmp_path, capsys) -> None:
+    s = _copy(natural, tmp_path / "s")
+    csv = s / "imu0" / "data.csv"
+    df = pd.read_csv(csv)
+    df.iloc[:, 0] += 100_000_000_000
+    df.to_csv(csv, index=False)
+    _refused(s, tmp_path, capsys, "does not cover")
+
+
+def test_foreign_gyro(natural, tmp_path, capsys) -> None:
+    s = _copy(natural, tmp_path / "s")
+    other = _simulate(tmp_path / "other", 11, 3)
+    shutil.copy(other / "imu0" / "data.csv", s / "imu0" / "data.csv")
+    _refused(s, tmp_path, capsys, "axis mapping")
+
+
+def test_no_rotation(tmp_path, capsys, shared_data) -> None:
+    s = _simulate(tmp_path / "still", 3, 8, motion_scale=(0.002, 0.002))
+    _refused(s, tmp_path, capsys, "no rotation")
