@@ -52,3 +52,16 @@ def test_distortion_and_missing_background_are_refused(tmp_path) -> None:
         NaturalRig(p.replace(distortion_coeffs=(0.1, 0.0, 0.0, 0.0)), 0, 2)
     with pytest.raises(SimError, match="does not exist"):
         NaturalRig(p, 0, 2, background=tmp_path / "none.jpg")
+
+
+def test_simulate_command_target_natural(tmp_path, capsys, shared_data) -> None:
+    from blurtrack.cli import main
+
+    preset = tmp_path / "p.yaml"
+    preset.write_text("base: realistic\nwidth: 160\nheight: 90\nfocal_px: 125.0\n")
+    out = tmp_path / "s"
+    argv = ["simulate", str(out), "--target", "natural", "--preset-file", str(preset)]
+    assert main([*argv, "--frames", "3"]) == 0
+    assert load_session(out).meta.target_kind == "natural"
+    assert main(["simulate", str(tmp_path / "l"), "--background", str(preset)]) == 2
+    assert "--target natural" in capsys.readouterr().err
