@@ -201,7 +201,7 @@ class Progress:
 ProgressFn = Callable[[Progress], None]
 
 
-def check_fit_inputs(streaks: StreakSet, options: FitOptions) -> set[str]:
+def check_fit_inputs(streaks: StreakSet, options: FitOptions) -> tuple[int, ...]:
     """Refuse unusable input before any work (raises :class:`CalibError`); returns the parsed
     ``--fit`` groups. ``calibrate`` calls it first; the CLI calls it before the axis search."""
     free = parse_fit(options.fit)
