@@ -22,6 +22,8 @@ test: venv
 
 lint: venv
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 demo: venv
 	rm -rf $(DEMO_OUT)
