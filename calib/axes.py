@@ -26,6 +26,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -369,7 +370,10 @@ def ranked(
     return AxisSearch(
         candidates=tuple(
             AxisCandidate(
-                tuple(tuple(float(x) for x in r) for r in P[c]),
+                cast(
+                    "tuple[tuple[float, float, float], ...]",
+                    tuple(tuple(float(x) for x in r) for r in P[c]),
+                ),
                 float(shifts[c]),
                 float(scores[c]),
             )

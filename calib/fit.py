@@ -42,7 +42,7 @@ from calib.params import (
 )
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import CalibResult, ErrorStats, named, sigma_block
-from calib.solve import JacobianEvaluator, levenberg_marquardt
+from calib.solve import Evaluator, JacobianEvaluator, levenberg_marquardt
 from calib.tracks import build_tracks, concat
 
 MIN_STREAKS = 30
@@ -148,7 +148,7 @@ def _reorient(
 
 
 def scale_check(
-    ev: JacobianEvaluator,
+    ev: Evaluator,
     theta: np.ndarray,
     streaks: StreakSet,
     weights: np.ndarray,
@@ -444,12 +444,12 @@ def _fit(
             train, rho, flip = _reorient(model, theta, train, thr)
             reoriented ^= flip
             new_inl = rho <= thr
-            changed += np.count_nonzero(new_inl != inl)
+            changed += int(np.count_nonzero(new_inl != inl))
         new_tinl = tinl
         if tracks is not None:
             rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
             new_tinl = rho_t <= _outlier_threshold(rho_t[tinl])
-            changed += np.count_nonzero(new_tinl != tinl)
+            changed += int(np.count_nonzero(new_tinl != tinl))
         if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
             break  # the inlier sets have settled
         inl, tinl = new_inl, new_tinl

@@ -26,6 +26,7 @@ sandwich of the weighted score.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -211,7 +212,7 @@ def gls_refine(
         r, nuisance_columns(J, streaks, height, readout_s), streaks.frame, weights
     )
     fm, scale = choose_prior(fm, J, r, free)
-    state = {"r": r, "J": J, "fm": fm, "first": True}
+    state: dict[str, Any] = {"r": r, "J": J, "fm": fm, "first": True}
 
     def linearise(th: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         if not state["first"]:

@@ -28,7 +28,7 @@ its first derivatives are exact up to the grid's quadrature.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import casadi as ca
 import numpy as np
@@ -36,6 +36,7 @@ import numpy as np
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import (
     NUMPY_OPS,
+    Mat3,
     constant_mat3,
     matmul3,
     matvec3,
@@ -103,7 +104,9 @@ class GridEvaluator:
         self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
 
     # ------------------------------------------------------------------ grid
-    def _omega(self, t_imu: np.ndarray, A: np.ndarray, c: np.ndarray) -> np.ndarray:
+    def _omega(
+        self, t_imu: np.ndarray, A: np.ndarray, c: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Corrected rate ``A ω_meas(t) + c`` ``(…, 3)`` and the measured rate ``(…, 3)``."""
         w = self.gyro.omega_at(t_imu.reshape(-1)).reshape(*t_imu.shape, 3)
         return w @ A.T + c, w
@@ -116,7 +119,8 @@ class GridEvaluator:
         k_hi = int(np.ceil(np.max(tau) / h)) + 1
         nodes = np.arange(k_lo, k_hi + 1) * h
         w_mid, wm_mid = self._omega(nodes[:-1] + h / 2, A, c)
-        steps = np.stack(so3_exp_c(*(w_mid.T * h), NUMPY_OPS))
+        wx, wy, wz = w_mid.T * h
+        steps = np.stack(so3_exp_c(wx, wy, wz, NUMPY_OPS))
         phi = prefix_products(steps)  # (9, M + 1)
         out: dict[str, Any] = {"A": A, "c": c, "k_lo": k_lo, "phi": phi, "nodes": nodes}
         if integrals:
@@ -136,7 +140,8 @@ class GridEvaluator:
         t_k = k * h
         dt = tau - t_k
         w_half, _ = self._omega((t_k + tau) / 2, grid["A"], grid["c"])
-        part = so3_exp_c(*(w_half.T * dt), NUMPY_OPS)
+        wx, wy, wz = w_half.T * dt
+        part = so3_exp_c(wx, wy, wz, NUMPY_OPS)
         P = np.stack(matmul3(_mat(phi[:, k - k_lo]), part))
         w_end, _ = self._omega(tau, grid["A"], grid["c"])
         return P, w_end
@@ -158,7 +163,8 @@ class GridEvaluator:
 
     # -------------------------------------------------------------- residual
     def _warp(self, theta: np.ndarray, streaks: StreakSet, Q: tuple, ops: Any = NUMPY_OPS):
-        R = matmul3(so3_exp_c(*theta[LAYOUT["rotation"]], ops), constant_mat3(self.R0_cam_imu))
+        wx, wy, wz = theta[LAYOUT["rotation"]]
+        R = matmul3(so3_exp_c(wx, wy, wz, ops), constant_mat3(self.R0_cam_imu))
         R_cam = matmul3(matmul3(R, Q), transpose3(R))
         K = tuple(theta[LAYOUT["intrinsics"]])
         ray = unproject_c(streaks.start[:, 0], streaks.start[:, 1], K, self.dist)
@@ -187,7 +193,7 @@ class GridEvaluator:
         th, thc, d = self._th, self._thc, self._d
         L = LAYOUT
         sx, sy, ex, ey, ya, yb = (d[i] for i in range(6))
-        Qc = tuple(d[6 + i] for i in range(9))
+        Qc = cast(Mat3, tuple(d[6 + i] for i in range(9)))
         GA = [[d[15 + 9 * r + k] for k in range(9)] for r in range(3)]  # δφ_r / δA_(i,j)
         Gc = [[d[42 + 3 * r + k] for k in range(3)] for r in range(3)]
         wb = [d[51 + r] for r in range(3)]
@@ -281,9 +287,9 @@ class GridEvaluator:
         r = np.zeros((n, 2))
         J = np.zeros((n * p, 2))
         for k, a in enumerate((th, th, d)):
-            buf.set_arg(k, memoryview(a))
-        buf.set_res(0, memoryview(r))
-        buf.set_res(1, memoryview(J))
+            buf.set_arg(k, memoryview(a))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
+        buf.set_res(0, memoryview(r))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
+        buf.set_res(1, memoryview(J))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
         run()
         # J is the (2, n p) column-major block row: residual n's (2, p) block at columns n p…
         full = np.zeros((n, 2, N_THETA))

@@ -110,7 +110,7 @@ def bounded_step(theta: np.ndarray) -> np.ndarray | None:
     return out
 
 
-def scale_tuple(theta: Sequence[Any]) -> tuple:
+def scale_tuple(theta: Sequence[Any] | np.ndarray | Any) -> tuple[Any, ...]:
     """``I + S`` of a theta as a row-major 9-tuple (numbers or CasADi scalars)."""
     sxx, syy, szz, sxy, sxz, syz = (theta[i] for i in range(*LAYOUT["scale"].indices(N_THETA)))
     return (1 + sxx, sxy, sxz, sxy, 1 + syy, syz, sxz, syz, 1 + szz)

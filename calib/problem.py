@@ -76,7 +76,8 @@ def _streak_motion(
     shift, readout = theta[L["timeshift_s"]], theta[L["readout_s"]]
     fx, fy, cx, cy = (theta[i] for i in range(*L["intrinsics"].indices(N_THETA)))
     bias = tuple(theta[i] for i in range(*L["bias"].indices(N_THETA)))
-    dR = so3_exp_c(*(theta[i] for i in range(*L["rotation"].indices(N_THETA))), ops)
+    wx, wy, wz = (theta[i] for i in range(*L["rotation"].indices(N_THETA)))
+    dR = so3_exp_c(wx, wy, wz, ops)
     # omega_cam = R (I + S)^-1 (w - b), the exact inverse (as BlurModel applies it).
     R = matmul3(matmul3(dR, constant_mat3(R0_cam_imu)), inverse3(scale_tuple(theta)))
     ft, exp, row_s, row_e = cols[4:8]

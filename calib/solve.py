@@ -95,6 +95,7 @@ def lm_driver(
     converged = small = False
     it = 0
     A, g, cost = linearise(theta)
+    trial: np.ndarray | None
     for it in range(1, max_iter + 1):
         d = np.sqrt(np.maximum(np.diag(A), 1e-300))
         As, gs = A / np.outer(d, d), g / d

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -117,7 +117,10 @@ def _rig_guess(metadata: dict[str, str]) -> dict[str, Any]:
             out["readout_s"] = float(guess["readout_s"])
         if "R_cam_imu" in guess:
             out["R_cam_imu"] = ConvertOptions(
-                R_cam_imu=tuple(tuple(float(v) for v in row) for row in guess["R_cam_imu"])
+                R_cam_imu=cast(
+                    "tuple[tuple[float, float, float], ...]",
+                    tuple(tuple(float(v) for v in row) for row in guess["R_cam_imu"]),
+                )
             ).R_cam_imu
         return out
     except (ValueError, TypeError, KeyError) as exc:
@@ -166,7 +169,7 @@ def log_to_session(
             f"exposure not reported by the camera; {options.exposure_ns} ns assumed as given"
         )
     imu_rate = rate_of(scan.imu_t_dev_us * 1000) if keep.any() else 0.0
-    recording = {k: v for k, v in scan.metadata.items() if k != "format"}
+    recording: dict[str, Any] = {k: v for k, v in scan.metadata.items() if k != "format"}
     recording.update(
         {
             "log": log_path.name,
@@ -200,6 +203,7 @@ def log_to_session(
                     continue
                 img = rec.image()
                 exposure = rec.exposure_ns if rec.exposure_ns > 0 else options.exposure_ns
+                assert exposure is not None  # unknown exposures without --exposure-ms raised above
                 writer.add_frame(rec.timestamp_ns, img, int(exposure))
                 last_ts = rec.timestamp_ns
                 result.frames += 1

@@ -49,6 +49,7 @@ class ImuSource(Protocol):
 
     url: str
     rate_hz: float | None
+    min_latency_s: float  # the transport's least latency, recorded in the log metadata
 
     def read(self) -> ImuBatch:
         """Samples completed since the last read (blocks up to the source's timeout)."""

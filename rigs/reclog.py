@@ -353,7 +353,12 @@ def scan_log(path: str | Path) -> LogScan:
         if key == "/imu":
             try:
                 g, a = obj["gyro_radps"], obj["accel_mps2"]
-                row = (obj["index"], obj["t_dev_us"], obj["host_ns"], [g["x"], g["y"], g["z"]])
+                row: tuple[Any, ...] = (
+                    obj["index"],
+                    obj["t_dev_us"],
+                    obj["host_ns"],
+                    [g["x"], g["y"], g["z"]],
+                )
                 row += (nan3 if a is None else [a["x"], a["y"], a["z"]],)
             except (KeyError, TypeError) as exc:
                 raise RecorderLogError(f"{path}: malformed /imu message ({exc})") from None

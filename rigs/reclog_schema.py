@@ -158,6 +158,7 @@ def image_message(
 
     The base64 text is spliced into the JSON as bytes (it needs no escaping), which saves a
     scan and a copy of every megabyte-sized frame on the recorder's writer thread."""
+    head: dict[str, Any]
     if encoding == "png":
         schema, head = COMPRESSED_IMAGE, {"timestamp": time_of(t_ns), "frame_id": "cam0"}
         head["format"] = "png"

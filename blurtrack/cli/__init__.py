@@ -18,6 +18,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import TypeVar
 
 from blurtrack.errors import BlurTrackError
 
@@ -65,6 +66,9 @@ def has_shown_default(action: argparse.Action) -> bool:
     )
 
 
+_ActionT = TypeVar("_ActionT", bound=argparse.Action)
+
+
 class CommandParser(argparse.ArgumentParser):
     """ArgumentParser whose help shows defaults; subcommand parsers inherit it."""
 
@@ -72,7 +76,7 @@ class CommandParser(argparse.ArgumentParser):
         kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
 
-    def _add_action(self, action: argparse.Action) -> argparse.Action:
+    def _add_action(self, action: _ActionT) -> _ActionT:
         # an option without help text is not listed by argparse: give it its default
         if action.help is None and has_shown_default(action):
             action.help = "default: %(default)s"

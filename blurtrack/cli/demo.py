@@ -16,9 +16,12 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from blurtrack.io.atomic import write_text_atomic
+
+if TYPE_CHECKING:
+    from gamd.nets.base import DeblurNet
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
@@ -259,7 +262,10 @@ def demo_train(
         dataset, split, crop=None, augment=False, heat_scale_px=config.data.heat_scale_px
     )
     item = test.full(0)
-    restored = restore(res.model, item["blur"], item["heat"]).permute(1, 2, 0).numpy()
+    assert res.model is not None  # train() returns the trained model
+    restored = (
+        restore(cast("DeblurNet", res.model), item["blur"], item["heat"]).permute(1, 2, 0).numpy()
+    )
     blur = item["blur"].permute(1, 2, 0).numpy()
     sharp = item["sharp"].permute(1, 2, 0).numpy()
     picture = out / "before_after.png"

@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if changes:
         preset = preset.replace(**changes)
     out = check_new_folder(args.out)
+    rig: SimRig
     if args.target == "natural":
         from rigs.sim.natural import NaturalRig
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
 
@@ -156,7 +156,9 @@ def spec_from_args(args: argparse.Namespace):
     )
     params = TripletParams(
         size=(w, h),
-        exposure_ms=tuple(_floats(args.exposure_ms, 2, "--exposure-ms")),
+        exposure_ms=cast(
+            "tuple[float, float]", tuple(_floats(args.exposure_ms, 2, "--exposure-ms"))
+        ),
         mode=args.mode,
         photometry=Photometry(
             linear=not args.srgb_average,

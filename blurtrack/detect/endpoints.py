@@ -68,7 +68,7 @@ def _first_crossing(
     """Fractional index where each row first rises through ``level``, and whether it does."""
     cols = np.arange(A.shape[1])[None, :]
     above = (level[:, None] <= A) & (cols < lens[:, None])
-    has = above.any(axis=1)
+    has = np.asarray(above.any(axis=1))
     k = np.argmax(above, axis=1)
     rows = np.arange(A.shape[0])
     km1 = np.maximum(k - 1, 0)

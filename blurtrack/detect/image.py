@@ -114,7 +114,7 @@ def background_levels(
     sub = gray[::step, ::step]
     by, bx = max(sub.shape[0] // k, 1), max(sub.shape[1] // k, 1)
     kh, kw = min(k, sub.shape[0]), min(k, sub.shape[1])
-    smp = sub[: by * kh, : bx * kw].reshape(by, kh, bx, kw).transpose(0, 2, 1, 3)
+    smp: np.ndarray = sub[: by * kh, : bx * kw].reshape(by, kh, bx, kw).transpose(0, 2, 1, 3)
     smp = smp.reshape(by, bx, kh * kw)
     med = np.median(smp, axis=2, keepdims=True).astype(np.float32)  # on the integers: faster
     smp = smp.astype(np.float32)
@@ -161,9 +161,9 @@ def remove_hot_pixels(
     """
     cand = cv2.compare(raw, cv2.dilate(raw, _BOX), cv2.CMP_GE)
     if raw_floor is None or raw_floor < 0:
-        above = cv2.compare(signal, float(floor), cv2.CMP_GT)
+        above = cv2.compare(signal, float(floor), cv2.CMP_GT)  # type: ignore[call-overload]  # cv2 stubs lack the scalar src2
     else:  # integer data: raw > x exactly when raw > floor(x) (OpenCV rounds the scalar)
-        above = cv2.compare(raw, float(np.floor(raw_floor)), cv2.CMP_GT)
+        above = cv2.compare(raw, float(np.floor(raw_floor)), cv2.CMP_GT)  # type: ignore[call-overload]  # cv2 stubs lack the scalar src2
     cv2.bitwise_and(cand, above, dst=cand)
     cand[0, :] = 0
     cand[-1, :] = 0

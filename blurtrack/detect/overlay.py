@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 #: BGR colours: centre line, start, end, flagged streaks' centre line.
 LINE = (60, 220, 60)
@@ -32,7 +33,7 @@ def draw_streaks(image: np.ndarray, rows: pd.DataFrame, scale: int = 2) -> np.nd
     shift = 4  # fixed-point bits: sub-pixel drawing
     f = float(scale * (1 << shift))
 
-    def fix(xy: np.ndarray) -> np.ndarray:
+    def fix(xy: ArrayLike) -> np.ndarray:
         # pixel centres are at integer coordinates; the upscaled pixel i spans [i s, (i+1) s)
         return np.rint((np.asarray(xy, float) + 0.5) * f - 0.5 * (1 << shift)).astype(np.int32)
 

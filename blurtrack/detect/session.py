@@ -199,6 +199,7 @@ def detect_session(
         shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None
         found_shift = shift is not None and shift.status == "found"
         if found_shift:
+            assert shift is not None  # found_shift implies a shift
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, trace, max_substep_s=CUE_SUBSTEP_S)
         sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL

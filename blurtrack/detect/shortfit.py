@@ -28,6 +28,7 @@ biased 8 px streaks by +0.1 px), falls back to the linear density.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -97,9 +98,10 @@ class _State:
 
     def rows(self, sel: np.ndarray) -> _State:
         """The rows ``sel`` (index or mask) of this state."""
-        return _State(
-            *(None if getattr(self, f) is None else getattr(self, f)[sel] for f in _FIELDS)
-        )
+        vals: list[Any] = [
+            None if getattr(self, f) is None else getattr(self, f)[sel] for f in _FIELDS
+        ]
+        return _State(*vals)
 
 
 _FIELDS = ("F0", "F1", "F2", "ga", "gb", "c0", "c1", "c2", "res", "cost")

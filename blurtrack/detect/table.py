@@ -13,6 +13,7 @@ The column ``merged`` of the core schema means "merged with or crossing another 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -98,7 +99,7 @@ def build_table(parts: Sequence[pd.DataFrame]) -> pd.DataFrame:
     return streaks.validate(df)
 
 
-def write_table(df: pd.DataFrame, path: str) -> None:
+def write_table(df: pd.DataFrame, path: str | Path) -> None:
     """Write the table as Parquet, atomically (see :func:`blurtrack.io.streaks.write`)."""
     streaks.write(df, path)
 

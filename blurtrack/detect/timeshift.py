@@ -12,11 +12,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import CUE_SUBSTEP_S, GYRO_SIGMA_PX, FrameTiming
+
+if TYPE_CHECKING:
+    from blurtrack.geometry.gyro import GyroTrace
+    from blurtrack.io.calibration import Calibration
 
 #: Streaks used per frame and frames used (spread over the session).
 MAX_STREAKS_PER_FRAME = 30
@@ -88,8 +93,8 @@ def _costs(model: object, b: _Batch, deltas_s: np.ndarray) -> np.ndarray:
 def estimate_timeshift(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
-    calib: object,
-    gyro: object,
+    calib: Calibration,
+    gyro: GyroTrace,
     search_s: float = 0.05,
     step_s: float = 0.003,
 ) -> TimeshiftEstimate | None:

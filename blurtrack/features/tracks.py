@@ -159,8 +159,8 @@ def _track(
         maxLevel=params.levels,
         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001),
     )
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img_a, img_b, p0, None, **lk)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img_b, img_a, p1, None, **lk)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img_a, img_b, p0, None, **lk)  # type: ignore[call-overload]  # cv2 stubs: nextPts may be None (OpenCV allocates it)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img_b, img_a, p1, None, **lk)  # type: ignore[call-overload]  # cv2 stubs: nextPts may be None (OpenCV allocates it)
     a, b = p0.reshape(-1, 2).astype(float), p1.reshape(-1, 2).astype(float)
     fb = np.linalg.norm(p0b.reshape(-1, 2) - a, axis=1)
     m = params.border_px

@@ -9,8 +9,9 @@ clock in seconds; pixels follow docs/conventions.md.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -163,7 +164,7 @@ class BlurModel:
     def streak_endpoints(
         self,
         pixels_ref: np.ndarray,
-        t_ref_s: np.ndarray,
+        t_ref_s: float | np.ndarray,
         frame_t_s: float | np.ndarray,
         exposure_s: float | np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -258,7 +259,9 @@ class BlurModel:
             rows = ys[r0 : r0 + rows_per_chunk]
             t = cam.row_start_s(frame_t_s, rows)[:, None] + exposure_s * tau[None, :]
             # R_c(t)^T R_c(t_ref): rotation taking the view at t to the view at t_ref.
-            R = rot(t.reshape(-1), np.full(t.size, t_ref), self.omega_cam_at, nsub, NUMPY_OPS)
+            R: Sequence[Any] = rot(
+                t.reshape(-1), np.full(t.size, t_ref), self.omega_cam_at, nsub, NUMPY_OPS
+            )
             R = [c.reshape(rows.size, 1, n_t) for c in R]
             rx = rays_x[r0 : r0 + rows.size, :, None]
             ry = rays_y[r0 : r0 + rows.size, :, None]

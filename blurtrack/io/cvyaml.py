@@ -8,7 +8,7 @@ that knows only that one extra tag (a mapping ``rows, cols, dt, data``, returned
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
@@ -23,7 +23,7 @@ class _CvSafeLoader(yaml.SafeLoader):
 
 
 def _matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict[str, Any]:
-    return loader.construct_mapping(node, deep=True)
+    return cast("dict[str, Any]", loader.construct_mapping(node, deep=True))
 
 
 _CvSafeLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", _matrix)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import yaml
 
@@ -53,7 +53,7 @@ def imu_noise(session: Any) -> tuple[dict[str, float], str]:
     return noise, "defaults (EuRoC ADIS16448 values; measure your IMU and replace them)"
 
 
-def _ok(v: Any) -> bool:
+def _ok(v: Any) -> TypeGuard[float]:
     return isinstance(v, (int, float)) and math.isfinite(float(v)) and 0.0 <= float(v) < 10.0
 
 

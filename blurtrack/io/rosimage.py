@@ -7,6 +7,8 @@ Everything read from a message is range-checked before any array is shaped from 
 
 from __future__ import annotations
 
+from typing import Literal
+
 import cv2
 import numpy as np
 
@@ -78,7 +80,7 @@ def decode_raw(
     if buf.size < step * height:
         buf = np.concatenate([buf, np.zeros(step * height - buf.size, np.uint8)])
     rows = buf[: step * height].reshape(height, step)[:, :row]
-    order = ">" if is_bigendian else "<"
+    order: Literal[">", "<"] = ">" if is_bigendian else "<"
     img = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order))
     img = img.reshape(height, width, ch).astype(dtype)
     if ch == 1:

@@ -239,7 +239,7 @@ def _run_tasks(client: Any, run: BuildRun, cluster: str, shared_fs: bool, png_le
             ac.add(submit(job))
 
 
-def _next_result(ac: Any, cluster: str, killed: type) -> Any:
+def _next_result(ac: Any, cluster: str, killed: type[BaseException]) -> Any:
     """The next finished task's result (``None`` when all are done), with the cluster's
     failures as one-line errors (a task's own error comes through as it was raised)."""
     from concurrent.futures import CancelledError

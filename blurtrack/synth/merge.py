@@ -17,7 +17,7 @@ import os
 import shutil
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from blurtrack.errors import BlurTrackError, SynthesisError
 from blurtrack.io import atomic
@@ -36,7 +36,8 @@ def _meta(folder: Path) -> tuple[dict[str, Any], DatasetSpec]:
             f"rebuild that shard"
         )
     try:
-        return have, DatasetSpec.from_dict(have.get("spec"))
+        # a missing spec fails inside from_dict and is caught below
+        return have, DatasetSpec.from_dict(cast("dict[str, Any]", have.get("spec")))
     except (BlurTrackError, AttributeError, TypeError, ValueError, KeyError):
         raise SynthesisError(f"{folder}/dataset.yaml has a malformed spec") from None
 

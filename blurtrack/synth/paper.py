@@ -86,7 +86,7 @@ def render_paper(
         )
     border = BORDERS[st.border]
     work = four_channels(img)
-    acc = np.zeros(work.shape, np.float32)
+    acc: np.ndarray = np.zeros(work.shape, np.float32)
     part = np.empty_like(acc)
     warped = np.empty_like(acc)
     times, weights = [], []
@@ -112,7 +112,7 @@ def render_paper(
             cv2.accumulate(warped, part)
         cv2.scaleAdd(part, float((tb - ta) / (n * exposure_s)), acc, dst=acc)
     if work is not img:
-        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
+        acc = np.asarray(cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR))
     tau = (np.concatenate(times) - t0) / exposure_s
     grid = NodeGrid.build(W, H, st.grid_px)
     mx, my = source_positions(model, t0, exposure_s, t_ref, grid.u, grid.v, tau)

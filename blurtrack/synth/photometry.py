@@ -158,6 +158,7 @@ def jpeg_roundtrip(img8: np.ndarray, quality: int) -> np.ndarray:
     if not ok:
         raise SynthesisError("JPEG encoding failed")
     out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    assert out is not None  # a buffer cv2.imencode just wrote decodes
     return out.reshape(img8.shape)
 
 

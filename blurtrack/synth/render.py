@@ -282,7 +282,7 @@ def render_blur(
     n = tau.size
     border = BORDERS[st.border]
     work = four_channels(img)
-    acc = np.zeros(work.shape, np.float32)
+    acc: np.ndarray = np.zeros(work.shape, np.float32)
     grid = NodeGrid.build(W, H, node_spacing(model, plan.reach_px, st))
     margin = np.full((grid.v.size, grid.u.size), np.inf)
     homography = cam.readout_s == 0 and not cam.dist
@@ -323,11 +323,12 @@ def render_blur(
                         borderMode=border,
                     )
                 else:
+                    assert maps is not None  # built whenever not homography
                     m = grid.upsample_rows(maps[k], y0, rows, canvas)
-                    cv2.remap(work, m, None, cv2.INTER_LINEAR, dst=out, borderMode=border)
+                    cv2.remap(work, m, None, cv2.INTER_LINEAR, dst=out, borderMode=border)  # type: ignore[call-overload]  # cv2 stubs: map2 may be None (2-channel map1)
                 cv2.scaleAdd(out, float(wk), dst, dst=dst)
     if work is not img:
-        acc = cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR)
+        acc = np.asarray(cv2.cvtColor(acc, cv2.COLOR_BGRA2BGR))
     valid = grid.upsample(margin) >= 0
     return RenderResult(
         acc,

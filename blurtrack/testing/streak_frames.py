@@ -27,7 +27,7 @@ def _pixel_weights(centres: np.ndarray, lo: int, n: int, sigma: float) -> np.nda
 def render_streaks(
     shape: tuple[int, int],
     curves: Sequence[np.ndarray],
-    flux_per_px: float | Sequence[float] = 2.0,
+    flux_per_px: float | Sequence[float] | np.ndarray = 2.0,
     sigma_px: float = 1.5,
     background: float = 0.02,
     noise: float = 0.0,

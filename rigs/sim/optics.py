@@ -86,7 +86,7 @@ def speckle(dots_e: np.ndarray, o: Optics, rng: np.random.Generator | None) -> n
     if o.speckle_contrast == 0 or rng is None:
         return dots_e
     g = rng.standard_normal(dots_e.shape, dtype=np.float32)
-    g = cv2.GaussianBlur(g, (0, 0), o.speckle_px, borderType=cv2.BORDER_REFLECT)
+    g = np.asarray(cv2.GaussianBlur(g, (0, 0), o.speckle_px, borderType=cv2.BORDER_REFLECT))
     g /= max(float(g.std()), 1e-12)
     # A log-normal of standard deviation c: exp(s g - s^2 / 2) with s^2 = log(1 + c^2).
     s = float(np.sqrt(np.log1p(o.speckle_contrast**2)))
@@ -166,5 +166,7 @@ def demosaic_and_encode(dn: np.ndarray, o: Optics) -> np.ndarray:
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(o.jpeg_quality)])
         if not ok:
             raise SimError("JPEG encoding failed")
-        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        assert decoded is not None  # a buffer cv2.imencode just wrote decodes
+        img = np.asarray(decoded)
     return img

@@ -77,7 +77,7 @@ def rate_hz(t_ns: np.ndarray, where: str) -> float:
     d = d[d > 0]
     if d.size == 0:
         raise ImportFormatError(f"{where}: fewer than 2 distinct IMU timestamps")
-    return float(1e9 / np.median(d))
+    return float(1e9 / float(np.median(d)))
 
 
 def sorted_unique(t_ns: np.ndarray) -> np.ndarray:

@@ -76,7 +76,7 @@ def import_deepgyro(src: str | Path, out: str | Path) -> dict[str, Any]:
         camera=Camera((w, h), DEEPGYRO_INTRINSICS, readout_s=DEEPGYRO_READOUT_S),
         imu=ImuConfig(
             rate_hz=float(1e9 / np.median(np.diff(np.sort(gyro_t)))),
-            T_cam_imu=T_from_R(DEEPGYRO_R_CAM_IMU),
+            T_cam_imu=np.asarray(T_from_R(DEEPGYRO_R_CAM_IMU)),
             axes_known=False,
         ),
         target_kind="natural",

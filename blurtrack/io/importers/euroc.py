@@ -11,7 +11,7 @@ axes are known. The ASL format gives no exposure: it comes from ``--exposure-ms`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -59,7 +59,7 @@ def _camera(d: dict[str, Any], path: Path, readout_s: float) -> Camera:
     try:
         w, h = (int(v) for v in d["resolution"])
         check_size(w, h, str(path))
-        intr = tuple(float(v) for v in d["intrinsics"])
+        intr = cast("tuple[float, float, float, float]", tuple(float(v) for v in d["intrinsics"]))
         model = str(d.get("camera_model", "pinhole"))
         dist_name = str(d.get("distortion_model", "none"))
         coeffs = tuple(float(v) for v in d.get("distortion_coefficients") or ())

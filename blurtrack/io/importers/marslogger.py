@@ -123,7 +123,7 @@ def import_marslogger(src: str | Path, out: str | Path) -> dict[str, Any]:
         camera=Camera((w, h), intr, "radtan" if dist else "none", dist, readout_s=readout),
         imu=ImuConfig(
             rate_hz=float(1e9 / np.median(np.diff(t_ns))),
-            T_cam_imu=T_from_R(ANDROID_PORTRAIT_R_CAM_IMU),
+            T_cam_imu=np.asarray(T_from_R(ANDROID_PORTRAIT_R_CAM_IMU)),
             axes_known=False,
         ),
         target_kind="natural",
