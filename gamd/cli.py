@@ -35,7 +35,7 @@ def _train(args: argparse.Namespace) -> int:
     if overrides:
         config = replace(config, train=replace(config.train, **overrides))
     try:
-        res = train(config, resume=args.resume)
+        res = train(config, resume=args.resume, force=args.force)
     finally:
         import torch.distributed as dist
 
@@ -63,26 +63,46 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checkpoint(args: argparse.Namespace) -> Path:
+    from gamd.weights import shipped_weights
+
+    return Path(args.checkpoint) if args.checkpoint else shipped_weights(args.net)
+
+
 def _eval(args: argparse.Namespace) -> int:
     from gamd.checkpoint import load_model
     from gamd.data import DeblurDataset
-    from gamd.evaluate import evaluate, summary_table
+    from gamd.evaluate import evaluate, gain_table, summary_table
 
     check_output(args.out, folder=True, force=args.force)
-    model, config, step = load_model(args.checkpoint)
+    ckpt = _checkpoint(args)
+    model, config, step = load_model(ckpt)
+    options = config.data.restore_options()
     dataset = DeblurDataset(
         args.data,
         args.split,
         crop=None,
         augment=False,
         heat_scale_px=config.data.heat_scale_px,
-        require_heat=model.uses_heat,
+        require_heat=model.uses_heat or options.needs_heat,
         heat_root=args.heat_root,
     )
+    lengths = None
+    if args.heat_root is not None:  # bins by the true blur, not the perturbed heat maps
+        lengths = DeblurDataset(args.data, args.split, crop=None, augment=False, require_heat=False)
     res = evaluate(
-        model, dataset, out_dir=args.out, limit=args.limit, progress=not args.no_progress
+        model,
+        dataset,
+        out_dir=args.out,
+        limit=args.limit,
+        progress=not args.no_progress,
+        options=options,
+        length_dataset=lengths,
     )
+    print(f"weights: {ckpt} ({config.model.name}, step {step})")
     print(summary_table({f"{config.model.name}@{step}": res}))
+    print("gain over the blurred input by median blur length (near-still: < 0.5 px):")
+    print(gain_table(res))
     print(f"conventions: {res.conventions}")
     print(f"gamd eval: per-image CSV and summary.json in {args.out}")
     return 0
@@ -93,7 +113,7 @@ def _deblur(args: argparse.Namespace) -> int:
 
     check_output(args.out, folder=True, force=args.force)
     s = deblur_session(
-        args.checkpoint,
+        _checkpoint(args),
         args.session,
         args.heat,
         args.out,
@@ -106,6 +126,18 @@ def _deblur(args: argparse.Namespace) -> int:
         f"into {s.out_dir}{skipped}"
     )
     return 0
+
+
+def _weights_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--checkpoint", default=None, help="checkpoint to use (default: the shipped weights)"
+    )
+    p.add_argument(
+        "--net",
+        choices=("gamd", "gamd_only"),
+        default="gamd",
+        help="which shipped weights without --checkpoint (default gamd)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -131,9 +163,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="override train.steps")
     p.add_argument("--out", default=None, help="override train.out_dir")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="start over in an OUT that already holds a run (replaces it); default: refuse",
+    )
     p.set_defaults(func=_train)
-    p = sub.add_parser("eval", help="PSNR/SSIM of a checkpoint on a dataset split")
-    p.add_argument("--checkpoint", required=True)
+    p = sub.add_parser("eval", help="PSNR/SSIM gains of a checkpoint on a dataset split")
+    _weights_options(p)
     p.add_argument("--data", required=True, help="dataset root (blurtrack synth or GoPro layout)")
     p.add_argument("--split", default="test")
     p.add_argument(
@@ -148,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_eval)
     p = sub.add_parser("deblur", help="deblur a recorded session with predicted heat maps")
     p.add_argument("session", help="session folder")
-    p.add_argument("--checkpoint", required=True)
+    _weights_options(p)
     p.add_argument("--heat", default=None, help="output folder of blurtrack predict")
     p.add_argument("--out", required=True)
     p.add_argument("--limit", type=int, default=None)

@@ -23,6 +23,7 @@ from gamd.errors import GamdConfigError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX
 from gamd.losses import LOSSES
 from gamd.nets import NETWORKS, model_kwargs
+from gamd.restorer import RestoreOptions, check_restore_options
 
 
 @dataclass(frozen=True)
@@ -61,16 +62,28 @@ class DataConfig:
     crop: int | None = 64
     augment: bool = True
     heat_scale_px: float = DEFAULT_HEAT_SCALE_PX
+    #: Restore at a working resolution where the blur is about this long (px); None: full size.
+    work_blur_px: float | None = None
+    #: Do-no-harm gate [lo, hi] (px of blur length): output = input below lo; None: no gate.
+    gate_px: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not self.root:
             raise GamdConfigError("data.root is required")
-        if not (isinstance(self.heat_scale_px, (int, float)) and self.heat_scale_px > 0):
-            raise GamdConfigError(f"data.heat_scale_px must be > 0, got {self.heat_scale_px!r}")
+        try:
+            check_restore_options(self.heat_scale_px, self.work_blur_px, self.gate_px)
+        except GamdConfigError as exc:
+            raise GamdConfigError(f"data.{exc}") from None
+        if self.gate_px is not None:
+            object.__setattr__(self, "gate_px", tuple(float(v) for v in self.gate_px))
         if self.crop is not None and (
             not isinstance(self.crop, int) or self.crop < 8 or self.crop % 4
         ):
             raise GamdConfigError(f"data.crop must be a multiple of 4 >= 8, got {self.crop!r}")
+
+    def restore_options(self) -> RestoreOptions:
+        """How inference must present images to a network trained on this data."""
+        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px)
 
 
 @dataclass(frozen=True)
@@ -94,6 +107,12 @@ class TrainConfig:
     device: str = "auto"
     progress: bool = True
     tensorboard: bool = True
+    #: Mixed precision: "off" or "bf16" (autocast on CUDA and CPU; weights stay float32).
+    amp: str = "off"
+    #: channels_last memory format for the network and its inputs (faster convs on GPUs).
+    channels_last: bool = False
+    #: Start from the weights of this checkpoint (fine-tuning; optimiser and step start fresh).
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "milestones", tuple(int(m) for m in self.milestones))
@@ -111,6 +130,8 @@ class TrainConfig:
             raise GamdConfigError(f"train.loss must be auto or one of {sorted(LOSSES)}")
         if self.num_workers < 0:
             raise GamdConfigError("train.num_workers must be >= 0")
+        if self.amp not in ("off", "bf16"):
+            raise GamdConfigError(f"train.amp must be off or bf16, got {self.amp!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise GamdConfigError(f"train.device must be auto, cpu or cuda, got {self.device!r}")
 
@@ -145,7 +166,10 @@ class RunConfig:
     def to_dict(self) -> dict[str, Any]:
         train = asdict(self.train)
         train["milestones"] = list(self.train.milestones)
-        return {"model": self.model.to_dict(), "data": asdict(self.data), "train": train}
+        data = asdict(self.data)
+        if data["gate_px"] is not None:
+            data["gate_px"] = list(data["gate_px"])
+        return {"model": self.model.to_dict(), "data": data, "train": train}
 
     @classmethod
     def from_dict(cls, d: Any) -> RunConfig:

@@ -12,6 +12,7 @@ interrupted or on the number of loader workers, which makes resume exact.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from torch.utils.data import Dataset, Sampler
 from blurtrack.io.images import ImageError, read_image
 from gamd.errors import GamdDataError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX, augment, normalise_heat
+from gamd.restorer import check_restore_options, to_working, working_scale
 
 #: Refuse images larger than this many pixels (a corrupt header must not exhaust memory).
 MAX_PIXELS = 64_000_000
@@ -116,6 +118,8 @@ class DeblurDataset(Dataset):
     quarter turns (if ``augment``); ``dataset.full(index)`` gives the whole image unchanged.
     Items are dicts: ``blur``, ``sharp`` ``(3, h, w)`` in [0, 1], ``heat`` ``(6, h, w)``
     normalised (zeros when the set has no heat maps and ``require_heat`` is False), ``index``.
+    With ``work_blur_px``, training items are first brought to the working resolution of
+    :mod:`gamd.restorer` (blur of about ``work_blur_px``), then cropped.
     """
 
     def __init__(
@@ -127,16 +131,21 @@ class DeblurDataset(Dataset):
         heat_scale_px: float = DEFAULT_HEAT_SCALE_PX,
         require_heat: bool = True,
         heat_root: str | Path | None = None,
+        work_blur_px: float | None = None,
     ) -> None:
         if crop is not None and (not isinstance(crop, int) or crop < 8 or crop % 4):
             raise GamdDataError(f"crop must be a multiple of 4 >= 8, got {crop!r}")
         self.root, self.split, self.crop = Path(root), split, crop
         self.augment, self.heat_scale_px, self.require_heat = augment, heat_scale_px, require_heat
+        self.work_blur_px = work_blur_px
+        if work_blur_px is not None:
+            check_restore_options(heat_scale_px, work_blur_px, None)
+            self.require_heat = True
         self.triplets = find_triplets(
             self.root, split, heat_root=None if heat_root is None else Path(heat_root)
         )
         missing = [t.name for t in self.triplets if t.heat is None]
-        if require_heat and missing:
+        if self.require_heat and missing:
             raise GamdDataError(
                 f"{len(missing)} examples of {self.root / split} have no heat "
                 f"map (first: {missing[0]}); this network needs them"
@@ -168,6 +177,13 @@ class DeblurDataset(Dataset):
         blur, sharp, heat = self._load(index)
         rng = np.random.default_rng(seed)
         h, w = blur.shape[-2:]
+        if self.work_blur_px is not None:  # the working resolution inference will use
+            heat_px = heat[None] * self.heat_scale_px
+            limit = min(h, w) / self.crop if self.crop is not None else math.inf
+            scale = working_scale(heat_px[0], self.work_blur_px, limit)
+            (b, s), hp = to_working([blur[None], sharp[None]], heat_px, scale)
+            blur, sharp, heat = b[0], s[0], hp[0] / self.heat_scale_px
+            h, w = blur.shape[-2:]
         if self.crop is not None:
             if h < self.crop or w < self.crop:
                 raise GamdDataError(

@@ -22,6 +22,7 @@ from gamd.data import read_heat, to_tensor
 from gamd.errors import GamdDataError
 from gamd.evaluate import restore
 from gamd.heat import normalise_heat
+from gamd.restorer import RestoreOptions
 
 
 def frame_to_rgb(image: np.ndarray) -> np.ndarray:
@@ -45,15 +46,24 @@ def write_rgb(path: Path, rgb: np.ndarray) -> None:
 
 
 def deblur_array(
-    model: torch.nn.Module, rgb: np.ndarray, heat_px: np.ndarray | None, heat_scale_px: float
+    model: torch.nn.Module,
+    rgb: np.ndarray,
+    heat_px: np.ndarray | None,
+    options: RestoreOptions | float,
 ) -> np.ndarray:
-    """Deblur one ``(H, W, 3)`` RGB image given its ``(6, H, W)`` heat maps in pixels."""
+    """Deblur one ``(H, W, 3)`` RGB image given its ``(6, H, W)`` heat maps in pixels.
+
+    ``options``: the run's restore options (gate, working resolution), or just its heat-map
+    scale (px) for a network applied as is.
+    """
+    if not isinstance(options, RestoreOptions):
+        options = RestoreOptions(float(options))
     heat = None
-    if model.uses_heat:
+    if model.uses_heat or options.needs_heat:
         if heat_px is None:
             raise GamdDataError("this network needs heat maps")
-        heat = normalise_heat(torch.from_numpy(heat_px), heat_scale_px)
-    out = restore(model, to_tensor(rgb), heat)
+        heat = normalise_heat(torch.from_numpy(heat_px), options.heat_scale_px)
+    out = restore(model, to_tensor(rgb), heat, options)
     return out.permute(1, 2, 0).numpy()
 
 
@@ -88,6 +98,8 @@ def deblur_session(
     from blurtrack.io.session import load_session
 
     model, config, _ = load_model(checkpoint)
+    options = config.data.restore_options()
+    needs_heat = model.uses_heat or options.needs_heat
     sess = load_session(session)
     heat_root = None
     if heat_dir is not None:
@@ -96,7 +108,7 @@ def deblur_session(
             heat_root = heat_root / "heat"
         if not heat_root.is_dir():
             raise GamdDataError(f"heat-map folder not found: {heat_root}")
-    elif model.uses_heat:
+    elif needs_heat:
         raise GamdDataError(
             f"{config.model.name} needs heat maps: pass the folder written by blurtrack predict"
         )
@@ -109,7 +121,7 @@ def deblur_session(
         ts = int(sess.frames["timestamp_ns"].iloc[i])
         rgb = frame_to_rgb(sess.read_image(i))
         heat = None
-        if model.uses_heat:
+        if needs_heat:
             path = heat_root / f"{ts}.npy"
             if not path.is_file():
                 if skip_missing:
@@ -119,7 +131,7 @@ def deblur_session(
                     f"no heat map for frame {ts} in {heat_root} (--skip-missing skips such frames)"
                 )
             heat = read_heat(path, rgb.shape[:2])
-        write_rgb(out / f"{ts}.png", deblur_array(model, rgb, heat, config.data.heat_scale_px))
+        write_rgb(out / f"{ts}.png", deblur_array(model, rgb, heat, options))
         done.append(ts)
     summary = DeblurSummary(
         out_dir=str(out),

@@ -21,12 +21,13 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from gamd.checkpoint import load_checkpoint, save_checkpoint
+from gamd.checkpoint import load_checkpoint, load_model, save_checkpoint
 from gamd.config import RunConfig
 from gamd.data import DeblurDataset, StepBatchSampler
 from gamd.errors import CheckpointError, GamdDataError
 from gamd.losses import LOSSES
 from gamd.nets import build_model
+from gamd.restorer import apply_gate
 
 LOG_FIELDS = ("step", "loss", "lr", "seconds")
 
@@ -70,11 +71,39 @@ def checkpoint_path(out_dir: str | Path, name: str = "last") -> Path:
     return Path(out_dir) / "checkpoints" / f"{name}.pt"
 
 
-def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
+RUN_FILES = ("config.yaml", "train_log.csv", "checkpoints", "tensorboard", "summary.json")
+
+
+def _refuse_existing_run(out_dir: Path) -> None:
+    found = [name for name in RUN_FILES if (out_dir / name).exists()]
+    if found:
+        raise CheckpointError(
+            f"{out_dir} already holds a training run ({', '.join(found)}): pass --resume auto "
+            "to continue it, or --force to start over and replace it"
+        )
+
+
+def _restore_state(state: dict, model, optimizer, scheduler, device, path) -> int:
+    """Load a resume checkpoint's states; one-line errors for malformed fields."""
+    try:
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        torch.set_rng_state(state["rng_cpu"])
+        if device.type == "cuda" and "rng_cuda" in state:
+            torch.cuda.set_rng_state(state["rng_cuda"], device)
+    except (KeyError, TypeError, ValueError, RuntimeError, IndexError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CheckpointError(f"{path}: malformed resume state: {msg}") from None
+    return int(state["step"])
+
+
+def train(config: RunConfig, resume: str | Path | None = None, force: bool = False) -> TrainResult:
     """Train ``config``'s network for ``config.train.steps`` steps (total, resume included).
 
     ``resume``: a checkpoint to continue from exactly (weights, optimiser, scheduler, RNG
-    states, step), or ``"auto"`` for ``out_dir/checkpoints/last.pt`` if it exists.
+    states, step), or ``"auto"`` for ``out_dir/checkpoints/last.pt`` if it exists. Without
+    ``resume``, an ``out_dir`` that already holds a run is refused unless ``force``.
     """
     tc = config.train
     if tc.threads:
@@ -83,16 +112,32 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     rank, world = _setup_distributed(device.type)
     out_dir = Path(tc.out_dir)
 
+    if resume is None and not force and rank == 0:
+        _refuse_existing_run(out_dir)
     torch.manual_seed(tc.seed)
     model = build_model(config.model.name, config.model.preset, **config.model.kwargs)
+    if tc.init_from is not None:
+        init_model, _, _ = load_model(tc.init_from)
+        if type(init_model) is not type(model):
+            raise CheckpointError(f"{tc.init_from}: holds {type(init_model).__name__}")
+        try:
+            model.load_state_dict(init_model.state_dict())
+        except RuntimeError as exc:
+            raise CheckpointError(
+                f"{tc.init_from}: weights do not fit: {str(exc).splitlines()[0]}"
+            ) from None
     model.to(device)
+    if tc.channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    options = config.data.restore_options()
     dataset = DeblurDataset(
         config.data.root,
         config.data.split,
         crop=config.data.crop,
         augment=config.data.augment,
         heat_scale_px=config.data.heat_scale_px,
-        require_heat=model.uses_heat,
+        require_heat=model.uses_heat or options.needs_heat,
+        work_blur_px=config.data.work_blur_px,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=tc.lr)
     scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)
@@ -102,19 +147,13 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
         resume = checkpoint_path(out_dir) if checkpoint_path(out_dir).is_file() else None
     if resume is not None:
         state = load_checkpoint(resume)
-        if state["config"]["model"] != config.model.to_dict():
+        if state["config"].get("model") != config.model.to_dict():
             raise CheckpointError(
                 f"{resume}: checkpoint was trained with model "
-                f"{state['config']['model']}, config asks for "
+                f"{state['config'].get('model')}, config asks for "
                 f"{config.model.to_dict()}"
             )
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        torch.set_rng_state(state["rng_cpu"])
-        if device.type == "cuda" and "rng_cuda" in state:
-            torch.cuda.set_rng_state(state["rng_cuda"], device)
-        start = int(state["step"])
+        start = _restore_state(state, model, optimizer, scheduler, device, resume)
     if start > tc.steps:
         raise CheckpointError(f"checkpoint is at step {start}, beyond train.steps={tc.steps}")
 
@@ -168,6 +207,7 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
         save_checkpoint(checkpoint_path(out_dir, f"step_{step:07d}"), state)
         return path
 
+    fmt = torch.channels_last if tc.channels_last else torch.contiguous_format
     losses: list[float] = []
     last_ckpt = None
     t0 = time.perf_counter()
@@ -182,10 +222,15 @@ def train(config: RunConfig, resume: str | Path | None = None) -> TrainResult:
     try:
         model.train()
         for step, batch in enumerate(loader, start=start + 1):
-            blur = batch["blur"].to(device, non_blocking=True)
-            sharp = batch["sharp"].to(device, non_blocking=True)
-            heat = batch["heat"].to(device, non_blocking=True) if model.uses_heat else None
-            outputs = net(blur, heat)
+            blur = batch["blur"].to(device, non_blocking=True, memory_format=fmt)
+            sharp = batch["sharp"].to(device, non_blocking=True, memory_format=fmt)
+            heat = batch["heat"].to(device, non_blocking=True, memory_format=fmt)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=tc.amp == "bf16"):
+                outputs = net(blur, heat if model.uses_heat else None)
+            outputs = [o.float() for o in outputs]
+            if options.gate_px is not None:  # the do-no-harm gate inference applies
+                heat_px = heat * config.data.heat_scale_px
+                outputs[0] = apply_gate(outputs[0], blur, heat_px, options.gate_px)
             loss = loss_fn(outputs, sharp, model.OUTPUT_SCALES, **loss_kw)
             if not torch.isfinite(loss):
                 raise GamdDataError(f"loss is {loss.item()} at step {step}")
