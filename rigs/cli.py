@@ -233,7 +233,7 @@ def run_record(args: argparse.Namespace) -> int:
 def run_recover(args: argparse.Namespace) -> int:
     from blurtrack.io.guard import check_output
     from rigs.convert import log_to_session
-    from rigs.reclog import recover_log
+    from rigs.recover import recover_log
 
     options = _options(args)
     log: Path = args.log

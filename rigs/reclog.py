@@ -268,7 +268,7 @@ def _records(path: Path) -> Iterator[tuple[str, Any]]:
     yield "end", ""
 
 
-def _walk(path: Path) -> Iterator[tuple[str, Any]]:
+def walk_log(path: Path) -> Iterator[tuple[str, Any]]:
     """Messages as (key, Message), then ("", reason); validates the format. The key is the
     topic, or ``/cam0:raw`` / ``/cam0:png`` for images (by their channel's schema)."""
     path = Path(path)
@@ -302,10 +302,10 @@ def _walk(path: Path) -> Iterator[tuple[str, Any]]:
 
 
 def _paired(path: Path) -> Iterator[tuple[str, Any, dict[str, Any] | None]]:
-    """``_walk`` with each image paired with the ``/cam0/info`` just before it (an info whose
+    """:func:`walk_log` with each image paired with the ``/cam0/info`` just before it (an info whose
     image never came, cut off by a crash, is dropped); other messages pass with None."""
     info: dict[str, Any] | None = None
-    for key, rec in _walk(path):
+    for key, rec in walk_log(path):
         if key == "/cam0/info":
             try:
                 info = json.loads(rec.data)
@@ -413,45 +413,3 @@ def iter_frames(path: str | Path) -> Iterator[FrameRecord]:
                 yield _frame_record(key, rec, info)
             except (KeyError, ValueError, TypeError) as exc:
                 raise RecorderLogError(f"{path}: malformed frame message ({exc})") from None
-
-
-@dataclass(frozen=True)
-class RecoverResult:
-    """What :func:`recover_log` kept."""
-
-    out_path: Path
-    messages: int
-    imu_samples: int
-    frames: int
-    was_complete: bool
-    damage: str
-
-
-def recover_log(path: str | Path, out_path: str | Path) -> RecoverResult:
-    """Copy every intact message of ``path`` into a new, finished log at ``out_path``."""
-    path, out_path = Path(path), Path(out_path)
-    if out_path.resolve() == path.resolve():
-        raise RecorderLogError("the recovered log must not overwrite the damaged one")
-    scan_meta: dict[str, str] = {}
-    writer: RecLogWriter | None = None
-    damage, n, imu_n, frames = "", 0, 0, 0
-    for key, rec in _walk(path):
-        if key == "meta":
-            scan_meta = {k: v for k, v in rec.metadata.items() if k != "format"}
-            writer = RecLogWriter(out_path, scan_meta)
-            continue
-        if key == "":
-            damage = rec
-            break
-        assert writer is not None  # the metadata record comes first in our logs
-        writer.write_message(key, rec.log_time, rec.data, rec.publish_time)
-        n += 1
-        if key == "/imu":
-            imu_n += 1
-        elif key.startswith("/cam0:"):
-            frames += 1
-    if writer is None:
-        raise RecorderLogError(f"{path} holds no recording metadata")
-    writer.write_event(0, "info", f"recovered from {path.name}: " + (damage or "log was complete"))
-    writer.finish()
-    return RecoverResult(out_path, n, imu_n, frames, not damage, damage)

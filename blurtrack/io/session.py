@@ -28,6 +28,7 @@ import pandas as pd
 from blurtrack.errors import BlurTrackError, ConfigError, SessionError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io import atomic, images
+from blurtrack.io.csvtable import check_strictly_increasing, numeric_column, read_csv_table
 from blurtrack.io.yamlio import read_yaml, write_yaml
 
 FORMAT = "blurtrack-session/1"
@@ -35,8 +36,6 @@ CAM_HEADER = "#timestamp [ns],filename,exposure [ns]"
 IMU_HEADER = "#timestamp [ns],w_x [rad s^-1],w_y [rad s^-1],w_z [rad s^-1]"
 ACC_HEADER = ",a_x [m s^-2],a_y [m s^-2],a_z [m s^-2]"
 TARGET_KINDS = ("laser-grid", "natural")
-#: Largest CSV read (bytes); guards against allocating for a hostile file.
-MAX_CSV_BYTES = 2 * 1024**3
 
 
 @dataclass(frozen=True)
@@ -334,69 +333,6 @@ class Session:
             raise SessionError(f"session.yaml imu block: {exc}") from None
 
 
-def _read_csv(path: Path, what: str, ncols: tuple[int, ...]) -> pd.DataFrame:
-    if not path.is_file():
-        raise SessionError(f"{what} missing: {path}")
-    if path.stat().st_size > MAX_CSV_BYTES:
-        raise SessionError(f"{what} {path} is larger than {MAX_CSV_BYTES} bytes")
-    try:
-        df = pd.read_csv(
-            path,
-            header=None,
-            comment=None,
-            dtype=str,
-            skiprows=1,
-            skipinitialspace=True,
-            keep_default_na=False,
-            on_bad_lines="error",
-        )
-    except pd.errors.EmptyDataError:
-        df = pd.DataFrame(columns=range(ncols[0]))
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise SessionError(f"{what} {path} is malformed: {str(exc).splitlines()[0]}") from None
-    with path.open("r", encoding="utf-8", errors="replace") as f:
-        header = f.readline()
-    if not header.startswith("#"):
-        raise SessionError(f"{what} {path}: the first line must be a '#' header")
-    if df.shape[1] not in ncols:
-        raise SessionError(
-            f"{what} {path} has {df.shape[1]} columns, expected {' or '.join(map(str, ncols))}"
-        )
-    return df
-
-
-def _numeric(df: pd.DataFrame, col: int, path: Path, integer: bool) -> np.ndarray:
-    s = pd.to_numeric(df[col], errors="coerce")
-    bad = s.isna() | ~np.isfinite(s.to_numpy(float, na_value=np.nan))
-    if bad.any():
-        line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
-        raise SessionError(
-            f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
-            f"is not a finite number"
-        )
-    if integer:  # nanosecond stamps and exposures: whole numbers that fit int64
-        text = df[col].astype(str).str.strip()
-        whole = text.str.fullmatch(r"[+-]?\d{1,19}").to_numpy(bool)
-        values = [int(v) if ok else 0 for v, ok in zip(text, whole, strict=True)]
-        fits = whole & np.array([-(2**63) <= v < 2**63 for v in values], dtype=bool)
-        if not fits.all():
-            line = int(np.flatnonzero(~fits)[0]) + 2
-            raise SessionError(
-                f"{path}: line {line}, column {col + 1}: {df[col].iloc[line - 2]!r} "
-                f"is not a whole number of nanoseconds within int64"
-            )
-        return np.asarray(values, dtype=np.int64)
-    return s.to_numpy(dtype=float)
-
-
-def _strictly_increasing(t: np.ndarray, path: Path) -> None:
-    d = np.diff(t)
-    if np.any(d <= 0):
-        k = int(np.flatnonzero(d <= 0)[0])
-        kind = "duplicate" if d[k] == 0 else "unsorted"
-        raise SessionError(f"{path}: {kind} timestamp {t[k + 1]} at line {k + 3}")
-
-
 def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Session:
     """Load and validate a session folder.
 
@@ -412,10 +348,10 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
     except ConfigError as exc:
         raise SessionError(str(exc)) from None
     cam_csv = root / "cam0" / "data.csv"
-    cdf = _read_csv(cam_csv, "camera table", (3,))
-    ts = _numeric(cdf, 0, cam_csv, True)
-    exp = _numeric(cdf, 2, cam_csv, True)
-    _strictly_increasing(ts, cam_csv)
+    cdf = read_csv_table(cam_csv, "camera table", (3,))
+    ts = numeric_column(cdf, 0, cam_csv, True)
+    exp = numeric_column(cdf, 2, cam_csv, True)
+    check_strictly_increasing(ts, cam_csv)
     if np.any(exp <= 0):
         raise SessionError(
             f"{cam_csv}: exposure must be positive (line {int(np.flatnonzero(exp <= 0)[0]) + 2})"
@@ -427,21 +363,21 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
             raise SessionError(f"{cam_csv}: image {n} is missing from {data_dir}")
     frames = pd.DataFrame({"timestamp_ns": ts, "filename": names, "exposure_ns": exp})
     imu_csv = root / "imu0" / "data.csv"
-    idf = _read_csv(imu_csv, "IMU table", (4, 7))
-    t_imu = _numeric(idf, 0, imu_csv, True)
+    idf = read_csv_table(imu_csv, "IMU table", (4, 7))
+    t_imu = numeric_column(idf, 0, imu_csv, True)
     omega = (
-        np.stack([_numeric(idf, k, imu_csv, False) for k in (1, 2, 3)], axis=1)
+        np.stack([numeric_column(idf, k, imu_csv, False) for k in (1, 2, 3)], axis=1)
         if len(idf)
         else np.zeros((0, 3))
     )
     accel = None
     if idf.shape[1] == 7:
         accel = (
-            np.stack([_numeric(idf, k, imu_csv, False) for k in (4, 5, 6)], axis=1)
+            np.stack([numeric_column(idf, k, imu_csv, False) for k in (4, 5, 6)], axis=1)
             if len(idf)
             else np.zeros((0, 3))
         )
-    _strictly_increasing(t_imu, imu_csv)
+    check_strictly_increasing(t_imu, imu_csv)
     session = Session(root, meta, frames, t_imu, omega, accel)
     if max_gyro_gap_s is not None and len(frames) and t_imu.size:
         shift = meta.imu.timeshift_cam_imu

@@ -9,7 +9,8 @@ import pytest
 
 from rigs.camera_types import CameraFrame
 from rigs.errors import RecorderLogError
-from rigs.reclog import RecLogWriter, iter_frames, recover_log, scan_log
+from rigs.reclog import RecLogWriter, iter_frames, scan_log
+from rigs.recover import recover_log
 
 
 def _write(path: Path, n_chunks: int = 6) -> tuple[list[np.ndarray], np.ndarray]:
