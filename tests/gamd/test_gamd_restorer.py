@@ -129,3 +129,17 @@ def test_evaluate_reports_binned_gains(tiny_dataset, tmp_path) -> None:
     assert "median_psnr_gain_db" in s["blurred"]
     for r in res.rows:  # lengths are the manifest's median |q1 - q0|
         assert r["blur_length_px"] > 0 and r["bin"] == blur_bin(r["blur_length_px"])
+
+
+@pytest.mark.parametrize("net", ["gamd", "gamd_only"])
+def test_shipped_weights_load_and_do_no_harm(net: str) -> None:
+    from gamd.checkpoint import load_model
+    from gamd.weights import shipped_weights
+
+    path = shipped_weights(net)
+    assert path.stat().st_size <= 2_000_000
+    model, cfg, step = load_model(path)
+    assert step > 0 and cfg.model.name == net and cfg.data.gate_px is not None
+    blur = torch.rand(3, 48, 64)
+    out = restore_image(model, blur, _heat(48, 64, 0.1), cfg.data.restore_options())
+    assert torch.equal(out, blur)

@@ -1,0 +1,135 @@
+"""Reproduce the shipped weights (``gamd/weights/*.pt``): data, training, export.
+
+```
+python -m gamd.shipped data                 # blurtrack synth: BSDS500 train+val, real shake
+python -m gamd.shipped train --net gamd     # configs/gamd/shipped_gamd.yaml (resumable)
+python -m gamd.shipped train --net gamd_only
+python -m gamd.shipped export               # runs/*/checkpoints/last.pt -> gamd/weights/
+```
+Data (``bench_out/shipped``, seeds fixed): 256 × 256 global-shutter pinhole cameras with
+focal lengths 600 px and 2400 px (blur of about 0–8 and 0–40 px), exposures 10–30 ms, the real
+GyroDeblurNet hand shake; 200 + 200 triplets from BSDS500 train and 100 + 100 from val form
+the training split. The test splits (BSDS500 test, never trained on) are made by
+``bench/bench_gamd.py --shipped``. Run from the repository root, with ``../shared/data``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from gamd.errors import GamdDataError
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "bench_out" / "shipped"
+SHARED = REPO.parent / "shared" / "data"
+#: (synth folder, BSDS500 folder, focal px, seed, count): the training split.
+TRAIN_SETS = (
+    ("train_f600", "train", 600.0, 0, 200),
+    ("train_f2400", "train", 2400.0, 1, 200),
+    ("val_f600", "val", 600.0, 0, 100),
+    ("val_f2400", "val", 2400.0, 1, 100),
+)
+SIZE = (256, 256)
+
+
+def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Path:
+    """A global-shutter pinhole camera of ``size`` (W, H) and focal length ``focal_px``."""
+    from blurtrack.geometry.camera import Camera
+    from blurtrack.io.calibration import Calibration
+
+    w, h = size
+    cam = Camera(resolution=(w, h), intrinsics=(focal_px, focal_px, (w - 1) / 2, (h - 1) / 2))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Calibration(camera=cam).to_yaml(path)
+    return path
+
+
+def synth(
+    images: Path,
+    out: Path,
+    size: tuple[int, int],
+    focal_px: float,
+    seed: int,
+    count: int,
+    shared: Path = SHARED,
+    extra: list[str] | None = None,
+) -> Path:
+    """One ``blurtrack synth`` call with the real shake (resumes a finished folder)."""
+    calib = write_calibration(
+        out.parent / f"calib_{size[0]}x{size[1]}_f{focal_px:g}.yaml", size, focal_px
+    )
+    gyro = shared / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
+    cmd = [sys.executable, "-m", "blurtrack", "synth", "--calib", str(calib), "--gyro"]
+    cmd += [str(gyro), "--images", str(images), "--out", str(out), "--seed", str(seed)]
+    cmd += ["--size", f"{size[0]}x{size[1]}", "--count", str(count), *(extra or [])]
+    env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise GamdDataError(f"synth failed: {proc.stderr.strip().splitlines()[-1:]}")
+    return out
+
+
+def link_split(src: Path, dst_split: Path, tag: str) -> int:
+    """Symlink each ``src/<split>/<name>`` group into ``dst_split/<tag>_<split>_<name>``."""
+    n = 0
+    for blur in sorted(src.glob("*/*/blur")):
+        g = blur.parent
+        dst = dst_split / f"{tag}_{g.parent.name}_{g.name}"
+        dst.mkdir(parents=True, exist_ok=True)
+        for sub in ("blur", "sharp", "heat"):
+            if (g / sub).is_dir() and not (dst / sub).exists():
+                (dst / sub).symlink_to((g / sub).resolve(), target_is_directory=True)
+        n += 1
+    return n
+
+
+def build_data(out: Path = OUT, shared: Path = SHARED) -> Path:
+    """The training split of the shipped weights at ``out/data/train``."""
+    bg = shared / "backgrounds" / "bsds500"
+    if not bg.is_dir():
+        raise GamdDataError(f"BSDS500 not found at {bg}")
+    for name, folder, focal, seed, count in TRAIN_SETS:
+        synth(bg / folder, out / "synth" / name, SIZE, focal, seed, count, shared)
+        link_split(out / "synth" / name, out / "data" / "train", name)
+    return out / "data"
+
+
+def export(out: Path = OUT, dest: Path | None = None) -> list[Path]:
+    """Copy each run's last checkpoint, weights only, to ``gamd/weights/<net>.pt``."""
+    from gamd.checkpoint import export_weights
+    from gamd.weights import SHIPPED, WEIGHTS_DIR
+
+    written = []
+    for net in SHIPPED:
+        src = out / "runs" / net / "checkpoints" / "last.pt"
+        written.append(export_weights(src, (dest or WEIGHTS_DIR) / f"{net}.pt"))
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m gamd.shipped", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="what", required=True)
+    sub.add_parser("data")
+    t = sub.add_parser("train")
+    t.add_argument("--net", choices=("gamd", "gamd_only"), required=True)
+    sub.add_parser("export")
+    args = p.parse_args(argv)
+    if args.what == "data":
+        print(f"training split in {build_data()}")
+    elif args.what == "train":
+        from gamd.cli import main as gamd_main
+
+        config = REPO / "configs" / "gamd" / f"shipped_{args.net}.yaml"
+        return gamd_main(["train", "--config", str(config), "--resume", "auto"])
+    else:
+        for path in export():
+            print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
