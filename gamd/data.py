@@ -197,7 +197,9 @@ class DeblurDataset(Dataset):
             flip_h, flip_v = bool(rng.integers(2)), bool(rng.integers(2))
             square = blur.shape[-1] == blur.shape[-2]
             turns = int(rng.integers(4)) if square else 2 * int(rng.integers(2))
-            (blur, sharp), heat = augment([blur, sharp], heat, flip_h, flip_v, turns)
+            (blur, sharp), heat_aug = augment([blur, sharp], heat, flip_h, flip_v, turns)
+            assert heat_aug is not None  # augment returns heat maps when given some
+            heat = heat_aug
         return {
             "blur": blur.contiguous(),
             "sharp": sharp.contiguous(),

@@ -107,7 +107,7 @@ def gain_stats(rows: list[dict]) -> dict:
     psnr_gain = np.array([r["psnr_db"] - r["blur_psnr_db"] for r in rows])
     ssim_gain = np.array([r["ssim"] - r["blur_ssim"] for r in rows])
     lengths = np.array([r["blur_length_px"] for r in rows])
-    out = {"count": len(rows)}
+    out: dict[str, float] = {"count": len(rows)}
     for k in METRICS:
         v = np.array([r[k] for r in rows])
         out[f"mean_{k}"], out[f"median_{k}"] = float(v.mean()), float(np.median(v))
@@ -199,10 +199,16 @@ def evaluate(
                 "bin": blur_bin(length),
             }
         )
-    means = {k: float(np.mean([r[k] for r in rows])) if rows else math.nan for k in METRICS}
+
+    def mean(k: str) -> float:
+        return float(np.mean([r[k] for r in rows])) if rows else math.nan
+
     result = EvalResult(
         rows=rows,
-        **means,
+        psnr_db=mean("psnr_db"),
+        ssim=mean("ssim"),
+        blur_psnr_db=mean("blur_psnr_db"),
+        blur_ssim=mean("blur_ssim"),
         overall=gain_stats(rows),
         blurred=gain_stats([r for r in rows if r["bin"] != "near-still"]),
         bins=binned(rows),

@@ -22,6 +22,7 @@ from gamd.data import read_heat, to_tensor
 from gamd.errors import GamdDataError
 from gamd.evaluate import restore
 from gamd.heat import normalise_heat
+from gamd.nets import DeblurNet
 from gamd.restorer import RestoreOptions
 
 
@@ -46,7 +47,7 @@ def write_rgb(path: Path, rgb: np.ndarray) -> None:
 
 
 def deblur_array(
-    model: torch.nn.Module,
+    model: DeblurNet,
     rgb: np.ndarray,
     heat_px: np.ndarray | None,
     options: RestoreOptions | float,
@@ -122,6 +123,7 @@ def deblur_session(
         rgb = frame_to_rgb(sess.read_image(i))
         heat = None
         if needs_heat:
+            assert heat_root is not None  # needs_heat requires the heat folder above
             path = heat_root / f"{ts}.npy"
             if not path.is_file():
                 if skip_missing:

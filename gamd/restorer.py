@@ -147,6 +147,8 @@ def restore_image(
     if hp is None and (model.uses_heat or options.needs_heat):
         raise GamdConfigError("this network and its restoration need heat maps")
     scale = 1.0
+    if hp is None:  # a heat-free network without gate or working scale: restore as is
+        return model(x, None)[0][0].clamp(0.0, 1.0).cpu()
     if work and options.work_blur_px is not None:
         h, w = x.shape[-2:]
         scale = working_scale(hp[0], options.work_blur_px, min(h, w) / MIN_WORK_SIDE)
@@ -159,7 +161,7 @@ def restore_image(
     if options.gate_px is not None:
         out = apply_gate(out, xs, hs, options.gate_px)
     if scale > 1.0:
-        out = x + resize(out - xs, tuple(x.shape[-2:]))
+        out = x + resize(out - xs, (int(x.shape[-2]), int(x.shape[-1])))
         if options.gate_px is not None:
             out = apply_gate(out, x, hp, options.gate_px)
     return out[0].clamp(0.0, 1.0).cpu()

@@ -26,7 +26,7 @@ from gamd.config import RunConfig
 from gamd.data import DeblurDataset, StepBatchSampler
 from gamd.errors import CheckpointError, GamdDataError
 from gamd.losses import LOSSES
-from gamd.nets import build_model
+from gamd.nets import DeblurNet, build_model
 from gamd.restorer import apply_gate
 
 LOG_FIELDS = ("step", "loss", "lr", "seconds")
@@ -42,7 +42,7 @@ class TrainResult:
     losses: list[float] = field(default_factory=list)
     checkpoint: Path | None = None
     seconds: float = 0.0
-    model: torch.nn.Module | None = field(default=None, repr=False)
+    model: DeblurNet | None = field(default=None, repr=False)
 
 
 def _setup_distributed(device_kind: str) -> tuple[int, int]:
@@ -128,7 +128,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
             ) from None
     model.to(device)
     if tc.channels_last:
-        model = model.to(memory_format=torch.channels_last)
+        model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch stubs omit memory_format for Module.to
     options = config.data.restore_options()
     dataset = DeblurDataset(
         config.data.root,
@@ -245,7 +245,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
                 value = value / world
             losses.append(float(value))
             bar.update(1)
-            if rank == 0:
+            if rank == 0 and log_writer is not None and log_file is not None:
                 log_writer.writerow(
                     {
                         "step": step,

@@ -16,12 +16,12 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 from blurtrack.io.atomic import write_text_atomic
 
 if TYPE_CHECKING:
-    from gamd.nets.base import DeblurNet
+    pass
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
@@ -263,9 +263,7 @@ def demo_train(
     )
     item = test.full(0)
     assert res.model is not None  # train() returns the trained model
-    restored = (
-        restore(cast("DeblurNet", res.model), item["blur"], item["heat"]).permute(1, 2, 0).numpy()
-    )
+    restored = restore(res.model, item["blur"], item["heat"]).permute(1, 2, 0).numpy()
     blur = item["blur"].permute(1, 2, 0).numpy()
     sharp = item["sharp"].permute(1, 2, 0).numpy()
     picture = out / "before_after.png"

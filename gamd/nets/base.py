@@ -48,7 +48,11 @@ class DeblurNet(nn.Module):
                 )
         h, w = blur.shape[-2:]
         blur_p, _ = pad_to_multiple(blur, self.PAD_MULTIPLE)
-        heat_p = pad_to_multiple(heat, self.PAD_MULTIPLE)[0] if self.uses_heat else None
+        heat_p = (
+            pad_to_multiple(heat, self.PAD_MULTIPLE)[0]
+            if self.uses_heat and heat is not None  # checked above: uses_heat has heat
+            else None
+        )
         outs = self._forward(blur_p, heat_p)
         return [
             o[..., : math.ceil(h / s), : math.ceil(w / s)]

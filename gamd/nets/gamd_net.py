@@ -65,7 +65,7 @@ class FFM(nn.Module):
         )
 
     def forward(self, own: torch.Tensor, *others: torch.Tensor) -> torch.Tensor:
-        size = own.shape[-2:]
+        size = (int(own.shape[-2]), int(own.shape[-1]))
         feats = [own] + [resize_to(o, size) for o in others]
         return own + self.fuse(torch.cat(feats, dim=1))
 
