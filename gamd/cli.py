@@ -202,7 +202,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe (``| head``) shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        from blurtrack.cli import quiet_stdout
+
+        quiet_stdout()
+        return 141  # 128 + SIGPIPE, as blurtrack does
     except BlurTrackError as exc:
         print(f"gamd {args.command}: error: {exc}", file=sys.stderr)
         return 2

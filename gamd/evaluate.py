@@ -12,6 +12,7 @@ the reference point.
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 import json
 import math
@@ -216,10 +217,11 @@ def evaluate(
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        with (out / "per_image.csv").open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["name"])
-            w.writeheader()
-            w.writerows(rows)
+        table = io.StringIO(newline="")
+        w = csv.DictWriter(table, fieldnames=list(rows[0]) if rows else ["name"])
+        w.writeheader()
+        w.writerows(rows)
+        write_text_atomic(out / "per_image.csv", table.getvalue())
         write_text_atomic(out / "summary.json", json.dumps(result.summary(), indent=2))
     return result
 
