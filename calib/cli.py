@@ -124,11 +124,8 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from blurtrack.io.atomic import write_json_atomic
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
-    from calib.errors import CalibError
-    from calib.export import write_camera_info, write_openvins
     from calib.fit import FitOptions, calibrate, check_fit_inputs
     from calib.natural_cli import is_natural, laser_axes, run_natural
     from calib.params import theta_from
@@ -144,7 +141,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         ],
     )
     if is_natural(args):
-        return run_natural(args, _print_table, write_calibration)
+        return run_natural(args, _print_table)
     session, table = load_session_and_streaks(args)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
@@ -171,12 +168,29 @@ def run_calibrate(args: argparse.Namespace) -> int:
         summary["truth"] = truth
         summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
     out = Path(args.out)
-    # a failed fit never replaces the summary of the calibration it leaves in place
+    details = write_summary(res, summary, out)
+    _print_table(res, summary.get("initial", {}), truth)
+    return write_results(res, out, details)
+
+
+def write_summary(res: Any, summary: dict, out: Path) -> Path:
+    """Write the fit's summary beside ``out``; a failed fit writes ``<stem>.failed.summary.json``
+    and never replaces the summary of the calibration it leaves in place. Returns the path."""
+    from blurtrack.io.atomic import write_json_atomic
+
     failed = res.status == "failed"
     details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
     write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
-    _print_table(res, summary.get("initial", {}), truth)
-    if failed:
+    return details
+
+
+def write_results(res: Any, out: Path, details: Path) -> int:
+    """Refuse a failed fit (one line naming its summary), else write the calibration and its
+    OpenVINS and camera_info twins."""
+    from calib.errors import CalibError
+    from calib.export import write_camera_info, write_openvins
+
+    if res.status == "failed":
         raise CalibError(
             "calibration failed: "
             + "; ".join(res.warnings)

@@ -10,8 +10,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from blurtrack.cli.sources import summary_path
-
 #: --fit default for natural scenes: the gyro scale is not observable from a few hundred
 #: inter-frame rotations of hand shake (it trades with the focal lengths).
 NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
@@ -78,14 +76,11 @@ def laser_axes(
 def run_natural(
     args: argparse.Namespace,
     print_table: Callable[[Any, dict, dict | None], None],
-    write_calibration: Callable[[Any, Path], None],
 ) -> int:
     """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
-    from blurtrack.io.atomic import write_json_atomic
     from blurtrack.io.session import load_session
-    from calib.cli import truth_values
+    from calib.cli import truth_values, write_results, write_summary
     from calib.errors import CalibError
-    from calib.export import write_camera_info, write_openvins
     from calib.fit import FitOptions
     from calib.natural import calibrate_natural
     from calib.params import DEFAULT_FIT, theta_from
@@ -117,9 +112,7 @@ def run_natural(
         summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
     out = Path(args.out)
     # a failed fit never replaces the summary of the calibration it leaves in place
-    failed = res.status == "failed"
-    details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
-    write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
+    details = write_summary(res, summary, out)
     f = summary["features"]
     print(
         f"feature tracks: {f['tracks']} in {f['frames'] - 1} frame pairs (median "
@@ -128,14 +121,4 @@ def run_natural(
     print_axes(nat.axes)
     print("(the endpoint errors below are feature-track errors)")
     print_table(res, summary["initial"], truth)
-    if failed:
-        raise CalibError(
-            "calibration failed: "
-            + "; ".join(res.warnings)
-            + f" (details in {details}; no calibration written)"
-        )
-    write_calibration(res, out)
-    write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
-    write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
-    print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
-    return 0
+    return write_results(res, out, details)
