@@ -107,7 +107,10 @@ def shipped(args: argparse.Namespace) -> dict:
     from gamd.checkpoint import load_model
     from gamd.data import DeblurDataset
     from gamd.evaluate import evaluate, gain_stats, gain_table
-    from gamd.shipped import link_split, synth
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/train_shipped.py
+    from train_shipped import link_split, synth
+
     from gamd.weights import shipped_weights
 
     bg = args.shared / "backgrounds" / "bsds500" / "test"

@@ -1,5 +1,5 @@
 """Weights that ship with the package: ``gamd.pt`` (GAMD) and ``gamd_only.pt`` (its
-no-heat-map twin), trained by ``python -m gamd.shipped`` from ``configs/gamd/shipped_*.yaml``
+no-heat-map twin), trained by ``python bench/train_shipped.py`` from ``configs/gamd/shipped_*.yaml``
 (docs/gamd.md, "Shipped weights"). Each file is a weights-only checkpoint (config, weights,
 step) read with ``torch.load(weights_only=True)``."""
 

@@ -1,10 +1,10 @@
 """Reproduce the shipped weights (``gamd/weights/*.pt``): data, training, export.
 
 ```
-python -m gamd.shipped data                 # blurtrack synth: BSDS500 train+val, real shake
-python -m gamd.shipped train --net gamd     # configs/gamd/shipped_gamd.yaml (resumable)
-python -m gamd.shipped train --net gamd_only
-python -m gamd.shipped export               # runs/*/checkpoints/last.pt -> gamd/weights/
+python bench/train_shipped.py data                 # blurtrack synth: BSDS500 train+val, real shake
+python bench/train_shipped.py train --net gamd     # configs/gamd/shipped_gamd.yaml (resumable)
+python bench/train_shipped.py train --net gamd_only
+python bench/train_shipped.py export               # runs/*/checkpoints/last.pt -> gamd/weights/
 ```
 Data (``bench_out/shipped``, seeds fixed): 256 × 256 global-shutter pinhole cameras with
 focal lengths 600 px and 2400 px (blur of about 0–8 and 0–40 px), exposures 10–30 ms, the real
@@ -111,7 +111,8 @@ def export(out: Path = OUT, dest: Path | None = None) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gamd.shipped", description=__doc__.split("\n")[0])
+    doc = (__doc__ or "").split("\n")[0]
+    p = argparse.ArgumentParser(prog="python bench/train_shipped.py", description=doc)
     sub = p.add_subparsers(dest="what", required=True)
     sub.add_parser("data")
     t = sub.add_parser("train")
