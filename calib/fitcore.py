@@ -1,18 +1,7 @@
 """Calibration options, constants and helpers shared by the fit stages (:mod:`calib.stages`,
 :mod:`calib.finish`) and the driver (:mod:`calib.fit`).
 
-Stages (each warm-starts the next):
-
-1. input checks (enough streaks and frames, gyro coverage, motion);
-2. shift/focal search (:mod:`calib.init`);
-3. robust LM on a subsample with the shift and focal lengths only, then with every requested
-   parameter that the motion makes observable (near-null directions of the information matrix
-   are fixed at their initial value, with a warning);
-4. robust LM on every training streak (endpoint residuals) or inter-frame track
-   (:mod:`calib.tracks`; ``FitOptions.residuals``), with outlier rejection in between: those
-   whose error exceeds ``OUTLIER_SIGMAS`` robust sigmas are dropped, except streaks that fit
-   once start and end are swapped: they are counted as wrongly oriented, swapped and kept;
-5. uncertainty, warnings and hold-out statistics.
+The stages themselves are listed in :mod:`calib.fit`.
 """
 
 from __future__ import annotations

@@ -13,7 +13,6 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from blurtrack.errors import BlurTrackError
 from blurtrack.io.atomic import write_text_atomic
 from blurtrack.io.guard import add_force_arg, check_output
 
@@ -200,30 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        code = int(args.func(args) or 0)
-        sys.stdout.flush()  # a closed pipe (``| head``) shows here, not at interpreter exit
-        return code
-    except BrokenPipeError:
-        from blurtrack.cli import quiet_stdout
+    from blurtrack.cli import run_command
 
-        quiet_stdout()
-        return 141  # 128 + SIGPIPE, as blurtrack does
-    except BlurTrackError as exc:
-        print(f"gamd {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except ModuleNotFoundError as exc:
-        from blurtrack.cli import missing_extra_message
-
-        message = missing_extra_message(exc)
-        if message is None:
-            raise
-        print(f"gamd {args.command}: error: {message}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"gamd {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return run_command("gamd", build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

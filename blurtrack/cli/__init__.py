@@ -130,9 +130,10 @@ def quiet_stdout() -> None:
         pass
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def run_command(program: str, args: argparse.Namespace) -> int:
+    """Run a parsed command and turn its failures into exit codes, for ``blurtrack`` and
+    ``gamd`` alike: a :class:`BlurTrackError` or a missing optional package is one line on
+    stderr and exit 2, Ctrl-C exit 130, a closed stdout pipe (``| head``) a quiet 141."""
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe (``| head``) shows here, not at interpreter exit
@@ -141,17 +142,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         quiet_stdout()
         return 141  # 128 + SIGPIPE, as for any pipeline writer whose reader went away
     except BlurTrackError as exc:
-        print(f"blurtrack {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{program} {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:
         message = missing_extra_message(exc)
         if message is None:
             raise
-        print(f"blurtrack {args.command}: error: {message}", file=sys.stderr)
+        print(f"{program} {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"blurtrack {args.command}: interrupted", file=sys.stderr)
+        print(f"{program} {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run_command("blurtrack", build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":
