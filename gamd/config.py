@@ -66,6 +66,8 @@ class DataConfig:
     work_blur_px: float | None = None
     #: Do-no-harm gate [lo, hi] (px of blur length): output = input below lo; None: no gate.
     gate_px: tuple[float, float] | None = None
+    #: Resample off-centre (rolling-shutter) blur to the reference view (gamd.restorer.recentre).
+    recentre: bool = True
 
     def __post_init__(self) -> None:
         if not self.root:
@@ -83,7 +85,7 @@ class DataConfig:
 
     def restore_options(self) -> RestoreOptions:
         """How inference must present images to a network trained on this data."""
-        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px)
+        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px, self.recentre)
 
 
 @dataclass(frozen=True)

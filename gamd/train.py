@@ -138,6 +138,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
         heat_scale_px=config.data.heat_scale_px,
         require_heat=model.uses_heat or options.needs_heat,
         work_blur_px=config.data.work_blur_px,
+        recentre=config.data.recentre,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=tc.lr)
     scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)
