@@ -78,6 +78,8 @@ class DataConfig:
             raise GamdConfigError(f"data.{exc}") from None
         if self.gate_px is not None:
             object.__setattr__(self, "gate_px", tuple(float(v) for v in self.gate_px))
+        if not isinstance(self.recentre, bool):
+            raise GamdConfigError(f"data.recentre must be true or false, got {self.recentre!r}")
         if self.crop is not None and (
             not isinstance(self.crop, int) or self.crop < 8 or self.crop % 4
         ):

@@ -223,3 +223,15 @@ def test_training_items_are_recentred_like_inference(make_dataset, tmp_path) -> 
             assert torch.equal(item["sharp"], full["sharp"])  # the target is the reference
         else:
             assert torch.equal(item["blur"], full["blur"])
+
+
+def test_recentre_config_is_a_boolean_and_reaches_the_restore_options() -> None:
+    from gamd.config import RunConfig
+    from gamd.errors import GamdConfigError
+
+    base = {"model": {"name": "gamd"}, "train": {"out_dir": "x"}}
+    assert RunConfig.from_dict({**base, "data": {"root": "d"}}).data.restore_options().recentre
+    off = RunConfig.from_dict({**base, "data": {"root": "d", "recentre": False}})
+    assert off.data.restore_options().recentre is False
+    with pytest.raises(GamdConfigError, match="data.recentre must be true or false"):
+        RunConfig.from_dict({**base, "data": {"root": "d", "recentre": "no"}})
