@@ -31,6 +31,8 @@ def _train(args: argparse.Namespace) -> int:
         overrides["out_dir"] = args.out
     if args.no_progress:
         overrides["progress"] = False
+    if args.device is not None:
+        overrides["device"] = args.device
     if overrides:
         config = replace(config, train=replace(config.train, **overrides))
     try:
@@ -162,6 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="override train.steps")
     p.add_argument("--out", default=None, help="override train.out_dir")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--device", choices=("auto", "cpu", "cuda"), default=None, help="override train.device"
+    )
     p.add_argument(
         "--force",
         action="store_true",

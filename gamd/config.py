@@ -66,6 +66,8 @@ class DataConfig:
     work_blur_px: float | None = None
     #: Do-no-harm gate [lo, hi] (px of blur length): output = input below lo; None: no gate.
     gate_px: tuple[float, float] | None = None
+    #: Resample off-centre (rolling-shutter) blur to the reference view (gamd.restorer.recentre).
+    recentre: bool = True
 
     def __post_init__(self) -> None:
         if not self.root:
@@ -76,6 +78,8 @@ class DataConfig:
             raise GamdConfigError(f"data.{exc}") from None
         if self.gate_px is not None:
             object.__setattr__(self, "gate_px", tuple(float(v) for v in self.gate_px))
+        if not isinstance(self.recentre, bool):
+            raise GamdConfigError(f"data.recentre must be true or false, got {self.recentre!r}")
         if self.crop is not None and (
             not isinstance(self.crop, int) or self.crop < 8 or self.crop % 4
         ):
@@ -83,7 +87,7 @@ class DataConfig:
 
     def restore_options(self) -> RestoreOptions:
         """How inference must present images to a network trained on this data."""
-        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px)
+        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px, self.recentre)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from torch.utils.data import Dataset, Sampler
 from blurtrack.io.images import ImageError, read_image
 from gamd.errors import GamdDataError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX, augment, normalise_heat
-from gamd.restorer import check_restore_options, to_working, working_scale
+from gamd.restorer import check_restore_options, recentre, to_working, working_scale
 
 #: Refuse images larger than this many pixels (a corrupt header must not exhaust memory).
 MAX_PIXELS = 64_000_000
@@ -119,7 +119,10 @@ class DeblurDataset(Dataset):
     Items are dicts: ``blur``, ``sharp`` ``(3, h, w)`` in [0, 1], ``heat`` ``(6, h, w)``
     normalised (zeros when the set has no heat maps and ``require_heat`` is False), ``index``.
     With ``work_blur_px``, training items are first brought to the working resolution of
-    :mod:`gamd.restorer` (blur of about ``work_blur_px``), then cropped.
+    :mod:`gamd.restorer` (blur of about ``work_blur_px``), then cropped. With ``recentre``
+    (default), training items are first recentred as inference does
+    (:func:`gamd.restorer.recentre`: rolling-shutter blur resampled to the reference view; a
+    no-op for global-shutter triplets and sets without heat maps). ``full`` never recentres.
     """
 
     def __init__(
@@ -132,12 +135,13 @@ class DeblurDataset(Dataset):
         require_heat: bool = True,
         heat_root: str | Path | None = None,
         work_blur_px: float | None = None,
+        recentre: bool = True,
     ) -> None:
         if crop is not None and (not isinstance(crop, int) or crop < 8 or crop % 4):
             raise GamdDataError(f"crop must be a multiple of 4 >= 8, got {crop!r}")
         self.root, self.split, self.crop = Path(root), split, crop
         self.augment, self.heat_scale_px, self.require_heat = augment, heat_scale_px, require_heat
-        self.work_blur_px = work_blur_px
+        self.work_blur_px, self.recentre = work_blur_px, recentre
         if work_blur_px is not None:
             check_restore_options(heat_scale_px, work_blur_px, None)
             self.require_heat = True
@@ -177,6 +181,9 @@ class DeblurDataset(Dataset):
         blur, sharp, heat = self._load(index)
         rng = np.random.default_rng(seed)
         h, w = blur.shape[-2:]
+        if self.recentre and self.triplets[index].heat is not None:  # as inference does
+            (b,), hp = recentre([blur[None]], heat[None] * self.heat_scale_px)
+            blur, heat = b[0], hp[0] / self.heat_scale_px
         if self.work_blur_px is not None:  # the working resolution inference will use
             heat_px = heat[None] * self.heat_scale_px
             limit = min(h, w) / self.crop if self.crop is not None else math.inf

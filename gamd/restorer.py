@@ -15,6 +15,19 @@ restoration's *change* is upsampled and added to the full-size input (gated at f
 (:class:`gamd.data.DeblurDataset` with ``work_blur_px``), so the network only ever sees blur of
 about ``work_blur_px``.
 
+**Recentring (rolling shutter).** With a global shutter and the reference time at mid-exposure
+every trajectory passes through 0 half-way, ``q(½) = 0``: the blur is centred on the pixel.
+With a rolling shutter each row exposes at its own time, so its trajectory is offset by the
+motion between its mid-exposure and the reference time: the blurred image is also *displaced*
+from the sharp reference, by up to several pixels at the top and bottom rows. A network that
+deblurs in place (trained on centred blur) cannot undo that, and the shipped weights made the
+demo's rolling-shutter images worse (docs/gamd.md, "Rolling shutter"). :func:`recentre`
+resamples the blurred image (and the heat maps) at ``x = y − m(x)`` with ``m`` the Bézier
+point at ``τ = ½`` (:func:`centre_offset`), so the blur at ``y`` is centred on ``y`` in the
+reference view, then restores as usual. When the largest offset is under
+:data:`RECENTRE_MIN_PX` (every global-shutter triplet: there ``m`` is only the Bézier fit
+error) nothing is resampled and the result is bit-identical to restoring without it.
+
 Shapes: images ``(B, 3, H, W)`` in [0, 1], heat maps ``(B, 6, H, W)`` in pixels (DESIGN).
 """
 
@@ -30,6 +43,10 @@ from gamd.errors import GamdConfigError
 
 #: Working-resolution images keep at least this many pixels on their short side.
 MIN_WORK_SIDE = 32
+#: Largest centre offset (px) left alone by :func:`recentre`.
+RECENTRE_MIN_PX = 0.05
+#: Fixed-point iterations of the inverse warp ``x = y − m(x)`` (m is smooth: 3 are plenty).
+RECENTRE_ITERS = 3
 
 
 def blur_length_px(heat_px: torch.Tensor) -> torch.Tensor:
@@ -64,6 +81,47 @@ def working_scale(heat_px: torch.Tensor, work_blur_px: float, max_scale: float =
     return float(min(max(1.0, p90 / work_blur_px), max(1.0, max_scale)))
 
 
+def centre_offset(heat_px: torch.Tensor) -> torch.Tensor:
+    """The Bézier point at ``τ = ½``, ``(q(0) + 2P + q(1)) / 4`` (px), ``(..., 2, H, W)``."""
+    return (heat_px[..., 0:2, :, :] + 2 * heat_px[..., 4:6, :, :] + heat_px[..., 2:4, :, :]) / 4
+
+
+def _sample(x: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+    """``x (B, C, H, W)`` read bilinearly at pixel positions ``pos (B, 2, H, W)`` (border
+    values outside)."""
+    h, w = x.shape[-2:]
+    gx = pos[:, 0] * (2.0 / max(w - 1, 1)) - 1.0
+    gy = pos[:, 1] * (2.0 / max(h - 1, 1)) - 1.0
+    grid = torch.stack([gx, gy], dim=-1).to(x.dtype)
+    return functional.grid_sample(
+        x, grid, mode="bilinear", padding_mode="border", align_corners=True
+    )
+
+
+def recentre(
+    images: list[torch.Tensor], heat_px: torch.Tensor
+) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """Blurred images and heat maps (``(B, C, H, W)``, heat in px) resampled so that every
+    pixel's blur is centred on it in the reference view (``q(½) = 0``); unchanged when the
+    largest offset is under :data:`RECENTRE_MIN_PX`."""
+    m = centre_offset(heat_px)
+    if float(torch.hypot(m[:, 0], m[:, 1]).max()) < RECENTRE_MIN_PX:
+        return images, heat_px
+    b, _, h, w = heat_px.shape
+    yy, xx = torch.meshgrid(
+        torch.arange(h, dtype=heat_px.dtype, device=heat_px.device),
+        torch.arange(w, dtype=heat_px.dtype, device=heat_px.device),
+        indexing="ij",
+    )
+    y = torch.stack([xx, yy])[None].expand(b, 2, h, w)
+    x = y - m
+    for _ in range(RECENTRE_ITERS):  # x = y - m(x): where the blur centred on y was recorded
+        x = y - _sample(m, x)
+    heat = _sample(heat_px, x)
+    heat = heat - centre_offset(heat).repeat(1, 3, 1, 1)
+    return [_sample(im, x) for im in images], heat
+
+
 def resize(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """Antialiased bilinear resize of ``(B, C, H, W)`` to ``size = (h, w)``."""
     if tuple(x.shape[-2:]) == tuple(size):
@@ -96,6 +154,8 @@ class RestoreOptions:
     heat_scale_px: float
     work_blur_px: float | None = None
     gate_px: tuple[float, float] | None = None
+    #: Resample off-centre (rolling-shutter) blur to the reference view first (:func:`recentre`).
+    recentre: bool = True
 
     def __post_init__(self) -> None:
         check_restore_options(self.heat_scale_px, self.work_blur_px, self.gate_px)
@@ -149,6 +209,8 @@ def restore_image(
     scale = 1.0
     if hp is None:  # a heat-free network without gate or working scale: restore as is
         return model(x, None)[0][0].clamp(0.0, 1.0).cpu()
+    if options.recentre:
+        (x,), hp = recentre([x], hp)
     if work and options.work_blur_px is not None:
         h, w = x.shape[-2:]
         scale = working_scale(hp[0], options.work_blur_px, min(h, w) / MIN_WORK_SIDE)

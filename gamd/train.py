@@ -24,7 +24,7 @@ from tqdm import tqdm
 from gamd.checkpoint import load_checkpoint, load_model, save_checkpoint
 from gamd.config import RunConfig
 from gamd.data import DeblurDataset, StepBatchSampler
-from gamd.errors import CheckpointError, GamdDataError
+from gamd.errors import CheckpointError, GamdConfigError, GamdDataError
 from gamd.losses import LOSSES
 from gamd.nets import DeblurNet, build_model
 from gamd.restorer import apply_gate
@@ -55,6 +55,10 @@ def _setup_distributed(device_kind: str) -> tuple[int, int]:
 
 
 def _device(kind: str) -> torch.device:
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise GamdConfigError(
+            "train.device is cuda but no CUDA device is available (use --device cpu or auto)"
+        )
     if kind == "cuda" or (kind == "auto" and torch.cuda.is_available()):
         return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
     return torch.device("cpu")
@@ -109,6 +113,8 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
     if tc.threads:
         torch.set_num_threads(tc.threads)
     device = _device(tc.device)
+    if device.type == "cuda":  # before NCCL starts: each rank's collectives on its own GPU
+        torch.cuda.set_device(device)
     rank, world = _setup_distributed(device.type)
     out_dir = Path(tc.out_dir)
 
@@ -138,6 +144,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
         heat_scale_px=config.data.heat_scale_px,
         require_heat=model.uses_heat or options.needs_heat,
         work_blur_px=config.data.work_blur_px,
+        recentre=config.data.recentre,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=tc.lr)
     scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)

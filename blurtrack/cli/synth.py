@@ -84,6 +84,14 @@ def register(subparsers: Any) -> None:
         default=16,
         help="heat-map evaluation stride (px; 16 adds < 0.01 px)",
     )
+    p.add_argument(
+        "--min-blur-px",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="draw a triplet again (deterministically, by index) while its median blur length "
+        "is under PX; the build reports how many draws fell under it (default 0: off)",
+    )
     p.add_argument("--heat-samples", type=int, default=16, help="trajectory samples per pixel")
     p.add_argument("--max-step-px", type=float, default=0.5)
     p.add_argument("--grid-px", type=int, default=16)
@@ -176,6 +184,7 @@ def spec_from_args(args: argparse.Namespace):
         heat_n_t=args.heat_samples,
         upscale=not args.no_upscale,
         readout_ms=args.readout_ms,
+        min_blur_px=args.min_blur_px,
     )
     calib = Calibration.from_yaml(args.calib)
     gyro = args.gyro if args.gyro.startswith("synthetic") else str(Path(args.gyro).resolve())
@@ -240,6 +249,17 @@ def run(args: argparse.Namespace) -> int:
         + (f" ({rate:.2f} triplets/s)" if rate else "")
         + f" -> {args.out}"
     )
+    if spec.params.min_blur_px:
+        drawn = result.made + result.under_min_blur
+        print(
+            f"synth: {result.under_min_blur} of {drawn} draws had a median blur under "
+            f"--min-blur-px {spec.params.min_blur_px:g} and were drawn again"
+            + (
+                f" ({result.under_min_blur_total} over all finished triplets)"
+                if result.skipped
+                else ""
+            )
+        )
     return 0
 
 
@@ -251,6 +271,13 @@ def run_merge(args: argparse.Namespace) -> int:
     write_text_atomic(Path(args.dataset) / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(
         f"synth-merge: {summary['triplets']} of {summary['count']} triplets in "
-        f"{args.dataset}" + (f", {summary['missing']} missing" if summary["missing"] else "")
+        f"{args.dataset}"
+        + (f", {summary['missing']} missing" if summary["missing"] else "")
+        + (
+            f", {summary['draws_under_min_blur']} draws under --min-blur-px "
+            f"{summary['min_blur_px']:g} drawn again"
+            if summary["min_blur_px"]
+            else ""
+        )
     )
     return 0

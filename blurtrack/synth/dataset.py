@@ -51,7 +51,7 @@ from blurtrack.synth.store import (
     remove_temporaries,
     write_atomic,
 )
-from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
+from blurtrack.synth.triplet import TripletParams, draw_triplet
 
 __all__ = ["DatasetSpec", "build", "open_build", "read_manifest"]
 
@@ -166,8 +166,8 @@ class Renderer:
         spec = self.spec
         try:
             image = load_image(spec.images, job.image)
-            tr = make_triplet(
-                image, self.calib, self.source, spec.params, triplet_rng(spec.seed, job.index)
+            tr, under = draw_triplet(
+                image, self.calib, self.source, spec.params, spec.seed, job.index
             )
         except BlurTrackError as exc:
             raise SynthesisError(f"triplet {job.index} ({job.image}): {exc}") from None
@@ -192,6 +192,8 @@ class Renderer:
             "params": info,
             "files": rels,
         }
+        if spec.params.min_blur_px:
+            rec["draws_under_min_blur"] = under
         return rec, {rels[k]: v for k, v in data.items()}
 
 
@@ -232,10 +234,18 @@ class BuildResult:
     manifest: Path
     fit_share_min: float | None
     fit_share_mean: float | None = None
+    #: Draws whose median blur fell under ``min_blur_px`` and were drawn again, over the
+    #: triplets made now and over all finished triplets of this shard (resumed runs too).
+    under_min_blur: int = 0
+    under_min_blur_total: int = 0
+    min_blur_px: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         rate = self.made / self.elapsed_s if self.elapsed_s > 0 else None
         return {
+            "min_blur_px": self.min_blur_px,
+            "draws_under_min_blur": self.under_min_blur,
+            "draws_under_min_blur_total": self.under_min_blur_total,
             "made": self.made,
             "skipped": self.skipped,
             "planned": self.planned,
@@ -282,6 +292,8 @@ class BuildRun:
     writer: ManifestWriter
     t0: float
     fits: list[float] = field(default_factory=list)
+    under: int = 0
+    under_before: int = 0
 
     def start(self) -> None:
         """Report the work about to start (``progress(0, jobs left)``)."""
@@ -291,6 +303,7 @@ class BuildRun:
     def record(self, rec: dict[str, Any]) -> None:
         self.writer.append(rec)
         self.fits.append(rec["params"]["bezier_fit"]["within_0.5px"])
+        self.under += int(rec.get("draws_under_min_blur", 0))
         if self.progress:
             self.progress(len(self.fits), len(self.todo))
 
@@ -304,6 +317,9 @@ class BuildRun:
             self.manifest,
             min(fits) if fits else None,
             float(np.mean(fits)) if fits else None,
+            self.under,
+            self.under_before + self.under,
+            float(self.spec.params.min_blur_px),
         )
 
 
@@ -345,6 +361,9 @@ def open_build(
         remove_temporaries(root, tag)  # this shard's leftovers of a killed run
         writer = ManifestWriter(manifest)
         run = BuildRun(spec, root, tag, identity, mine, todo, manifest, progress, writer, t0)
+        run.under_before = sum(
+            int(records[j.index].get("draws_under_min_blur", 0)) for j in mine if j.index in done
+        )
         try:
             yield run
         finally:

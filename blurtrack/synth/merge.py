@@ -137,4 +137,8 @@ def _merge_locked(
         "missing_first": missing[:20],
         "moved": len(moves),
         "lost_records": len(seen - have),
+        "min_blur_px": float(spec.params.min_blur_px),
+        "draws_under_min_blur": sum(
+            int(records[i].get("draws_under_min_blur", 0)) for i in sorted(have)
+        ),
     }

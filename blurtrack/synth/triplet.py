@@ -31,6 +31,8 @@ MODES = ("exact", "paper")
 SEGMENT_MARGIN_S = 0.05
 #: Fit-error threshold of the reported share (px).
 FIT_TOL_PX = 0.5
+#: Draws of one triplet index tried before a ``min_blur_px`` it never reaches is an error.
+MAX_DRAWS = 64
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,8 @@ class TripletParams:
     """Everything that shapes a triplet besides its inputs (stored in ``dataset.yaml``).
 
     ``readout_ms`` overrides the calibration's rolling-shutter readout (``None``: keep it).
+    ``min_blur_px``: a draw whose median blur length (the manifest's ``blur_length_px.median``)
+    is under it is discarded and the index drawn again (:func:`draw_triplet`); 0: off.
     """
 
     size: tuple[int, int] = (1280, 720)
@@ -50,6 +54,7 @@ class TripletParams:
     heat_n_t: int = 16
     upscale: bool = True
     readout_ms: float | None = None
+    min_blur_px: float = 0.0
 
     def __post_init__(self) -> None:
         size = tuple(int(v) for v in self.size)
@@ -78,12 +83,16 @@ class TripletParams:
             math.isfinite(self.readout_ms) and 0 <= self.readout_ms < 1000
         ):
             raise SynthesisError(f"readout_ms must be in [0, 1000), got {self.readout_ms}")
+        if not (math.isfinite(self.min_blur_px) and 0 <= self.min_blur_px <= 10_000):
+            raise SynthesisError(f"min_blur_px must be in [0, 10000], got {self.min_blur_px}")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "exposure_ms", exp)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["size"], d["exposure_ms"] = list(self.size), list(self.exposure_ms)
+        if not self.min_blur_px:  # off: datasets made before the option keep their identity
+            del d["min_blur_px"]
         return d
 
     @classmethod
@@ -111,8 +120,16 @@ class Triplet:
     info: dict[str, Any]
 
 
-def triplet_rng(seed: int, index: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
+def triplet_rng(seed: int, index: int, draw: int = 0) -> np.random.Generator:
+    """The generator of draw ``draw`` of triplet ``index``; draw 0 is ``[seed, index]``, so
+    datasets without a minimum blur are unchanged by the redraw scheme."""
+    key = [int(seed), int(index)] + ([int(draw)] if draw else [])
+    return np.random.default_rng(np.random.SeedSequence(key))
+
+
+def median_blur_length(heat: np.ndarray) -> float:
+    """Median over pixels of ``|q(1) - q(0)|`` (px) of a ``(6, H, W)`` heat map."""
+    return float(np.median(np.hypot(heat[2] - heat[0], heat[3] - heat[1])))
 
 
 def make_triplet(
@@ -122,7 +139,45 @@ def make_triplet(
     params: TripletParams,
     rng: np.random.Generator,
 ) -> Triplet:
-    """Synthesise one triplet from an 8-bit BGR photograph (any size)."""
+    """Synthesise one triplet from an 8-bit BGR photograph (any size); ignores
+    ``params.min_blur_px`` (one generator is one draw, see :func:`draw_triplet`)."""
+    tr = _make_triplet(image, calib, source, params, rng, 0.0)
+    assert tr is not None
+    return tr
+
+
+def draw_triplet(
+    image: np.ndarray,
+    calib: Calibration,
+    source: GyroSource,
+    params: TripletParams,
+    seed: int,
+    index: int,
+) -> tuple[Triplet, int]:
+    """Triplet ``index`` of a dataset seeded ``seed`` and the number of earlier draws that fell
+    under ``params.min_blur_px`` (discarded before rendering, from their heat maps alone).
+    Draw ``k`` uses :func:`triplet_rng` ``(seed, index, k)``: the result depends on the index
+    only, never on the worker or the order of the build."""
+    for draw in range(MAX_DRAWS):
+        rng = triplet_rng(seed, index, draw)
+        tr = _make_triplet(image, calib, source, params, rng, params.min_blur_px)
+        if tr is not None:
+            return tr, draw
+    raise SynthesisError(
+        f"the median blur stayed under min_blur_px={params.min_blur_px:g} in {MAX_DRAWS} "
+        "draws (shake, exposure or focal length too small for it)"
+    )
+
+
+def _make_triplet(
+    image: np.ndarray,
+    calib: Calibration,
+    source: GyroSource,
+    params: TripletParams,
+    rng: np.random.Generator,
+    min_blur_px: float,
+) -> Triplet | None:
+    """One draw; ``None`` (before rendering) when its median blur is under ``min_blur_px``."""
     W, H = params.size
     cam = camera_for_size(calib.camera, W, H)
     if params.readout_ms is not None:
@@ -140,6 +195,27 @@ def make_triplet(
     if params.mode == "exact":
         model = BlurModel(calib_out, seg.trace)
         t_ref = model.default_reference_time(seg.frame_t_s, exposure)
+        heat_frame_t, heat_calib = seg.frame_t_s, calib_out
+    else:
+        model = paper_model(calib_out, seg.trace)
+        heat_frame_t = paper_window(calib_out, seg.frame_t_s)
+        t_ref = heat_frame_t + exposure / 2
+        heat_calib = model.calib
+    drawn: dict[str, Any] = {}
+    heat_model = model  # the blur's own model (its resampled gyro is reused) unless perturbed
+    if params.perturbation.active:
+        heat_calib, heat_trace, drawn = params.perturbation.apply(
+            heat_calib, seg.trace, perturb_rng
+        )
+        heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
+    # Heat maps first (they use no draw of ``rng``): a draw under the minimum blur is
+    # discarded before the costly rendering.
+    heat, err = heat_model.heat_maps(
+        heat_frame_t, exposure, params.heat_n_t, t_ref, params.heat_stride
+    )
+    if min_blur_px > 0 and median_blur_length(heat) < min_blur_px:
+        return None
+    if params.mode == "exact":
         lin = (
             ph.expand_saturation(ph.decode_srgb8(sharp8), p.saturation_threshold, gain)
             if p.linear
@@ -148,11 +224,7 @@ def make_triplet(
         res = render_blur(lin, model, seg.frame_t_s, exposure, t_ref, params.render)
         if gain > 1:
             sharp8 = ph.encode_srgb8(lin)
-        heat_frame_t, heat_calib = seg.frame_t_s, calib_out
     else:
-        model = paper_model(calib_out, seg.trace)
-        heat_frame_t = paper_window(calib_out, seg.frame_t_s)
-        t_ref = heat_frame_t + exposure / 2
         res = render_paper(
             sharp8.astype(np.float32) / 255,
             calib_out,
@@ -162,17 +234,6 @@ def make_triplet(
             t_ref,
             params.render,
         )
-        heat_calib = model.calib
-    drawn: dict[str, Any] = {}
-    heat_model = model  # the blur's own model (its resampled gyro is reused) unless perturbed
-    if params.perturbation.active:
-        heat_calib, heat_trace, drawn = params.perturbation.apply(
-            heat_calib, seg.trace, perturb_rng
-        )
-        heat_model = BlurModel(heat_calib, heat_trace, rotation_model=model.rotation_model)
-    heat, err = heat_model.heat_maps(
-        heat_frame_t, exposure, params.heat_n_t, t_ref, params.heat_stride
-    )
     finish = p if params.mode == "exact" else ph.Photometry(linear=False)
     blur8 = ph.finish_blur(res.blur, finish, rng)
     length = np.hypot(heat[2] - heat[0], heat[3] - heat[1])

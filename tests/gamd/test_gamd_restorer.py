@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -143,3 +144,94 @@ def test_shipped_weights_load_and_do_no_harm(net: str) -> None:
     blur = torch.rand(3, 48, 64)
     out = restore_image(model, blur, _heat(48, 64, 0.1), cfg.data.restore_options())
     assert torch.equal(out, blur)
+
+
+def _rolling_shutter_example(h: int = 72, w: int = 96, speed_px: float = 6.0):
+    """A rolling-shutter-like triplet: every row blurs along the same straight motion of
+    ``speed_px`` but is offset by the motion between its own mid-exposure and the reference
+    time (linear in the row, 0 at the centre row): ``B(x) = mean_t S(x + q_x(t))``."""
+    from tests.gamd.conftest import bezier_blur
+
+    rng = np.random.default_rng(3)
+    noise = rng.random((h // 6 + 2, w // 6 + 2, 3)).astype(np.float32)
+    sharp = cv2.resize(noise, (w, h), interpolation=cv2.INTER_CUBIC).clip(0, 1)
+    direction = np.array([0.8, 0.6])
+    offset = ((np.arange(h) - (h - 1) / 2) / (h - 1) * 1.5 * speed_px)[:, None, None]
+    centred = np.zeros((6, h, w), np.float32)
+    for k, tau in enumerate((0.0, 1.0, 0.5)):  # q(0), q(1), P of a straight uniform motion
+        centred[2 * k : 2 * k + 2] = ((tau - 0.5) * speed_px * direction)[:, None, None]
+    heat = centred.copy()
+    shift = np.stack([offset[:, :, 0] * direction[0], offset[:, :, 0] * direction[1]])
+    heat += np.tile(shift, (3, 1, 1))  # (2, h, 1) -> every point of every row
+    return sharp, bezier_blur(sharp, heat), heat, bezier_blur(sharp, centred)
+
+
+def test_recentre_undoes_the_rolling_shutter_offset() -> None:
+    from gamd.restorer import RECENTRE_MIN_PX, centre_offset, recentre
+
+    _, blur, heat, centred_blur = _rolling_shutter_example()
+    b = torch.from_numpy(blur).permute(2, 0, 1)[None]
+    hp = torch.from_numpy(heat)[None]
+    assert float(centre_offset(hp).abs().max()) > 3.5  # rows up to 4.5 px * (0.8, 0.6) off
+    (b2,), h2 = recentre([b], hp)
+    # The recentred heat maps pass through 0 half-way, keep the blur, and the image is the
+    # centred blur of the same sharp image (bilinear resampling error only), far closer to
+    # it than the input was (negative control).
+    assert float(centre_offset(h2).abs().max()) < 1e-3
+    assert torch.allclose(blur_length_px(h2), blur_length_px(hp), atol=1e-3)
+    inner = (slice(None), slice(None), slice(8, -8), slice(8, -8))  # away from the border
+    ref = torch.from_numpy(centred_blur).permute(2, 0, 1)[None]
+    err_after = float((b2 - ref)[inner].abs().mean())
+    err_before = float((b - ref)[inner].abs().mean())
+    assert err_after < 0.01 < 0.03 < err_before
+    # Centred blur (global shutter) is left exactly as it is.
+    small = hp.clone()
+    small[:, :] -= centre_offset(hp).repeat(1, 3, 1, 1) - 0.3 * RECENTRE_MIN_PX
+    (b3,), h3 = recentre([b], small)
+    assert b3 is b and h3 is small
+
+
+def test_restore_recentres_rolling_shutter() -> None:
+    from gamd.restorer import recentre
+
+    _, blur, heat, _ = _rolling_shutter_example()
+    b = torch.from_numpy(blur).permute(2, 0, 1)
+    hp = torch.from_numpy(heat)
+    torch.manual_seed(0)
+    net = build_model("gamd", "tiny").eval()  # untrained: about the identity plus a residual
+    on = restore_image(net, b, hp, RestoreOptions(heat_scale_px=8.0))
+    off = restore_image(net, b, hp, RestoreOptions(heat_scale_px=8.0, recentre=False))
+    (b2,), h2 = recentre([b[None]], hp[None])
+    want = restore_image(net, b2[0], h2[0], RestoreOptions(heat_scale_px=8.0, recentre=False))
+    assert torch.equal(on, want) and not torch.allclose(on, off, atol=1e-3)
+
+
+def test_training_items_are_recentred_like_inference(make_dataset, tmp_path) -> None:
+    from gamd.restorer import centre_offset, recentre
+
+    root = make_dataset(tmp_path / "ds", {"train": 2})  # constant motion, off-centre by design
+    for recentred in (True, False):
+        ds = DeblurDataset(
+            root, "train", crop=None, augment=False, heat_scale_px=4.0, recentre=recentred
+        )
+        full, item = ds.full(1), ds[(1, 5)]
+        hp = full["heat"][None] * 4.0
+        assert float(centre_offset(hp).abs().max()) > 0.1
+        if recentred:
+            (b,), h = recentre([full["blur"][None]], hp)
+            assert torch.equal(item["blur"], b[0]) and torch.allclose(item["heat"], h[0] / 4.0)
+            assert torch.equal(item["sharp"], full["sharp"])  # the target is the reference
+        else:
+            assert torch.equal(item["blur"], full["blur"])
+
+
+def test_recentre_config_is_a_boolean_and_reaches_the_restore_options() -> None:
+    from gamd.config import RunConfig
+    from gamd.errors import GamdConfigError
+
+    base = {"model": {"name": "gamd"}, "train": {"out_dir": "x"}}
+    assert RunConfig.from_dict({**base, "data": {"root": "d"}}).data.restore_options().recentre
+    off = RunConfig.from_dict({**base, "data": {"root": "d", "recentre": False}})
+    assert off.data.restore_options().recentre is False
+    with pytest.raises(GamdConfigError, match="data.recentre must be true or false"):
+        RunConfig.from_dict({**base, "data": {"root": "d", "recentre": "no"}})

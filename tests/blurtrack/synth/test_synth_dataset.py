@@ -264,3 +264,83 @@ def test_sigkill_mid_build_then_resume(images: Path, tmp_path: Path) -> None:
     )
     assert sorted(read_manifest(man)) == list(range(40))
     assert digest(out) == digest(ref)
+
+
+def test_min_blur_redraws_by_index_and_reports_the_count(images: Path, tmp_path: Path) -> None:
+    base = tmp_path / "base"
+    build(spec(images, count=8), base)
+    lengths = {
+        i: r["params"]["blur_length_px"]["median"]
+        for i, r in read_manifest(base / "manifest.jsonl").items()
+    }
+    floor = float(np.median(list(lengths.values())))  # about half the first draws fall under
+    out = tmp_path / "min"
+    res = build(spec(images, count=8, min_blur_px=floor), out)
+    recs = read_manifest(out / "manifest.jsonl")
+    under = {i: r["draws_under_min_blur"] for i, r in recs.items()}
+    assert all(r["params"]["blur_length_px"]["median"] >= floor for r in recs.values())
+    # Draw 0 is the triplet of the dataset without a minimum: kept exactly when it reaches it.
+    for i, n in under.items():
+        assert (n == 0) == (lengths[i] >= floor)
+        if n == 0:
+            for kind, rel in recs[i]["files"].items():
+                assert (out / rel).read_bytes() == (base / rel).read_bytes(), kind
+    assert res.under_min_blur == sum(under.values()) > 0 and res.made == 8
+    # A re-drawn index is draw k of its own generator (k draws before it fell under).
+    i = next(i for i, n in under.items() if n)
+    from blurtrack.synth.images import load_image
+    from blurtrack.synth.motion import open_source
+
+    params = spec(images, count=8, min_blur_px=floor).params
+    src = open_source("synthetic:0.8")
+    img = load_image(str(images), recs[i]["source_image"])
+    meds = [
+        np.median(np.hypot(*(t.heat[2:4] - t.heat[0:2])))
+        for t in (
+            make_triplet(img, CAL, src, params, triplet_rng(11, i, k)) for k in range(under[i] + 1)
+        )
+    ]
+    assert all(m < floor for m in meds[:-1]) and meds[-1] >= floor
+    out2 = tmp_path / "min2"  # other worker count, same bytes
+    assert build(spec(images, count=8, min_blur_px=floor), out2, workers=2).under_min_blur == (
+        res.under_min_blur
+    )
+    assert digest(out) == digest(out2)
+    a, b = tmp_path / "a", tmp_path / "b"  # shards and merge: same triplets, same count
+    build(spec(images, count=8, min_blur_px=floor), a, shard=(0, 2))
+    build(spec(images, count=8, min_blur_px=floor), b, shard=(1, 2))
+    summary = merge(a, [b])
+    assert summary["draws_under_min_blur"] == res.under_min_blur and digest(a) == digest(out)
+    again = build(spec(images, count=8, min_blur_px=floor), out)  # resumed: all done
+    assert again.under_min_blur == 0 and again.under_min_blur_total == res.under_min_blur
+    with pytest.raises(SynthesisError, match="other parameters"):
+        build(spec(images, count=8, min_blur_px=floor / 2), out)
+    with pytest.raises(SynthesisError, match="min_blur_px=1000 in 64 draws"):
+        build(spec(images, count=1, min_blur_px=1000), tmp_path / "never")
+    with pytest.raises(SynthesisError, match="min_blur_px must be"):
+        TripletParams(min_blur_px=-1)
+    # Off by default: the spec (hence dataset.yaml and the identity) has no such key.
+    assert "min_blur_px" not in spec(images).params.to_dict()
+
+
+def test_cli_min_blur_reports_draws_under_it(images: Path, tmp_path: Path, capsys) -> None:
+    cal = tmp_path / "cal.yaml"
+    CAL.to_yaml(cal)
+    common = ["synth", "--calib", str(cal), "--gyro", "synthetic:0.8", "--images", str(images)]
+    common += ["--count", "6", "--size", "64x48", "--exposure-ms", "10:20", "--seed", "11"]
+    assert main([*common, "--out", str(tmp_path / "plain")]) == 0
+    capsys.readouterr()
+    lengths = [
+        r["params"]["blur_length_px"]["median"]
+        for r in read_manifest(tmp_path / "plain" / "manifest.jsonl").values()
+    ]
+    floor = float(np.max(lengths))  # every first draw but the longest falls under
+    out = tmp_path / "min"
+    assert main([*common, "--out", str(out), "--min-blur-px", f"{floor}"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    recs = read_manifest(out / "manifest.jsonl").values()
+    n = sum(r["draws_under_min_blur"] for r in recs)
+    assert summary["draws_under_min_blur"] == n >= 5 and summary["min_blur_px"] == floor
+    assert f"{n} of {n + 6} draws had a median blur under --min-blur-px" in capsys.readouterr().out
+    assert main([*common, "--out", str(tmp_path / "bad"), "--min-blur-px", "nan"]) == 2
+    assert "min_blur_px must be" in capsys.readouterr().err and not (tmp_path / "bad").exists()
