@@ -15,7 +15,8 @@ With ``--cluster ADDR`` (e.g. ``local:2``) only the cluster comparison runs: the
 ``blurtrack synth`` build with ``--workers K`` (the baseline), ``--cluster ADDR`` (workers
 return the files to the client) and ``--cluster ADDR --shared-fs``, interleaved ``--repeats``
 times, with per-repeat ratios of triplets/s against the baseline, their medians, and a
-byte-identity check of every build's files and manifest against the baseline's.
+byte-identity check of every build's files and manifest against the baseline's; then the CPU
+seconds and page faults of rendering a triplet in a ``--workers`` process and in Dask workers.
 
     PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2] [--build-count 40]
     PYTHONPATH=. python bench/bench_synth.py --cluster local:2 [--build-count 40] [--repeats 3]
@@ -289,6 +290,63 @@ def cluster_compare(
     return out
 
 
+def _render_cost(spec_dict: dict, jobs: list, plain_malloc: bool) -> dict:
+    """CPU s, system CPU s and minor page faults per triplet of ``Renderer.render`` on the
+    calling thread, after one warm-up triplet (``plain_malloc``: call the cluster's fix)."""
+    from blurtrack.synth import cluster
+    from blurtrack.synth.dataset import Renderer
+
+    cv2.setNumThreads(1)
+    fixed = cluster.plain_malloc() if plain_malloc else None
+    r = Renderer(spec_dict)
+    r.render(jobs[0])
+    a = resource.getrusage(resource.RUSAGE_THREAD)
+    for job in jobs[1:]:
+        r.render(job)
+    b = resource.getrusage(resource.RUSAGE_THREAD)
+    n = len(jobs) - 1
+    return {
+        "cpu_s": (b.ru_utime - a.ru_utime + b.ru_stime - a.ru_stime) / n,
+        "system_cpu_s": (b.ru_stime - a.ru_stime) / n,
+        "minor_faults": (b.ru_minflt - a.ru_minflt) / n,
+        "malloc_trim_env": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+        "plain_malloc_changed": fixed,
+    }
+
+
+def render_in_workers(gyro: str, images: Path, size: tuple[int, int], n: int = 6) -> dict:
+    """The cost of rendering a triplet in a ``--workers`` process, in a worker of the cluster
+    ``--cluster local:1`` starts, and in a worker of a LocalCluster with Dask's defaults
+    (as ``dask worker`` runs), without and with :func:`plain_malloc`."""
+    import logging
+    import multiprocessing
+
+    from distributed import Client, LocalCluster
+
+    from blurtrack.synth.cluster import connect
+    from blurtrack.synth.dataset import plan
+
+    spec = DatasetSpec(CALIB.to_dict(), gyro, str(images), 64, 3, TripletParams(size=size))
+    jobs = plan(spec, list_images(images), open_source(gyro).tag)[: n + 1]
+    args, out = (spec.to_dict(), jobs), {}
+    saved = dict(os.environ)
+    try:
+        os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
+        with multiprocessing.get_context("spawn").Pool(1) as pool:  # as --workers starts them
+            out["workers_process"] = pool.apply(_render_cost, (*args, False))
+        with connect("local:1") as client:
+            out["cluster_local_worker"] = client.submit(_render_cost, *args, False).result()
+        kw = {"host": "127.0.0.1", "dashboard_address": None, "silence_logs": logging.ERROR}
+        with LocalCluster(n_workers=1, threads_per_worker=1, **kw) as lc, Client(lc) as client:
+            for fix in (False, True):  # fresh tasks: a new Renderer each
+                key = "dask_defaults_worker" + ("_plain_malloc" if fix else "")
+                out[key] = client.submit(_render_cost, *args, fix, pure=False).result()
+    finally:  # a nanny writes its variables into this process's environment
+        os.environ.clear()
+        os.environ.update(saved)
+    return out
+
+
 def inprocess_cpu(size: tuple[int, int], count: int, gyro: str, images: Path, tmp: Path) -> float:
     """CPU seconds per triplet of an in-process (1 worker) build, files written; the machine
     is shared, so CPU seconds say more than wall seconds about an idle 2-core machine."""
@@ -340,6 +398,7 @@ def main() -> None:
         res = cluster_compare(
             args.cluster, args.workers, args.build_count, args.repeats, gyro, images, (w, h)
         )
+        res["render_cost_per_triplet"] = render_in_workers(gyro, images, (w, h))
         res.update(load_average_1min_start=start, load_average_1min_end=os.getloadavg()[0])
         print(json.dumps(res, indent=2))
         return
