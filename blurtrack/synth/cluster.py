@@ -224,7 +224,7 @@ def _local_cluster(n: int) -> Any:
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
-            silence_logs=logging.ERROR,
+            silence_logs=logging.CRITICAL,  # task errors reach the client as exceptions
             config=config,
         )
 

@@ -230,6 +230,15 @@ def test_local_workers_run_like_plain_processes(cluster) -> None:
     assert defaults["distributed.nanny.pre-spawn-environ"]["MALLOC_TRIM_THRESHOLD_"] is not None
     assert defaults["distributed.worker.profile"]["enabled"]  # what LOCAL_CONFIG turns off
     assert LOCAL_CONFIG["distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"] is None
+    before = set(client.scheduler_info()["workers"])
+    os.kill(sorted(client.run(os.getpid).values())[0], signal.SIGKILL)  # the nanny restarts it
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        now = set(client.scheduler_info()["workers"])
+        if len(now) == 2 and now != before:
+            break
+        time.sleep(0.1)
+    assert len(now) == 2 and len(now - before) == 1
     env = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
     assert len(env) == 2 and set(env.values()) == {None}
     profiling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
