@@ -15,7 +15,8 @@ With ``--cluster ADDR`` (e.g. ``local:2``) only the cluster comparison runs: the
 ``blurtrack synth`` build with ``--workers K`` (the baseline), ``--cluster ADDR`` (workers
 return the files to the client) and ``--cluster ADDR --shared-fs``, interleaved ``--repeats``
 times, with per-repeat ratios of triplets/s against the baseline, their medians, and a
-byte-identity check of every build's files and manifest against the baseline's.
+byte-identity check of every build's files and manifest against the baseline's; then the CPU
+seconds and page faults of rendering a triplet in a ``--workers`` process and in Dask workers.
 
     PYTHONPATH=. python bench/bench_synth.py [--n 8] [--workers 2] [--build-count 40]
     PYTHONPATH=. python bench/bench_synth.py --cluster local:2 [--build-count 40] [--repeats 3]
@@ -168,7 +169,9 @@ def cli_build(
 ) -> dict:
     """``blurtrack synth --workers K`` end to end in a subprocess: wall time (start-up
     included), the steady rate between the 2nd and the last finished triplet (from the heat
-    files' modification times) and the CPU seconds of the command and its workers."""
+    files' modification times), the CPU seconds of the command and its workers (a local
+    cluster's scheduler, nannies and workers included), the seconds until the first triplet
+    was written (start-up) and after the last one (shutting down)."""
     calib = tmp / f"calib{size[0]}.yaml"
     CALIB.to_yaml(calib)
     out = tmp / f"cli{size[0]}{name}"
@@ -195,7 +198,7 @@ def cli_build(
     ]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
+    t0, epoch0 = time.perf_counter(), time.time()
     subprocess.run(cmd, check=True, env=env, capture_output=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -210,6 +213,8 @@ def cli_build(
         "triplets_per_s": len(done) / wall,
         "steady_triplets_per_s": steady,
         "cpu_s_per_triplet_incl_startup": cpu / len(done),
+        "first_triplet_s": done[0] - epoch0 if done else None,
+        "after_last_triplet_s": wall - (done[-1] - epoch0) if done else None,
     }
 
 
@@ -274,15 +279,71 @@ def cluster_compare(
         out[f"{m}_steady_triplets_per_s_median"] = statistics.median(
             x["steady_triplets_per_s"] or 0.0 for x in rs
         )
-        out[f"{m}_cpu_s_per_triplet_median"] = statistics.median(
-            x["cpu_s_per_triplet_incl_startup"] for x in rs
-        )
+        for key in ("cpu_s_per_triplet_incl_startup", "first_triplet_s", "after_last_triplet_s"):
+            out[f"{m}_{key}_median"] = statistics.median(x[key] or 0.0 for x in rs)
     out["byte_identical_to_workers_build"] = identical
     out["target_within_10pct_overall"] = out["cluster_over_workers_triplets_per_s_median"] >= 0.9
     out["target_within_10pct_steady"] = (
         out["cluster_over_workers_steady_triplets_per_s_median"] or 0
     ) >= 0.9
     out["runs"] = runs
+    return out
+
+
+def _render_cost(spec_dict: dict, jobs: list, plain_malloc: bool) -> dict:
+    """CPU s, system CPU s and minor page faults per triplet of ``Renderer.render`` on the
+    calling thread, after one warm-up triplet (``plain_malloc``: call the cluster's fix)."""
+    from blurtrack.synth import cluster
+    from blurtrack.synth.dataset import Renderer
+
+    cv2.setNumThreads(1)
+    fixed = cluster.plain_malloc() if plain_malloc else None
+    r = Renderer(spec_dict)
+    r.render(jobs[0])
+    a = resource.getrusage(resource.RUSAGE_THREAD)
+    for job in jobs[1:]:
+        r.render(job)
+    b = resource.getrusage(resource.RUSAGE_THREAD)
+    n = len(jobs) - 1
+    return {
+        "cpu_s": (b.ru_utime - a.ru_utime + b.ru_stime - a.ru_stime) / n,
+        "system_cpu_s": (b.ru_stime - a.ru_stime) / n,
+        "minor_faults": (b.ru_minflt - a.ru_minflt) / n,
+        "malloc_trim_env": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+        "plain_malloc_changed": fixed,
+    }
+
+
+def render_in_workers(gyro: str, images: Path, size: tuple[int, int], n: int = 6) -> dict:
+    """The cost of rendering a triplet in a ``--workers`` process, in a worker of the cluster
+    ``--cluster local:1`` starts, and in a worker of a LocalCluster with Dask's defaults
+    (as ``dask worker`` runs), without and with :func:`plain_malloc`."""
+    import logging
+    import multiprocessing
+
+    from distributed import Client, LocalCluster
+
+    from blurtrack.synth.cluster import connect
+    from blurtrack.synth.dataset import plan
+
+    spec = DatasetSpec(CALIB.to_dict(), gyro, str(images), 64, 3, TripletParams(size=size))
+    jobs = plan(spec, list_images(images), open_source(gyro).tag)[: n + 1]
+    args, out = (spec.to_dict(), jobs), {}
+    saved = dict(os.environ)
+    try:
+        os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
+        with multiprocessing.get_context("spawn").Pool(1) as pool:  # as --workers starts them
+            out["workers_process"] = pool.apply(_render_cost, (*args, False))
+        with connect("local:1") as client:
+            out["cluster_local_worker"] = client.submit(_render_cost, *args, False).result()
+        kw = {"host": "127.0.0.1", "dashboard_address": None, "silence_logs": logging.ERROR}
+        with LocalCluster(n_workers=1, threads_per_worker=1, **kw) as lc, Client(lc) as client:
+            for fix in (False, True):  # fresh tasks: a new Renderer each
+                key = "dask_defaults_worker" + ("_plain_malloc" if fix else "")
+                out[key] = client.submit(_render_cost, *args, fix, pure=False).result()
+    finally:  # a nanny writes its variables into this process's environment
+        os.environ.clear()
+        os.environ.update(saved)
     return out
 
 
@@ -337,6 +398,7 @@ def main() -> None:
         res = cluster_compare(
             args.cluster, args.workers, args.build_count, args.repeats, gyro, images, (w, h)
         )
+        res["render_cost_per_triplet"] = render_in_workers(gyro, images, (w, h))
         res.update(load_average_1min_start=start, load_average_1min_end=os.getloadavg()[0])
         print(json.dumps(res, indent=2))
         return

@@ -14,18 +14,32 @@ the next run skips. At most a window of tasks is in flight (twice the workers' t
 for results returned to the client at most about :data:`RESULT_BUDGET_BYTES` of them), so
 memory stays bounded on any cluster size.
 
-Workers read the inputs (photos, gyro source) at the paths of the spec. The first task on each
-worker checks them: the image list and gyro data must give the client's identity hash, else
-the build stops with one line naming the worker and what it lacks. ``dask.distributed`` is
-imported only here and only when a cluster build runs.
+Workers read the inputs (photos, gyro source) at the paths of the spec. Before the first task
+every connected worker makes its renderer and checks them (:func:`prepare_worker`, a worker
+that joins later does so on its first task): the image list and gyro data must give the
+client's identity hash, else the build stops with one line naming the worker and what it
+lacks, before any triplet is built.
+
+A Dask worker is not a plain process: the nanny sets ``MALLOC_TRIM_THRESHOLD_``, which turns
+off glibc's adaptive mmap threshold, so every large NumPy buffer of a render is a fresh mmap
+whose pages fault in anew (ten times the page faults of ``--workers``, about 0.1 CPU s more
+per 1280x720 triplet); and its profiler and 20 ms event-loop ticks cost about 4 % of a core
+per process even when idle. Local clusters start without them (:data:`LOCAL_CONFIG`); on any
+worker :func:`plain_malloc` restores the adaptive thresholds' end state. The local cluster
+starts on a thread while the client reads the inputs and the manifest. ``dask.distributed``
+is imported only here and only when a cluster build runs.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
+import ctypes
+import os
 import re
 import secrets
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -60,6 +74,18 @@ _REMOTE = re.compile(r"(tcp|tls)://[A-Za-z0-9.\-\[\]:]+:[0-9]{1,5}")
 CONNECT_TIMEOUT_S = 10.0
 #: Results in flight when workers return files to the client (bytes, estimated).
 RESULT_BUDGET_BYTES = 2 * 1024**3
+#: Dask settings of ``local:N`` clusters: worker processes as plain as ``--workers`` (glibc's
+#: own malloc thresholds; no statistical profiler) and slower housekeeping ticks.
+LOCAL_CONFIG: dict[str, Any] = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "500ms",
+    "distributed.admin.system-monitor.interval": "2s",
+}
+#: glibc ``mallopt`` parameters (``malloc.h``) and where its adaptive mmap threshold stops
+#: rising on 64-bit (``DEFAULT_MMAP_THRESHOLD_MAX``); the trim threshold follows at twice it.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+_MMAP_THRESHOLD_MAX = 32 * 1024**2
 
 
 def parse_cluster(text: str) -> tuple[str, Any]:
@@ -80,17 +106,36 @@ _RENDERERS: dict[tuple[str, int], Renderer] = {}
 _RENDERERS_LOCK = threading.Lock()
 
 
-def _where() -> str:
+def _where(worker: Any = None) -> str:
+    """This worker's address and host (``worker``: a ``distributed.Worker`` where no task
+    runs)."""
     try:
         from distributed import get_worker
 
-        return f"{get_worker().address} ({socket.gethostname()})"
+        address = worker.address if worker is not None else get_worker().address
+        return f"{address} ({socket.gethostname()})"
     except (ImportError, ValueError):
         return socket.gethostname()
 
 
+def plain_malloc() -> bool:
+    """In a process started with ``MALLOC_TRIM_THRESHOLD_`` (a Dask nanny's worker), set
+    glibc's mmap and trim thresholds to where its adaptive thresholds settle in a plain
+    process, so that freed render buffers are reused instead of unmapped; True if changed.
+    Elsewhere (no such variable, not glibc) it does nothing."""
+    if "MALLOC_TRIM_THRESHOLD_" not in os.environ or not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    ok = mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) == 1
+    return mallopt(_M_TRIM_THRESHOLD, 2 * _MMAP_THRESHOLD_MAX) == 1 and ok
+
+
 def worker_renderer(
-    spec_dict: dict[str, Any], identity: str, png_level: int, out: str | None
+    spec_dict: dict[str, Any], identity: str, png_level: int, out: str | None, worker: Any = None
 ) -> Renderer:
     """This worker's renderer for the dataset ``identity``, made (and its inputs checked
     against the identity) on first use; ``out``: the dataset folder a shared-fs worker must
@@ -102,6 +147,7 @@ def worker_renderer(
             return r
         try:
             cv2.setNumThreads(1)
+            plain_malloc()
             r = Renderer(spec_dict, png_level)
             images = list_images(r.spec.images)
             if inputs_identity(r.spec, images, r.source.fingerprint()) != identity:
@@ -118,10 +164,24 @@ def worker_renderer(
                         f"mounted at the same path on every worker)"
                     )
         except BlurTrackError as exc:
-            raise SynthesisError(f"worker {_where()} lacks the inputs: {exc}") from None
+            raise SynthesisError(f"worker {_where(worker)} lacks the inputs: {exc}") from None
         _RENDERERS.clear()  # one dataset at a time per worker process
         _RENDERERS[key] = r
         return r
+
+
+def prepare_worker(
+    spec_dict: dict[str, Any],
+    identity: str,
+    png_level: int,
+    out: str | None,
+    dask_worker: Any = None,
+) -> bool:
+    """Make this worker's renderer and check its inputs (``Client.run`` on every worker
+    before the build, which passes ``dask_worker``; :class:`SynthesisError` names what the
+    worker lacks)."""
+    worker_renderer(spec_dict, identity, png_level, out, dask_worker)
+    return True
 
 
 def render_task(
@@ -146,31 +206,80 @@ def render_task(
 
 
 # ------------------------------------------------------------------ client side
+def _local_cluster(n: int) -> Any:
+    """A ``LocalCluster`` of ``n`` single-threaded worker processes on 127.0.0.1."""
+    import logging
+
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set(LOCAL_CONFIG):  # read by the scheduler and nannies it starts
+        # The nannies pass their config to the workers they (re)start, but merged shallowly
+        # over the global one: give them their own copy, or a restarted worker would get the
+        # defaults back once this block ends.
+        config = {"distributed": copy.deepcopy(dask.config.get("distributed"))}
+        return LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,  # task errors reach the client as exceptions
+            config=config,
+        )
+
+
+class LocalStart:
+    """A ``local:N`` cluster started on a thread, so that its worker processes start while
+    the client reads the inputs and the manifest; :meth:`close` stops it."""
+
+    def __init__(self, n: int) -> None:
+        self._got: list[Any] = []
+        self._closed = False
+        self._thread = threading.Thread(
+            target=self._start, args=(n,), name="blurtrack-local-cluster", daemon=True
+        )
+        self._thread.start()
+
+    def _start(self, n: int) -> None:
+        try:
+            self._got.append(_local_cluster(n))
+        except BaseException as exc:  # re-raised by get() in the caller's thread
+            self._got.append(exc)
+
+    def get(self) -> Any:
+        self._thread.join()
+        got = self._got[0]
+        if isinstance(got, BaseException):
+            raise got
+        return got
+
+    def close(self) -> None:
+        self._thread.join()
+        if not self._closed and self._got and not isinstance(self._got[0], BaseException):
+            self._closed = True
+            self._got[0].close()
+
+
 @contextlib.contextmanager
-def connect(cluster: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Any]:
+def connect(
+    cluster: str, timeout_s: float = CONNECT_TIMEOUT_S, local: LocalStart | None = None
+) -> Iterator[Any]:
     """A ``distributed.Client`` on a fresh ``LocalCluster`` (``local:N``: N single-threaded
-    worker processes on 127.0.0.1) or on a running scheduler, with at least one worker."""
+    worker processes on 127.0.0.1; ``local``: one already starting) or on a running
+    scheduler, with at least one worker."""
     kind, value = parse_cluster(cluster)
     try:
-        import logging
-
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError:
         raise SynthesisError(
             "--cluster needs dask.distributed: pip install 'blurtrack[cluster]'"
         ) from None
     with contextlib.ExitStack() as stack:
         if kind == "local":
-            lc = LocalCluster(
-                n_workers=value,
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
-            stack.enter_context(lc)
-            value = lc
+            local = local or LocalStart(value)
+            stack.callback(local.close)
+            value = local.get()
         try:
             client = stack.enter_context(Client(value, timeout=timeout_s))
         except (OSError, TimeoutError) as exc:
@@ -185,6 +294,26 @@ def connect(cluster: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Any]
                 f"the dask scheduler at {cluster} has no workers (waited {timeout_s:g} s)"
             ) from None
         yield client
+
+
+def check_workers(
+    client: Any,
+    cluster: str,
+    spec_dict: dict[str, Any],
+    identity: str,
+    png_level: int,
+    out: str | None,
+) -> int:
+    """Every connected worker makes its renderer and checks its inputs
+    (:func:`prepare_worker`); the number of workers checked."""
+    try:
+        done = client.run(prepare_worker, spec_dict, identity, png_level, out)
+    except (OSError, TimeoutError) as exc:
+        raise SynthesisError(
+            f"lost a worker of {cluster} while checking the inputs ({type(exc).__name__}); "
+            f"rerun the same command"
+        ) from None
+    return len(done)
 
 
 def _window(client: Any, per_task_bytes: int | None) -> int:
@@ -218,6 +347,7 @@ def _run_tasks(client: Any, run: BuildRun, cluster: str, shared_fs: bool, png_le
             pure=False,
         )
 
+    check_workers(client, cluster, spec_dict, run.identity, png_level, out)
     run.start()
     ac = as_completed(
         [submit(j) for j in islice(jobs, _window(client, per_task))], with_results=True
@@ -277,17 +407,22 @@ def build_on_cluster(
     """Build (or resume) the triplets of ``shard`` on the Dask cluster ``cluster``; the files
     and manifest are those of :func:`blurtrack.synth.dataset.build`, byte for byte."""
     check_png_level(png_level)
-    parse_cluster(cluster)
     if not 0 < timeout_s <= 3600:
         raise SynthesisError(f"cluster timeout must be in (0, 3600] s, got {timeout_s}")
-    with open_build(spec, out, shard, progress) as run:
-        if not run.todo:
-            run.start()
-        else:
-            try:
-                with connect(cluster, timeout_s) as client:
-                    _run_tasks(client, run, cluster, shared_fs, png_level)
-            finally:
-                if shared_fs:  # temporaries of workers that died mid-write
-                    remove_temporaries(run.root, run.tag)
+    kind, n = parse_cluster(cluster)
+    local = LocalStart(n) if kind == "local" else None  # starts while the inputs are read
+    try:
+        with open_build(spec, out, shard, progress) as run:
+            if not run.todo:
+                run.start()
+            else:
+                try:
+                    with connect(cluster, timeout_s, local) as client:
+                        _run_tasks(client, run, cluster, shared_fs, png_level)
+                finally:
+                    if shared_fs:  # temporaries of workers that died mid-write
+                        remove_temporaries(run.root, run.tag)
+    finally:
+        if local is not None:
+            local.close()
     return run.result()

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import logging
 import os
 import signal
 import socket
@@ -26,7 +25,12 @@ from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.calibration import Calibration
-from blurtrack.synth.cluster import build_on_cluster, parse_cluster
+from blurtrack.synth.cluster import (
+    LOCAL_CONFIG,
+    build_on_cluster,
+    connect,
+    parse_cluster,
+)
 from blurtrack.synth.dataset import DatasetSpec, build, read_manifest
 from blurtrack.synth.triplet import TripletParams
 
@@ -36,20 +40,9 @@ REPO = Path(__file__).resolve().parents[3]
 
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[tuple[str, object]]:
-    from distributed import Client, LocalCluster
-
-    with (
-        LocalCluster(
-            n_workers=2,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-        ) as lc,
-        Client(lc) as client,
-    ):
-        yield lc.scheduler_address, client
+    """The cluster ``--cluster local:2`` starts, reached by its scheduler's address."""
+    with connect("local:2") as client:
+        yield client.cluster.scheduler_address, client
 
 
 def make_images(root: Path) -> Path:
@@ -192,18 +185,26 @@ def test_killed_client_resumes(cluster, tmp_path: Path) -> None:
     assert digest(out) == digest(ref) and manifest_lines(out) == manifest_lines(ref)
 
 
-def test_worker_lacking_inputs_and_unreachable_scheduler(cluster, tmp_path: Path, capsys) -> None:
-    address, _ = cluster
+def test_worker_lacking_inputs_and_unreachable_scheduler(
+    cluster, tmp_path: Path, capsys, monkeypatch
+) -> None:
+    address, client = cluster
     images = make_images(tmp_path / "imgs")
-    moved = tmp_path / "elsewhere"
-
-    def hide_inputs(done: int, total: int) -> None:
-        if done == 0:  # after the client listed them, before any worker looks
-            images.rename(moved)
-
-    with pytest.raises(SynthesisError, match=r"worker tcp://127\.0\.0\.1:\d+ .* lacks the inputs"):
-        build_on_cluster(spec(images), tmp_path / "x", address, progress=hide_inputs)
-    moved.rename(images)
+    # A relative image folder: the client (in tmp_path) sees it, the workers (started in
+    # another folder) do not, like a node that mounts the photos elsewhere.
+    assert all(Path(d) != tmp_path for d in client.run(os.getcwd).values())
+    monkeypatch.chdir(tmp_path)
+    calls: list[tuple[int, int]] = []
+    with pytest.raises(
+        SynthesisError, match=r"^worker tcp://127\.0\.0\.1:\d+ .* lacks the inputs: "
+    ):
+        build_on_cluster(
+            spec(Path("imgs")), tmp_path / "x", address, progress=lambda *a: calls.append(a)
+        )
+    assert calls == []  # checked before the build started: no triplet, no progress
+    assert not (tmp_path / "x" / "manifest.jsonl").read_bytes()
+    res = build_on_cluster(spec(images), tmp_path / "x2", address)  # absolute: all see it
+    assert res.made == 10
 
     cal = tmp_path / "cal.yaml"
     CAL.to_yaml(cal)
@@ -221,3 +222,78 @@ def test_worker_lacking_inputs_and_unreachable_scheduler(cluster, tmp_path: Path
     assert main([*base, "--shared-fs"]) == 2
     assert main([*base, "--cluster", "nowhere"]) == 2
     assert "--cluster must be" in capsys.readouterr().err
+
+
+def test_local_workers_run_like_plain_processes(cluster) -> None:
+    _, client = cluster
+    defaults = distributed_defaults()
+    assert defaults["distributed.nanny.pre-spawn-environ"]["MALLOC_TRIM_THRESHOLD_"] is not None
+    assert defaults["distributed.worker.profile"]["enabled"]  # what LOCAL_CONFIG turns off
+    assert LOCAL_CONFIG["distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"] is None
+    before = set(client.scheduler_info()["workers"])
+    os.kill(sorted(client.run(os.getpid).values())[0], signal.SIGKILL)  # the nanny restarts it
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        now = set(client.scheduler_info()["workers"])
+        if len(now) == 2 and now != before:
+            break
+        time.sleep(0.1)
+    assert len(now) == 2 and len(now - before) == 1
+    env = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert len(env) == 2 and set(env.values()) == {None}
+    profiling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
+    assert set(profiling.values()) == {False}
+
+
+def distributed_defaults() -> dict:
+    import dask
+    import distributed  # noqa: F401  (registers its defaults)
+
+    return {
+        k: dask.config.get(k)
+        for k in ("distributed.nanny.pre-spawn-environ", "distributed.worker.profile")
+    }
+
+
+MALLOC_PROBE = """
+import ctypes, resource, sys
+from blurtrack.synth.cluster import plain_malloc
+libc = ctypes.CDLL("libc.so.6")
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+SIZE, N = 20 * 2**20, 8
+
+def faults():
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(N):
+        p = libc.malloc(SIZE)
+        ctypes.memset(p, 1, SIZE)
+        libc.free(p)
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+
+first, second = faults(), faults()
+changed = plain_malloc()
+third = faults()  # the heap grows once to hold a buffer
+print(first, second, int(changed), third, faults())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc")
+@pytest.mark.parametrize("dask_env", [True, False])
+def test_plain_malloc_reuses_freed_buffers(dask_env: bool) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env.pop("MALLOC_TRIM_THRESHOLD_", None)
+    if dask_env:
+        env["MALLOC_TRIM_THRESHOLD_"] = "65536"  # what a dask nanny sets
+    done = subprocess.run(
+        [sys.executable, "-c", MALLOC_PROBE], env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    _, second, changed, _, after = (int(v) for v in done.stdout.split())
+    pages = 8 * 20 * 2**20 // os.sysconf("SC_PAGE_SIZE")  # every buffer faulted in anew
+    if dask_env:
+        assert second > 0.8 * pages  # a fresh mmap each time, also the second round
+        assert changed == 1 and after < second / 20  # then reused from the heap
+    else:
+        assert changed == 0  # a plain process is left as it is: it reuses already
+        assert second < pages / 20 and after < pages / 20
