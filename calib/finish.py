@@ -20,12 +20,11 @@ from calib.fitcore import (
     OUTLIER_SIGMAS,
     _rayleigh_sigma,
     _reorient,
-    classify,
     scale_check,
 )
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
-from calib.stages import Coarse, Fine, Mode, Prepared
+from calib.stages import Coarse, Fine, Mode, Prepared, _track_errors
 
 
 @dataclass(frozen=True)
@@ -91,7 +90,7 @@ def assemble(
     model, train, free, lm, cam = md.model, fine.train, co.free, fine.lm, prep.initial.camera
     warnings = [*prep.warnings, *co.warnings, *md.warnings]
     theta, iters, converged = fine.theta, fine.iterations, fine.converged
-    rho, _, _ = classify(model, theta, train, np.inf)
+    rho = fine.rho
     sig = _rayleigh_sigma(rho[fine.inl])
     thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
     out = rho > thr
@@ -105,7 +104,7 @@ def assemble(
             converged = converged and gls.converged
             sigma_vec, corr_mat = gls.sigma, gls.correlation
             timings.update(gls.timings)
-            rho, _, _ = classify(model, theta, train, np.inf)
+            rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
             out = rho > thr
     warnings.extend(unc.warnings)
     warnings.extend(scale_check(md.ev_fine, theta, fine.fitset, lm.weights, free))
@@ -149,7 +148,7 @@ def assemble(
         status = "warning"
     track_stats: dict = {"residuals": md.mode}
     if md.tracks is not None:
-        rho_tr = np.linalg.norm(model.residual_np(theta, md.tracks), axis=1)
+        rho_tr = _track_errors(md, theta, md.tracks)
         track_stats.update(
             tracks=ErrorStats.of(rho_tr[fine.tinl]),
             n_tracks=len(md.tracks),

@@ -115,14 +115,27 @@ def classify(
 
 
 def _reorient(
-    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, threshold_px: float
+    model: ResidualModel,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    threshold_px: float,
+    rho: np.ndarray | None = None,
 ) -> tuple[StreakSet, np.ndarray, np.ndarray]:
     """Swap start and end of the streaks that only fit reversed (orientation resolved wrongly
-    by detection). Returns the corrected set, its endpoint errors and the swapped mask."""
-    _, _, flip = classify(model, theta, streaks, threshold_px)
-    if np.any(flip):
-        streaks = streaks.reoriented(flip)
-    rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    by detection). Returns the corrected set, its endpoint errors and the swapped mask.
+    ``rho``: the endpoint errors at ``theta`` when already known (only the outliers are then
+    evaluated again, reversed)."""
+    if rho is None:
+        rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    out = rho > threshold_px
+    flip = np.zeros_like(out)
+    if np.any(out):
+        rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
+        flip[np.flatnonzero(out)] = rf <= threshold_px
+        if np.any(flip):
+            streaks = streaks.reoriented(flip)
+            rho = rho.copy()
+            rho[flip] = rf[flip[out]]
     return streaks, rho, flip
 
 

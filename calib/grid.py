@@ -52,6 +52,8 @@ from calib.problem import CA_OPS
 #: Grid step (s) of the orientation integration: half the 1 ms sub-step of the per-streak
 #: model, fixed in IMU time (nodes at multiples of it), whatever the gyro's rate.
 GRID_STEP_S = 5e-4
+#: How :meth:`GridEvaluator._map` evaluates the residuals (CasADi ``Function.map``).
+MAP_PARALLELISM = "serial"
 #: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
 N_DATA = 6 + 9 + 27 + 9 + 3 + 3
 
@@ -101,6 +103,7 @@ class GridEvaluator:
         self._thc = ca.SX.sym("theta_c", N_THETA)
         self._d = ca.SX.sym("d", N_DATA)
         self._r = self._residual_sx()
+        self._funcs: dict[tuple[int, ...], ca.Function] = {}
         self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
 
     # ------------------------------------------------------------------ grid
@@ -233,13 +236,20 @@ class GridEvaluator:
         return ca.vertcat(u - ex, v - ey)
 
     def _map(self, free: tuple[int, ...], n: int) -> ca.Function:
+        """The Jacobian function of ``free`` mapped over ``n`` residuals; the symbolic
+        Jacobian is built once per free set (a refit on more residuals only re-maps it)."""
         key = (free, n)
         if key not in self._maps:
-            J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
-            f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
+            if free not in self._funcs:
+                J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
+                self._funcs[free] = ca.Function(
+                    "calib_grid_jac", [self._th, self._thc, self._d], [self._r, J]
+                )
             self._maps = {k: v for k, v in self._maps.items() if k[0] == free}
             # theta and theta_c are shared by every residual (not repeated).
-            self._maps[key] = f.map("calib_grid_jac_map", "serial", n, [0, 1], [])
+            self._maps[key] = self._funcs[free].map(
+                "calib_grid_jac_map", MAP_PARALLELISM, n, [0, 1], []
+            )
         return self._maps[key]
 
     def _data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:

@@ -83,8 +83,10 @@ def lm_driver(
     Steps are solved in Jacobian-column-scaled coordinates (Marquardt) with the bounds table
     :data:`calib.params.BOUNDS` applied to every trial (the readout projected onto its bound,
     a non-positive focal length or implausible scale refused), a singular system raising the
-    damping (``LinAlgError`` guard). Converged when every scaled step actually taken is below
-    ``step_tol``, the relative cost decrease is below ``rel_tol``, or no step decreases the
+    damping (``LinAlgError`` guard). Converged when the step actually taken, measured as the
+    change it makes to the fitted residuals ``sqrt(δᵀ A δ)``, is below ``step_tol`` or the
+    next one is predicted so (below half the last and its size times that ratio below
+    ``step_tol``), the relative cost decrease is below ``rel_tol``, or no step decreases the
     cost. ``progress(iteration, cost)`` is called after every iteration.
     """
     if not free:
@@ -93,6 +95,7 @@ def lm_driver(
     fr = np.asarray(free)
     lam = lam0
     converged = small = False
+    prev_size = 0.0
     it = 0
     A, g, cost = linearise(theta)
     trial: np.ndarray | None
@@ -117,7 +120,16 @@ def lm_driver(
             c_try = trial_cost(trial)
             if np.isfinite(c_try) and c_try <= cost:
                 improved = True
-                theta, small = trial, bool(np.all(np.abs(step_s) < step_tol))
+                # The step's size in the information metric, sqrt(δᵀ A δ): the change of the
+                # fitted residuals (px); it bounds every parameter's change by that over the
+                # residual sigma times the parameter's own sigma (Cauchy–Schwarz).
+                size = float(np.sqrt(max(step_s @ As @ step_s, 0.0)))
+                # Converged: a small step, or the next one predicted small (the robust
+                # Gauss–Newton iteration converges linearly near the optimum: each step a
+                # fixed fraction of the last, measured from the last two).
+                rate = size / prev_size if prev_size > 0 else 1.0
+                small = size < step_tol or (rate < 0.5 and size * rate < step_tol)
+                theta, prev_size = trial, size
                 rel = (cost - c_try) / max(cost, 1e-300)
                 cost = c_try
                 lam = max(lam / 10, 1e-9)

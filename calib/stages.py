@@ -5,7 +5,7 @@ mode and tracks, fine robust rounds, optional frame-noise GLS, statistics and re
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,15 +29,12 @@ from calib.fitcore import (
     _rayleigh_sigma,
     _reorient,
     check_fit_inputs,
-    classify,
 )
 from calib.grid import GridEvaluator
 from calib.params import GROUPS, LAYOUT, THETA_NAMES, symmetric_scale_form, theta_from
 from calib.problem import ResidualModel, choose_substeps
 from calib.solve import JacobianEvaluator, LMResult, levenberg_marquardt
 from calib.tracks import build_tracks, concat
-
-Warm = tuple[np.ndarray, tuple[str, ...]]
 
 
 @dataclass(frozen=True)
@@ -123,11 +120,22 @@ def prepare(
     )  # fmt: skip
 
 
-def initialise(
-    prep: Prepared, options: FitOptions, warm: Warm | None, rep: Reporter
-) -> init_mod.InitResult:
-    """Shift/focal search (:mod:`calib.init`); no search on a refit."""
-    rep.start("refit on all frames" if warm else "initial search")
+def all_frames(prep: Prepared) -> Prepared:
+    """The same prepared input with every frame for training and none held out (the refit
+    of :func:`calib.fit.calibrate`; the checks and the gyro are those of ``prep``)."""
+    cam = prep.initial.camera
+    n_sub = choose_substeps(prep.streaks, cam.height, prep.readout_bound)
+    return replace(
+        prep,
+        train=prep.streaks,
+        test=prep.streaks.subset(np.zeros(len(prep.streaks), dtype=bool)),
+        model=replace(prep.model, n_sub=n_sub),
+    )
+
+
+def initialise(prep: Prepared, options: FitOptions, rep: Reporter) -> init_mod.InitResult:
+    """Shift/focal search (:mod:`calib.init`)."""
+    rep.start("initial search")
     return init_mod.initialise(
         prep.coarse,
         prep.train,
@@ -135,7 +143,6 @@ def initialise(
         LAYOUT["timeshift_s"] in prep.free,
         LAYOUT["fx"] in prep.free or LAYOUT["fy"] in prep.free,
         options.shift_window_s,
-        search=warm is None,
     )
 
 
@@ -152,11 +159,7 @@ class Coarse:
 
 
 def coarse_fit(
-    prep: Prepared,
-    ini: init_mod.InitResult,
-    options: FitOptions,
-    warm: Warm | None,
-    rep: Reporter,
+    prep: Prepared, ini: init_mod.InitResult, options: FitOptions, rep: Reporter
 ) -> Coarse:
     """Robust LM on a subsample: shift and focal first, then every observable parameter."""
     warnings: list[str] = []
@@ -170,25 +173,17 @@ def coarse_fit(
     ev = GridEvaluator(prep.g, prep.initial.R_cam_imu, cam.dist, cam.height)
     stage1 = tuple(i for i in free if i in GROUPS["timeshift"] + GROUPS["fx"] + GROUPS["fy"])
     delta = max(2.0 * ini.median_error_px, 0.5)
-    dropped: list[int]
-    if warm is not None:
-        theta = warm[0].copy()
-        dropped = [THETA_NAMES.index(n) for n in warm[1]]
-        free = tuple(i for i in free if i not in dropped)
-    else:
-        rep.start("coarse")
-        if stage1:
-            lm = levenberg_marquardt(
-                ev, sub, theta, stage1, delta, 15, 0.05, progress=rep.report("coarse: shift, focal")
-            )
-            theta, iters = lm.theta, iters + lm.iterations
+    rep.start("coarse")
+    if stage1:
         lm = levenberg_marquardt(
-            ev, sub, theta, free, delta, 20, 0.02, progress=rep.report("coarse")
+            ev, sub, theta, stage1, delta, 15, 0.05, progress=rep.report("coarse: shift, focal")
         )
         theta, iters = lm.theta, iters + lm.iterations
-        info = uncertainty.information(lm.jacobian, lm.weights, free)
-        dropped = uncertainty.unobservable(info, free)
-    if dropped and warm is None:
+    lm = levenberg_marquardt(ev, sub, theta, free, delta, 20, 0.02, progress=rep.report("coarse"))
+    theta, iters = lm.theta, iters + lm.iterations
+    info = uncertainty.information(lm.jacobian, lm.weights, free)
+    dropped = uncertainty.unobservable(info, free)
+    if dropped:
         names = [THETA_NAMES[i] for i in dropped]
         warnings.append(
             f"not observable from this motion, kept at the initial value: {', '.join(names)}"
@@ -278,12 +273,31 @@ class Fine:
     lm: LMResult
     iterations: int
     round_iterations: tuple[int, ...]
+    #: Endpoint errors ``(N,)`` of ``train`` at ``theta`` (the per-streak model).
+    rho: np.ndarray
+    #: The outlier thresholds (px) of the last classification: endpoints, tracks.
+    thresholds: tuple[float, float]
+
+
+def _track_errors(md: Mode, theta: np.ndarray, tracks: StreakSet) -> np.ndarray:
+    """Track errors ``(N,)`` (px) by the final stage's evaluator (grid: far cheaper than the
+    per-streak model over a frame period, and the more accurate)."""
+    return np.linalg.norm(md.ev_fine.residual(theta, tracks)[:, :2], axis=1)
 
 
 def fine_fit(
-    prep: Prepared, co: Coarse, md: Mode, options: FitOptions, warm: Warm | None, rep: Reporter
+    prep: Prepared,
+    co: Coarse,
+    md: Mode,
+    options: FitOptions,
+    rep: Reporter,
+    warm: tuple[float, float] | None = None,
 ) -> Fine:
-    """Up to three robust LM rounds with outlier rejection and reorientation in between."""
+    """Up to three robust LM rounds with outlier rejection and reorientation in between.
+
+    ``warm``: a refit (:func:`calib.fit.calibrate`) from a converged fit's ``co.theta`` with
+    that fit's outlier thresholds ``(endpoints, tracks)`` for the first classification (a
+    cold fit derives them from every streak at the coarse estimate)."""
     theta, iters, free, model, use_ep, tracks = (
         co.theta, co.iterations, co.free, md.model, md.use_ep, md.tracks
     )  # fmt: skip
@@ -291,26 +305,30 @@ def fine_fit(
     inl = np.ones(len(train), dtype=bool)
     tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
-    converged = False
+    converged = settled = False
     fitset = train
     rounds: list[int] = []
     lm: LMResult | None = None
+    rho = np.zeros(0)
+    thr = thr_t = float("nan")
     for round_ in range(3):
         changed = 0
         new_inl = inl
         if use_ep:
-            rho, _, _ = classify(model, theta, train, np.inf)
-            thr = _outlier_threshold(rho[inl])
-            train, rho, flip = _reorient(model, theta, train, thr)
+            rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
+            thr = warm[0] if warm is not None and round_ == 0 else _outlier_threshold(rho[inl])
+            train, rho, flip = _reorient(model, theta, train, thr, rho)
             reoriented ^= flip
             new_inl = rho <= thr
             changed += int(np.count_nonzero(new_inl != inl))
         new_tinl = tinl
         if tracks is not None:
-            rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
-            new_tinl = rho_t <= _outlier_threshold(rho_t[tinl])
+            rho_t = _track_errors(md, theta, tracks)
+            thr_t = warm[1] if warm is not None and round_ == 0 else _outlier_threshold(rho_t[tinl])
+            new_tinl = rho_t <= thr_t
             changed += int(np.count_nonzero(new_tinl != tinl))
         if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
+            settled = True
             break  # the inlier sets have settled
         inl, tinl = new_inl, new_tinl
         if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
@@ -340,13 +358,16 @@ def fine_fit(
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         rounds.append(lm.iterations)
     assert lm is not None  # round 1 always runs
+    if not (use_ep and settled):
+        # Endpoint errors at the final theta (the loop's are of the previous round's).
+        rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
     if not use_ep:
         # Endpoint statistics of the training streaks at the track fit (reorientation too).
-        rho, _, _ = classify(model, theta, train, np.inf)
         thr = _outlier_threshold(rho)
-        train, rho, flip = _reorient(model, theta, train, thr)
+        train, rho, flip = _reorient(model, theta, train, thr, rho)
         reoriented ^= flip
         inl = rho <= thr
     return Fine(
-        theta, train, inl, tinl, reoriented, converged, fitset, lm, iters, tuple(rounds)
+        theta, train, inl, tinl, reoriented, converged, fitset, lm, iters, tuple(rounds), rho,
+        (thr, thr_t),
     )  # fmt: skip

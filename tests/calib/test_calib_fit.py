@@ -228,3 +228,27 @@ def test_refit_on_all_frames_and_progress_reports() -> None:
     assert alone.holdout_fit_values is None
     assert alone.holdout.mean_px == res.holdout.mean_px
     assert alone.values == res.holdout_fit_values
+
+
+@pytest.mark.parametrize("tracked", [False, True])
+def test_warm_refit_equals_a_cold_fit_on_every_frame(tracked: bool) -> None:
+    # The refit starts from the training fit's estimate and outlier thresholds and runs only
+    # the final stage; a cold fit on every frame (no hold-out) runs every stage from the
+    # initial guess. Both minimise the same cost over the same data: they must agree far
+    # inside the sigma, while the training fit alone (a fifth of the frames fewer) does not.
+    p = make_problem(
+        seed=21, n_frames=20, dots_per_frame=40, tracked=tracked, gyro_noise_radps=2e-3
+    )
+    events: list = []
+    warm = calibrate(p.streaks, p.gyro, p.initial, FitOptions(), progress=events.append)
+    cold = calibrate(p.streaks, p.gyro, p.initial, FitOptions(holdout_fraction=0.0))
+    assert warm.residuals == cold.residuals == ("tracks" if tracked else "endpoints")
+    assert warm.holdout_fit_values is not None
+    z = [abs(warm.values[k] - cold.values[k]) / s for k, s in cold.sigma.items()]
+    z_train = [abs(warm.holdout_fit_values[k] - cold.values[k]) / s for k, s in cold.sigma.items()]
+    assert max(z) < 0.05, z
+    assert max(z_train) > 0.2  # the refit moved: the comparison can tell
+    assert warm.train.n == cold.train.n and warm.n_tracks == cold.n_tracks
+    # The refit repeats neither the search nor the coarse stages.
+    refit = [e.stage for e in events[[e.stage for e in events].index("refit on all frames") :]]
+    assert refit and not any(s.startswith(("coarse", "initial", "fine")) for s in refit)
