@@ -17,6 +17,7 @@ from calib.fitcore import (
     MAX_RESIDUAL_SIGMA_PX,
     MIN_INLIER_FRACTION,
     MIN_OUTLIER_PX,
+    MIN_STREAKS,
     OUTLIER_SIGMAS,
     _rayleigh_sigma,
     _reorient,
@@ -133,6 +134,12 @@ def assemble(
         warnings.append(
             f"only {n_in} of {len(train)} streaks agree with the model: the data "
             f"contradict it (wrong session, gyro or initial rotation?)"
+        )
+        status = "failed"
+    if fine.n_agree is not None:
+        warnings.append(
+            f"only {fine.n_agree} streaks agree with the model (need {MIN_STREAKS}): the "
+            f"data contradict it"
         )
         status = "failed"
     if sig > MAX_RESIDUAL_SIGMA_PX:

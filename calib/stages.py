@@ -277,6 +277,9 @@ class Fine:
     rho: np.ndarray
     #: The outlier thresholds (px) of the last classification: endpoints, tracks.
     thresholds: tuple[float, float]
+    #: Set when fewer than :data:`MIN_STREAKS` streaks agreed with the model (the count): the
+    #: last round fitted every streak and the fit has failed.
+    n_agree: int | None = None
 
 
 def _track_errors(md: Mode, theta: np.ndarray, tracks: StreakSet) -> np.ndarray:
@@ -311,6 +314,7 @@ def fine_fit(
     lm: LMResult | None = None
     rho = np.zeros(0)
     thr = thr_t = float("nan")
+    n_agree: int | None = None
     for round_ in range(3):
         changed = 0
         new_inl = inl
@@ -332,9 +336,10 @@ def fine_fit(
             break  # the inlier sets have settled
         inl, tinl = new_inl, new_tinl
         if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
-            raise CalibError(
-                f"only {np.count_nonzero(inl)} streaks agree with the model: the data contradict it"
-            )
+            # Too few streaks agree to fit: a fit quality, not an input error. One last round
+            # over every streak gives the summary an estimate; the status says failed.
+            n_agree = int(np.count_nonzero(inl))
+            inl = np.ones(len(train), dtype=bool)
         parts, errors = [], []
         if use_ep:
             parts.append(train.subset(inl))
@@ -357,6 +362,8 @@ def fine_fit(
         )
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         rounds.append(lm.iterations)
+        if n_agree is not None:
+            break
     assert lm is not None  # round 1 always runs
     if not (use_ep and settled):
         # Endpoint errors at the final theta (the loop's are of the previous round's).
@@ -369,5 +376,5 @@ def fine_fit(
         inl = rho <= thr
     return Fine(
         theta, train, inl, tinl, reoriented, converged, fitset, lm, iters, tuple(rounds), rho,
-        (thr, thr_t),
+        (thr, thr_t), n_agree,
     )  # fmt: skip
