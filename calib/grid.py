@@ -52,8 +52,8 @@ from calib.problem import CA_OPS
 #: Grid step (s) of the orientation integration: half the 1 ms sub-step of the per-streak
 #: model, fixed in IMU time (nodes at multiples of it), whatever the gyro's rate.
 GRID_STEP_S = 5e-4
-#: How :meth:`GridEvaluator._map` evaluates the residuals (CasADi ``Function.map``).
-MAP_PARALLELISM = "serial"
+#: Residuals per call of the mapped Jacobian function (:meth:`GridEvaluator._map`).
+MAP_CHUNK = 2048
 #: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
 N_DATA = 6 + 9 + 27 + 9 + 3 + 3
 
@@ -103,8 +103,7 @@ class GridEvaluator:
         self._thc = ca.SX.sym("theta_c", N_THETA)
         self._d = ca.SX.sym("d", N_DATA)
         self._r = self._residual_sx()
-        self._funcs: dict[tuple[int, ...], ca.Function] = {}
-        self._maps: dict[tuple[tuple[int, ...], int], ca.Function] = {}
+        self._maps: dict[tuple[int, ...], ca.Function] = {}
 
     # ------------------------------------------------------------------ grid
     def _omega(
@@ -131,8 +130,9 @@ class GridEvaluator:
             cols = ph_mid.reshape(3, 3, -1)  # [row r, column i, cell]
             ca_cells = cols[:, :, None, :] * wm_mid.T[None, None, :, :]  # (r, i, j, cell)
             cells = np.concatenate([ph_mid, ca_cells.reshape(27, -1)], axis=0)  # (36, M)
-            cum = np.zeros((36, cells.shape[1] + 1))
-            np.cumsum(cells, axis=1, out=cum[:, 1:])
+            # Node-major (M + 1, 36): a look-up gathers contiguous rows.
+            cum = np.zeros((cells.shape[1] + 1, 36))
+            np.cumsum(cells.T, axis=0, out=cum[1:])
             out["cum"] = cum
         return out
 
@@ -155,7 +155,8 @@ class GridEvaluator:
         i = np.floor(pos).astype(np.int64)
         f = pos - i
         cum = grid["cum"]
-        return cum[:, i] * (1 - f) + cum[:, i + 1] * f
+        lo, hi = cum[i], cum[i + 1]
+        return (lo + (hi - lo) * f[:, None]).T
 
     def _times(self, theta: np.ndarray, streaks: StreakSet) -> tuple[np.ndarray, np.ndarray]:
         rows = streaks.rows / self.height
@@ -235,22 +236,17 @@ class GridEvaluator:
         u, v = project_c(X, Y, Z, K, self.dist)
         return ca.vertcat(u - ex, v - ey)
 
-    def _map(self, free: tuple[int, ...], n: int) -> ca.Function:
-        """The Jacobian function of ``free`` mapped over ``n`` residuals; the symbolic
-        Jacobian is built once per free set (a refit on more residuals only re-maps it)."""
-        key = (free, n)
-        if key not in self._maps:
-            if free not in self._funcs:
-                J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
-                self._funcs[free] = ca.Function(
-                    "calib_grid_jac", [self._th, self._thc, self._d], [self._r, J]
-                )
-            self._maps = {k: v for k, v in self._maps.items() if k[0] == free}
+    def _map(self, free: tuple[int, ...]) -> tuple[Any, Any]:
+        """Buffer and runner of the Jacobian function of ``free`` mapped over
+        :data:`MAP_CHUNK` residuals, built once per free set (CasADi's ``Function.map``
+        costs about 16 µs per mapped residual to build: over every residual of a fit it
+        cost more than an evaluation, and a new track count rebuilt it)."""
+        if free not in self._maps:
+            J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
+            f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
             # theta and theta_c are shared by every residual (not repeated).
-            self._maps[key] = self._funcs[free].map(
-                "calib_grid_jac_map", MAP_PARALLELISM, n, [0, 1], []
-            )
-        return self._maps[key]
+            self._maps[free] = f.map("calib_grid_jac_map", "serial", MAP_CHUNK, [0, 1], [])
+        return self._maps[free].buffer()
 
     def _data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
         """``(N_DATA, N)``: points, normalised rows, ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``,
@@ -289,18 +285,31 @@ class GridEvaluator:
         n = len(streaks)
         data = self._data(theta, streaks)
         p = len(free)
-        # Zero-copy call through CasADi's buffers (column-major (k, n) is C-order (n, k));
-        # converting numpy arrays to and from DM cost 20x the evaluation itself.
-        buf, run = self._map(tuple(free), n).buffer()
+        # Zero-copy calls through CasADi's buffers (column-major (k, n) is C-order (n, k));
+        # converting numpy arrays to and from DM cost 20x the evaluation itself. Chunks of
+        # MAP_CHUNK residuals are bound in place; the last one is padded with copies of the
+        # last residual.
+        buf, run = self._map(tuple(free))
         th = np.ascontiguousarray(theta)
         d = np.ascontiguousarray(data.T)
         r = np.zeros((n, 2))
         J = np.zeros((n * p, 2))
-        for k, a in enumerate((th, th, d)):
-            buf.set_arg(k, memoryview(a))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
-        buf.set_res(0, memoryview(r))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
-        buf.set_res(1, memoryview(J))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
-        run()
+        buf.set_arg(0, memoryview(th))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
+        buf.set_arg(1, memoryview(th))  # type: ignore[call-arg, arg-type]
+        m = MAP_CHUNK
+        for i0 in range(0, n, m):
+            i1 = min(i0 + m, n)
+            if i1 - i0 == m:
+                d_k, r_k, J_k = d[i0:i1], r[i0:i1], J[i0 * p : i1 * p]
+            else:
+                d_k = np.concatenate([d[i0:i1], np.repeat(d[i1 - 1 : i1], m - (i1 - i0), 0)])
+                r_k, J_k = np.zeros((m, 2)), np.zeros((m * p, 2))
+            buf.set_arg(2, memoryview(d_k))  # type: ignore[call-arg, arg-type]
+            buf.set_res(0, memoryview(r_k))  # type: ignore[call-arg, arg-type]
+            buf.set_res(1, memoryview(J_k))  # type: ignore[call-arg, arg-type]
+            run()
+            if i1 - i0 < m:
+                r[i0:i1], J[i0 * p : i1 * p] = r_k[: i1 - i0], J_k[: (i1 - i0) * p]
         # J is the (2, n p) column-major block row: residual n's (2, p) block at columns n p…
         full = np.zeros((n, 2, N_THETA))
         full[:, :, list(free)] = J.reshape(n, p, 2).transpose(0, 2, 1)

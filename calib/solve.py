@@ -19,6 +19,7 @@ from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.jacobian import JacobianEvaluator as JacobianEvaluator  # re-exported
 from calib.params import THETA_NAMES, bounded_step
+from calib.uncertainty import information
 
 
 class Evaluator(Protocol):
@@ -181,9 +182,8 @@ def levenberg_marquardt(
         r, J = ev.evaluate(theta, streaks, tuple(free))
         state["r"], state["J"] = r, J
         w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
-        Jf = J[:, :, fr]
-        A = np.einsum("n,nki,nkj->ij", w, Jf, Jf)
-        g = np.einsum("n,nki,nk->i", w, Jf, r)
+        A = information(J, w, tuple(free))
+        g = (J[:, :, fr] * w[:, None, None]).reshape(-1, len(fr)).T @ r.reshape(-1)
         # A new centre-line association changes the cost at the same parameters.
         return A, g, cost_of(r)
 

@@ -228,7 +228,7 @@ def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
     use_ep = mode in ("endpoints", "both")
     tracks = None
     if mode != "endpoints":
-        tracks, _ = build_tracks(model, co.theta, train)
+        tracks, _ = build_tracks(co.ev, co.theta, train)
         if len(tracks) < MIN_STREAKS and options.residuals == "auto":
             warnings.append(
                 f"only {len(tracks)} inter-frame tracks paired up (consecutive "

@@ -107,3 +107,24 @@ def test_grid_jacobian_matches_finite_differences(setup) -> None:
         # piecewise constant in time): exact to the quadrature, 1e-3 relative.
         tol = 3e-3 if i in (LAYOUT["timeshift_s"], LAYOUT["readout_s"]) else 3e-4
         assert np.max(np.abs(fd - J[:, :, i])) <= tol * np.max(np.abs(fd)), i
+
+
+def test_jacobian_in_chunks_equals_one_call(setup, monkeypatch) -> None:
+    # The mapped Jacobian runs in chunks of MAP_CHUNK residuals, the last padded: chunking
+    # must not change a single value (negative control: another theta does).
+    import calib.grid as grid
+
+    p, g = setup
+    s = p.streaks
+    th = _random_theta(p, np.random.default_rng(3))
+    free = tuple(range(N_THETA))
+    assert len(s) < grid.MAP_CHUNK
+    r1, J1 = GridEvaluator(g, p.initial.R_cam_imu, (), 720).evaluate(th, s, free)
+    monkeypatch.setattr(grid, "MAP_CHUNK", 37)  # several full chunks and a padded one
+    assert len(s) % 37
+    ev = GridEvaluator(g, p.initial.R_cam_imu, (), 720)
+    r2, J2 = ev.evaluate(th, s, free)
+    np.testing.assert_array_equal(r1, r2)
+    np.testing.assert_array_equal(J1, J2)
+    _, J3 = ev.evaluate(_random_theta(p, np.random.default_rng(4)), s, free)
+    assert not np.allclose(J1, J3)
