@@ -172,7 +172,7 @@ def _refit(
     theta = np.array([res.values[n] for n in THETA_NAMES])
     full = stages.all_frames(prep)
     co_all = replace(co, theta=theta, iterations=0, warnings=())
-    md_all = stages.choose_mode(full, co_all, replace(options, residuals=md.mode))
+    md_all = stages.choose_mode(full, co_all, replace(options, residuals=md.mode), md.ev_fine)
     md_all = replace(md_all, warnings=())
     fine_all = stages.fine_fit(full, co_all, md_all, options, rep, warm=fine.thresholds)
     return _finish(full, ini, co_all, md_all, fine_all, options, {}, clock, t0)

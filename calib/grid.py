@@ -54,8 +54,10 @@ from calib.problem import CA_OPS
 GRID_STEP_S = 5e-4
 #: Residuals per call of the mapped Jacobian function (:meth:`GridEvaluator._map`).
 MAP_CHUNK = 2048
+#: Data of one warped point (see :meth:`GridEvaluator._block`).
+N_BLOCK = 9 + 27 + 9 + 3 + 3
 #: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
-N_DATA = 6 + 9 + 27 + 9 + 3 + 3
+N_DATA = 6 + N_BLOCK
 
 
 def _mat(a: np.ndarray) -> tuple:
@@ -81,10 +83,12 @@ def prefix_products(steps: np.ndarray) -> np.ndarray:
 class GridEvaluator:
     """Residuals ``(N, 2)`` and Jacobians ``(N, 2, N_THETA)`` of streak sets (endpoint form
     of :func:`calib.problem.endpoint_residual`, any ``StreakSet``, tracks included) by the
-    grid integration of the module docstring. Interface of :class:`calib.jacobian.
-    JacobianEvaluator` (``residual``, ``evaluate``, ``n_residuals``)."""
+    grid integration of the module docstring (``residual``, ``evaluate``, ``n_residuals``:
+    :class:`calib.solve.Evaluator`)."""
 
+    #: Residual values and SX data columns per residual (a subclass may add more).
     n_residuals = 2
+    n_data = N_DATA
 
     def __init__(
         self,
@@ -101,7 +105,7 @@ class GridEvaluator:
         self.h = float(step_s)
         self._th = ca.SX.sym("theta", N_THETA)
         self._thc = ca.SX.sym("theta_c", N_THETA)
-        self._d = ca.SX.sym("d", N_DATA)
+        self._d = ca.SX.sym("d", self.n_data)
         self._r = self._residual_sx()
         self._maps: dict[tuple[int, ...], ca.Function] = {}
 
@@ -166,14 +170,18 @@ class GridEvaluator:
         return tau_a, tau_b
 
     # -------------------------------------------------------------- residual
-    def _warp(self, theta: np.ndarray, streaks: StreakSet, Q: tuple, ops: Any = NUMPY_OPS):
+    def _project(self, theta: np.ndarray, x: np.ndarray, y: np.ndarray, Q: tuple):
+        """Points ``(x, y)`` carried by the relative gyro-frame rotation ``Q`` (9-tuple)."""
         wx, wy, wz = theta[LAYOUT["rotation"]]
-        R = matmul3(so3_exp_c(wx, wy, wz, ops), constant_mat3(self.R0_cam_imu))
+        R = matmul3(so3_exp_c(wx, wy, wz, NUMPY_OPS), constant_mat3(self.R0_cam_imu))
         R_cam = matmul3(matmul3(R, Q), transpose3(R))
         K = tuple(theta[LAYOUT["intrinsics"]])
-        ray = unproject_c(streaks.start[:, 0], streaks.start[:, 1], K, self.dist)
+        ray = unproject_c(x, y, K, self.dist)
         X, Y, Z = matvec3(transpose3(R_cam), ray)
-        u, v = project_c(X, Y, Z, K, self.dist)
+        return project_c(X, Y, Z, K, self.dist)
+
+    def _warp(self, theta: np.ndarray, streaks: StreakSet, Q: tuple) -> np.ndarray:
+        u, v = self._project(theta, streaks.start[:, 0], streaks.start[:, 1], Q)
         return np.stack([u - streaks.end[:, 0], v - streaks.end[:, 1]], axis=1)
 
     def _relative(self, theta: np.ndarray, streaks: StreakSet, integrals: bool):
@@ -193,15 +201,10 @@ class GridEvaluator:
         return self._warp(np.asarray(theta, float), streaks, _mat(Q))
 
     # -------------------------------------------------------------- jacobian
-    def _residual_sx(self) -> ca.SX:
-        th, thc, d = self._th, self._thc, self._d
+    def _sx_common(self) -> dict[str, Any]:
+        """Terms of the SX residual shared by every warped point of a residual."""
+        th, thc = self._th, self._thc
         L = LAYOUT
-        sx, sy, ex, ey, ya, yb = (d[i] for i in range(6))
-        Qc = cast(Mat3, tuple(d[6 + i] for i in range(9)))
-        GA = [[d[15 + 9 * r + k] for k in range(9)] for r in range(3)]  # δφ_r / δA_(i,j)
-        Gc = [[d[42 + 3 * r + k] for k in range(3)] for r in range(3)]
-        wb = [d[51 + r] for r in range(3)]
-        qwa = [d[54 + r] for r in range(3)]  # Q_cᵀ ω(τ_a)
 
         def affine(t: ca.SX) -> tuple[tuple, list]:
             A = inverse3(scale_tuple(t))
@@ -211,29 +214,52 @@ class GridEvaluator:
 
         A, c = affine(th)
         Ac, cc = affine(thc)
-        dA = [A[k] - Ac[k] for k in range(9)]
-        dc = [c[k] - cc[k] for k in range(3)]
         i_sh, i_ro = L["timeshift_s"], L["readout_s"]
-        d_sh, d_ro = th[i_sh] - thc[i_sh], th[i_ro] - thc[i_ro]
-        dta, dtb = d_sh + d_ro * ya, d_sh + d_ro * yb
-        phi = [
-            sum(GA[r][k] * dA[k] for k in range(9))
-            + sum(Gc[r][k] * dc[k] for k in range(3))
-            + wb[r] * dtb
-            - qwa[r] * dta
-            for r in range(3)
-        ]
-        Q = matmul3(Qc, so3_exp_c(phi[0], phi[1], phi[2], CA_OPS))
         rot = L["rotation"]
         R = matmul3(
             so3_exp_c(th[rot.start], th[rot.start + 1], th[rot.start + 2], CA_OPS),
             constant_mat3(self.R0_cam_imu),
         )
+        return {
+            "dA": [A[k] - Ac[k] for k in range(9)],
+            "dc": [c[k] - cc[k] for k in range(3)],
+            "d_sh": th[i_sh] - thc[i_sh],
+            "d_ro": th[i_ro] - thc[i_ro],
+            "R": R,
+            "K": tuple(th[i] for i in range(L["intrinsics"].start, L["intrinsics"].stop)),
+        }
+
+    def _warp_sx(
+        self, cm: dict[str, Any], sx: Any, sy: Any, ya: Any, yk: Any, blk: list
+    ) -> tuple[Any, Any]:
+        """The start ``(sx, sy)`` (row ``ya``) warped to a point of row time ``yk`` whose
+        :data:`N_BLOCK` data ``blk`` are :meth:`_block`'s: ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``,
+        ``ω(τ_k)``, ``Q_cᵀ ω(τ_a)``."""
+        Qc = cast(Mat3, tuple(blk[i] for i in range(9)))
+        GA = [[blk[9 + 9 * r + k] for k in range(9)] for r in range(3)]  # δφ_r / δA_(i,j)
+        Gc = [[blk[36 + 3 * r + k] for k in range(3)] for r in range(3)]
+        wk = [blk[45 + r] for r in range(3)]
+        qwa = [blk[48 + r] for r in range(3)]
+        dta, dtk = cm["d_sh"] + cm["d_ro"] * ya, cm["d_sh"] + cm["d_ro"] * yk
+        phi = [
+            sum(GA[r][k] * cm["dA"][k] for k in range(9))
+            + sum(Gc[r][k] * cm["dc"][k] for k in range(3))
+            + wk[r] * dtk
+            - qwa[r] * dta
+            for r in range(3)
+        ]
+        Q = matmul3(Qc, so3_exp_c(phi[0], phi[1], phi[2], CA_OPS))
+        R = cm["R"]
         R_cam = matmul3(matmul3(R, Q), transpose3(R))
-        K = tuple(th[i] for i in range(L["intrinsics"].start, L["intrinsics"].stop))
-        ray = unproject_c(sx, sy, K, self.dist)
+        ray = unproject_c(sx, sy, cm["K"], self.dist)
         X, Y, Z = matvec3(transpose3(R_cam), ray)
-        u, v = project_c(X, Y, Z, K, self.dist)
+        return project_c(X, Y, Z, cm["K"], self.dist)
+
+    def _residual_sx(self) -> ca.SX:
+        """The endpoint residual of one streak / track (data layout of :meth:`_data`)."""
+        d = self._d
+        sx, sy, ex, ey, ya, yb = (d[i] for i in range(6))
+        u, v = self._warp_sx(self._sx_common(), sx, sy, ya, yb, [d[6 + i] for i in range(N_BLOCK)])
         return ca.vertcat(u - ex, v - ey)
 
     def _map(self, free: tuple[int, ...]) -> tuple[Any, Any]:
@@ -242,39 +268,44 @@ class GridEvaluator:
         costs about 16 µs per mapped residual to build: over every residual of a fit it
         cost more than an evaluation, and a new track count rebuilt it)."""
         if free not in self._maps:
-            J = ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free]))
+            # Dense: the buffers are laid out as dense blocks.
+            J = ca.densify(ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free])))
             f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
             # theta and theta_c are shared by every residual (not repeated).
             self._maps[free] = f.map("calib_grid_jac_map", "serial", MAP_CHUNK, [0, 1], [])
         return self._maps[free].buffer()
 
-    def _data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
-        """``(N_DATA, N)``: points, normalised rows, ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``,
-        ``ω(τ_b)``, ``Q_cᵀ ω(τ_a)``."""
-        grid, tau_a, tau_b, Pb, Q, wa, wb = self._relative(theta, streaks, True)
-        dcum = self._cum_at(grid, tau_b) - self._cum_at(grid, tau_a)  # (36, N)
-        PbT = Pb.reshape(3, 3, -1)  # [row, col, n]: δφ = Φ_bᵀ ∫ …
+    def _block(
+        self,
+        grid: dict[str, Any],
+        tau_a: np.ndarray,
+        Pa: np.ndarray,
+        wa: np.ndarray,
+        tau_k: np.ndarray,
+    ) -> np.ndarray:
+        """``(N_BLOCK, N)`` data of a point warped from ``τ_a`` to ``τ_k`` (:meth:`_warp_sx`):
+        ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``, ``ω(τ_k)``, ``Q_cᵀ ω(τ_a)``."""
+        Pk, wk = self._at(grid, tau_k)
+        Q = np.stack(matmul3(transpose3(_mat(Pa)), _mat(Pk)))
+        dcum = self._cum_at(grid, tau_k) - self._cum_at(grid, tau_a)  # (36, N)
+        PkT = Pk.reshape(3, 3, -1)  # [row, col, n]: δφ = Φ_kᵀ ∫ …
         I_phi = dcum[:9].reshape(3, 3, -1)  # [row r, col i]
         I_A = dcum[9:].reshape(3, 3, 3, -1)  # [row r, col i, j]
-        # δφ_s = Σ_r Φ_b[r, s] ∫ (Φ δω)_r,  (Φ δω)_r = Σ_ij Φ[r, i] (δA_ij ω_j + δc_i δ_ij)
-        Gc = np.einsum("rsn,rin->sin", PbT, I_phi).reshape(9, -1)
-        GA = np.einsum("rsn,rijn->sijn", PbT, I_A).reshape(27, -1)
-        Qm = Q.reshape(3, 3, -1)
-        qwa = np.einsum("arn,na->rn", Qm, wa)
+        # δφ_s = Σ_r Φ_k[r, s] ∫ (Φ δω)_r,  (Φ δω)_r = Σ_ij Φ[r, i] (δA_ij ω_j + δc_i δ_ij)
+        Gc = np.einsum("rsn,rin->sin", PkT, I_phi).reshape(9, -1)
+        GA = np.einsum("rsn,rijn->sijn", PkT, I_A).reshape(27, -1)
+        qwa = np.einsum("arn,na->rn", Q.reshape(3, 3, -1), wa)
+        return np.concatenate([Q, GA, Gc, wk.T, qwa], axis=0)
+
+    def _data(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
+        """``(N_DATA, N)``: points, normalised rows, then the end's :meth:`_block`."""
+        theta = np.asarray(theta, float)
+        tau_a, tau_b = self._times(theta, streaks)
+        grid = self._grid(theta, np.concatenate([tau_a, tau_b]), True)
+        Pa, wa = self._at(grid, tau_a)
         rows = streaks.rows / self.height
-        return np.concatenate(
-            [
-                streaks.start.T,
-                streaks.end.T,
-                rows.T,
-                Q,
-                GA,
-                Gc,
-                wb.T,
-                qwa,
-            ],
-            axis=0,
-        )
+        head = [streaks.start.T, streaks.end.T, rows.T]
+        return np.concatenate([*head, self._block(grid, tau_a, Pa, wa, tau_b)], axis=0)
 
     def evaluate(
         self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...] = tuple(range(N_THETA))
@@ -292,8 +323,9 @@ class GridEvaluator:
         buf, run = self._map(tuple(free))
         th = np.ascontiguousarray(theta)
         d = np.ascontiguousarray(data.T)
-        r = np.zeros((n, 2))
-        J = np.zeros((n * p, 2))
+        k = self.n_residuals
+        r = np.zeros((n, k))
+        J = np.zeros((n * p, k))
         buf.set_arg(0, memoryview(th))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
         buf.set_arg(1, memoryview(th))  # type: ignore[call-arg, arg-type]
         m = MAP_CHUNK
@@ -303,7 +335,7 @@ class GridEvaluator:
                 d_k, r_k, J_k = d[i0:i1], r[i0:i1], J[i0 * p : i1 * p]
             else:
                 d_k = np.concatenate([d[i0:i1], np.repeat(d[i1 - 1 : i1], m - (i1 - i0), 0)])
-                r_k, J_k = np.zeros((m, 2)), np.zeros((m * p, 2))
+                r_k, J_k = np.zeros((m, k)), np.zeros((m * p, k))
             buf.set_arg(2, memoryview(d_k))  # type: ignore[call-arg, arg-type]
             buf.set_res(0, memoryview(r_k))  # type: ignore[call-arg, arg-type]
             buf.set_res(1, memoryview(J_k))  # type: ignore[call-arg, arg-type]
@@ -311,6 +343,6 @@ class GridEvaluator:
             if i1 - i0 < m:
                 r[i0:i1], J[i0 * p : i1 * p] = r_k[: i1 - i0], J_k[: (i1 - i0) * p]
         # J is the (2, n p) column-major block row: residual n's (2, p) block at columns n p…
-        full = np.zeros((n, 2, N_THETA))
-        full[:, :, list(free)] = J.reshape(n, p, 2).transpose(0, 2, 1)
+        full = np.zeros((n, k, N_THETA))
+        full[:, :, list(free)] = J.reshape(n, p, k).transpose(0, 2, 1)
         return r, full

@@ -1,10 +1,11 @@
 """Robust Levenberg–Marquardt on CasADi's exact Jacobian (Gauss–Newton Hessian ``JᵀWJ``).
 
-Jacobians come from :class:`calib.jacobian.JacobianEvaluator` (one SX function per streak,
-mapped over the streaks). The robust loss is pseudo-Huber on each streak's error
-``ρ = |r|`` (its endpoint residual, and its weighted centre-line residuals when used):
-``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted Gauss–Newton with weights
-``1 / sqrt(1 + (ρ/δ)²)``.
+Residuals and Jacobians come from :class:`calib.grid.GridEvaluator` (orientation integrated
+once per evaluation on a fixed grid; one small SX function per residual, mapped), with
+centre lines :class:`calib.centreline.CentreGridEvaluator`. The robust loss is pseudo-Huber
+on each streak's error ``ρ = |r|`` (its endpoint residual, and its weighted centre-line
+residuals when used): ``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted
+Gauss–Newton with weights ``1 / sqrt(1 + (ρ/δ)²)``.
 """
 
 from __future__ import annotations
@@ -17,14 +18,13 @@ import numpy as np
 
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.jacobian import JacobianEvaluator as JacobianEvaluator  # re-exported
 from calib.params import THETA_NAMES, bounded_step
 from calib.uncertainty import information
 
 
 class Evaluator(Protocol):
     """What the solver needs of a residual model (:class:`calib.grid.GridEvaluator`,
-    :class:`calib.jacobian.JacobianEvaluator`)."""
+    :class:`calib.centreline.CentreGridEvaluator`)."""
 
     def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray: ...
 

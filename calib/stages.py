@@ -13,6 +13,7 @@ from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib import init as init_mod
 from calib import uncertainty
+from calib.centreline import CentreGridEvaluator
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import (
@@ -33,7 +34,7 @@ from calib.fitcore import (
 from calib.grid import GridEvaluator
 from calib.params import GROUPS, LAYOUT, THETA_NAMES, symmetric_scale_form, theta_from
 from calib.problem import ResidualModel, choose_substeps
-from calib.solve import JacobianEvaluator, LMResult, levenberg_marquardt
+from calib.solve import LMResult, levenberg_marquardt
 from calib.tracks import build_tracks, concat
 
 
@@ -205,12 +206,16 @@ class Mode:
     use_ep: bool
     tracks: StreakSet | None
     model: ResidualModel
-    ev_fine: GridEvaluator | JacobianEvaluator
+    ev_fine: GridEvaluator
     warnings: tuple[str, ...]
 
 
-def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
-    """Resolve ``FitOptions.residuals`` and build the inter-frame tracks it asks for."""
+def choose_mode(
+    prep: Prepared, co: Coarse, options: FitOptions, reuse: GridEvaluator | None = None
+) -> Mode:
+    """Resolve ``FitOptions.residuals`` and build the inter-frame tracks it asks for;
+    ``reuse``: the final stage's evaluator of an earlier fit (a refit: its CasADi functions
+    are built already)."""
     warnings: list[str] = []
     train, cam, model = prep.train, prep.initial.camera, prep.model
     mode = options.residuals
@@ -253,9 +258,13 @@ def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
             prep.g, prep.initial.R_cam_imu, cam.dist, cam.height,
             choose_substeps(both, cam.height, prep.readout_bound),
         )  # fmt: skip
-    ev_fine: GridEvaluator | JacobianEvaluator = co.ev
-    if options.centreline and prep.streaks.centre is not None:
-        ev_fine = JacobianEvaluator(model, prep.streaks.centre.shape[1])
+    ev_fine: GridEvaluator = co.ev if reuse is None else reuse
+    if reuse is None and options.centreline and prep.streaks.centre is not None:
+        cam = prep.initial.camera
+        ev_fine = CentreGridEvaluator(
+            prep.g, prep.initial.R_cam_imu, cam.dist, cam.height, model.n_sub,
+            prep.streaks.centre.shape[1],
+        )  # fmt: skip
     return Mode(mode, use_ep, tracks, model, ev_fine, tuple(warnings))
 
 

@@ -207,7 +207,7 @@ def test_gyro_scale_fit_removes_the_focal_bias() -> None:
 def test_scale_check_flags_a_large_unfitted_scale() -> None:
     from calib.data import relative_gyro
     from calib.fit import scale_check
-    from calib.jacobian import JacobianEvaluator
+    from calib.grid import GridEvaluator
     from calib.params import theta_from as th_of
     from calib.problem import ResidualModel, choose_substeps
 
@@ -221,7 +221,7 @@ def test_scale_check_flags_a_large_unfitted_scale() -> None:
         720,
         choose_substeps(s, 720, 0.05),
     )
-    ev = JacobianEvaluator(model)
+    ev = GridEvaluator(model.gyro, model.R0_cam_imu, (), 720)
     free = tuple(range(12))
     w = np.ones(len(s))
     assert any("scale" in m for m in scale_check(ev, th_of(p.truth), s, w, free))
