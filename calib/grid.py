@@ -159,8 +159,11 @@ class GridEvaluator:
         i = np.floor(pos).astype(np.int64)
         f = pos - i
         cum = grid["cum"]
-        lo, hi = cum[i], cum[i + 1]
-        return (lo + (hi - lo) * f[:, None]).T
+        lo, out = cum[i], cum[i + 1]
+        out -= lo  # in place: these are (N, 36) arrays, allocation dominates
+        out *= f[:, None]
+        out += lo
+        return out.T
 
     def _times(self, theta: np.ndarray, streaks: StreakSet) -> tuple[np.ndarray, np.ndarray]:
         rows = streaks.rows / self.height
@@ -287,7 +290,8 @@ class GridEvaluator:
         ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``, ``ω(τ_k)``, ``Q_cᵀ ω(τ_a)``."""
         Pk, wk = self._at(grid, tau_k)
         Q = np.stack(matmul3(transpose3(_mat(Pa)), _mat(Pk)))
-        dcum = self._cum_at(grid, tau_k) - self._cum_at(grid, tau_a)  # (36, N)
+        dcum = self._cum_at(grid, tau_k)
+        dcum -= self._cum_at(grid, tau_a)  # (36, N)
         PkT = Pk.reshape(3, 3, -1)  # [row, col, n]: δφ = Φ_kᵀ ∫ …
         I_phi = dcum[:9].reshape(3, 3, -1)  # [row r, col i]
         I_A = dcum[9:].reshape(3, 3, 3, -1)  # [row r, col i, j]
