@@ -34,6 +34,7 @@ from blurtrack.geometry.kernels import matmul3, transpose3
 from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.grid import GRID_STEP_S, N_BLOCK, N_DATA, GridEvaluator, _mat
+from calib.params import N_THETA
 from calib.problem import CA_OPS
 
 #: Interior centre-line points per streak.
@@ -148,6 +149,13 @@ class CentreGridEvaluator(GridEvaluator):
             c = o + 2 * (1 + N_BLOCK)
             out.append(factor * perpendicular(ax, ay, bx, by, d[c], d[c + 1], CA_OPS))
         return ca.vertcat(*out)
+
+    def evaluate(
+        self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...] = tuple(range(N_THETA))
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(N, 2 + K)`` and Jacobian ``(N, 2 + K, N_THETA)``; associates the
+        centre points with the track at ``theta``."""
+        return self._evaluate_full(theta, streaks, free)
 
     def _centre(self, streaks: StreakSet) -> np.ndarray:
         if streaks.centre is None or streaks.centre.shape[1] != self.centre_k:

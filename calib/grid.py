@@ -46,7 +46,7 @@ from blurtrack.geometry.kernels import (
     unproject_c,
 )
 from calib.data import StreakSet
-from calib.params import LAYOUT, N_THETA, inverse3, scale_tuple
+from calib.params import LAYOUT, N_THETA, SCALE_ENTRIES, inverse3, scale_tuple
 from calib.problem import CA_OPS
 
 #: Grid step (s) of the orientation integration: half the 1 ms sub-step of the per-streak
@@ -58,6 +58,8 @@ MAP_CHUNK = 2048
 N_BLOCK = 9 + 27 + 9 + 3 + 3
 #: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
 N_DATA = 6 + N_BLOCK
+#: Inputs ``z = (δφ, rot, K)`` of the chain-rule Jacobian (:meth:`GridEvaluator.evaluate`).
+N_Z = 10
 
 
 def _mat(a: np.ndarray) -> tuple:
@@ -106,8 +108,9 @@ class GridEvaluator:
         self._th = ca.SX.sym("theta", N_THETA)
         self._thc = ca.SX.sym("theta_c", N_THETA)
         self._d = ca.SX.sym("d", self.n_data)
-        self._r = self._residual_sx()
+        self._r: ca.SX | None = None  # built when first needed (:meth:`_map`)
         self._maps: dict[tuple[int, ...], ca.Function] = {}
+        self._zmap: ca.Function | None = None
 
     # ------------------------------------------------------------------ grid
     def _omega(
@@ -265,18 +268,19 @@ class GridEvaluator:
         u, v = self._warp_sx(self._sx_common(), sx, sy, ya, yb, [d[6 + i] for i in range(N_BLOCK)])
         return ca.vertcat(u - ex, v - ey)
 
-    def _map(self, free: tuple[int, ...]) -> tuple[Any, Any]:
-        """Buffer and runner of the Jacobian function of ``free`` mapped over
-        :data:`MAP_CHUNK` residuals, built once per free set (CasADi's ``Function.map``
-        costs about 16 µs per mapped residual to build: over every residual of a fit it
-        cost more than an evaluation, and a new track count rebuilt it)."""
+    def _map(self, free: tuple[int, ...]) -> ca.Function:
+        """The SX function of every parameter's Jacobian over ``free`` (:meth:`_residual_sx`),
+        mapped over :data:`MAP_CHUNK` residuals, built once per free set (CasADi's
+        ``Function.map`` costs about 16 µs per mapped residual to build: over every residual
+        of a fit it cost more than an evaluation, and a new track count rebuilt it)."""
         if free not in self._maps:
-            # Dense: the buffers are laid out as dense blocks.
+            if self._r is None:
+                self._r = self._residual_sx()
             J = ca.densify(ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free])))
             f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
             # theta and theta_c are shared by every residual (not repeated).
             self._maps[free] = f.map("calib_grid_jac_map", "serial", MAP_CHUNK, [0, 1], [])
-        return self._maps[free].buffer()
+        return self._maps[free]
 
     def _block(
         self,
@@ -311,42 +315,120 @@ class GridEvaluator:
         head = [streaks.start.T, streaks.end.T, rows.T]
         return np.concatenate([*head, self._block(grid, tau_a, Pa, wa, tau_b)], axis=0)
 
+    def _evaluate_full(
+        self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals and Jacobian by the SX function of every parameter
+        (:meth:`_residual_sx`, data :meth:`_data`): the form a subclass with more residuals
+        per streak uses."""
+        theta = np.asarray(theta, float)
+        n, p, k = len(streaks), len(free), self.n_residuals
+        th = np.ascontiguousarray(theta)
+        r, J = _run_mapped(self._map(tuple(free)), [th, th], self._data(theta, streaks).T, k, p)
+        full = np.zeros((n, k, N_THETA))
+        full[:, :, list(free)] = J.reshape(n, p, k).transpose(0, 2, 1)
+        return r, full
+
+    def _dphi(self, theta: np.ndarray, streaks: StreakSet, blk: np.ndarray) -> np.ndarray:
+        """``∂δφ/∂θ`` ``(N, 3, N_THETA)`` of the end rotation's correction (module docstring):
+        linear in ``δA``, ``δc`` and the end times, whose derivatives in θ are the same for
+        every residual (``δA = −A δS A``, ``c = −A b``)."""
+        n = len(streaks)
+        A = np.array(inverse3(scale_tuple(theta))).reshape(3, 3)
+        b = theta[LAYOUT["bias"]]
+        dA = np.zeros((9, N_THETA))
+        dc = np.zeros((3, N_THETA))
+        dc[:, LAYOUT["bias"]] = -A
+        for e, (r_, c_) in enumerate(SCALE_ENTRIES):
+            dS = np.zeros((3, 3))
+            dS[r_, c_] = dS[c_, r_] = 1.0
+            dA_e = -A @ dS @ A
+            dA[:, LAYOUT["scale"].start + e] = dA_e.ravel()
+            dc[:, LAYOUT["scale"].start + e] = -dA_e @ b
+        GA = blk[9:36].reshape(3, 9, n).transpose(2, 0, 1).reshape(3 * n, 9)
+        Gc = blk[36:45].reshape(3, 3, n).transpose(2, 0, 1).reshape(3 * n, 3)
+        out = (GA @ dA + Gc @ dc).reshape(n, 3, N_THETA)
+        wk, qwa = blk[45:48].T, blk[48:51].T
+        rows = streaks.rows / self.height
+        out[:, :, LAYOUT["timeshift_s"]] += wk - qwa
+        out[:, :, LAYOUT["readout_s"]] += wk * rows[:, 1:2] - qwa * rows[:, 0:1]
+        return out
+
     def evaluate(
         self, theta: np.ndarray, streaks: StreakSet, free: tuple[int, ...] = tuple(range(N_THETA))
     ) -> tuple[np.ndarray, np.ndarray]:
         """Residuals ``(N, 2)`` and Jacobian ``(N, 2, N_THETA)`` (zero columns for fixed
-        parameters) at ``theta``."""
+        parameters) at ``theta``.
+
+        By the chain rule through ``z = (δφ, rot, K)``: one small SX function gives ``r`` and
+        ``∂r/∂z`` (2 × 10) per residual (:meth:`_z_map`), numpy ``∂δφ/∂θ`` (:meth:`_dphi`);
+        the same derivative as CasADi's of the residual in every parameter (5x fewer SX
+        instructions)."""
         theta = np.asarray(theta, float)
         n = len(streaks)
-        data = self._data(theta, streaks)
-        p = len(free)
-        # Zero-copy calls through CasADi's buffers (column-major (k, n) is C-order (n, k));
-        # converting numpy arrays to and from DM cost 20x the evaluation itself. Chunks of
-        # MAP_CHUNK residuals are bound in place; the last one is padded with copies of the
-        # last residual.
-        buf, run = self._map(tuple(free))
-        th = np.ascontiguousarray(theta)
-        d = np.ascontiguousarray(data.T)
-        k = self.n_residuals
-        r = np.zeros((n, k))
-        J = np.zeros((n * p, k))
-        buf.set_arg(0, memoryview(th))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
-        buf.set_arg(1, memoryview(th))  # type: ignore[call-arg, arg-type]
-        m = MAP_CHUNK
-        for i0 in range(0, n, m):
-            i1 = min(i0 + m, n)
-            if i1 - i0 == m:
-                d_k, r_k, J_k = d[i0:i1], r[i0:i1], J[i0 * p : i1 * p]
-            else:
-                d_k = np.concatenate([d[i0:i1], np.repeat(d[i1 - 1 : i1], m - (i1 - i0), 0)])
-                r_k, J_k = np.zeros((m, k)), np.zeros((m * p, k))
-            buf.set_arg(2, memoryview(d_k))  # type: ignore[call-arg, arg-type]
-            buf.set_res(0, memoryview(r_k))  # type: ignore[call-arg, arg-type]
-            buf.set_res(1, memoryview(J_k))  # type: ignore[call-arg, arg-type]
-            run()
-            if i1 - i0 < m:
-                r[i0:i1], J[i0 * p : i1 * p] = r_k[: i1 - i0], J_k[: (i1 - i0) * p]
-        # J is the (2, n p) column-major block row: residual n's (2, p) block at columns n p…
-        full = np.zeros((n, k, N_THETA))
-        full[:, :, list(free)] = J.reshape(n, p, k).transpose(0, 2, 1)
-        return r, full
+        tau_a, tau_b = self._times(theta, streaks)
+        grid = self._grid(theta, np.concatenate([tau_a, tau_b]), True)
+        Pa, wa = self._at(grid, tau_a)
+        blk = self._block(grid, tau_a, Pa, wa, tau_b)
+        z = np.concatenate([np.zeros(3), theta[LAYOUT["rotation"]], theta[LAYOUT["intrinsics"]]])
+        d = np.concatenate([streaks.start.T, streaks.end.T, blk[:9]], axis=0).T
+        r, Jz = _run_mapped(self._z_map(), [z], d, 2, N_Z)
+        Jz = Jz.reshape(n, N_Z, 2).transpose(0, 2, 1)  # (N, 2, N_Z)
+        J = np.matmul(Jz[:, :, :3], self._dphi(theta, streaks, blk))
+        J[:, :, LAYOUT["rotation"]] += Jz[:, :, 3:6]
+        J[:, :, LAYOUT["intrinsics"]] += Jz[:, :, 6:10]
+        fixed = [i for i in range(N_THETA) if i not in free]
+        J[:, :, fixed] = 0.0
+        return r, J
+
+    def _z_map(self) -> ca.Function:
+        """``(z, d) -> (r, ∂r/∂z)`` of one residual, ``z = (δφ, rot, K)`` (shared),
+        ``d = (start, end, Q_c)``, mapped over :data:`MAP_CHUNK` residuals (built once)."""
+        if self._zmap is None:
+            z, d = ca.SX.sym("z", N_Z), ca.SX.sym("d", 13)
+            Qc = cast(Mat3, tuple(d[4 + i] for i in range(9)))
+            Q = matmul3(Qc, so3_exp_c(z[0], z[1], z[2], CA_OPS))
+            R = matmul3(so3_exp_c(z[3], z[4], z[5], CA_OPS), constant_mat3(self.R0_cam_imu))
+            R_cam = matmul3(matmul3(R, Q), transpose3(R))
+            K = (z[6], z[7], z[8], z[9])
+            X, Y, Zc = matvec3(transpose3(R_cam), unproject_c(d[0], d[1], K, self.dist))
+            u, v = project_c(X, Y, Zc, K, self.dist)
+            r = ca.vertcat(u - d[2], v - d[3])
+            f = ca.Function("calib_grid_z", [z, d], [r, ca.densify(ca.jacobian(r, z))])
+            self._zmap = f.map("calib_grid_z_map", "serial", MAP_CHUNK, [0], [])
+        return self._zmap
+
+
+def _run_mapped(
+    mapped: ca.Function, shared: list[np.ndarray], data: np.ndarray, k: int, p: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Evaluate a function mapped over :data:`MAP_CHUNK` residuals with ``shared`` inputs (one
+    vector each) and per-residual ``data`` ``(N, n_d)``: its two outputs, ``(N, k)`` and the
+    ``(k, p)`` block of each residual as ``(N p, k)``.
+
+    Zero-copy calls through CasADi's buffers (column-major ``(k, n)`` is C-order ``(n, k)``;
+    converting numpy arrays to and from DM cost 20x the evaluation itself). Chunks are bound in
+    place; the last one is padded with copies of the last residual.
+    """
+    n, m = data.shape[0], MAP_CHUNK
+    d = np.ascontiguousarray(data)
+    shared = [np.ascontiguousarray(a, dtype=float) for a in shared]
+    r = np.zeros((n, k))
+    J = np.zeros((n * p, k))
+    buf, run = mapped.buffer()
+    for j, a in enumerate(shared):
+        buf.set_arg(j, memoryview(a))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
+    for i0 in range(0, n, m):
+        i1 = min(i0 + m, n)
+        if i1 - i0 == m:
+            d_k, r_k, J_k = d[i0:i1], r[i0:i1], J[i0 * p : i1 * p]
+        else:
+            d_k = np.concatenate([d[i0:i1], np.repeat(d[i1 - 1 : i1], m - (i1 - i0), 0)])
+            r_k, J_k = np.zeros((m, k)), np.zeros((m * p, k))
+        buf.set_arg(len(shared), memoryview(d_k))  # type: ignore[call-arg, arg-type]
+        buf.set_res(0, memoryview(r_k))  # type: ignore[call-arg, arg-type]
+        buf.set_res(1, memoryview(J_k))  # type: ignore[call-arg, arg-type]
+        run()
+        if i1 - i0 < m:
+            r[i0:i1], J[i0 * p : i1 * p] = r_k[: i1 - i0], J_k[: (i1 - i0) * p]
+    return r, J

@@ -128,3 +128,19 @@ def test_jacobian_in_chunks_equals_one_call(setup, monkeypatch) -> None:
     np.testing.assert_array_equal(J1, J2)
     _, J3 = ev.evaluate(_random_theta(p, np.random.default_rng(4)), s, free)
     assert not np.allclose(J1, J3)
+
+
+def test_chain_rule_jacobian_equals_the_full_sx_jacobian(setup) -> None:
+    # evaluate() differentiates through z = (δφ, rot, K) and chains ∂δφ/∂θ in numpy; the SX
+    # function of every parameter (the reference) must give the same residuals and Jacobian.
+    p, g = setup
+    ev = GridEvaluator(g, p.initial.R_cam_imu, (), 720)
+    th = _random_theta(p, np.random.default_rng(5))
+    free = (0, 1, 2, 5, 6, 7, 9, 12, 14, 16)
+    for s in (p.streaks, build_tracks(ev, th, p.streaks)[0]):
+        r, J = ev.evaluate(th, s, free)
+        r_ref, J_ref = ev._evaluate_full(th, s, free)
+        np.testing.assert_allclose(r, r_ref, atol=1e-9, rtol=0)
+        scale = np.max(np.abs(J_ref), axis=(0, 1)) + 1e-300
+        np.testing.assert_allclose(J / scale, J_ref / scale, atol=1e-9, rtol=0)
+        assert np.all(J[:, :, 3] == 0) and np.all(J_ref[:, :, 3] == 0)  # cx held
