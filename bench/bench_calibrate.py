@@ -121,6 +121,10 @@ def run_command(
 
     out_dir.mkdir(parents=True, exist_ok=True)
     out = out_dir / "calib.yaml"
+    # The command never overwrites its outputs: remove an earlier run's (a repeat would be
+    # refused in a second and read the earlier run's summary).
+    for old in out_dir.glob("calib*"):
+        old.unlink()
     cmd = [sys.executable, "-m", "blurtrack", "calibrate", str(user_dir), "--out", str(out)]
     cmd += extra
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -129,7 +133,10 @@ def run_command(
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
-    summary = json.loads((out_dir / "calib.summary.json").read_text())
+    if proc.returncode != 0 and not (out_dir / "calib.failed.summary.json").is_file():
+        raise RuntimeError(f"calibrate exited {proc.returncode}: {proc.stderr[-2000:]}")
+    name = "calib.summary.json" if proc.returncode == 0 else "calib.failed.summary.json"
+    summary = json.loads((out_dir / name).read_text())
     session = load_session(session_dir)
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     run: dict = {
