@@ -30,7 +30,6 @@ from blurtrack.io.calibration import Calibration
 from calib import finish, stages
 from calib.data import StreakSet
 from calib.fitcore import (
-    COARSE_SUBSTEP_S,
     FINE_DELTA_SIGMAS,
     MAX_RESIDUAL_SIGMA_PX,
     MIN_FRAMES,
@@ -57,7 +56,6 @@ from calib.params import THETA_NAMES
 from calib.result import CalibResult
 
 __all__ = [
-    "COARSE_SUBSTEP_S",
     "FINE_DELTA_SIGMAS",
     "MAX_RESIDUAL_SIGMA_PX",
     "MIN_FRAMES",

@@ -30,9 +30,6 @@ OUTLIER_SIGMAS = 5.0
 #: Floor of the outlier threshold (px): detection noise never justifies rejecting less.
 MIN_OUTLIER_PX = 0.5
 SUBSAMPLE = 2000
-#: Integration sub-step of the initialisation and subsample stages (the final stage uses
-#: blurtrack.geometry.kernels's default 1 ms).
-COARSE_SUBSTEP_S = 3e-3
 #: Robust endpoint sigma (px) above which the data are called contradictory.
 MAX_RESIDUAL_SIGMA_PX = 3.0
 MIN_INLIER_FRACTION = 0.5

@@ -54,6 +54,8 @@ from calib.problem import CA_OPS
 GRID_STEP_S = 5e-4
 #: Residuals per call of the mapped Jacobian function (:meth:`GridEvaluator._map`).
 MAP_CHUNK = 2048
+#: Margin (s) of a grid beyond the times it was built for (:meth:`GridEvaluator._grid`).
+GRID_PAD_S = 0.15
 #: Data of one warped point (see :meth:`GridEvaluator._block`).
 N_BLOCK = 9 + 27 + 9 + 3 + 3
 #: Per-residual data columns of the SX Jacobian (see :meth:`GridEvaluator._data`).
@@ -111,6 +113,7 @@ class GridEvaluator:
         self._r: ca.SX | None = None  # built when first needed (:meth:`_map`)
         self._maps: dict[tuple[int, ...], ca.Function] = {}
         self._zmap: ca.Function | None = None
+        self._last_grid: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ grid
     def _omega(
@@ -121,11 +124,28 @@ class GridEvaluator:
         return w @ A.T + c, w
 
     def _grid(self, theta: np.ndarray, tau: np.ndarray, integrals: bool) -> dict[str, Any]:
+        """``Φ`` on the nodes covering ``τ`` (and the integrals), for the gyro correction of
+        ``theta``. The last grid is kept: it only depends on ``A``, ``c`` (scale and bias),
+        so evaluations that change the other parameters (the shift and focal search, a
+        coarse stage without bias and scale) reuse it while it covers their times (it is
+        built :data:`GRID_PAD_S` wider on both sides)."""
         A = np.array(inverse3(scale_tuple(theta))).reshape(3, 3)
         c = -A @ theta[LAYOUT["bias"]]
         h = self.h
         k_lo = int(np.floor(np.min(tau) / h)) - 1
         k_hi = int(np.ceil(np.max(tau) / h)) + 1
+        last = self._last_grid
+        if (
+            last is not None
+            and np.array_equal(last["A"], A)
+            and np.array_equal(last["c"], c)
+            and (integrals <= ("cum" in last))
+            and last["k_lo"] <= k_lo
+            and k_hi <= last["k_lo"] + last["phi"].shape[1] - 1
+        ):
+            return last
+        pad = int(np.ceil(GRID_PAD_S / h))
+        k_lo, k_hi = k_lo - pad, k_hi + pad
         nodes = np.arange(k_lo, k_hi + 1) * h
         w_mid, wm_mid = self._omega(nodes[:-1] + h / 2, A, c)
         wx, wy, wz = w_mid.T * h
@@ -141,6 +161,7 @@ class GridEvaluator:
             cum = np.zeros((cells.shape[1] + 1, 36))
             np.cumsum(cells.T, axis=0, out=cum[1:])
             out["cum"] = cum
+        self._last_grid = out
         return out
 
     def _at(self, grid: dict[str, Any], tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,6 @@ from calib.centreline import CentreGridEvaluator
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import (
-    COARSE_SUBSTEP_S,
     FINE_DELTA_SIGMAS,
     MIN_FRAMES,
     MIN_STREAKS,
@@ -70,7 +69,8 @@ class Prepared:
     theta0: np.ndarray
     readout_bound: float
     model: ResidualModel
-    coarse: ResidualModel
+    #: The grid evaluator of the search, the coarse stages and the final stage.
+    ev: GridEvaluator
     warnings: tuple[str, ...]
 
 
@@ -111,13 +111,10 @@ def prepare(
         g, initial.R_cam_imu, cam.dist, cam.height,
         choose_substeps(train, cam.height, readout_bound),
     )  # fmt: skip
-    coarse = ResidualModel(
-        g, initial.R_cam_imu, cam.dist, cam.height,
-        choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S),
-    )  # fmt: skip
+    ev = GridEvaluator(g, initial.R_cam_imu, cam.dist, cam.height)
     return Prepared(
-        free, initial, g, streaks, train, test, theta_from(initial), readout_bound, model,
-        coarse, tuple(warnings),
+        free, initial, g, streaks, train, test, theta_from(initial), readout_bound, model, ev,
+        tuple(warnings),
     )  # fmt: skip
 
 
@@ -138,7 +135,7 @@ def initialise(prep: Prepared, options: FitOptions, rep: Reporter) -> init_mod.I
     """Shift/focal search (:mod:`calib.init`)."""
     rep.start("initial search")
     return init_mod.initialise(
-        prep.coarse,
+        prep.ev,
         prep.train,
         prep.theta0,
         LAYOUT["timeshift_s"] in prep.free,
@@ -164,14 +161,14 @@ def coarse_fit(
 ) -> Coarse:
     """Robust LM on a subsample: shift and focal first, then every observable parameter."""
     warnings: list[str] = []
-    theta, free, train, cam = ini.theta, prep.free, prep.train, prep.initial.camera
+    theta, free, train = ini.theta, prep.free, prep.train
     rng = np.random.default_rng(options.seed)
     sub_idx = np.arange(len(train))
     if sub_idx.size > SUBSAMPLE:
         sub_idx = np.sort(rng.choice(sub_idx, SUBSAMPLE, replace=False))
     sub = train.subset(sub_idx)
     iters = 0
-    ev = GridEvaluator(prep.g, prep.initial.R_cam_imu, cam.dist, cam.height)
+    ev = prep.ev
     stage1 = tuple(i for i in free if i in GROUPS["timeshift"] + GROUPS["fx"] + GROUPS["fy"])
     delta = max(2.0 * ini.median_error_px, 0.5)
     rep.start("coarse")
