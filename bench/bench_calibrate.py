@@ -34,6 +34,7 @@ reports the speed-up.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import subprocess
 import sys
@@ -108,6 +109,13 @@ def user_session(session_dir: Path, work: Path) -> Path:
     return out
 
 
+@functools.cache
+def _session(session_dir: Path):
+    """The simulated session with its truth, parsed once (a 1200-frame truth.yaml takes
+    minutes to parse)."""
+    return load_session(session_dir)
+
+
 def run_command(
     session_dir: Path, user_dir: Path, out_dir: Path, extra: list[str], repo: Path = REPO
 ) -> dict:
@@ -137,7 +145,7 @@ def run_command(
         raise RuntimeError(f"calibrate exited {proc.returncode}: {proc.stderr[-2000:]}")
     name = "calib.summary.json" if proc.returncode == 0 else "calib.failed.summary.json"
     summary = json.loads((out_dir / name).read_text())
-    session = load_session(session_dir)
+    session = _session(session_dir)
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     run: dict = {
         "session": session_dir.name,
