@@ -33,7 +33,8 @@ from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import matmul3, transpose3
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.grid import GRID_STEP_S, N_BLOCK, N_DATA, GridEvaluator, _mat
+from calib.grid import GRID_STEP_S, N_BLOCK, N_DATA, GridEvaluator
+from calib.gridops import mat3
 from calib.params import N_THETA
 from calib.problem import CA_OPS
 
@@ -172,7 +173,7 @@ class CentreGridEvaluator(GridEvaluator):
         T = self._node_times(tau_a, tau_b, np.tile(np.arange(S + 1), (n, 1)))
         Pk, _ = self._at(grid, T.reshape(-1))
         Pa_n = np.repeat(Pa, S + 1, axis=1)
-        Q = matmul3(transpose3(_mat(Pa_n)), _mat(Pk))
+        Q = matmul3(transpose3(mat3(Pa_n)), mat3(Pk))
         u, v = self._project(
             theta, np.repeat(streaks.start[:, 0], S + 1), np.repeat(streaks.start[:, 1], S + 1), Q
         )

@@ -45,15 +45,15 @@ from blurtrack.geometry.kernels import (
     transpose3,
     unproject_c,
 )
+from calib import gridops
 from calib.data import StreakSet
+from calib.gridops import eye_plus_hat, left_jacobian, mat3, prefix_products
 from calib.params import LAYOUT, N_THETA, SCALE_ENTRIES, inverse3, scale_tuple
 from calib.problem import CA_OPS
 
 #: Grid step (s) of the orientation integration: half the 1 ms sub-step of the per-streak
 #: model, fixed in IMU time (nodes at multiples of it), whatever the gyro's rate.
 GRID_STEP_S = 5e-4
-#: Residuals per call of the mapped Jacobian function (:meth:`GridEvaluator._map`).
-MAP_CHUNK = 2048
 #: Margin (s) of a grid beyond the times it was built for (:meth:`GridEvaluator._grid`).
 GRID_PAD_S = 0.15
 #: Data of one warped point (see :meth:`GridEvaluator._block`).
@@ -62,26 +62,6 @@ N_BLOCK = 9 + 27 + 9 + 3 + 3
 N_DATA = 6 + N_BLOCK
 #: Inputs ``z = (δφ, δ, K)`` of the chain-rule Jacobian (:meth:`GridEvaluator.evaluate`).
 N_Z = 10
-
-
-def _mat(a: np.ndarray) -> tuple:
-    """``(9, …)`` array -> 9-tuple of arrays."""
-    return tuple(a[i] for i in range(9))
-
-
-def prefix_products(steps: np.ndarray) -> np.ndarray:
-    """Cumulative products ``Φ_k = E_0 E_1 … E_{k-1}`` of rotation steps ``(9, M)`` (row-major
-    components), returned ``(9, M + 1)`` with ``Φ_0 = I``: a Hillis–Steele scan, ``log2 M``
-    vectorised passes."""
-    m = steps.shape[1]
-    P = steps.copy()
-    d = 1
-    while d < m:
-        prod = matmul3(_mat(P[:, :-d]), _mat(P[:, d:]))
-        P[:, d:] = np.stack(prod)
-        d *= 2
-    eye = np.eye(3).reshape(9, 1)
-    return np.concatenate([eye, P], axis=1)
 
 
 class GridEvaluator:
@@ -176,7 +156,7 @@ class GridEvaluator:
         w_half, _ = self._omega((t_k + tau) / 2, grid["A"], grid["c"])
         wx, wy, wz = w_half.T * dt
         part = so3_exp_c(wx, wy, wz, NUMPY_OPS)
-        P = np.stack(matmul3(_mat(phi[:, k - k_lo]), part))
+        P = np.stack(matmul3(mat3(phi[:, k - k_lo]), part))
         w_end, _ = self._omega(tau, grid["A"], grid["c"])
         return P, w_end
 
@@ -220,7 +200,7 @@ class GridEvaluator:
         grid = self._grid(theta, np.concatenate([tau_a, tau_b]), integrals)
         Pa, wa = self._at(grid, tau_a)
         Pb, wb = self._at(grid, tau_b)
-        Q = np.stack(matmul3(transpose3(_mat(Pa)), _mat(Pb)))
+        Q = np.stack(matmul3(transpose3(mat3(Pa)), mat3(Pb)))
         return grid, tau_a, tau_b, Pb, Q, wa, wb
 
     def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray:
@@ -228,7 +208,7 @@ class GridEvaluator:
         if len(streaks) == 0:
             return np.zeros((0, 2))
         _, _, _, _, Q, _, _ = self._relative(theta, streaks, False)
-        return self._warp(np.asarray(theta, float), streaks, _mat(Q))
+        return self._warp(np.asarray(theta, float), streaks, mat3(Q))
 
     # -------------------------------------------------------------- jacobian
     def _sx_common(self) -> dict[str, Any]:
@@ -294,7 +274,7 @@ class GridEvaluator:
 
     def _map(self, free: tuple[int, ...]) -> ca.Function:
         """The SX function of every parameter's Jacobian over ``free`` (:meth:`_residual_sx`),
-        mapped over :data:`MAP_CHUNK` residuals, built once per free set (CasADi's
+        mapped over :data:`calib.gridops.MAP_CHUNK` residuals, built once per free set (CasADi's
         ``Function.map`` costs about 16 µs per mapped residual to build: over every residual
         of a fit it cost more than an evaluation, and a new track count rebuilt it)."""
         if free not in self._maps:
@@ -303,7 +283,7 @@ class GridEvaluator:
             J = ca.densify(ca.jacobian(self._r, ca.vertcat(*[self._th[i] for i in free])))
             f = ca.Function("calib_grid_jac", [self._th, self._thc, self._d], [self._r, J])
             # theta and theta_c are shared by every residual (not repeated).
-            self._maps[free] = f.map("calib_grid_jac_map", "serial", MAP_CHUNK, [0, 1], [])
+            self._maps[free] = f.map("calib_grid_jac_map", "serial", gridops.MAP_CHUNK, [0, 1], [])
         return self._maps[free]
 
     def _block(
@@ -317,7 +297,7 @@ class GridEvaluator:
         """``(N_BLOCK, N)`` data of a point warped from ``τ_a`` to ``τ_k`` (:meth:`_warp_sx`):
         ``Q_c``, ``∂δφ/∂A``, ``∂δφ/∂c``, ``ω(τ_k)``, ``Q_cᵀ ω(τ_a)``."""
         Pk, wk = self._at(grid, tau_k)
-        Q = np.stack(matmul3(transpose3(_mat(Pa)), _mat(Pk)))
+        Q = np.stack(matmul3(transpose3(mat3(Pa)), mat3(Pk)))
         dcum = self._cum_at(grid, tau_k)
         dcum -= self._cum_at(grid, tau_a)  # (36, N)
         PkT = Pk.reshape(3, 3, -1)  # [row, col, n]: δφ = Φ_kᵀ ∫ …
@@ -348,7 +328,9 @@ class GridEvaluator:
         theta = np.asarray(theta, float)
         n, p, k = len(streaks), len(free), self.n_residuals
         th = np.ascontiguousarray(theta)
-        r, J = _run_mapped(self._map(tuple(free)), [th, th], self._data(theta, streaks).T, k, p)
+        r, J = gridops.run_mapped(
+            self._map(tuple(free)), [th, th], self._data(theta, streaks).T, k, p
+        )
         full = np.zeros((n, k, N_THETA))
         full[:, :, list(free)] = J.reshape(n, p, k).transpose(0, 2, 1)
         return r, full
@@ -404,7 +386,7 @@ class GridEvaluator:
         Rc = Rc @ self.R0_cam_imu
         z = np.concatenate([np.zeros(6), theta[LAYOUT["intrinsics"]]])
         d = np.concatenate([streaks.start.T, streaks.end.T, blk[:9]], axis=0).T
-        r, Jz = _run_mapped(self._z_map(), [z, Rc.ravel()], d, 2, N_Z)
+        r, Jz = gridops.run_mapped(self._z_map(), [z, Rc.ravel()], d, 2, N_Z)
         Jz = Jz.reshape(n, N_Z, 2).transpose(2, 1, 0)  # (2, N_Z, N)
         dphi = self._dphi(theta, streaks, blk)
         J = Jz[:, 0, None, :] * dphi[0][None]
@@ -425,67 +407,17 @@ class GridEvaluator:
         ``δφ = δ = 0``: ``Q = Q_c (I + [δφ]×)``, ``R = (I + [δ]×) R_c`` (the exponentials to
         first order: the same value and first derivatives at zero, a third of the SX
         instructions); ``z`` and ``R_c`` shared, ``d = (start, end, Q_c)``; mapped over
-        :data:`MAP_CHUNK` residuals (built once)."""
+        :data:`calib.gridops.MAP_CHUNK` residuals (built once)."""
         if self._zmap is None:
             z, Rc, d = ca.SX.sym("z", N_Z), ca.SX.sym("R_c", 9), ca.SX.sym("d", 13)
             Qc = cast(Mat3, tuple(d[4 + i] for i in range(9)))
-            Q = matmul3(Qc, _eye_plus_hat(z[0], z[1], z[2]))
-            R = matmul3(_eye_plus_hat(z[3], z[4], z[5]), cast(Mat3, tuple(Rc[i] for i in range(9))))
+            Q = matmul3(Qc, eye_plus_hat(z[0], z[1], z[2]))
+            R = matmul3(eye_plus_hat(z[3], z[4], z[5]), cast(Mat3, tuple(Rc[i] for i in range(9))))
             R_cam = matmul3(matmul3(R, Q), transpose3(R))
             K = (z[6], z[7], z[8], z[9])
             X, Y, Zc = matvec3(transpose3(R_cam), unproject_c(d[0], d[1], K, self.dist))
             u, v = project_c(X, Y, Zc, K, self.dist)
             r = ca.vertcat(u - d[2], v - d[3])
             f = ca.Function("calib_grid_z", [z, Rc, d], [r, ca.densify(ca.jacobian(r, z))])
-            self._zmap = f.map("calib_grid_z_map", "serial", MAP_CHUNK, [0, 1], [])
+            self._zmap = f.map("calib_grid_z_map", "serial", gridops.MAP_CHUNK, [0, 1], [])
         return self._zmap
-
-
-def _eye_plus_hat(x: Any, y: Any, z: Any) -> tuple:
-    """``I + [(x, y, z)]×`` (row-major 9-tuple): ``exp`` to first order."""
-    return (1.0, -z, y, z, 1.0, -x, -y, x, 1.0)
-
-
-def left_jacobian(w: np.ndarray) -> np.ndarray:
-    """SO(3) left Jacobian ``J_l(ω)``: ``exp([ω + ε]×) = exp([J_l ε]×) exp([ω]×) + O(ε²)``."""
-    w = np.asarray(w, float)
-    th = float(np.linalg.norm(w))
-    Kx = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * Kx + Kx @ Kx / 6.0
-    return np.eye(3) + (1 - np.cos(th)) / th**2 * Kx + (th - np.sin(th)) / th**3 * (Kx @ Kx)
-
-
-def _run_mapped(
-    mapped: ca.Function, shared: list[np.ndarray], data: np.ndarray, k: int, p: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Evaluate a function mapped over :data:`MAP_CHUNK` residuals with ``shared`` inputs (one
-    vector each) and per-residual ``data`` ``(N, n_d)``: its two outputs, ``(N, k)`` and the
-    ``(k, p)`` block of each residual as ``(N p, k)``.
-
-    Zero-copy calls through CasADi's buffers (column-major ``(k, n)`` is C-order ``(n, k)``;
-    converting numpy arrays to and from DM cost 20x the evaluation itself). Chunks are bound in
-    place; the last one is padded with copies of the last residual.
-    """
-    n, m = data.shape[0], MAP_CHUNK
-    d = np.ascontiguousarray(data)
-    shared = [np.ascontiguousarray(a, dtype=float) for a in shared]
-    r = np.zeros((n, k))
-    J = np.zeros((n * p, k))
-    buf, run = mapped.buffer()
-    for j, a in enumerate(shared):
-        buf.set_arg(j, memoryview(a))  # type: ignore[call-arg, arg-type]  # casadi stubs want a size; memoryview form is documented
-    for i0 in range(0, n, m):
-        i1 = min(i0 + m, n)
-        if i1 - i0 == m:
-            d_k, r_k, J_k = d[i0:i1], r[i0:i1], J[i0 * p : i1 * p]
-        else:
-            d_k = np.concatenate([d[i0:i1], np.repeat(d[i1 - 1 : i1], m - (i1 - i0), 0)])
-            r_k, J_k = np.zeros((m, k)), np.zeros((m * p, k))
-        buf.set_arg(len(shared), memoryview(d_k))  # type: ignore[call-arg, arg-type]
-        buf.set_res(0, memoryview(r_k))  # type: ignore[call-arg, arg-type]
-        buf.set_res(1, memoryview(J_k))  # type: ignore[call-arg, arg-type]
-        run()
-        if i1 - i0 < m:
-            r[i0:i1], J[i0 * p : i1 * p] = r_k[: i1 - i0], J_k[: (i1 - i0) * p]
-    return r, J

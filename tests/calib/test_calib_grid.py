@@ -8,7 +8,8 @@ import pytest
 
 from blurtrack.geometry.blur_model import BlurModel
 from calib.data import relative_gyro
-from calib.grid import GridEvaluator, prefix_products
+from calib.grid import GridEvaluator
+from calib.gridops import prefix_products
 from calib.params import LAYOUT, N_THETA, apply_theta, theta_from
 from calib.problem import ResidualModel
 from calib.testing import make_problem
@@ -112,15 +113,15 @@ def test_grid_jacobian_matches_finite_differences(setup) -> None:
 def test_jacobian_in_chunks_equals_one_call(setup, monkeypatch) -> None:
     # The mapped Jacobian runs in chunks of MAP_CHUNK residuals, the last padded: chunking
     # must not change a single value (negative control: another theta does).
-    import calib.grid as grid
+    import calib.gridops as gridops
 
     p, g = setup
     s = p.streaks
     th = _random_theta(p, np.random.default_rng(3))
     free = tuple(range(N_THETA))
-    assert len(s) < grid.MAP_CHUNK
+    assert len(s) < gridops.MAP_CHUNK
     r1, J1 = GridEvaluator(g, p.initial.R_cam_imu, (), 720).evaluate(th, s, free)
-    monkeypatch.setattr(grid, "MAP_CHUNK", 37)  # several full chunks and a padded one
+    monkeypatch.setattr(gridops, "MAP_CHUNK", 37)  # several full chunks and a padded one
     assert len(s) % 37
     ev = GridEvaluator(g, p.initial.R_cam_imu, (), 720)
     r2, J2 = ev.evaluate(th, s, free)
