@@ -25,11 +25,16 @@ the same run is the lowest gyro rate (``per_track_ratio``):
 
     PYTHONPATH=. python bench/bench_calibrate.py --command --presets realistic --seeds 0 \\
         --frames 150 --imu-rates 200,1000 --work /tmp/bench_calib
+
+``--baseline-repo DIR`` (a checkout of older code, e.g. ``git archive COMMIT | tar -x -C DIR``)
+runs the same command from there right after each run (same sessions, same machine load) and
+reports the speed-up.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import subprocess
 import sys
@@ -104,8 +109,17 @@ def user_session(session_dir: Path, work: Path) -> Path:
     return out
 
 
-def run_command(session_dir: Path, user_dir: Path, out_dir: Path, extra: list[str]) -> dict:
-    """The WHOLE ``blurtrack calibrate`` command a user runs (a subprocess, on
+@functools.cache
+def _session(session_dir: Path):
+    """The simulated session with its truth, parsed once (a 1200-frame truth.yaml takes
+    minutes to parse)."""
+    return load_session(session_dir)
+
+
+def run_command(
+    session_dir: Path, user_dir: Path, out_dir: Path, extra: list[str], repo: Path = REPO
+) -> dict:
+    """The WHOLE ``blurtrack calibrate`` command a user runs (a subprocess in ``repo``, on
     :func:`user_session`): wall and CPU seconds (the child's user + system), its stage
     timings (summary.json), and the written calibration's errors against the simulator's
     truth with the |z| of each estimate."""
@@ -115,16 +129,23 @@ def run_command(session_dir: Path, user_dir: Path, out_dir: Path, extra: list[st
 
     out_dir.mkdir(parents=True, exist_ok=True)
     out = out_dir / "calib.yaml"
+    # The command never overwrites its outputs: remove an earlier run's (a repeat would be
+    # refused in a second and read the earlier run's summary).
+    for old in out_dir.glob("calib*"):
+        old.unlink()
     cmd = [sys.executable, "-m", "blurtrack", "calibrate", str(user_dir), "--out", str(out)]
     cmd += extra
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=repo)
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
-    summary = json.loads((out_dir / "calib.summary.json").read_text())
-    session = load_session(session_dir)
+    if proc.returncode != 0 and not (out_dir / "calib.failed.summary.json").is_file():
+        raise RuntimeError(f"calibrate exited {proc.returncode}: {proc.stderr[-2000:]}")
+    name = "calib.summary.json" if proc.returncode == 0 else "calib.failed.summary.json"
+    summary = json.loads((out_dir / name).read_text())
+    session = _session(session_dir)
     truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
     run: dict = {
         "session": session_dir.name,
@@ -162,10 +183,16 @@ def run_command(session_dir: Path, user_dir: Path, out_dir: Path, extra: list[st
 def command_bench(args: argparse.Namespace) -> dict:
     """``--command``: the whole command on each preset, length, gyro rate and seed, repeated
     ``--repeat`` times (medians). The baseline timed in the same run is the same command on the
-    lowest gyro rate: ``per_track_ratio`` is time per track at each rate over that."""
+    lowest gyro rate: ``per_track_ratio`` is time per track at each rate over that. With
+    ``--baseline-repo`` the same command from that checkout runs right after each run of this
+    one (same sessions, same load): groups ``baseline:…``, and ``speedup`` (baseline time over
+    this one's)."""
     runs = []
     rates = [float(r) for r in args.imu_rates.split(",")]
     extra = ["--fit", args.fit, "--residuals", args.residuals]
+    codes = [("current", REPO)]
+    if args.baseline_repo is not None:
+        codes.append(("baseline", args.baseline_repo.resolve()))
     for preset in args.presets.split(","):
         for frames in (int(f) for f in args.frames.split(",")):
             for rate in rates:
@@ -173,25 +200,31 @@ def command_bench(args: argparse.Namespace) -> dict:
                     name = f"{preset}_s{seed}_f{frames}_g{rate:g}"
                     d = simulate(args.work / name, preset, seed, frames, rate)
                     user = user_session(d, args.work)
-                    reps = [
-                        run_command(d, user, args.work / "out" / name, extra)
-                        for _ in range(args.repeat)
-                    ]
-                    run = dict(reps[-1])
-                    for key in ("wall_s", "cpu_s", "wall_per_track_ms", "cpu_per_track_ms"):
-                        run[key] = float(np.median([r[key] for r in reps]))
-                        run[key + "_all"] = [r[key] for r in reps]
-                    run.update(preset=preset, seed=seed, frames=frames, imu_rate_hz=rate)
-                    runs.append(run)
-                    print(
-                        f"# {name}: {run['status']}, {run['wall_s']:.1f} s wall, "
-                        f"{run['wall_per_track_ms']:.3f} ms/track, max z {run.get('max_z')}",
-                        file=sys.stderr,
-                    )
+                    reps: dict[str, list[dict]] = {c: [] for c, _ in codes}
+                    for _ in range(args.repeat):
+                        for code, repo in codes:
+                            out = args.work / "out" / code / name
+                            reps[code].append(run_command(d, user, out, extra, repo))
+                    for code, _ in codes:
+                        run = dict(reps[code][-1])
+                        for key in ("wall_s", "cpu_s", "wall_per_track_ms", "cpu_per_track_ms"):
+                            run[key] = float(np.median([r[key] for r in reps[code]]))
+                            run[key + "_all"] = [r[key] for r in reps[code]]
+                        run.update(
+                            preset=preset, seed=seed, frames=frames, imu_rate_hz=rate, code=code
+                        )
+                        runs.append(run)
+                        print(
+                            f"# {code} {name}: {run['status']}, {run['wall_s']:.1f} s wall, "
+                            f"{run['cpu_s']:.1f} s cpu, {run['wall_per_track_ms']:.3f} ms/track, "
+                            f"max z {run.get('max_z')}",
+                            file=sys.stderr,
+                        )
     groups = {}
-    for key in sorted({(r["preset"], r["frames"], r["imu_rate_hz"]) for r in runs}):
-        rs = [r for r in runs if (r["preset"], r["frames"], r["imu_rate_hz"]) == key]
-        groups[f"{key[0]}/{key[1]}/{key[2]:g}Hz"] = {
+    for key in sorted({(r["code"], r["preset"], r["frames"], r["imu_rate_hz"]) for r in runs}):
+        rs = [r for r in runs if (r["code"], r["preset"], r["frames"], r["imu_rate_hz"]) == key]
+        prefix = "" if key[0] == "current" else f"{key[0]}:"
+        groups[f"{prefix}{key[1]}/{key[2]}/{key[3]:g}Hz"] = {
             "runs": len(rs),
             "median_wall_s": float(np.median([r["wall_s"] for r in rs])),
             "median_cpu_s": float(np.median([r["cpu_s"] for r in rs])),
@@ -210,14 +243,25 @@ def command_bench(args: argparse.Namespace) -> dict:
             },
         }
     base = {}
+    speedup = {}
     for name, g in groups.items():
-        preset, frames, _ = name.split("/")
-        ref = groups[f"{preset}/{frames}/{min(rates):g}Hz"]
+        prefix, _, rest = name.rpartition(":")
+        preset, frames, _ = rest.split("/")
+        ref = groups[f"{prefix + ':' if prefix else ''}{preset}/{frames}/{min(rates):g}Hz"]
         base[name] = {
             k: g[f"median_{k}_per_track_ms"] / ref[f"median_{k}_per_track_ms"]
             for k in ("wall", "cpu")
         }
-    return {"mode": "command", "by_group": groups, "per_track_ratio": base, "runs": runs}
+        if prefix:
+            cur = groups[rest]
+            speedup[rest] = {k: g[f"median_{k}_s"] / cur[f"median_{k}_s"] for k in ("wall", "cpu")}
+    return {
+        "mode": "command",
+        "by_group": groups,
+        "per_track_ratio": base,
+        "speedup": speedup,
+        "runs": runs,
+    }
 
 
 def detect(session_dir: Path) -> tuple[Path, float]:
@@ -397,6 +441,13 @@ def main() -> int:
     )
     ap.add_argument("--imu-rates", default="200,1000", help="gyro rates (Hz) for --command")
     ap.add_argument("--repeat", type=int, default=1, help="runs per session (--command)")
+    ap.add_argument(
+        "--baseline-repo",
+        type=Path,
+        default=None,
+        help="--command: also run the command from this checkout (e.g. `git archive` of an "
+        "older commit), interleaved with this one's runs",
+    )
     args = ap.parse_args()
     if args.command:
         print(json.dumps(command_bench(args), indent=1, default=float))

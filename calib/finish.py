@@ -17,15 +17,15 @@ from calib.fitcore import (
     MAX_RESIDUAL_SIGMA_PX,
     MIN_INLIER_FRACTION,
     MIN_OUTLIER_PX,
+    MIN_STREAKS,
     OUTLIER_SIGMAS,
     _rayleigh_sigma,
     _reorient,
-    classify,
     scale_check,
 )
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
-from calib.stages import Coarse, Fine, Mode, Prepared
+from calib.stages import Coarse, Fine, Mode, Prepared, _track_errors
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ def assemble(
     model, train, free, lm, cam = md.model, fine.train, co.free, fine.lm, prep.initial.camera
     warnings = [*prep.warnings, *co.warnings, *md.warnings]
     theta, iters, converged = fine.theta, fine.iterations, fine.converged
-    rho, _, _ = classify(model, theta, train, np.inf)
+    rho = fine.rho
     sig = _rayleigh_sigma(rho[fine.inl])
     thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
     out = rho > thr
@@ -105,7 +105,7 @@ def assemble(
             converged = converged and gls.converged
             sigma_vec, corr_mat = gls.sigma, gls.correlation
             timings.update(gls.timings)
-            rho, _, _ = classify(model, theta, train, np.inf)
+            rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
             out = rho > thr
     warnings.extend(unc.warnings)
     warnings.extend(scale_check(md.ev_fine, theta, fine.fitset, lm.weights, free))
@@ -136,6 +136,12 @@ def assemble(
             f"contradict it (wrong session, gyro or initial rotation?)"
         )
         status = "failed"
+    if fine.n_agree is not None:
+        warnings.append(
+            f"only {fine.n_agree} streaks agree with the model (need {MIN_STREAKS}): the "
+            f"data contradict it"
+        )
+        status = "failed"
     if sig > MAX_RESIDUAL_SIGMA_PX:
         warnings.append(
             f"endpoint residuals are large (robust sigma {sig:.2f} px): the data "
@@ -149,7 +155,7 @@ def assemble(
         status = "warning"
     track_stats: dict = {"residuals": md.mode}
     if md.tracks is not None:
-        rho_tr = np.linalg.norm(model.residual_np(theta, md.tracks), axis=1)
+        rho_tr = _track_errors(md, theta, md.tracks)
         track_stats.update(
             tracks=ErrorStats.of(rho_tr[fine.tinl]),
             n_tracks=len(md.tracks),

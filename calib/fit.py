@@ -30,7 +30,6 @@ from blurtrack.io.calibration import Calibration
 from calib import finish, stages
 from calib.data import StreakSet
 from calib.fitcore import (
-    COARSE_SUBSTEP_S,
     FINE_DELTA_SIGMAS,
     MAX_RESIDUAL_SIGMA_PX,
     MIN_FRAMES,
@@ -52,11 +51,11 @@ from calib.fitcore import (
     classify,
     scale_check,
 )
+from calib.init import InitResult
 from calib.params import THETA_NAMES
 from calib.result import CalibResult
 
 __all__ = [
-    "COARSE_SUBSTEP_S",
     "FINE_DELTA_SIGMAS",
     "MAX_RESIDUAL_SIGMA_PX",
     "MIN_FRAMES",
@@ -93,9 +92,11 @@ def calibrate(
 
     With a hold-out (``options.holdout_fraction > 0``) and ``options.refit_all``, the fit on
     the training frames is evaluated on the held-out frames, then refitted on every frame
-    from its estimate (the final stage only; the coarse stages and unobservable parameters
-    are those of the training fit): the returned calibration, values and sigma are the
-    refit's, the hold-out statistics those of the training fit (``holdout_fit_values``).
+    (:func:`_refit`: the final stage only, warm-started from the training fit's estimate and
+    outlier thresholds; the search, the coarse stages, the residual choice and the parameters
+    held as unobservable are the training fit's): the returned calibration, values and sigma
+    are the refit's, the hold-out statistics those of the training fit
+    (``holdout_fit_values``).
 
     Args:
         streaks: measured streaks, times relative to ``streaks.t0_s``.
@@ -104,20 +105,19 @@ def calibrate(
         progress: called with a :class:`Progress` at each stage start and LM iteration.
     """
     t_start = clock()
-    res = _fit(streaks, gyro, initial, options, clock, progress, None)
+    rep = stages.Reporter(progress, clock, t_start)
+    timings: dict[str, float] = {}
+    prep = stages.prepare(streaks, gyro, initial, options)
+    ini = stages.initialise(prep, options, rep)
+    timings["init"] = clock() - t_start
+    co = stages.coarse_fit(prep, ini, options, rep)
+    timings["coarse"] = clock() - t_start - timings["init"]
+    md = stages.choose_mode(prep, co, options)
+    fine = stages.fine_fit(prep, co, md, options, rep)
+    res = _finish(prep, ini, co, md, fine, options, timings, clock, t_start)
     if not (options.refit_all and options.holdout_fraction > 0 and res.status != "failed"):
         return res
-    warm = (np.array([res.values[n] for n in THETA_NAMES]), res.fixed_unobservable)
-    full = _fit(
-        streaks,
-        gyro,
-        initial,
-        replace(options, holdout_fraction=0.0),
-        clock,
-        progress,
-        warm,
-        t_start,
-    )
+    full = _refit(prep, ini, co, md, fine, res, options, clock, rep)
     timings = {**res.timings_s, **{f"refit_{k}": v for k, v in full.timings_s.items()}}
     timings["total"] = clock() - t_start
     return replace(
@@ -125,37 +125,52 @@ def calibrate(
         holdout=res.holdout,
         holdout_all=res.holdout_all,
         holdout_fit_values=dict(res.values),
-        init_shift_curve=res.init_shift_curve,
         iterations=res.iterations + full.iterations,
         warnings=tuple(dict.fromkeys(res.warnings + full.warnings)),
         timings_s=timings,
     )
 
 
-def _fit(
-    streaks: StreakSet,
-    gyro: GyroTrace,
-    initial: Calibration,
+def _finish(
+    prep: stages.Prepared,
+    ini: InitResult,
+    co: stages.Coarse,
+    md: stages.Mode,
+    fine: stages.Fine,
     options: FitOptions,
+    timings: dict[str, float],
     clock: Callable[[], float],
-    progress: ProgressFn | None,
-    warm: tuple[np.ndarray, tuple[str, ...]] | None,
-    t_origin: float | None = None,
+    t_start: float,
 ) -> CalibResult:
-    """One fit (:func:`calibrate`); ``warm``: start the final stage at this theta with these
-    parameters held (a refit), skipping the search and the coarse stages."""
-    t_start = clock()
-    rep = stages.Reporter(progress, clock, t_start if t_origin is None else t_origin)
-    timings: dict[str, float] = {}
-    prep = stages.prepare(streaks, gyro, initial, options)
-    ini = stages.initialise(prep, options, warm, rep)
-    timings["init"] = clock() - t_start
-    co = stages.coarse_fit(prep, ini, options, warm, rep)
-    timings["coarse"] = clock() - t_start - timings["init"]
-    md = stages.choose_mode(prep, co, options)
-    fine = stages.fine_fit(prep, co, md, options, warm, rep)
+    """The optional frame-noise refinement and the result (:mod:`calib.finish`)."""
     for k, n in enumerate(fine.round_iterations):
         timings[f"fine{k}_iterations"] = n
-    timings["fine"] = clock() - t_start - timings["init"] - timings["coarse"]
+    timings["fine"] = clock() - t_start - sum(timings.get(k, 0.0) for k in ("init", "coarse"))
     gls = finish.frame_noise_fit(prep, co, md, fine) if options.frame_noise else None
     return finish.assemble(prep, ini, co, md, fine, gls, timings, clock, t_start)
+
+
+def _refit(
+    prep: stages.Prepared,
+    ini: InitResult,
+    co: stages.Coarse,
+    md: stages.Mode,
+    fine: stages.Fine,
+    res: CalibResult,
+    options: FitOptions,
+    clock: Callable[[], float],
+    rep: stages.Reporter,
+) -> CalibResult:
+    """The final stage again on every frame, warm: from the training fit's estimate (its
+    written values, after the frame-noise refinement if any), with its outlier thresholds for
+    the first classification, its residual choice (tracks re-paired over every frame), its
+    free parameters and its evaluator (the CasADi functions built once)."""
+    t0 = clock()
+    rep.start("refit on all frames")
+    theta = np.array([res.values[n] for n in THETA_NAMES])
+    full = stages.all_frames(prep)
+    co_all = replace(co, theta=theta, iterations=0, warnings=())
+    md_all = stages.choose_mode(full, co_all, replace(options, residuals=md.mode), md.ev_fine)
+    md_all = replace(md_all, warnings=())
+    fine_all = stages.fine_fit(full, co_all, md_all, options, rep, warm=fine.thresholds)
+    return _finish(full, ini, co_all, md_all, fine_all, options, {}, clock, t0)

@@ -30,9 +30,6 @@ OUTLIER_SIGMAS = 5.0
 #: Floor of the outlier threshold (px): detection noise never justifies rejecting less.
 MIN_OUTLIER_PX = 0.5
 SUBSAMPLE = 2000
-#: Integration sub-step of the initialisation and subsample stages (the final stage uses
-#: blurtrack.geometry.kernels's default 1 ms).
-COARSE_SUBSTEP_S = 3e-3
 #: Robust endpoint sigma (px) above which the data are called contradictory.
 MAX_RESIDUAL_SIGMA_PX = 3.0
 MIN_INLIER_FRACTION = 0.5
@@ -115,14 +112,27 @@ def classify(
 
 
 def _reorient(
-    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, threshold_px: float
+    model: ResidualModel,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    threshold_px: float,
+    rho: np.ndarray | None = None,
 ) -> tuple[StreakSet, np.ndarray, np.ndarray]:
     """Swap start and end of the streaks that only fit reversed (orientation resolved wrongly
-    by detection). Returns the corrected set, its endpoint errors and the swapped mask."""
-    _, _, flip = classify(model, theta, streaks, threshold_px)
-    if np.any(flip):
-        streaks = streaks.reoriented(flip)
-    rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    by detection). Returns the corrected set, its endpoint errors and the swapped mask.
+    ``rho``: the endpoint errors at ``theta`` when already known (only the outliers are then
+    evaluated again, reversed)."""
+    if rho is None:
+        rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
+    out = rho > threshold_px
+    flip = np.zeros_like(out)
+    if np.any(out):
+        rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
+        flip[np.flatnonzero(out)] = rf <= threshold_px
+        if np.any(flip):
+            streaks = streaks.reoriented(flip)
+            rho = rho.copy()
+            rho[flip] = rf[flip[out]]
     return streaks, rho, flip
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from calib.data import StreakSet
 from calib.params import LAYOUT
 from calib.problem import ResidualModel
+from calib.solve import Evaluator
 
 #: Streaks scored per candidate.
 MAX_INIT_STREAKS = 1500
@@ -30,8 +31,11 @@ class InitResult:
     shift_curve: tuple[tuple[float, float], ...]  # (shift s, median error px) of the coarse scan
 
 
-def _score(model: ResidualModel, theta: np.ndarray, streaks: StreakSet) -> float:
-    r = model.residual_np(theta, streaks)
+def _score(model: ResidualModel | Evaluator, theta: np.ndarray, streaks: StreakSet) -> float:
+    if isinstance(model, ResidualModel):
+        r = model.residual_np(theta, streaks)
+    else:
+        r = model.residual(theta, streaks)[:, :2]
     return float(np.median(np.linalg.norm(r, axis=1)))
 
 
@@ -48,7 +52,7 @@ def moving_subsample(
 
 
 def initialise(
-    model: ResidualModel,
+    model: ResidualModel | Evaluator,
     streaks: StreakSet,
     theta0: np.ndarray,
     search_shift: bool,
@@ -57,7 +61,9 @@ def initialise(
     search: bool = True,
 ) -> InitResult:
     """Coarse-to-fine search of the time shift (± ``window_s``) and a common focal scale
-    (``search=False``: none, only the median error at ``theta0``)."""
+    (``search=False``: none, only the median error at ``theta0``), scored by the per-streak
+    model or an evaluator (the fit's grid: neither the shift nor the focal lengths change its
+    orientation integral, so every candidate reuses one)."""
     sub = streaks.subset(moving_subsample(streaks, MAX_INIT_STREAKS))
     theta = np.asarray(theta0, float).copy()
     curve: list[tuple[float, float]] = []

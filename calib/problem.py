@@ -10,8 +10,9 @@ Warping ``s`` from ``t_s`` to ``t_e`` with the gyro-driven model must land on ``
 At the true parameters and noise-free endpoints ``r = 0`` exactly: the end satisfies the same
 row-time equation that :func:`blurtrack.geometry.kernels.rolling_endpoint_c` solves by fixed-point
 iteration, and this form needs a single warp per streak instead of five (see
-docs/calibration.md). The same function :func:`endpoint_residual` is evaluated on numpy arrays
-(initialisation, outlier tests) and on CasADi ``MX`` columns (the solver's exact Jacobian).
+docs/calibration.md). :func:`endpoint_residual` is evaluated on numpy arrays (initialisation,
+outlier tests, hold-out statistics); the solver's residuals and Jacobians are those of the same
+model on a fixed orientation grid (:mod:`calib.grid`).
 """
 
 from __future__ import annotations
@@ -30,14 +31,10 @@ from blurtrack.geometry.kernels import (
     Value,
     constant_mat3,
     matmul3,
-    matvec3,
     n_substeps,
     omega_cam_fn,
-    project_c,
     row_start_c,
     so3_exp_c,
-    transpose3,
-    unproject_c,
     warp_c,
 )
 from calib.data import StreakSet
@@ -115,42 +112,6 @@ def endpoint_residual(
     return u - ex, v - ey
 
 
-def predicted_track(
-    theta: Sequence[Any],
-    cols: Sequence[Any],
-    omega_imu_at: Callable[[Any], tuple],
-    R0_cam_imu: np.ndarray,
-    dist: Sequence[float],
-    height: int,
-    n_sub: int,
-    ops: Any,
-) -> tuple[list[Any], list[Any]]:
-    """The predicted point track from the measured start over the warp interval.
-
-    ``n_sub + 1`` nodes ``(u_k, v_k)`` at the integration sub-step ends ``t_s + k h``,
-    ``h = (t_e - t_s) / n_sub``: the partial products of the same midpoint Lie-group
-    integrator as :func:`blurtrack.geometry.kernels.relative_rotation` (same ω samples, same
-    order), so
-    the last node is :func:`endpoint_residual`'s warped start exactly (bit for bit in numpy).
-    Arguments as :func:`endpoint_residual`; returns lists of ``n_sub + 1`` arrays/columns.
-    """
-    omega, K, t_s, t_e = _streak_motion(theta, cols, omega_imu_at, R0_cam_imu, height, ops)
-    sx, sy = cols[0], cols[1]
-    ray = unproject_c(sx, sy, K, tuple(dist))
-    h = (t_e - t_s) / n_sub
-    us, vs = [sx], [sy]
-    R: Any = None
-    for k in range(n_sub):
-        wx, wy, wz = omega(t_s + (k + 0.5) * h)
-        step = so3_exp_c(wx * h, wy * h, wz * h, ops)
-        R = step if R is None else matmul3(R, step)
-        X, Y, Z = matvec3(transpose3(R), ray)
-        u, v = project_c(X, Y, Z, K, tuple(dist))
-        us.append(u)
-        vs.append(v)
-    return us, vs
-
-
 def choose_substeps(
     streaks: StreakSet, height: int, readout_bound_s: float, max_substep_s: float = 1e-3
 ) -> int:
@@ -161,10 +122,6 @@ def choose_substeps(
     dv = np.abs(rows[:, 1] - rows[:, 0]) / height
     span = float(np.max(streaks.exposure_s + readout_bound_s * dv))
     return n_substeps(span, max_substep_s)
-
-
-#: Data columns per streak (see :func:`endpoint_residual`).
-N_COLS = 8
 
 
 def _columns(streaks: StreakSet) -> list[np.ndarray]:
@@ -204,33 +161,3 @@ class ResidualModel:
             NUMPY_OPS,
         )
         return np.stack([rx, ry], axis=1)
-
-    def casadi_functions(self, n: int) -> tuple[ca.Function, ca.Function]:
-        """``res(theta, D) -> r (2N,)`` and ``jac(theta, D) -> (r, dr/dtheta (2N, N_THETA))``.
-
-        ``D`` is the ``(N, N_COLS)`` data matrix of :meth:`data_matrix`. The gyro enters through
-        linear ``ca.interpolant`` look-ups, differentiable in the time shift.
-        """
-        theta = ca.MX.sym("theta", N_THETA)
-        D = ca.MX.sym("D", n, N_COLS)
-        interp = [
-            ca.interpolant(f"omega_{k}", "linear", [self.gyro.t_s], self.gyro.omega_radps[:, k])
-            for k in range(3)
-        ]
-
-        def omega_imu_at(t: Any) -> tuple:
-            return tuple(f(t) for f in interp)
-
-        cols = [D[:, j] for j in range(N_COLS)]
-        th = [theta[i] for i in range(N_THETA)]
-        rx, ry = endpoint_residual(
-            th, cols, omega_imu_at, self.R0_cam_imu, self.dist, self.height, self.n_sub, CA_OPS
-        )
-        r = ca.vertcat(rx, ry)
-        res = ca.Function("calib_residual", [theta, D], [r])
-        jac = ca.Function("calib_jacobian", [theta, D], [r, ca.jacobian(r, theta)])
-        return res, jac
-
-    @staticmethod
-    def data_matrix(streaks: StreakSet) -> np.ndarray:
-        return np.stack(_columns(streaks), axis=1)

@@ -1,10 +1,11 @@
 """Robust Levenberg–Marquardt on CasADi's exact Jacobian (Gauss–Newton Hessian ``JᵀWJ``).
 
-Jacobians come from :class:`calib.jacobian.JacobianEvaluator` (one SX function per streak,
-mapped over the streaks). The robust loss is pseudo-Huber on each streak's error
-``ρ = |r|`` (its endpoint residual, and its weighted centre-line residuals when used):
-``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted Gauss–Newton with weights
-``1 / sqrt(1 + (ρ/δ)²)``.
+Residuals and Jacobians come from :class:`calib.grid.GridEvaluator` (orientation integrated
+once per evaluation on a fixed grid; one small SX function per residual, mapped), with
+centre lines :class:`calib.centreline.CentreGridEvaluator`. The robust loss is pseudo-Huber
+on each streak's error ``ρ = |r|`` (its endpoint residual, and its weighted centre-line
+residuals when used): ``δ² (sqrt(1 + (ρ/δ)²) − 1)``, minimised by iteratively reweighted
+Gauss–Newton with weights ``1 / sqrt(1 + (ρ/δ)²)``.
 """
 
 from __future__ import annotations
@@ -17,13 +18,13 @@ import numpy as np
 
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.jacobian import JacobianEvaluator as JacobianEvaluator  # re-exported
 from calib.params import THETA_NAMES, bounded_step
+from calib.uncertainty import information
 
 
 class Evaluator(Protocol):
     """What the solver needs of a residual model (:class:`calib.grid.GridEvaluator`,
-    :class:`calib.jacobian.JacobianEvaluator`)."""
+    :class:`calib.centreline.CentreGridEvaluator`)."""
 
     def residual(self, theta: np.ndarray, streaks: StreakSet) -> np.ndarray: ...
 
@@ -83,8 +84,10 @@ def lm_driver(
     Steps are solved in Jacobian-column-scaled coordinates (Marquardt) with the bounds table
     :data:`calib.params.BOUNDS` applied to every trial (the readout projected onto its bound,
     a non-positive focal length or implausible scale refused), a singular system raising the
-    damping (``LinAlgError`` guard). Converged when every scaled step actually taken is below
-    ``step_tol``, the relative cost decrease is below ``rel_tol``, or no step decreases the
+    damping (``LinAlgError`` guard). Converged when the step actually taken, measured as the
+    change it makes to the fitted residuals ``sqrt(δᵀ A δ)``, is below ``step_tol`` or the
+    next one is predicted so (below half the last and its size times that ratio below
+    ``step_tol``), the relative cost decrease is below ``rel_tol``, or no step decreases the
     cost. ``progress(iteration, cost)`` is called after every iteration.
     """
     if not free:
@@ -93,6 +96,7 @@ def lm_driver(
     fr = np.asarray(free)
     lam = lam0
     converged = small = False
+    prev_size = 0.0
     it = 0
     A, g, cost = linearise(theta)
     trial: np.ndarray | None
@@ -117,7 +121,16 @@ def lm_driver(
             c_try = trial_cost(trial)
             if np.isfinite(c_try) and c_try <= cost:
                 improved = True
-                theta, small = trial, bool(np.all(np.abs(step_s) < step_tol))
+                # The step's size in the information metric, sqrt(δᵀ A δ): the change of the
+                # fitted residuals (px); it bounds every parameter's change by that over the
+                # residual sigma times the parameter's own sigma (Cauchy–Schwarz).
+                size = float(np.sqrt(max(step_s @ As @ step_s, 0.0)))
+                # Converged: a small step, or the next one predicted small (the robust
+                # Gauss–Newton iteration converges linearly near the optimum: each step a
+                # fixed fraction of the last, measured from the last two).
+                rate = size / prev_size if prev_size > 0 else 1.0
+                small = size < step_tol or (rate < 0.5 and size * rate < step_tol)
+                theta, prev_size = trial, size
                 rel = (cost - c_try) / max(cost, 1e-300)
                 cost = c_try
                 lam = max(lam / 10, 1e-9)
@@ -169,9 +182,8 @@ def levenberg_marquardt(
         r, J = ev.evaluate(theta, streaks, tuple(free))
         state["r"], state["J"] = r, J
         w = huber_weights(np.linalg.norm(r, axis=1), delta_px)
-        Jf = J[:, :, fr]
-        A = np.einsum("n,nki,nkj->ij", w, Jf, Jf)
-        g = np.einsum("n,nki,nk->i", w, Jf, r)
+        A = information(J, w, tuple(free))
+        g = (J[:, :, fr] * w[:, None, None]).reshape(-1, len(fr)).T @ r.reshape(-1)
         # A new centre-line association changes the cost at the same parameters.
         return A, g, cost_of(r)
 

@@ -5,7 +5,7 @@ mode and tracks, fine robust rounds, optional frame-noise GLS, statistics and re
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -13,10 +13,10 @@ from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib import init as init_mod
 from calib import uncertainty
+from calib.centreline import CentreGridEvaluator
 from calib.data import StreakSet, covered_mask, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import (
-    COARSE_SUBSTEP_S,
     FINE_DELTA_SIGMAS,
     MIN_FRAMES,
     MIN_STREAKS,
@@ -29,15 +29,12 @@ from calib.fitcore import (
     _rayleigh_sigma,
     _reorient,
     check_fit_inputs,
-    classify,
 )
 from calib.grid import GridEvaluator
 from calib.params import GROUPS, LAYOUT, THETA_NAMES, symmetric_scale_form, theta_from
 from calib.problem import ResidualModel, choose_substeps
-from calib.solve import JacobianEvaluator, LMResult, levenberg_marquardt
+from calib.solve import LMResult, levenberg_marquardt
 from calib.tracks import build_tracks, concat
-
-Warm = tuple[np.ndarray, tuple[str, ...]]
 
 
 @dataclass(frozen=True)
@@ -72,7 +69,8 @@ class Prepared:
     theta0: np.ndarray
     readout_bound: float
     model: ResidualModel
-    coarse: ResidualModel
+    #: The grid evaluator of the search, the coarse stages and the final stage.
+    ev: GridEvaluator
     warnings: tuple[str, ...]
 
 
@@ -113,29 +111,36 @@ def prepare(
         g, initial.R_cam_imu, cam.dist, cam.height,
         choose_substeps(train, cam.height, readout_bound),
     )  # fmt: skip
-    coarse = ResidualModel(
-        g, initial.R_cam_imu, cam.dist, cam.height,
-        choose_substeps(train, cam.height, readout_bound, COARSE_SUBSTEP_S),
-    )  # fmt: skip
+    ev = GridEvaluator(g, initial.R_cam_imu, cam.dist, cam.height)
     return Prepared(
-        free, initial, g, streaks, train, test, theta_from(initial), readout_bound, model,
-        coarse, tuple(warnings),
+        free, initial, g, streaks, train, test, theta_from(initial), readout_bound, model, ev,
+        tuple(warnings),
     )  # fmt: skip
 
 
-def initialise(
-    prep: Prepared, options: FitOptions, warm: Warm | None, rep: Reporter
-) -> init_mod.InitResult:
-    """Shift/focal search (:mod:`calib.init`); no search on a refit."""
-    rep.start("refit on all frames" if warm else "initial search")
+def all_frames(prep: Prepared) -> Prepared:
+    """The same prepared input with every frame for training and none held out (the refit
+    of :func:`calib.fit.calibrate`; the checks and the gyro are those of ``prep``)."""
+    cam = prep.initial.camera
+    n_sub = choose_substeps(prep.streaks, cam.height, prep.readout_bound)
+    return replace(
+        prep,
+        train=prep.streaks,
+        test=prep.streaks.subset(np.zeros(len(prep.streaks), dtype=bool)),
+        model=replace(prep.model, n_sub=n_sub),
+    )
+
+
+def initialise(prep: Prepared, options: FitOptions, rep: Reporter) -> init_mod.InitResult:
+    """Shift/focal search (:mod:`calib.init`)."""
+    rep.start("initial search")
     return init_mod.initialise(
-        prep.coarse,
+        prep.ev,
         prep.train,
         prep.theta0,
         LAYOUT["timeshift_s"] in prep.free,
         LAYOUT["fx"] in prep.free or LAYOUT["fy"] in prep.free,
         options.shift_window_s,
-        search=warm is None,
     )
 
 
@@ -152,43 +157,31 @@ class Coarse:
 
 
 def coarse_fit(
-    prep: Prepared,
-    ini: init_mod.InitResult,
-    options: FitOptions,
-    warm: Warm | None,
-    rep: Reporter,
+    prep: Prepared, ini: init_mod.InitResult, options: FitOptions, rep: Reporter
 ) -> Coarse:
     """Robust LM on a subsample: shift and focal first, then every observable parameter."""
     warnings: list[str] = []
-    theta, free, train, cam = ini.theta, prep.free, prep.train, prep.initial.camera
+    theta, free, train = ini.theta, prep.free, prep.train
     rng = np.random.default_rng(options.seed)
     sub_idx = np.arange(len(train))
     if sub_idx.size > SUBSAMPLE:
         sub_idx = np.sort(rng.choice(sub_idx, SUBSAMPLE, replace=False))
     sub = train.subset(sub_idx)
     iters = 0
-    ev = GridEvaluator(prep.g, prep.initial.R_cam_imu, cam.dist, cam.height)
+    ev = prep.ev
     stage1 = tuple(i for i in free if i in GROUPS["timeshift"] + GROUPS["fx"] + GROUPS["fy"])
     delta = max(2.0 * ini.median_error_px, 0.5)
-    dropped: list[int]
-    if warm is not None:
-        theta = warm[0].copy()
-        dropped = [THETA_NAMES.index(n) for n in warm[1]]
-        free = tuple(i for i in free if i not in dropped)
-    else:
-        rep.start("coarse")
-        if stage1:
-            lm = levenberg_marquardt(
-                ev, sub, theta, stage1, delta, 15, 0.05, progress=rep.report("coarse: shift, focal")
-            )
-            theta, iters = lm.theta, iters + lm.iterations
+    rep.start("coarse")
+    if stage1:
         lm = levenberg_marquardt(
-            ev, sub, theta, free, delta, 20, 0.02, progress=rep.report("coarse")
+            ev, sub, theta, stage1, delta, 15, 0.05, progress=rep.report("coarse: shift, focal")
         )
         theta, iters = lm.theta, iters + lm.iterations
-        info = uncertainty.information(lm.jacobian, lm.weights, free)
-        dropped = uncertainty.unobservable(info, free)
-    if dropped and warm is None:
+    lm = levenberg_marquardt(ev, sub, theta, free, delta, 20, 0.02, progress=rep.report("coarse"))
+    theta, iters = lm.theta, iters + lm.iterations
+    info = uncertainty.information(lm.jacobian, lm.weights, free)
+    dropped = uncertainty.unobservable(info, free)
+    if dropped:
         names = [THETA_NAMES[i] for i in dropped]
         warnings.append(
             f"not observable from this motion, kept at the initial value: {', '.join(names)}"
@@ -210,12 +203,16 @@ class Mode:
     use_ep: bool
     tracks: StreakSet | None
     model: ResidualModel
-    ev_fine: GridEvaluator | JacobianEvaluator
+    ev_fine: GridEvaluator
     warnings: tuple[str, ...]
 
 
-def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
-    """Resolve ``FitOptions.residuals`` and build the inter-frame tracks it asks for."""
+def choose_mode(
+    prep: Prepared, co: Coarse, options: FitOptions, reuse: GridEvaluator | None = None
+) -> Mode:
+    """Resolve ``FitOptions.residuals`` and build the inter-frame tracks it asks for;
+    ``reuse``: the final stage's evaluator of an earlier fit (a refit: its CasADi functions
+    are built already)."""
     warnings: list[str] = []
     train, cam, model = prep.train, prep.initial.camera, prep.model
     mode = options.residuals
@@ -233,7 +230,7 @@ def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
     use_ep = mode in ("endpoints", "both")
     tracks = None
     if mode != "endpoints":
-        tracks, _ = build_tracks(model, co.theta, train)
+        tracks, _ = build_tracks(co.ev, co.theta, train)
         if len(tracks) < MIN_STREAKS and options.residuals == "auto":
             warnings.append(
                 f"only {len(tracks)} inter-frame tracks paired up (consecutive "
@@ -258,9 +255,13 @@ def choose_mode(prep: Prepared, co: Coarse, options: FitOptions) -> Mode:
             prep.g, prep.initial.R_cam_imu, cam.dist, cam.height,
             choose_substeps(both, cam.height, prep.readout_bound),
         )  # fmt: skip
-    ev_fine: GridEvaluator | JacobianEvaluator = co.ev
-    if options.centreline and prep.streaks.centre is not None:
-        ev_fine = JacobianEvaluator(model, prep.streaks.centre.shape[1])
+    ev_fine: GridEvaluator = co.ev if reuse is None else reuse
+    if reuse is None and options.centreline and prep.streaks.centre is not None:
+        cam = prep.initial.camera
+        ev_fine = CentreGridEvaluator(
+            prep.g, prep.initial.R_cam_imu, cam.dist, cam.height, model.n_sub,
+            prep.streaks.centre.shape[1],
+        )  # fmt: skip
     return Mode(mode, use_ep, tracks, model, ev_fine, tuple(warnings))
 
 
@@ -278,12 +279,34 @@ class Fine:
     lm: LMResult
     iterations: int
     round_iterations: tuple[int, ...]
+    #: Endpoint errors ``(N,)`` of ``train`` at ``theta`` (the per-streak model).
+    rho: np.ndarray
+    #: The outlier thresholds (px) of the last classification: endpoints, tracks.
+    thresholds: tuple[float, float]
+    #: Set when fewer than :data:`MIN_STREAKS` streaks agreed with the model (the count): the
+    #: last round fitted every streak and the fit has failed.
+    n_agree: int | None = None
+
+
+def _track_errors(md: Mode, theta: np.ndarray, tracks: StreakSet) -> np.ndarray:
+    """Track errors ``(N,)`` (px) by the final stage's evaluator (grid: far cheaper than the
+    per-streak model over a frame period, and the more accurate)."""
+    return np.linalg.norm(md.ev_fine.residual(theta, tracks)[:, :2], axis=1)
 
 
 def fine_fit(
-    prep: Prepared, co: Coarse, md: Mode, options: FitOptions, warm: Warm | None, rep: Reporter
+    prep: Prepared,
+    co: Coarse,
+    md: Mode,
+    options: FitOptions,
+    rep: Reporter,
+    warm: tuple[float, float] | None = None,
 ) -> Fine:
-    """Up to three robust LM rounds with outlier rejection and reorientation in between."""
+    """Up to three robust LM rounds with outlier rejection and reorientation in between.
+
+    ``warm``: a refit (:func:`calib.fit.calibrate`) from a converged fit's ``co.theta`` with
+    that fit's outlier thresholds ``(endpoints, tracks)`` for the first classification (a
+    cold fit derives them from every streak at the coarse estimate)."""
     theta, iters, free, model, use_ep, tracks = (
         co.theta, co.iterations, co.free, md.model, md.use_ep, md.tracks
     )  # fmt: skip
@@ -291,32 +314,38 @@ def fine_fit(
     inl = np.ones(len(train), dtype=bool)
     tinl = np.ones(0 if tracks is None else len(tracks), dtype=bool)
     reoriented = np.zeros(len(train), dtype=bool)
-    converged = False
+    converged = settled = False
     fitset = train
     rounds: list[int] = []
     lm: LMResult | None = None
+    rho = np.zeros(0)
+    thr = thr_t = float("nan")
+    n_agree: int | None = None
     for round_ in range(3):
         changed = 0
         new_inl = inl
         if use_ep:
-            rho, _, _ = classify(model, theta, train, np.inf)
-            thr = _outlier_threshold(rho[inl])
-            train, rho, flip = _reorient(model, theta, train, thr)
+            rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
+            thr = warm[0] if warm is not None and round_ == 0 else _outlier_threshold(rho[inl])
+            train, rho, flip = _reorient(model, theta, train, thr, rho)
             reoriented ^= flip
             new_inl = rho <= thr
             changed += int(np.count_nonzero(new_inl != inl))
         new_tinl = tinl
         if tracks is not None:
-            rho_t = np.linalg.norm(model.residual_np(theta, tracks), axis=1)
-            new_tinl = rho_t <= _outlier_threshold(rho_t[tinl])
+            rho_t = _track_errors(md, theta, tracks)
+            thr_t = warm[1] if warm is not None and round_ == 0 else _outlier_threshold(rho_t[tinl])
+            new_tinl = rho_t <= thr_t
             changed += int(np.count_nonzero(new_tinl != tinl))
         if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
+            settled = True
             break  # the inlier sets have settled
         inl, tinl = new_inl, new_tinl
         if use_ep and np.count_nonzero(inl) < MIN_STREAKS:
-            raise CalibError(
-                f"only {np.count_nonzero(inl)} streaks agree with the model: the data contradict it"
-            )
+            # Too few streaks agree to fit: a fit quality, not an input error. One last round
+            # over every streak gives the summary an estimate; the status says failed.
+            n_agree = int(np.count_nonzero(inl))
+            inl = np.ones(len(train), dtype=bool)
         parts, errors = [], []
         if use_ep:
             parts.append(train.subset(inl))
@@ -339,14 +368,19 @@ def fine_fit(
         )
         theta, iters, converged = lm.theta, iters + lm.iterations, lm.converged
         rounds.append(lm.iterations)
+        if n_agree is not None:
+            break
     assert lm is not None  # round 1 always runs
+    if not (use_ep and settled):
+        # Endpoint errors at the final theta (the loop's are of the previous round's).
+        rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
     if not use_ep:
         # Endpoint statistics of the training streaks at the track fit (reorientation too).
-        rho, _, _ = classify(model, theta, train, np.inf)
         thr = _outlier_threshold(rho)
-        train, rho, flip = _reorient(model, theta, train, thr)
+        train, rho, flip = _reorient(model, theta, train, thr, rho)
         reoriented ^= flip
         inl = rho <= thr
     return Fine(
-        theta, train, inl, tinl, reoriented, converged, fitset, lm, iters, tuple(rounds)
+        theta, train, inl, tinl, reoriented, converged, fitset, lm, iters, tuple(rounds), rho,
+        (thr, thr_t), n_agree,
     )  # fmt: skip

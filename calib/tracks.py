@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.problem import ResidualModel
+from calib.solve import Evaluator
 
 #: Association gate (px) between a predicted and a measured midpoint.
 GATE_PX = 3.0
@@ -71,9 +72,14 @@ def _pseudo(
 
 
 def build_tracks(
-    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, gate_px: float = GATE_PX
+    model: ResidualModel | Evaluator,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    gate_px: float = GATE_PX,
 ) -> tuple[StreakSet, np.ndarray]:
-    """Pair midpoints of consecutive frames under ``theta`` (see the module docstring).
+    """Pair midpoints of consecutive frames under ``theta`` (see the module docstring),
+    predicted by the per-streak model or an evaluator (the fit's grid: cheaper over a frame
+    period).
 
     Returns the tracks as pseudo-streaks and ``(T, 2)`` indices into ``streaks`` of each
     track's earlier and later streak. Raises :class:`CalibError` when the streaks carry no
@@ -84,6 +90,7 @@ def build_tracks(
             "inter-frame tracks need the streaks' time midpoints (the mid_x, "
             "mid_y columns that blurtrack detect writes)"
         )
+    residual = model.residual_np if isinstance(model, ResidualModel) else model.residual
     frames = np.unique(streaks.frame)
     by_frame = {int(f): np.flatnonzero(streaks.frame == f) for f in frames}
     steps = [
@@ -101,7 +108,7 @@ def build_tracks(
         pred = streaks.mid[a]
         for _ in range(2):
             probe = _pseudo(streaks, a, b0, pred, row)
-            pred = model.residual_np(theta, probe) + probe.end
+            pred = residual(theta, probe)[:, :2] + probe.end
             row = pred[:, 1]
         off = 0
         for idx_a, idx_b in steps:

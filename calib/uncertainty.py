@@ -56,8 +56,11 @@ class Uncertainty:
 
 
 def information(J: np.ndarray, w: np.ndarray, free: tuple[int, ...]) -> np.ndarray:
-    Jf = J[:, :, list(free)]
-    return np.einsum("n,nki,nkj->ij", w, Jf, Jf)
+    """``Σ_n w_n J_nᵀ J_n`` over the ``free`` columns ``(p, p)`` (one matrix product: numpy's
+    three-operand einsum is an unblocked loop, 100x slower on a fit's 10⁵ residuals)."""
+    Jw = J[:, :, list(free)] * np.sqrt(w)[:, None, None]
+    M = Jw.reshape(-1, Jw.shape[2])
+    return M.T @ M
 
 
 def unobservable(A: np.ndarray, free: tuple[int, ...]) -> list[int]:

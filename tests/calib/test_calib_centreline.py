@@ -5,14 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.geometry.kernels import NUMPY_OPS
-from calib.centreline import associate, centre_factors, centre_residual_np
+from calib.centreline import CentreGridEvaluator, associate, centre_factors, centre_residual_np
 from calib.data import StreakSet, centre_points, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
-from calib.jacobian import JacobianEvaluator
+from calib.grid import GridEvaluator
 from calib.params import theta_from
-from calib.problem import ResidualModel, choose_substeps, predicted_track
+from calib.problem import ResidualModel, choose_substeps
 from calib.testing import make_problem
 
 
@@ -22,6 +21,10 @@ def clean():
     g = relative_gyro(p.gyro.upsampled(8), p.streaks.t0_s)
     model = ResidualModel(g, p.truth.R_cam_imu, (), 720, choose_substeps(p.streaks, 720, 0.05))
     return p, model
+
+
+def _centre_ev(model: ResidualModel) -> CentreGridEvaluator:
+    return CentreGridEvaluator(model.gyro, model.R0_cam_imu, (), 720, model.n_sub, 4)
 
 
 def test_centre_points_resample_by_arc_length() -> None:
@@ -44,26 +47,20 @@ def test_association_and_perpendicular_distance_known_values() -> None:
 
 
 def test_track_ends_at_the_endpoint_residual(clean) -> None:
+    # The centre evaluator's endpoint columns are the grid's endpoint residual, bit for bit
+    # (the last track node is looked up at the end time itself), and within the grid's
+    # accuracy of the per-streak model.
     p, model = clean
     th = theta_from(p.truth) + 1e-3
-    us, vs = predicted_track(
-        list(th),
-        list(model.data_matrix(p.streaks).T),
-        model.gyro.omega_components,
-        model.R0_cam_imu,
-        (),
-        720,
-        model.n_sub,
-        NUMPY_OPS,
-    )
-    r = model.residual_np(th, p.streaks)
-    np.testing.assert_array_equal(us[-1] - p.streaks.end[:, 0], r[:, 0])
-    np.testing.assert_array_equal(vs[-1] - p.streaks.end[:, 1], r[:, 1])
+    r = _centre_ev(model).residual(th, p.streaks)
+    grid = GridEvaluator(model.gyro, model.R0_cam_imu, (), 720)
+    np.testing.assert_array_equal(r[:, :2], grid.residual(th, p.streaks))
+    assert np.max(np.abs(r[:, :2] - model.residual_np(th, p.streaks))) < 3e-3
 
 
 def test_centre_residual_vanishes_at_truth(clean) -> None:
     p, model = clean
-    ev = JacobianEvaluator(model, centre_k=4)
+    ev = _centre_ev(model)
     r = ev.residual(theta_from(p.truth), p.streaks)
     assert r.shape == (len(p.streaks), 6)
     used = centre_factors(p.streaks) > 0
@@ -78,7 +75,7 @@ def test_centre_residual_vanishes_at_truth(clean) -> None:
 def test_centre_jacobian_matches_numpy_and_finite_differences(clean) -> None:
     p, model = clean
     sub = p.streaks.subset(np.arange(60))
-    ev = JacobianEvaluator(model, centre_k=4)
+    ev = _centre_ev(model)
     th = theta_from(p.truth) + np.array(
         [
             1e-3,
@@ -103,9 +100,10 @@ def test_centre_jacobian_matches_numpy_and_finite_differences(clean) -> None:
     )
     r, J = ev.evaluate(th, sub)
     np.testing.assert_allclose(r, ev.residual(th, sub), atol=1e-9, rtol=0)
-    np.testing.assert_allclose(r[:, :2], model.residual_np(th, sub), atol=1e-9, rtol=0)
     # Endpoint columns are those of the endpoint-only evaluator.
-    _, J0 = JacobianEvaluator(model).evaluate(th, sub)
+    grid = GridEvaluator(model.gyro, model.R0_cam_imu, (), 720)
+    r0, J0 = grid.evaluate(th, sub)
+    np.testing.assert_allclose(r[:, :2], r0, atol=1e-9, rtol=0)
     np.testing.assert_allclose(J[:, :2], J0, rtol=1e-9, atol=1e-12)
     steps = np.array([1e-7, 1e-3, 1e-3, 1e-3, 1e-3, 1e-7] + [1e-6] * 12)
     for i, h in enumerate(steps):

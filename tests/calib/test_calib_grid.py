@@ -8,7 +8,8 @@ import pytest
 
 from blurtrack.geometry.blur_model import BlurModel
 from calib.data import relative_gyro
-from calib.grid import GridEvaluator, prefix_products
+from calib.grid import GridEvaluator
+from calib.gridops import prefix_products
 from calib.params import LAYOUT, N_THETA, apply_theta, theta_from
 from calib.problem import ResidualModel
 from calib.testing import make_problem
@@ -107,3 +108,40 @@ def test_grid_jacobian_matches_finite_differences(setup) -> None:
         # piecewise constant in time): exact to the quadrature, 1e-3 relative.
         tol = 3e-3 if i in (LAYOUT["timeshift_s"], LAYOUT["readout_s"]) else 3e-4
         assert np.max(np.abs(fd - J[:, :, i])) <= tol * np.max(np.abs(fd)), i
+
+
+def test_jacobian_in_chunks_equals_one_call(setup, monkeypatch) -> None:
+    # The mapped Jacobian runs in chunks of MAP_CHUNK residuals, the last padded: chunking
+    # must not change a single value (negative control: another theta does).
+    import calib.gridops as gridops
+
+    p, g = setup
+    s = p.streaks
+    th = _random_theta(p, np.random.default_rng(3))
+    free = tuple(range(N_THETA))
+    assert len(s) < gridops.MAP_CHUNK
+    r1, J1 = GridEvaluator(g, p.initial.R_cam_imu, (), 720).evaluate(th, s, free)
+    monkeypatch.setattr(gridops, "MAP_CHUNK", 37)  # several full chunks and a padded one
+    assert len(s) % 37
+    ev = GridEvaluator(g, p.initial.R_cam_imu, (), 720)
+    r2, J2 = ev.evaluate(th, s, free)
+    np.testing.assert_array_equal(r1, r2)
+    np.testing.assert_array_equal(J1, J2)
+    _, J3 = ev.evaluate(_random_theta(p, np.random.default_rng(4)), s, free)
+    assert not np.allclose(J1, J3)
+
+
+def test_chain_rule_jacobian_equals_the_full_sx_jacobian(setup) -> None:
+    # evaluate() differentiates through z = (δφ, rot, K) and chains ∂δφ/∂θ in numpy; the SX
+    # function of every parameter (the reference) must give the same residuals and Jacobian.
+    p, g = setup
+    ev = GridEvaluator(g, p.initial.R_cam_imu, (), 720)
+    th = _random_theta(p, np.random.default_rng(5))
+    free = (0, 1, 2, 5, 6, 7, 9, 12, 14, 16)
+    for s in (p.streaks, build_tracks(ev, th, p.streaks)[0]):
+        r, J = ev.evaluate(th, s, free)
+        r_ref, J_ref = ev._evaluate_full(th, s, free)
+        np.testing.assert_allclose(r, r_ref, atol=1e-9, rtol=0)
+        scale = np.max(np.abs(J_ref), axis=(0, 1)) + 1e-300
+        np.testing.assert_allclose(J / scale, J_ref / scale, atol=1e-9, rtol=0)
+        assert np.all(J[:, :, 3] == 0) and np.all(J_ref[:, :, 3] == 0)  # cx held

@@ -10,9 +10,9 @@ from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
+from calib.grid import GridEvaluator
 from calib.params import theta_from
 from calib.problem import ResidualModel, choose_substeps
-from calib.solve import JacobianEvaluator
 from calib.testing import make_problem
 from calib.tracks import build_tracks, concat, mean_rows
 
@@ -57,18 +57,20 @@ def test_track_jacobian_matches_numpy_and_finite_differences(exact) -> None:
     sub = tracks.subset(np.arange(0, len(tracks), 7))
     model = _model(p, concat([p.streaks, tracks]))
     th = theta_from(p.initial).astype(float)
-    ev = JacobianEvaluator(model)
+    cam = p.truth.camera
+    ev = GridEvaluator(model.gyro, model.R0_cam_imu, cam.dist, cam.height)
     r, J = ev.evaluate(th, sub)
-    assert np.allclose(r, model.residual_np(th, sub), atol=1e-9)
-    # The interpolated gyro is piecewise linear: a difference whose sub-step times straddle a
-    # knot is off there, so time-like steps are tiny and a stray element is allowed.
-    for i, h in ((0, 1e-8), (1, 1e-3), (4, 1e-3), (5, 1e-8), (7, 1e-7)):
+    assert np.allclose(r, ev.residual(th, sub), atol=1e-9)
+    assert np.max(np.abs(r - model.residual_np(th, sub))) < 3e-3  # the per-streak model
+    # Time derivatives take ω at the ends of the (frame-period) interval: exact to the
+    # grid's quadrature.
+    for i, h in ((0, 1e-7), (1, 1e-3), (4, 1e-3), (5, 1e-7), (7, 1e-6)):
         tp, tm = th.copy(), th.copy()
         tp[i] += h
         tm[i] -= h
-        fd = (model.residual_np(tp, sub) - model.residual_np(tm, sub)) / (2 * h)
-        close = np.isclose(J[:, :, i], fd, rtol=1e-4, atol=1e-4)
-        assert close.mean() > 0.99, (i, close.mean())
+        fd = (ev.residual(tp, sub) - ev.residual(tm, sub)) / (2 * h)
+        tol = 3e-3 if i in (0, 5) else 3e-4
+        assert np.max(np.abs(fd - J[:, :, i])) <= tol * np.max(np.abs(fd)), i
 
 
 def test_track_fit_is_unmoved_by_a_length_bias() -> None:
