@@ -1,0 +1,339 @@
+"""Separation of touching and overlapping streaks with the frame's own streak as a template.
+
+Within one frame every dot draws nearly the same curve: the camera's rotation moves every dot
+alike, up to perspective and the rolling shutter, which vary slowly over the frame. So a clean,
+isolated streak is a matched template for its neighbours (shape *and* brightness profile).
+
+1. **Consensus** (:func:`blurtrack.detect.quality.consensus_field`): the robust affine field
+   of the start-to-end vectors of the first pass's unflagged streaks.
+2. **Candidates**: components whose lines are flagged (crossing, looped, merged), deviate from
+   the consensus by more than the quality tolerance (chains of several streaks, fragments,
+   hooks), or that gave no measurable line at all.
+3. **Matching pursuit** per candidate, with the nearest *reference* (an unflagged streak whose
+   vector agrees with the consensus; its component's pixels of the smoothed image are the
+   template ``T``): the normalised correlation over the template's support,
+   ``<T, X> / (|T| |X|_support)``, is 1 where ``X`` holds a scaled copy of ``T`` whatever lies
+   outside, and about ``sqrt(f)`` where only a fraction ``f`` of a collinear neighbour overlaps;
+   the best placement above :data:`SCORE_MIN` with an amplitude ``<T, X> / |T|^2`` above
+   :data:`AMP_MIN` is accepted and ``a T`` subtracted from the candidates' residual image, until
+   none is left. Fragments of one streak (a dim middle) are joined: one placement explains
+   both. Components that the accepted placements explain (most of their light) are replaced.
+4. **Measurement**: each placement gets its own image, the smoothed (and raw) frame around it
+   minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
+   the placed centre lines (the reference's, shifted) are measured there by
+   :func:`blurtrack.detect.measure.measure_lines` exactly like the first pass's, and moved back.
+   Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.quality import MIN_REFERENCE, consensus_field, shape_tolerance
+from blurtrack.detect.segment import Components
+
+#: Lowest support-normalised correlation of an accepted placement.
+SCORE_MIN = 0.8
+#: Lowest amplitude (relative to the reference) of an accepted placement.
+AMP_MIN = 0.6
+#: Candidates whose light the placements leave more than this fraction of keep their lines.
+RESIDUAL_MAX = 0.5
+#: Placements whose supports share more than this fraction are flagged ``crossing``.
+OVERLAP_FRACTION = 0.1
+#: Components larger than this many reference areas are candidates (chains).
+AREA_FACTOR = 1.6
+
+
+@dataclass(frozen=True)
+class _Template:
+    box: tuple[int, int, int, int]  # x, y, w, h in the frame
+    smooth: np.ndarray  # (h, w) float32, zero off the reference's component
+    raw: np.ndarray  # the same of the unsmoothed signal
+    support: np.ndarray  # (h, w) float32 0/1
+    norm2: float
+    points: np.ndarray  # the reference's centre line, frame coordinates
+    area: int
+
+
+@dataclass(frozen=True)
+class _Placement:
+    tpl: _Template
+    shift: np.ndarray  # (2,) frame offset of the template (sub-pixel)
+    amp: float
+    comp: int
+
+
+def _template(
+    smooth: np.ndarray, signal: np.ndarray, comps: Components, c: int, pts: np.ndarray
+) -> _Template:
+    x, y, w, h = (int(v) for v in comps.boxes[c])
+    sup = comps.labels[y : y + h, x : x + w] == comps.ids[c]
+    t = np.where(sup, smooth[y : y + h, x : x + w], 0.0).astype(np.float32)
+    raw = np.where(sup, signal[y : y + h, x : x + w], 0.0).astype(np.float32)
+    return _Template(
+        (x, y, w, h), t, raw, sup.astype(np.float32), float(np.sum(t * t)), pts, int(sup.sum())
+    )
+
+
+def _similar(t: _Template, z: complex, pivot: np.ndarray) -> _Template:
+    """``t`` rotated and scaled by the complex factor ``z`` about ``pivot`` (frame px)."""
+    M = np.array([[z.real, -z.imag], [z.imag, z.real]])
+    x, y, w, h = t.box
+    corners = np.array([[x, y], [x + w, y], [x, y + h], [x + w, y + h]], float)
+    moved = (corners - pivot) @ M.T + pivot
+    nx, ny = np.floor(moved.min(axis=0)).astype(int) - 1
+    nw, nh = (np.ceil(moved.max(axis=0)).astype(int) + 2) - (nx, ny)
+    A = np.hstack([M, (M @ (np.array([x, y], float) - pivot) + pivot - (nx, ny))[:, None]])
+
+    def warp(img: np.ndarray) -> np.ndarray:
+        return cv2.warpAffine(img, A, (int(nw), int(nh)), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+    sup = (warp(t.support) > 0.5).astype(np.float32)
+    sm, raw = warp(t.smooth) * sup, warp(t.raw) * sup
+    pts = (t.points - pivot) @ M.T + pivot
+    return _Template(
+        (int(nx), int(ny), int(nw), int(nh)),
+        sm,
+        raw,
+        sup,
+        float(np.sum(sm * sm)),
+        pts,
+        int(sup.sum()),
+    )
+
+
+def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
+    """Parabolic refinement of an integer maximum of ``score``."""
+
+    def para(a: float, b: float, c: float) -> float:
+        den = a - 2.0 * b + c
+        return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+    h, w = score.shape
+    fx = para(score[iy, ix - 1], score[iy, ix], score[iy, ix + 1]) if 0 < ix < w - 1 else 0.0
+    fy = para(score[iy - 1, ix], score[iy, ix], score[iy + 1, ix]) if 0 < iy < h - 1 else 0.0
+    return fx, fy
+
+
+def _pursue(
+    residual: np.ndarray, comps: Components, c: int, tpl: _Template, comp_of_label: np.ndarray
+) -> list[_Placement]:
+    """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
+    it updates in place). Each placement belongs to the component that holds most of the
+    light it explains."""
+    H, W = residual.shape
+    x, y, w, h = (int(v) for v in comps.boxes[c])
+    tx, ty, tw, th = tpl.box
+    x0, y0 = max(x - tw + 1, 0), max(y - th + 1, 0)
+    x1, y1 = min(x + w + tw - 1, W), min(y + h + th - 1, H)
+    if x1 - x0 < tw or y1 - y0 < th:
+        return []
+    region = residual[y0:y1, x0:x1]  # a view: subtractions update the residual
+    out: list[_Placement] = []
+    norm = float(np.sqrt(tpl.norm2))
+    for _ in range(int(2 * comps.areas[c] / max(tpl.area, 1)) + 2):
+        num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
+        den = cv2.matchTemplate(region * region, tpl.support, cv2.TM_CCORR)
+        score = num / (np.sqrt(np.maximum(den, 0.0)) * norm + 1e-12)
+        amp = num / tpl.norm2
+        score = np.where(amp >= AMP_MIN, score, 0.0)
+        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        if score[iy, ix] < SCORE_MIN:
+            break
+        fx, fy = _subpixel(score, int(iy), int(ix))
+        a = float(amp[iy, ix])
+        shift = np.array([x0 + ix + fx - tx, y0 + iy + fy - ty])
+        win = region[iy : iy + th, ix : ix + tw]
+        lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
+        owner = comp_of_label[lab]
+        light = np.bincount(owner[owner >= 0], (win * tpl.smooth)[owner >= 0])
+        out.append(_Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
+        win -= a * tpl.smooth
+        np.maximum(win, 0.0, out=win)
+    return out
+
+
+def _warp(t: np.ndarray, dx: float, dy: float, w: int, h: int) -> np.ndarray:
+    m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
+    return cv2.warpAffine(t, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def _overlaps(pl: list[_Placement]) -> np.ndarray:
+    """``(P,)`` bool: the placement's support shares more than :data:`OVERLAP_FRACTION` of
+    its pixels with another placement's."""
+    P = len(pl)
+    flag = np.zeros(P, bool)
+    org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.rint([p.shift for p in pl])
+    size = np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl])
+    for i in range(P):
+        for j in range(i + 1, P):
+            lo = np.maximum(org[i], org[j]).astype(int)
+            hi = np.minimum(org[i] + size[i], org[j] + size[j]).astype(int)
+            if np.any(hi <= lo):
+                continue
+            oi, oj = (lo - org[i]).astype(int), (lo - org[j]).astype(int)
+            ext = hi - lo
+            si = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
+            sj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
+            shared = float(np.sum(si * sj))
+            if shared > OVERLAP_FRACTION * min(pl[i].tpl.area, pl[j].tpl.area):
+                flag[i] = flag[j] = True
+    return flag
+
+
+def _mosaic(
+    smooth: np.ndarray, signal: np.ndarray, pl: list[_Placement], pad: int
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """Each placement's own image (frame minus the other placements' templates) tiled into
+    one mosaic; returns the smoothed and raw mosaics, the placed lines in mosaic coordinates
+    and per placement the offset from mosaic back to frame coordinates."""
+    H, W = smooth.shape
+    boxes = []
+    for p in pl:
+        x, y, w, h = p.tpl.box
+        ox, oy = int(np.floor(x + p.shift[0])) - pad, int(np.floor(y + p.shift[1])) - pad
+        boxes.append((ox, oy, w + 2 * pad + 1, h + 2 * pad + 1))
+    width = max(1024, max(b[2] for b in boxes))
+    tiles: list[tuple[int, int]] = []
+    cx = cy = row_h = 0
+    for b in boxes:  # shelf packing, ``pad`` of zeros between tiles
+        if cx + b[2] > width:
+            cx, cy, row_h = 0, cy + row_h + pad, 0
+        tiles.append((cx, cy))
+        cx += b[2] + pad
+        row_h = max(row_h, b[3])
+    mos_s = np.zeros((cy + row_h, width), np.float32)
+    mos_r = np.zeros_like(mos_s)
+    lines: list[np.ndarray] = []
+    back = np.zeros((len(pl), 2))
+    for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
+        fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
+        own_s = np.zeros((bh, bw), np.float32)
+        own_r = np.zeros((bh, bw), np.float32)
+        if fx1 > fx0 and fy1 > fy0:
+            own_s[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = smooth[fy0:fy1, fx0:fx1]
+            own_r[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = signal[fy0:fy1, fx0:fx1]
+        for j, q in enumerate(pl):
+            if j == k:
+                continue
+            qx, qy, qw, qh = q.tpl.box
+            dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
+            if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
+                continue
+            own_s -= q.amp * _warp(q.tpl.smooth, dx, dy, bw, bh)
+            own_r -= q.amp * _warp(q.tpl.raw, dx, dy, bw, bh)
+        mos_s[ty : ty + bh, tx : tx + bw] = own_s
+        mos_r[ty : ty + bh, tx : tx + bw] = own_r
+        back[k] = (ox - tx, oy - ty)
+        lines.append(p.tpl.points + p.shift - back[k])
+    return mos_s, mos_r, lines, back
+
+
+def separate(
+    smooth: np.ndarray,
+    signal: np.ndarray,
+    saturation: float,
+    sat_comp: np.ndarray | None,
+    comps: Components,
+    first: Measured,
+    folded: np.ndarray,
+    clipped: np.ndarray,
+    merged: np.ndarray,
+    smooth_sigma: float,
+) -> tuple[Measured, np.ndarray] | None:
+    """Template separation of the first pass's doubtful components (see the module text).
+
+    Args:
+        smooth, signal, saturation: the prepared frame.
+        sat_comp: per component, whether it has saturated pixels (None: none has).
+        comps: the components; ``folded`` ``(C,)`` those the skeleton tracer took.
+        first: the first pass's streaks; ``clipped``/``merged`` ``(N,)`` their flags.
+        smooth_sigma: the pre-smoothing sigma.
+    Returns:
+        ``(streaks, replaced)``: the separated streaks (frame coordinates) and the ``(C,)``
+        bool mask of the components they replace; None when nothing was separated.
+    """
+    C = comps.ids.size
+    v = first.end_b - first.end_a
+    n_lines = np.bincount(first.own, minlength=C)
+    single = n_lines[first.own] == 1
+    voters = single & ~(first.crossing | first.looped | merged | clipped)
+    field = consensus_field(v, first.time_mid, voters)
+    if field is None:
+        return None
+    c, dev, use = field.c, field.dev, field.use
+    tol = shape_tolerance(c)
+    good = use & (dev <= 0.5 * tol)
+    if int(good.sum()) < MIN_REFERENCE:
+        return None
+    bad_line = ~clipped & ((dev > tol) | first.crossing | first.looped | merged)
+    cand = np.zeros(C, bool)
+    cand[first.own[bad_line]] = True
+    cand |= folded | (n_lines == 0)
+    ref_idx = np.flatnonzero(good)
+    ref_mid = first.time_mid[ref_idx]
+    # Every component's nearest reference (local: the streaks' shape varies over the frame).
+    x, y, w, h = comps.boxes.T.astype(np.float64)
+    centre = np.stack([x + w / 2, y + h / 2], axis=1)
+    d2 = (centre[:, None, 0] - ref_mid[None, :, 0]) ** 2 + (
+        centre[:, None, 1] - ref_mid[None, :, 1]
+    ) ** 2
+    nearest = ref_idx[np.argmin(d2, axis=1)]
+    cand |= comps.areas > AREA_FACTOR * comps.areas[first.own[nearest]]
+    cand[first.own[ref_idx]] = False
+    if not cand.any():
+        return None
+    # Residual image: the candidates' light only (clean neighbours are not matched).
+    is_cand = np.zeros(int(comps.labels.max()) + 1, bool)
+    is_cand[comps.ids[cand]] = True
+    residual = np.where(is_cand[comps.labels], smooth, 0.0).astype(np.float32)
+    templates: dict[tuple[int, int, int], _Template] = {}
+    local = field.at(centre)
+    placements: list[_Placement] = []
+    order = np.flatnonzero(cand)
+    order = order[np.argsort(-comps.areas[order], kind="stable")]
+    comp_of_label = np.full(is_cand.size, -1, np.int64)
+    comp_of_label[comps.ids] = np.arange(C)
+    for ci in order.tolist():
+        k = int(nearest[ci])
+        # The reference mapped onto the local consensus by a rotation and scaling.
+        vk = complex(*field.at(first.time_mid[k : k + 1])[0])
+        zt = complex(*local[ci])
+        z = zt / vk if (zt / vk).real > 0 else -zt / vk
+        if not 0.7 < abs(z) < 1.4:
+            continue
+        key = (k, round(abs(z) / 0.02), round(float(np.angle(z)) / 0.02))
+        if key not in templates:
+            base = _template(smooth, signal, comps, int(first.own[k]), first.points[k])
+            templates[key] = _similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
+        placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
+    if not placements:
+        return None
+    # Candidates whose light the placements mostly explain are replaced.
+    before = np.add.reduceat(comps.values**2, comps.starts)
+    after = np.add.reduceat(residual[comps.ys, comps.xs].astype(np.float64) ** 2, comps.starts)
+    replaced = cand & (after <= RESIDUAL_MAX * before)
+    placements = [p for p in placements if replaced[p.comp]]
+    if not placements:
+        return None
+    pad = int(np.ceil(6.0 * first.sigma_c)) + 8
+    mos_s, mos_r, lines, back = _mosaic(smooth, signal, placements, pad)
+    ls = LineSet(
+        lines=lines,
+        owner=[p.comp for p in placements],
+        crossing=_overlaps(placements).tolist(),
+        looped=[False] * len(placements),
+    )
+    m = measure_lines(
+        mos_s, mos_r, saturation, sat_comp, ls, first.sigma_c, False, smooth_sigma, first.sigma_raw
+    )
+    off = back[m.src]
+    m.end_a = m.end_a + off
+    m.end_b = m.end_b + off
+    m.time_mid = m.time_mid + off
+    m.points = [pt + o for pt, o in zip(m.points, off, strict=True)]
+    return m, replaced
