@@ -11,7 +11,12 @@ from blurtrack.detect.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import Ragged
-from blurtrack.detect.segment import Components, axis_polylines, find_components
+from blurtrack.detect.segment import (
+    Components,
+    axis_polylines,
+    drop_artefacts,
+    find_components,
+)
 from blurtrack.detect.separate import separate
 from blurtrack.detect.skeleton import trace_paths
 
@@ -196,6 +201,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
+    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
     if comps.ids.size == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     polylines, folded = axis_polylines(prep.smooth, comps, sigma_c)

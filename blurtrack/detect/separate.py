@@ -46,6 +46,12 @@ RESIDUAL_MAX = 0.5
 OVERLAP_FRACTION = 0.1
 #: Components larger than this many reference areas are candidates (chains).
 AREA_FACTOR = 1.6
+#: Width (px) of the ring around a template that must be dark where it is placed, and the
+#: most light (squared, relative to that under the template) the ring may hold.
+HALO_PX = 3
+HALO_MAX = 0.25
+#: References whose median area a component's area is compared with.
+NEIGHBOURS = 6
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,7 @@ class _Template:
     smooth: np.ndarray  # (h, w) float32, zero off the reference's component
     raw: np.ndarray  # the same of the unsmoothed signal
     support: np.ndarray  # (h, w) float32 0/1
+    halo: np.ndarray  # (h, w) float32 0/1: a ring of HALO_PX around the support
     norm2: float
     points: np.ndarray  # the reference's centre line, frame coordinates
     area: int
@@ -67,16 +74,39 @@ class _Placement:
     comp: int
 
 
+def _finish(
+    box: tuple[int, int, int, int],
+    sm: np.ndarray,
+    raw: np.ndarray,
+    sup: np.ndarray,
+    pts: np.ndarray,
+) -> _Template:
+    """A template padded by :data:`HALO_PX` of zeros, with its halo."""
+    m = HALO_PX
+    x, y, w, h = box
+    sm, raw, sup = (np.pad(a.astype(np.float32), m) for a in (sm, raw, sup))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    halo = cv2.dilate(sup, k) - sup
+    return _Template(
+        (x - m, y - m, w + 2 * m, h + 2 * m),
+        sm,
+        raw,
+        sup,
+        halo,
+        float(np.sum(sm * sm)),
+        pts,
+        int(sup.sum()),
+    )
+
+
 def _template(
     smooth: np.ndarray, signal: np.ndarray, comps: Components, c: int, pts: np.ndarray
 ) -> _Template:
     x, y, w, h = (int(v) for v in comps.boxes[c])
     sup = comps.labels[y : y + h, x : x + w] == comps.ids[c]
-    t = np.where(sup, smooth[y : y + h, x : x + w], 0.0).astype(np.float32)
-    raw = np.where(sup, signal[y : y + h, x : x + w], 0.0).astype(np.float32)
-    return _Template(
-        (x, y, w, h), t, raw, sup.astype(np.float32), float(np.sum(t * t)), pts, int(sup.sum())
-    )
+    t = np.where(sup, smooth[y : y + h, x : x + w], 0.0)
+    raw = np.where(sup, signal[y : y + h, x : x + w], 0.0)
+    return _finish((x, y, w, h), t, raw, sup, pts)
 
 
 def _similar(t: _Template, z: complex, pivot: np.ndarray) -> _Template:
@@ -95,15 +125,7 @@ def _similar(t: _Template, z: complex, pivot: np.ndarray) -> _Template:
     sup = (warp(t.support) > 0.5).astype(np.float32)
     sm, raw = warp(t.smooth) * sup, warp(t.raw) * sup
     pts = (t.points - pivot) @ M.T + pivot
-    return _Template(
-        (int(nx), int(ny), int(nw), int(nh)),
-        sm,
-        raw,
-        sup,
-        float(np.sum(sm * sm)),
-        pts,
-        int(sup.sum()),
-    )
+    return _finish((int(nx), int(ny), int(nw), int(nh)), sm, raw, sup, pts)
 
 
 def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
@@ -137,10 +159,13 @@ def _pursue(
     norm = float(np.sqrt(tpl.norm2))
     for _ in range(int(2 * comps.areas[c] / max(tpl.area, 1)) + 2):
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-        den = cv2.matchTemplate(region * region, tpl.support, cv2.TM_CCORR)
+        r2 = region * region
+        den = cv2.matchTemplate(r2, tpl.support, cv2.TM_CCORR)
+        halo = cv2.matchTemplate(r2, tpl.halo, cv2.TM_CCORR)
         score = num / (np.sqrt(np.maximum(den, 0.0)) * norm + 1e-12)
         amp = num / tpl.norm2
-        score = np.where(amp >= AMP_MIN, score, 0.0)
+        # A streak's template lies in the dark: no blob or wider streak fits it.
+        score = np.where((amp >= AMP_MIN) & (halo <= HALO_MAX * den), score, 0.0)
         iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
         if score[iy, ix] < SCORE_MIN:
             break
@@ -275,15 +300,25 @@ def separate(
     cand[first.own[bad_line]] = True
     cand |= folded | (n_lines == 0)
     ref_idx = np.flatnonzero(good)
-    ref_mid = first.time_mid[ref_idx]
-    # Every component's nearest reference (local: the streaks' shape varies over the frame).
+    # A component is compared with its nearest references other than itself: a chain of two
+    # streaks whose one line measured the first of them looks clean but has twice the area.
+    ref_area = comps.areas[first.own[ref_idx]].astype(np.float64)
     x, y, w, h = comps.boxes.T.astype(np.float64)
     centre = np.stack([x + w / 2, y + h / 2], axis=1)
+    ref_mid = first.time_mid[ref_idx]
     d2 = (centre[:, None, 0] - ref_mid[None, :, 0]) ** 2 + (
         centre[:, None, 1] - ref_mid[None, :, 1]
     ) ** 2
+    d2[first.own[ref_idx], np.arange(ref_idx.size)] = np.inf
+    k_near = min(NEIGHBOURS, ref_idx.size - 1)
+    near = np.argpartition(d2, k_near - 1, axis=1)[:, :k_near]
+    cand |= comps.areas > AREA_FACTOR * np.median(ref_area[near], axis=1)
+    keep_ref = ~cand[first.own[ref_idx]]
+    if int(keep_ref.sum()) < MIN_REFERENCE:
+        return None
+    ref_idx, ref_mid, d2 = ref_idx[keep_ref], ref_mid[keep_ref], d2[:, keep_ref]
+    # Every component's nearest reference (local: the streaks' shape varies over the frame).
     nearest = ref_idx[np.argmin(d2, axis=1)]
-    cand |= comps.areas > AREA_FACTOR * comps.areas[first.own[nearest]]
     cand[first.own[ref_idx]] = False
     if not cand.any():
         return None
@@ -316,7 +351,20 @@ def separate(
     # Candidates whose light the placements mostly explain are replaced.
     before = np.add.reduceat(comps.values**2, comps.starts)
     after = np.add.reduceat(residual[comps.ys, comps.xs].astype(np.float64) ** 2, comps.starts)
-    replaced = cand & (after <= RESIDUAL_MAX * before)
+    # Components at the border keep parts that no placement can explain (streaks leaving
+    # the frame): one placement is enough there.
+    x, y, w, h = comps.boxes.T
+    H, W = smooth.shape
+    border = (x == 0) | (y == 0) | (x + w == W) | (y + h == H)
+    explained = np.zeros(C, bool)
+    explained[[p.comp for p in placements]] = True
+    replaced = cand & ((after <= RESIDUAL_MAX * before) | (border & explained))
+    # A candidate explained by one placement of its own, whose first pass gave one plain
+    # line, is one streak: its first measurement (on the image itself) stands.
+    n_place = np.bincount([p.comp for p in placements], minlength=C)
+    plain = np.zeros(C, bool)
+    plain[first.own[~(first.crossing | first.looped)]] = True
+    replaced &= ~((n_place == 1) & (n_lines == 1) & plain)
     placements = [p for p in placements if replaced[p.comp]]
     if not placements:
         return None
