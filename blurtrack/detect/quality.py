@@ -54,6 +54,24 @@ class Consensus:
         return np.asarray(X @ self.coef)
 
 
+def _robust_affine(
+    X: np.ndarray, vs: np.ndarray, voters: np.ndarray, start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Affine field from ``start``, refitted over rounds that keep the ``voters`` within 3x
+    the median residual; returns the coefficients and the voters of the last round."""
+    use = start.copy()
+    coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+    for _ in range(5):
+        coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+        r = np.hypot(*(vs - X @ coef).T)
+        cut = max(3.0 * float(np.median(r[use])), 0.5)
+        new = voters & (r <= cut)
+        if int(new.sum()) < MIN_REFERENCE:
+            break
+        use = new
+    return coef, use
+
+
 def consensus_field(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> Consensus | None:
     """The frame's consensus start-to-end vector at every streak, orientation-free.
 
@@ -74,15 +92,22 @@ def consensus_field(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> Conse
     vs = v * sign
     centre = mid[voters].mean(axis=0)
     X = np.column_stack([np.ones(len(v)), (mid - centre) / 100.0])
-    use = voters.copy()
-    for _ in range(3):  # robust affine field: refit without the worst
-        coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
-        r = np.hypot(*(vs - X @ coef).T)
-        cut = max(3.0 * float(np.median(r[use])), 0.5)
-        use = voters & (r <= cut)
-        if int(use.sum()) < MIN_REFERENCE:
-            use = voters
-            break
+    # Two starts: all voters, and those near the median vector (chains of several streaks
+    # can pull a least-squares start so far that no residual cut removes them); each round
+    # refits and re-admits the voters within 3x the median residual, so the field grows over
+    # the frame. The start whose field more voters agree with (within the tolerance) wins.
+    med = np.median(vs[voters], axis=0)
+    near = np.hypot(*(vs - med).T) <= 2.0 * max(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*med))
+    tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*vs.T))
+
+    def agreeing(coef: np.ndarray) -> int:
+        return int(np.sum(voters & (np.hypot(*(vs - X @ coef).T) <= tol)))
+
+    coef, use = _robust_affine(X, vs, voters, voters)
+    if int(np.sum(voters & near)) >= MIN_REFERENCE:
+        coef2, use2 = _robust_affine(X, vs, voters, voters & near)
+        if agreeing(coef2) > agreeing(coef):
+            coef, use = coef2, use2
     c = (X @ coef) * sign
     dev_plus = np.hypot(*(v - c).T)
     dev_minus = np.hypot(*(v + c).T)
