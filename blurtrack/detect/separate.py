@@ -46,6 +46,10 @@ RESIDUAL_MAX = 0.5
 OVERLAP_FRACTION = 0.1
 #: Components larger than this many reference areas are candidates (chains).
 AREA_FACTOR = 1.6
+#: Rounds of the pursuit (each takes every good placement that keeps ``SUPPRESS`` x the
+#: template's size from a better one, then subtracts them all).
+MAX_ROUNDS = 3
+SUPPRESS = 0.4
 #: Width (px) of the ring around a template that must be dark where it is placed, and the
 #: most light (squared, relative to that under the template) the ring may hold.
 HALO_PX = 3
@@ -150,14 +154,17 @@ def _pursue(
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box
-    x0, y0 = max(x - tw + 1, 0), max(y - th + 1, 0)
-    x1, y1 = min(x + w + tw - 1, W), min(y + h + th - 1, H)
+    # Placements whose centre lies in the candidate's box (+ a margin) only.
+    m = HALO_PX + 1
+    x0, y0 = max(x - m - tw // 2, 0), max(y - m - th // 2, 0)
+    x1, y1 = min(x + w + m + tw - tw // 2, W), min(y + h + m + th - th // 2, H)
     if x1 - x0 < tw or y1 - y0 < th:
         return []
     region = residual[y0:y1, x0:x1]  # a view: subtractions update the residual
     out: list[_Placement] = []
     norm = float(np.sqrt(tpl.norm2))
-    for _ in range(int(2 * comps.areas[c] / max(tpl.area, 1)) + 2):
+    sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
+    for _ in range(MAX_ROUNDS):
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
         r2 = region * region
         den = cv2.matchTemplate(r2, tpl.support, cv2.TM_CCORR)
@@ -166,19 +173,26 @@ def _pursue(
         amp = num / tpl.norm2
         # A streak's template lies in the dark: no blob or wider streak fits it.
         score = np.where((amp >= AMP_MIN) & (halo <= HALO_MAX * den), score, 0.0)
-        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
-        if score[iy, ix] < SCORE_MIN:
+        picked: list[tuple[int, int, float]] = []
+        open_ = score.copy()
+        while True:  # the best placements that do not overlap much, all in one round
+            iy, ix = np.unravel_index(int(np.argmax(open_)), open_.shape)
+            if open_[iy, ix] < SCORE_MIN:
+                break
+            picked.append((int(iy), int(ix), float(amp[iy, ix])))
+            open_[max(iy - sy, 0) : iy + sy + 1, max(ix - sx, 0) : ix + sx + 1] = 0.0
+        if not picked:
             break
-        fx, fy = _subpixel(score, int(iy), int(ix))
-        a = float(amp[iy, ix])
-        shift = np.array([x0 + ix + fx - tx, y0 + iy + fy - ty])
-        win = region[iy : iy + th, ix : ix + tw]
-        lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
-        owner = comp_of_label[lab]
-        light = np.bincount(owner[owner >= 0], (win * tpl.smooth)[owner >= 0])
-        out.append(_Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
-        win -= a * tpl.smooth
-        np.maximum(win, 0.0, out=win)
+        for iy, ix, a in picked:
+            fx, fy = _subpixel(score, iy, ix)
+            shift = np.array([x0 + ix + fx - tx, y0 + iy + fy - ty])
+            win = region[iy : iy + th, ix : ix + tw]
+            lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
+            owner = comp_of_label[lab]
+            light = np.bincount(owner[owner >= 0], (win * tpl.smooth)[owner >= 0])
+            out.append(_Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
+            win -= a * tpl.smooth
+            np.maximum(win, 0.0, out=win)
     return out
 
 
@@ -320,6 +334,12 @@ def separate(
     # Every component's nearest reference (local: the streaks' shape varies over the frame).
     nearest = ref_idx[np.argmin(d2, axis=1)]
     cand[first.own[ref_idx]] = False
+    # One plain line in a component of about a reference's area is one streak measured a
+    # little off: no template can split or join it.
+    plain_one = np.zeros(C, bool)
+    plain_one[first.own[~(first.crossing | first.looped | merged)]] = True
+    ratio = comps.areas / comps.areas[first.own[nearest]]
+    cand &= ~(plain_one & (n_lines == 1) & ~folded & (ratio > 0.75) & (ratio < 1.3))
     if not cand.any():
         return None
     # Residual image: the candidates' light only (clean neighbours are not matched).
