@@ -176,10 +176,11 @@ def _pursue(
         picked: list[tuple[int, int, float]] = []
         open_ = score.copy()
         while True:  # the best placements that do not overlap much, all in one round
-            iy, ix = np.unravel_index(int(np.argmax(open_)), open_.shape)
+            jy, jx = np.unravel_index(int(np.argmax(open_)), open_.shape)
+            iy, ix = int(jy), int(jx)
             if open_[iy, ix] < SCORE_MIN:
                 break
-            picked.append((int(iy), int(ix), float(amp[iy, ix])))
+            picked.append((iy, ix, float(amp[iy, ix])))
             open_[max(iy - sy, 0) : iy + sy + 1, max(ix - sx, 0) : ix + sx + 1] = 0.0
         if not picked:
             break
