@@ -84,6 +84,12 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
 MERGED_WIDTH = 1.5
 
 
+#: Unclipped streaks shorter than this fraction of the local consensus length are dropped...
+SPOT_FRACTION = 0.2
+#: ... where that consensus is at least this long (px): short streaks vary more.
+SPOT_MIN_PX = 20.0
+
+
 def _near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
     """``(N,)``: an end within ``m_px`` of the border."""
     e = np.stack([a, b], axis=1)
@@ -128,24 +134,24 @@ def _first_lines(
     return ls
 
 
-def _combine(a: Measured, keep: np.ndarray, b: Measured) -> Measured:
-    """Rows ``keep`` of ``a`` followed by all of ``b``."""
+def _combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
+    """Rows ``keep`` of ``a`` followed by all of ``b`` (if any)."""
     k = np.flatnonzero(keep)
+    parts = [a] if b is None else [a, b]
+    idx = [k] if b is None else [k, np.arange(len(b))]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(x, name)[i] for x, i in zip(parts, idx, strict=True)])
+
+    def lst(name: str) -> list[np.ndarray]:
+        return [getattr(x, name)[j] for x, i in zip(parts, idx, strict=True) for j in i]
+
+    arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
+    flags = ("saturated", "crossing", "looped", "short")
     return Measured(
-        own=np.concatenate([a.own[k], b.own]),
-        src=np.concatenate([a.src[k], b.src]),
-        end_a=np.concatenate([a.end_a[k], b.end_a]),
-        end_b=np.concatenate([a.end_b[k], b.end_b]),
-        time_mid=np.concatenate([a.time_mid[k], b.time_mid]),
-        plateau=np.concatenate([a.plateau[k], b.plateau]),
-        length_px=np.concatenate([a.length_px[k], b.length_px]),
-        width_px=np.concatenate([a.width_px[k], b.width_px]),
-        points=[a.points[i] for i in k] + b.points,
-        profile=[a.profile[i] for i in k] + b.profile,
-        saturated=np.concatenate([a.saturated[k], b.saturated]),
-        crossing=np.concatenate([a.crossing[k], b.crossing]),
-        looped=np.concatenate([a.looped[k], b.looped]),
-        short=np.concatenate([a.short[k], b.short]),
+        **{n: cat(n) for n in arrays + flags},
+        points=lst("points"),
+        profile=lst("profile"),
         sigma_c=a.sigma_c,
         sigma_raw=a.sigma_raw,
     )
@@ -238,8 +244,14 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * sigma_c),
             p.smooth_sigma_px,
         )
-        if sep is not None:
-            m = _combine(m, ~sep[1][m.own], sep[0])
+        if sep.streaks is not None and sep.replaced is not None:
+            m = _combine(m, ~sep.replaced[m.own], sep.streaks)
+        if sep.field is not None:
+            # Every dot draws about the same curve: a spot far shorter than the local
+            # consensus inside the frame is a remnant (of a chain, a blob), not a dot's streak.
+            c = np.hypot(*sep.field.at(m.time_mid).T)
+            inside = ~_near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
+            m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
     if len(m) == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     width = m.width_px

@@ -33,7 +33,12 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.quality import MIN_REFERENCE, consensus_field, shape_tolerance
+from blurtrack.detect.quality import (
+    MIN_REFERENCE,
+    Consensus,
+    consensus_field,
+    shape_tolerance,
+)
 from blurtrack.detect.segment import Components
 
 #: Lowest support-normalised correlation of an accepted placement.
@@ -56,6 +61,15 @@ HALO_PX = 3
 HALO_MAX = 0.25
 #: References whose median area a component's area is compared with.
 NEIGHBOURS = 6
+
+
+@dataclass(frozen=True)
+class Separation:
+    """What :func:`separate` found (see there)."""
+
+    streaks: Measured | None
+    replaced: np.ndarray | None
+    field: Consensus | None
 
 
 @dataclass(frozen=True)
@@ -284,7 +298,7 @@ def separate(
     clipped: np.ndarray,
     merged: np.ndarray,
     smooth_sigma: float,
-) -> tuple[Measured, np.ndarray] | None:
+) -> Separation:
     """Template separation of the first pass's doubtful components (see the module text).
 
     Args:
@@ -294,8 +308,9 @@ def separate(
         first: the first pass's streaks; ``clipped``/``merged`` ``(N,)`` their flags.
         smooth_sigma: the pre-smoothing sigma.
     Returns:
-        ``(streaks, replaced)``: the separated streaks (frame coordinates) and the ``(C,)``
-        bool mask of the components they replace; None when nothing was separated.
+        The separated streaks (frame coordinates; None when nothing was separated), the
+        ``(C,)`` bool mask of the components they replace, and the frame's consensus field
+        (None without enough voters).
     """
     C = comps.ids.size
     v = first.end_b - first.end_a
@@ -304,12 +319,12 @@ def separate(
     voters = single & ~(first.crossing | first.looped | merged | clipped)
     field = consensus_field(v, first.time_mid, voters)
     if field is None:
-        return None
+        return Separation(None, None, None)
     c, dev, use = field.c, field.dev, field.use
     tol = shape_tolerance(c)
     good = use & (dev <= 0.5 * tol)
     if int(good.sum()) < MIN_REFERENCE:
-        return None
+        return Separation(None, None, field)
     bad_line = ~clipped & ((dev > tol) | first.crossing | first.looped | merged)
     cand = np.zeros(C, bool)
     cand[first.own[bad_line]] = True
@@ -330,7 +345,7 @@ def separate(
     cand |= comps.areas > AREA_FACTOR * np.median(ref_area[near], axis=1)
     keep_ref = ~cand[first.own[ref_idx]]
     if int(keep_ref.sum()) < MIN_REFERENCE:
-        return None
+        return Separation(None, None, field)
     ref_idx, ref_mid, d2 = ref_idx[keep_ref], ref_mid[keep_ref], d2[:, keep_ref]
     # Every component's nearest reference (local: the streaks' shape varies over the frame).
     nearest = ref_idx[np.argmin(d2, axis=1)]
@@ -342,7 +357,7 @@ def separate(
     ratio = comps.areas / comps.areas[first.own[nearest]]
     cand &= ~(plain_one & (n_lines == 1) & ~folded & (ratio > 0.75) & (ratio < 1.3))
     if not cand.any():
-        return None
+        return Separation(None, None, field)
     # Residual image: the candidates' light only (clean neighbours are not matched).
     is_cand = np.zeros(int(comps.labels.max()) + 1, bool)
     is_cand[comps.ids[cand]] = True
@@ -368,7 +383,7 @@ def separate(
             templates[key] = _similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
         placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
     if not placements:
-        return None
+        return Separation(None, None, field)
     # Candidates whose light the placements mostly explain are replaced.
     before = np.add.reduceat(comps.values**2, comps.starts)
     after = np.add.reduceat(residual[comps.ys, comps.xs].astype(np.float64) ** 2, comps.starts)
@@ -388,7 +403,7 @@ def separate(
     replaced &= ~((n_place == 1) & (n_lines == 1) & plain)
     placements = [p for p in placements if replaced[p.comp]]
     if not placements:
-        return None
+        return Separation(None, None, field)
     pad = int(np.ceil(6.0 * first.sigma_c)) + 8
     mos_s, mos_r, lines, back = _mosaic(smooth, signal, placements, pad)
     ls = LineSet(
@@ -405,4 +420,4 @@ def separate(
     m.end_b = m.end_b + off
     m.time_mid = m.time_mid + off
     m.points = [pt + o for pt, o in zip(m.points, off, strict=True)]
-    return m, replaced
+    return Separation(m, replaced, field)
