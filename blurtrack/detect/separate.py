@@ -55,6 +55,10 @@ AREA_FACTOR = 1.6
 #: template's size from a better one, then subtracts them all).
 MAX_ROUNDS = 3
 SUPPRESS = 0.4
+#: Matched-filter peaks tried per round, and how far (px) a refused one suppresses its
+#: neighbours.
+MAX_TRIES = 16
+FAIL_SUPPRESS_PX = 2
 #: Width (px) of the ring around a template that must be dark where it is placed, and the
 #: most light (squared, relative to that under the template) the ring may hold.
 HALO_PX = 3
@@ -102,7 +106,13 @@ def _finish(
     """A template padded by :data:`HALO_PX` of zeros, with its halo."""
     m = HALO_PX
     x, y, w, h = box
-    sm, raw, sup = (np.pad(a.astype(np.float32), m) for a in (sm, raw, sup))
+
+    def pad(a: np.ndarray) -> np.ndarray:
+        out = np.zeros((a.shape[0] + 2 * m, a.shape[1] + 2 * m), np.float32)
+        out[m:-m, m:-m] = a
+        return out
+
+    sm, raw, sup = pad(sm), pad(raw), pad(sup)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
     halo = cv2.dilate(sup, k) - sup
     return _Template(
@@ -179,27 +189,32 @@ def _pursue(
     norm = float(np.sqrt(tpl.norm2))
     sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
     for _ in range(MAX_ROUNDS):
+        # The matched filter's peaks are the candidates; the normalised score and the halo
+        # are evaluated at those few positions only.
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-        r2 = region * region
-        den = cv2.matchTemplate(r2, tpl.support, cv2.TM_CCORR)
-        halo = cv2.matchTemplate(r2, tpl.halo, cv2.TM_CCORR)
-        score = num / (np.sqrt(np.maximum(den, 0.0)) * norm + 1e-12)
-        amp = num / tpl.norm2
-        # A streak's template lies in the dark: no blob or wider streak fits it.
-        score = np.where((amp >= AMP_MIN) & (halo <= HALO_MAX * den), score, 0.0)
+        open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
         picked: list[tuple[int, int, float]] = []
-        open_ = score.copy()
-        while True:  # the best placements that do not overlap much, all in one round
+        for _try in range(MAX_TRIES):
             jy, jx = np.unravel_index(int(np.argmax(open_)), open_.shape)
             iy, ix = int(jy), int(jx)
-            if open_[iy, ix] < SCORE_MIN:
+            if open_[iy, ix] <= 0.0:
                 break
-            picked.append((iy, ix, float(amp[iy, ix])))
-            open_[max(iy - sy, 0) : iy + sy + 1, max(ix - sx, 0) : ix + sx + 1] = 0.0
+            win = region[iy : iy + th, ix : ix + tw]
+            w2 = win * win
+            den = float(np.sum(w2 * tpl.support))
+            halo = float(np.sum(w2 * tpl.halo))
+            score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * norm + 1e-12)
+            # A streak's template lies in the dark: no blob or wider streak fits it.
+            if score >= SCORE_MIN and halo <= HALO_MAX * den:
+                picked.append((iy, ix, float(num[iy, ix]) / tpl.norm2))
+                ry, rx = sy, sx
+            else:
+                ry, rx = FAIL_SUPPRESS_PX, FAIL_SUPPRESS_PX
+            open_[max(iy - ry, 0) : iy + ry + 1, max(ix - rx, 0) : ix + rx + 1] = 0.0
         if not picked:
             break
         for iy, ix, a in picked:
-            fx, fy = _subpixel(score, iy, ix)
+            fx, fy = _subpixel(num, iy, ix)
             shift = np.array([x0 + ix + fx - tx, y0 + iy + fy - ty])
             win = region[iy : iy + th, ix : ix + tw]
             lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
@@ -223,19 +238,20 @@ def _overlaps(pl: list[_Placement]) -> np.ndarray:
     flag = np.zeros(P, bool)
     org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.rint([p.shift for p in pl])
     size = np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl])
-    for i in range(P):
-        for j in range(i + 1, P):
-            lo = np.maximum(org[i], org[j]).astype(int)
-            hi = np.minimum(org[i] + size[i], org[j] + size[j]).astype(int)
-            if np.any(hi <= lo):
-                continue
-            oi, oj = (lo - org[i]).astype(int), (lo - org[j]).astype(int)
-            ext = hi - lo
-            si = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
-            sj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
-            shared = float(np.sum(si * sj))
-            if shared > OVERLAP_FRACTION * min(pl[i].tpl.area, pl[j].tpl.area):
-                flag[i] = flag[j] = True
+    end = org + size
+    boxes_meet = np.all(
+        (np.maximum(org[:, None], org[None]) < np.minimum(end[:, None], end[None])), axis=2
+    )
+    for i, j in zip(*np.nonzero(np.triu(boxes_meet, 1)), strict=True):
+        lo = np.maximum(org[i], org[j]).astype(int)
+        hi = np.minimum(end[i], end[j]).astype(int)
+        oi, oj = (lo - org[i]).astype(int), (lo - org[j]).astype(int)
+        ext = hi - lo
+        si = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
+        sj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
+        shared = float(np.sum(si * sj))
+        if shared > OVERLAP_FRACTION * min(pl[i].tpl.area, pl[j].tpl.area):
+            flag[i] = flag[j] = True
     return flag
 
 
@@ -264,6 +280,15 @@ def _mosaic(
     mos_r = np.zeros_like(mos_s)
     lines: list[np.ndarray] = []
     back = np.zeros((len(pl), 2))
+    # Which templates reach into which placement's box (the others cannot matter there).
+    org = np.array([b[:2] for b in boxes], float)
+    end = org + np.array([b[2:] for b in boxes], float)
+    t_org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.floor([p.shift for p in pl])
+    t_end = t_org + np.array([[p.tpl.box[2] + 1, p.tpl.box[3] + 1] for p in pl])
+    meet = np.all(
+        np.maximum(org[:, None], t_org[None]) < np.minimum(end[:, None], t_end[None]), axis=2
+    )
+    np.fill_diagonal(meet, False)
     for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
         fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
         own_s = np.zeros((bh, bw), np.float32)
@@ -271,9 +296,8 @@ def _mosaic(
         if fx1 > fx0 and fy1 > fy0:
             own_s[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = smooth[fy0:fy1, fx0:fx1]
             own_r[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = signal[fy0:fy1, fx0:fx1]
-        for j, q in enumerate(pl):
-            if j == k:
-                continue
+        for j in np.flatnonzero(meet[k]).tolist():
+            q = pl[j]
             qx, qy, qw, qh = q.tpl.box
             dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
             if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
@@ -361,8 +385,11 @@ def separate(
     # Residual image: the candidates' light only (clean neighbours are not matched).
     is_cand = np.zeros(int(comps.labels.max()) + 1, bool)
     is_cand[comps.ids[cand]] = True
-    residual = np.where(is_cand[comps.labels], smooth, 0.0).astype(np.float32)
+    pix_cand = np.repeat(cand, comps.areas)
+    residual = np.zeros(smooth.shape, np.float32)
+    residual[comps.ys[pix_cand], comps.xs[pix_cand]] = comps.values[pix_cand]
     templates: dict[tuple[int, int, int], _Template] = {}
+    bases: dict[int, _Template] = {}
     local = field.at(centre)
     placements: list[_Placement] = []
     order = np.flatnonzero(cand)
@@ -379,14 +406,21 @@ def separate(
             continue
         key = (k, round(abs(z) / 0.02), round(float(np.angle(z)) / 0.02))
         if key not in templates:
-            base = _template(smooth, signal, comps, int(first.own[k]), first.points[k])
+            if k not in bases:
+                bases[k] = _template(smooth, signal, comps, int(first.own[k]), first.points[k])
+            base = bases[k]
             templates[key] = _similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
         placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
     if not placements:
         return Separation(None, None, field)
     # Candidates whose light the placements mostly explain are replaced.
-    before = np.add.reduceat(comps.values**2, comps.starts)
-    after = np.add.reduceat(residual[comps.ys, comps.xs].astype(np.float64) ** 2, comps.starts)
+    before = np.zeros(C)
+    after = np.zeros(C)
+    ci_pix = np.repeat(np.arange(C), comps.areas)[pix_cand]
+    vals = comps.values[pix_cand]
+    res = residual[comps.ys[pix_cand], comps.xs[pix_cand]].astype(np.float64)
+    before += np.bincount(ci_pix, vals * vals, C)
+    after += np.bincount(ci_pix, res * res, C)
     # Components at the border keep parts that no placement can explain (streaks leaving
     # the frame): one placement is enough there.
     x, y, w, h = comps.boxes.T
