@@ -55,6 +55,8 @@ AREA_FACTOR = 1.6
 #: template's size from a better one, then subtracts them all).
 MAX_ROUNDS = 3
 SUPPRESS = 0.4
+#: A further round needs this fraction of a weakest placement's light left in the box.
+LEFT_MIN = 0.5
 #: Matched-filter peaks tried per round, and how far (px) a refused one suppresses its
 #: neighbours.
 MAX_TRIES = 16
@@ -223,6 +225,10 @@ def _pursue(
             out.append(_Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
             win -= a * tpl.smooth
             np.maximum(win, 0.0, out=win)
+        # Another round only if the candidate's box still holds a good part of a template.
+        left = residual[y : y + h, x : x + w]
+        if float(np.sum(left * left)) < LEFT_MIN * AMP_MIN**2 * tpl.norm2:
+            break
     return out
 
 
