@@ -40,6 +40,7 @@ from blurtrack.detect.quality import (
     shape_tolerance,
 )
 from blurtrack.detect.segment import Components
+from blurtrack.detect.templates import HALO_PX, Placement, Template, similar, template, warp
 
 #: Lowest support-normalised correlation of an accepted placement.
 SCORE_MIN = 0.8
@@ -61,9 +62,8 @@ LEFT_MIN = 0.5
 #: neighbours.
 MAX_TRIES = 16
 FAIL_SUPPRESS_PX = 2
-#: Width (px) of the ring around a template that must be dark where it is placed, and the
-#: most light (squared, relative to that under the template) the ring may hold.
-HALO_PX = 3
+#: Most light (squared, relative to that under the template) a template's halo (a ring of
+#: :data:`~blurtrack.detect.templates.HALO_PX`) may hold where it is placed.
 HALO_MAX = 0.25
 #: References whose median area a component's area is compared with.
 NEIGHBOURS = 6
@@ -76,86 +76,6 @@ class Separation:
     streaks: Measured | None
     replaced: np.ndarray | None
     field: Consensus | None
-
-
-@dataclass(frozen=True)
-class _Template:
-    box: tuple[int, int, int, int]  # x, y, w, h in the frame
-    smooth: np.ndarray  # (h, w) float32, zero off the reference's component
-    raw: np.ndarray  # the same of the unsmoothed signal
-    support: np.ndarray  # (h, w) float32 0/1
-    halo: np.ndarray  # (h, w) float32 0/1: a ring of HALO_PX around the support
-    norm2: float
-    points: np.ndarray  # the reference's centre line, frame coordinates
-    area: int
-
-
-@dataclass(frozen=True)
-class _Placement:
-    tpl: _Template
-    shift: np.ndarray  # (2,) frame offset of the template (sub-pixel)
-    amp: float
-    comp: int
-
-
-def _finish(
-    box: tuple[int, int, int, int],
-    sm: np.ndarray,
-    raw: np.ndarray,
-    sup: np.ndarray,
-    pts: np.ndarray,
-) -> _Template:
-    """A template padded by :data:`HALO_PX` of zeros, with its halo."""
-    m = HALO_PX
-    x, y, w, h = box
-
-    def pad(a: np.ndarray) -> np.ndarray:
-        out = np.zeros((a.shape[0] + 2 * m, a.shape[1] + 2 * m), np.float32)
-        out[m:-m, m:-m] = a
-        return out
-
-    sm, raw, sup = pad(sm), pad(raw), pad(sup)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
-    halo = cv2.dilate(sup, k) - sup
-    return _Template(
-        (x - m, y - m, w + 2 * m, h + 2 * m),
-        sm,
-        raw,
-        sup,
-        halo,
-        float(np.sum(sm * sm)),
-        pts,
-        int(sup.sum()),
-    )
-
-
-def _template(
-    smooth: np.ndarray, signal: np.ndarray, comps: Components, c: int, pts: np.ndarray
-) -> _Template:
-    x, y, w, h = (int(v) for v in comps.boxes[c])
-    sup = comps.labels[y : y + h, x : x + w] == comps.ids[c]
-    t = np.where(sup, smooth[y : y + h, x : x + w], 0.0)
-    raw = np.where(sup, signal[y : y + h, x : x + w], 0.0)
-    return _finish((x, y, w, h), t, raw, sup, pts)
-
-
-def _similar(t: _Template, z: complex, pivot: np.ndarray) -> _Template:
-    """``t`` rotated and scaled by the complex factor ``z`` about ``pivot`` (frame px)."""
-    M = np.array([[z.real, -z.imag], [z.imag, z.real]])
-    x, y, w, h = t.box
-    corners = np.array([[x, y], [x + w, y], [x, y + h], [x + w, y + h]], float)
-    moved = (corners - pivot) @ M.T + pivot
-    nx, ny = np.floor(moved.min(axis=0)).astype(int) - 1
-    nw, nh = (np.ceil(moved.max(axis=0)).astype(int) + 2) - (nx, ny)
-    A = np.hstack([M, (M @ (np.array([x, y], float) - pivot) + pivot - (nx, ny))[:, None]])
-
-    def warp(img: np.ndarray) -> np.ndarray:
-        return cv2.warpAffine(img, A, (int(nw), int(nh)), flags=cv2.INTER_LINEAR, borderValue=0.0)
-
-    sup = (warp(t.support) > 0.5).astype(np.float32)
-    sm, raw = warp(t.smooth) * sup, warp(t.raw) * sup
-    pts = (t.points - pivot) @ M.T + pivot
-    return _finish((int(nx), int(ny), int(nw), int(nh)), sm, raw, sup, pts)
 
 
 def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
@@ -172,8 +92,8 @@ def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 
 def _pursue(
-    residual: np.ndarray, comps: Components, c: int, tpl: _Template, comp_of_label: np.ndarray
-) -> list[_Placement]:
+    residual: np.ndarray, comps: Components, c: int, tpl: Template, comp_of_label: np.ndarray
+) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
     light it explains."""
@@ -187,7 +107,7 @@ def _pursue(
     if x1 - x0 < tw or y1 - y0 < th:
         return []
     region = residual[y0:y1, x0:x1]  # a view: subtractions update the residual
-    out: list[_Placement] = []
+    out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))
     sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
     for _ in range(MAX_ROUNDS):
@@ -222,7 +142,7 @@ def _pursue(
             lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
             owner = comp_of_label[lab]
             light = np.bincount(owner[owner >= 0], (win * tpl.smooth)[owner >= 0])
-            out.append(_Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
+            out.append(Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
             win -= a * tpl.smooth
             np.maximum(win, 0.0, out=win)
         # Another round only if the candidate's box still holds a good part of a template.
@@ -232,12 +152,7 @@ def _pursue(
     return out
 
 
-def _warp(t: np.ndarray, dx: float, dy: float, w: int, h: int) -> np.ndarray:
-    m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
-    return cv2.warpAffine(t, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
-
-
-def _overlaps(pl: list[_Placement]) -> np.ndarray:
+def _overlaps(pl: list[Placement]) -> np.ndarray:
     """``(P,)`` bool: the placement's support shares more than :data:`OVERLAP_FRACTION` of
     its pixels with another placement's."""
     P = len(pl)
@@ -262,7 +177,7 @@ def _overlaps(pl: list[_Placement]) -> np.ndarray:
 
 
 def _mosaic(
-    smooth: np.ndarray, signal: np.ndarray, pl: list[_Placement], pad: int
+    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Each placement's own image (frame minus the other placements' templates) tiled into
     one mosaic; returns the smoothed and raw mosaics, the placed lines in mosaic coordinates
@@ -308,8 +223,8 @@ def _mosaic(
             dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
             if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
                 continue
-            own_s -= q.amp * _warp(q.tpl.smooth, dx, dy, bw, bh)
-            own_r -= q.amp * _warp(q.tpl.raw, dx, dy, bw, bh)
+            own_s -= q.amp * warp(q.tpl.smooth, dx, dy, bw, bh)
+            own_r -= q.amp * warp(q.tpl.raw, dx, dy, bw, bh)
         mos_s[ty : ty + bh, tx : tx + bw] = own_s
         mos_r[ty : ty + bh, tx : tx + bw] = own_r
         back[k] = (ox - tx, oy - ty)
@@ -394,10 +309,10 @@ def separate(
     pix_cand = np.repeat(cand, comps.areas)
     residual = np.zeros(smooth.shape, np.float32)
     residual[comps.ys[pix_cand], comps.xs[pix_cand]] = comps.values[pix_cand]
-    templates: dict[tuple[int, int, int], _Template] = {}
-    bases: dict[int, _Template] = {}
+    templates: dict[tuple[int, int, int], Template] = {}
+    bases: dict[int, Template] = {}
     local = field.at(centre)
-    placements: list[_Placement] = []
+    placements: list[Placement] = []
     order = np.flatnonzero(cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     comp_of_label = np.full(is_cand.size, -1, np.int64)
@@ -413,9 +328,9 @@ def separate(
         key = (k, round(abs(z) / 0.02), round(float(np.angle(z)) / 0.02))
         if key not in templates:
             if k not in bases:
-                bases[k] = _template(smooth, signal, comps, int(first.own[k]), first.points[k])
+                bases[k] = template(smooth, signal, comps, int(first.own[k]), first.points[k])
             base = bases[k]
-            templates[key] = _similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
+            templates[key] = similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
         placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
     if not placements:
         return Separation(None, None, field)
