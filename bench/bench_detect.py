@@ -198,7 +198,16 @@ def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
         times["baseline"].append(time.perf_counter() - t0)
         cpu["baseline"].append(time.process_time() - c0)
         for name, extra in variants.items():
-            cmd = [sys.executable, "-m", "blurtrack", "detect", str(folder), "--out", str(out)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "blurtrack",
+                "detect",
+                str(folder),
+                "--out",
+                str(out),
+                "--force",
+            ]
             r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             subprocess.run(cmd + extra, check=True, cwd=ROOT, capture_output=True)

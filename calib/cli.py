@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +147,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
     )
+    if streaks.dropped_quality:
+        print(
+            f"calibrate: left out {streaks.dropped_quality} streaks that detection marked "
+            "not quality_ok",
+            file=sys.stderr,
+        )
     initial = session.initial_calibration()
     options = FitOptions(
         fit=args.fit,
@@ -205,7 +212,6 @@ def write_results(res: Any, out: Path, details: Path) -> int:
 
 def _render_progress(p: Any) -> None:
     """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
-    import sys
 
     what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
     print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)

@@ -37,6 +37,8 @@ class StreakSet:
         mid: optional ``(N, 2)`` time midpoints (the point that halves the streak's light,
             where the dot was at the middle of its exposure), pixels: what inter-frame
             tracks are made of.
+        dropped_quality: how many streaks :func:`streaks_from_table` left out because
+            detection marked them not ``quality_ok`` (and no other dropped flag).
     """
 
     start: np.ndarray
@@ -49,6 +51,7 @@ class StreakSet:
     centre: np.ndarray | None = None
     time_row: np.ndarray | None = None
     mid: np.ndarray | None = None
+    dropped_quality: int = 0
 
     def __post_init__(self) -> None:
         n = len(self.frame)
@@ -178,12 +181,19 @@ def streaks_from_table(
     """A :class:`StreakSet` from a validated streak table and the session's frame table.
 
     ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). Streaks
-    flagged clipped, saturated or merged are left out when ``drop_flagged``. ``centre_k > 0``
+    flagged clipped, saturated or merged are left out when ``drop_flagged``, and so are those
+    whose ``quality_ok`` is false where the table has that column (counted in
+    ``dropped_quality``). ``centre_k > 0``
     also resamples each row's ``centerline`` to that many interior points (:func:`centre_points`).
     """
     df = table
+    dropped_quality = 0
     if drop_flagged and len(df):
         df = df[~(df["clipped"] | df["saturated"] | df["merged"])]
+        if "quality_ok" in df.columns:
+            ok = df["quality_ok"].astype(bool)
+            dropped_quality = int((~ok).sum())
+            df = df[ok]
     if len(frames) == 0:
         raise CalibError("the session has no frames")
     ts = frames["timestamp_ns"].to_numpy(np.int64)
@@ -213,6 +223,7 @@ def streaks_from_table(
             else None
         ),
         mid=mid,
+        dropped_quality=dropped_quality,
     )
 
 

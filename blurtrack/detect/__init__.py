@@ -6,6 +6,9 @@ Modules: :mod:`~blurtrack.detect.image` (frame preparation, background, hot pixe
 :mod:`~blurtrack.detect.centreline` and :mod:`~blurtrack.detect.ragged` (batched sub-pixel
 centre lines and profiles), :mod:`~blurtrack.detect.gaps` (streaks touching end to end),
 :mod:`~blurtrack.detect.endpoints` and :mod:`~blurtrack.detect.shortfit` (endpoints),
+:mod:`~blurtrack.detect.measure` (measuring a set of lines),
+:mod:`~blurtrack.detect.separate` and :mod:`~blurtrack.detect.templates` (template separation of
+touching streaks), :mod:`~blurtrack.detect.quality` (shape consistency, quality flag),
 :mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.detect.memory` (allocator
 tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`

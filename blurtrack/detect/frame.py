@@ -6,14 +6,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
-from blurtrack.detect.endpoints import fit_edges, unclip_profiles
-from blurtrack.detect.gaps import split_at_gaps
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import Ragged, to_matrix
-from blurtrack.detect.segment import Components, axis_polylines, find_components
+from blurtrack.detect.ragged import Ragged
+from blurtrack.detect.segment import (
+    Components,
+    axis_polylines,
+    drop_artefacts,
+    find_components,
+)
+from blurtrack.detect.separate import separate
 from blurtrack.detect.skeleton import trace_paths
 
 #: Flag columns, in table order.
@@ -76,6 +80,83 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
     return False
 
 
+#: Streaks wider than this times the frame's cross-section sigma are ``merged``.
+MERGED_WIDTH = 1.5
+
+
+#: Unclipped streaks shorter than this fraction of the local consensus length are dropped...
+SPOT_FRACTION = 0.2
+#: ... where that consensus is at least this long (px): short streaks vary more.
+SPOT_MIN_PX = 20.0
+
+
+def _near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
+    """``(N,)``: an end within ``m_px`` of the border."""
+    e = np.stack([a, b], axis=1)
+    near = (e[..., 0] < m_px) | (e[..., 0] > W - 1 - m_px) | (e[..., 1] < m_px)
+    return np.asarray((near | (e[..., 1] > H - 1 - m_px)).any(axis=1))
+
+
+def _first_lines(
+    comps: Components, polylines: list[np.ndarray], folded: np.ndarray, spur: float
+) -> LineSet:
+    """Coarse lines of the first pass: the axis polylines, skeleton paths of folded
+    components, 1 px segments for round spots."""
+    # Round spots (one point, or ends that coincide) get a 1 px segment; tested for all lines
+    # at once, since the loop below runs once per component.
+    sizes = np.fromiter(map(len, polylines), np.int64, len(polylines))
+    last = np.cumsum(sizes) - 1
+    flat = np.concatenate(polylines)
+    spot = (sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)
+    if not (spot.any() or folded.any()):  # the usual frame: every line as it is
+        n = len(polylines)
+        return LineSet(Ragged(flat, sizes), list(range(n)), [False] * n, [False] * n)
+    ls = LineSet([], [], [], [])
+    lines: list[np.ndarray] = []
+    for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
+        if not fold:
+            if spot[i]:
+                poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
+            ls.owner.append(i)
+            lines.append(poly)
+            ls.crossing.append(False)
+            ls.looped.append(False)
+            continue
+        x, y, w, h = comps.boxes[i]
+        mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
+        paths = trace_paths(np.pad(mask, 1), spur, spur)
+        for path in paths:
+            ls.owner.append(i)
+            lines.append(path.points + np.array([x - 1.0, y - 1.0]))
+            ls.crossing.append(path.shares_junction or len(paths) > 1)
+            ls.looped.append(path.self_crossing)
+    ls.lines = lines
+    return ls
+
+
+def _combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
+    """Rows ``keep`` of ``a`` followed by all of ``b`` (if any)."""
+    k = np.flatnonzero(keep)
+    parts = [a] if b is None else [a, b]
+    idx = [k] if b is None else [k, np.arange(len(b))]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(x, name)[i] for x, i in zip(parts, idx, strict=True)])
+
+    def lst(name: str) -> list[np.ndarray]:
+        return [getattr(x, name)[j] for x, i in zip(parts, idx, strict=True) for j in i]
+
+    arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
+    flags = ("saturated", "crossing", "looped", "short")
+    return Measured(
+        **{n: cat(n) for n in arrays + flags},
+        points=lst("points"),
+        profile=lst("profile"),
+        sigma_c=a.sigma_c,
+        sigma_raw=a.sigma_raw,
+    )
+
+
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
     """``(N,)`` bool: which kept components contain saturated pixels (from their pixel
     lists: a saturated pixel is bright enough to lie in a component)."""
@@ -123,131 +204,80 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     H, W = prep.signal.shape
     sat_frac = float(np.count_nonzero(prep.saturated)) / (H * W)
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
-    sigma_c = sigma_guess = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
+    sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
+    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
     if comps.ids.size == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     polylines, folded = axis_polylines(prep.smooth, comps, sigma_c)
-    owner: list[int] = []  # component index of each line
-    lines: list[np.ndarray] = []
-    crossing: list[bool] = []
-    looped: list[bool] = []
-    spur = 2.0 * sigma_c + 3.0
-    # Round spots (one point, or ends that coincide) get a 1 px segment; tested for all lines
-    # at once, since the loop below runs once per component.
-    sizes = np.fromiter(map(len, polylines), np.int64, len(polylines))
-    last = np.cumsum(sizes) - 1
-    flat = np.concatenate(polylines)
-    spot = (sizes < 2) | (np.abs(flat[last] - flat[last - sizes + 1]).sum(axis=1) < 1e-9)
-    line_input: Ragged | list[np.ndarray] = lines
-    if not (spot.any() or folded.any()):  # the usual frame: every line as it is
-        owner = list(range(len(polylines)))
-        crossing = looped = [False] * len(polylines)
-        line_input = Ragged(flat, sizes)
-    else:
-        for i, (poly, fold) in enumerate(zip(polylines, folded.tolist(), strict=True)):
-            if not fold:
-                if spot[i]:
-                    poly = np.stack([poly[0] - [0.5, 0.0], poly[0] + [0.5, 0.0]])
-                owner.append(i)
-                lines.append(poly)
-                crossing.append(False)
-                looped.append(False)
-                continue
-            x, y, w, h = comps.boxes[i]
-            mask = comps.labels[y : y + h, x : x + w] == comps.ids[i]
-            paths = trace_paths(np.pad(mask, 1), spur, spur)
-            for path in paths:
-                owner.append(i)
-                lines.append(path.points + np.array([x - 1.0, y - 1.0]))
-                crossing.append(path.shares_junction or len(paths) > 1)
-                looped.append(path.self_crossing)
-    ref = refine_lines(
-        prep.smooth, line_input, sigma_c, prep.saturation if prep.saturated.any() else None
+    ls = _first_lines(comps, polylines, folded, 2.0 * sigma_c + 3.0)
+    sat_comp = _saturated_components(comps, prep.saturated) if prep.saturated.any() else None
+    m = measure_lines(
+        prep.smooth,
+        prep.signal,
+        prep.saturation,
+        sat_comp,
+        ls,
+        sigma_c,
+        p.psf_sigma_px is None,
+        p.smooth_sigma_px,
     )
-    ref, parent = split_at_gaps(ref)
-    owner = [owner[k] for k in parent]
-    crossing = [crossing[k] for k in parent]
-    looped = [looped[k] for k in parent]
-    finite = ref.width[np.isfinite(ref.width)]
-    if p.psf_sigma_px is None and finite.size:
-        sigma_c = float(np.median(finite))
-    lens = ref.lines.sizes
-    A = to_matrix(ref.profile, lens)
-    line_sat = np.zeros(lens.size, bool)
-    if prep.saturated.any():
-        sat_comp = _saturated_components(comps, prep.saturated)
-        line_sat = sat_comp[np.asarray(owner)]
-        clean = ref.width[~line_sat]
-        clean = clean[np.isfinite(clean)]
-        # Saturated streaks: width from the unsaturated ones if there are enough of them,
-        # else from everyone's flanks (refine_lines measured clipped sections there).
-        if clean.size < 8:
-            clean = ref.width[np.isfinite(ref.width)]
-        sig_c = float(np.median(clean)) if clean.size else sigma_guess
-        sigma_raw = float(np.sqrt(max(sig_c**2 - p.smooth_sigma_px**2, 0.25)))
-        if p.psf_sigma_px is None:
-            sigma_c = sig_c
-        # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
-        # (there the clipped cross-section integral is an exact function of the true one).
-        if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
-            sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
-            raw = to_matrix(raw_profiles(prep.signal, sat_lines, sigma_c), sat_lines.sizes)
-            A[line_sat, : raw.shape[1]] = unclip_profiles(raw, prep.saturation, sigma_raw)
-    # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
-    edge_sigma = np.where(
-        line_sat, np.sqrt(sigma_raw**2 + 1.0 / 6.0) if line_sat.any() else sigma_c, sigma_c
+    sigma_c = m.sigma_c
+    m.looped = np.array(
+        [
+            lp or (folded[o] and _self_crossing(pts, 4.0 * sigma_c))
+            for lp, o, pts in zip(m.looped.tolist(), m.own.tolist(), m.points, strict=True)
+        ],
+        bool,
     )
-    fit = fit_edges(A, lens, edge_sigma / ref.step)
-    pos_a = np.where(fit.valid, fit.pos_a, 0.0)
-    pos_b = np.where(fit.valid, fit.pos_b, 1.0)
-    trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)
-    keep = np.flatnonzero(fit.valid)
-    if keep.size == 0:
+    if p.separate and len(m):
+        sep = separate(
+            prep.smooth,
+            prep.signal,
+            prep.saturation,
+            sat_comp,
+            comps,
+            m,
+            folded,
+            _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * sigma_c),
+            p.smooth_sigma_px,
+        )
+        if sep.streaks is not None and sep.replaced is not None:
+            m = _combine(m, ~sep.replaced[m.own], sep.streaks)
+        if sep.field is not None:
+            # Every dot draws about the same curve: a spot far shorter than the local
+            # consensus inside the frame is a remnant (of a chain, a blob), not a dot's streak.
+            c = np.hypot(*sep.field.at(m.time_mid).T)
+            inside = ~_near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
+            m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
+    if len(m) == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
-    own = np.asarray(owner)[keep]
-    end_a = trimmed.end_a[keep]
-    end_b = trimmed.end_b[keep]
-    ends = np.stack([end_a, end_b], axis=1)
-    m_px = p.border_margin_px
-    near = (
-        (ends[..., 0] < m_px)
-        | (ends[..., 0] > W - 1 - m_px)
-        | (ends[..., 1] < m_px)
-        | (ends[..., 1] > H - 1 - m_px)
-    )
-    width = ref.width[keep]
+    width = m.width_px
     flags = {
-        "clipped": near.any(axis=1),
-        "saturated": line_sat[keep],
-        "crossing": np.asarray(crossing, bool)[keep],
-        "merged": np.isfinite(width) & (width > 1.5 * sigma_c),
-        "looped": np.array(
-            [
-                looped[k] or (folded[owner[k]] and _self_crossing(trimmed.points[k], 4.0 * sigma_c))
-                for k in keep
-            ],
-            bool,
-        ),
-        "faint": comps.peaks[own] < p.faint_snr * prep.noise_smooth,
+        "clipped": _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+        "saturated": m.saturated,
+        "crossing": m.crossing,
+        "merged": np.isfinite(width) & (width > MERGED_WIDTH * sigma_c),
+        "looped": m.looped,
+        "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
     }
-    plateau = np.stack([fit.plateau_a, fit.plateau_b], axis=1)[keep]
     return FrameStreaks(
         shape=(H, W),
-        end_a=end_a,
-        end_b=end_b,
-        time_mid=trimmed.time_mid[keep],
-        plateau=plateau,
-        length_px=trimmed.length_px[keep],
+        end_a=m.end_a,
+        end_b=m.end_b,
+        time_mid=m.time_mid,
+        plateau=m.plateau,
+        length_px=m.length_px,
         width_px=width,
-        snr=comps.peaks[own] / prep.noise_smooth,
-        points=[trimmed.points[k] for k in keep],
-        profile=[trimmed.profile[k] for k in keep],
+        snr=comps.peaks[m.own] / prep.noise_smooth,
+        points=m.points,
+        profile=m.profile,
         flags=flags,
         sigma_c_px=sigma_c,
         noise=prep.noise,
         hot_pixels=prep.hot_pixels,
-        short=fit.short[keep],
+        short=m.short,
         saturated_fraction=sat_frac,
     )

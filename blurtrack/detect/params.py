@@ -31,6 +31,11 @@ class DetectParams:
     - ``saturation_level``: raw value treated as saturated (``None``: the dtype's maximum).
     - ``border_margin_px``: endpoints closer than this to the border are flagged ``clipped``.
     - ``max_streaks``: hard cap of streaks per frame (bad input guard).
+    - ``artefact_ratio``, ``artefact_gap_px``: a component whose peak is below
+      ``artefact_ratio`` times that of a component within ``artefact_gap_px`` is dropped as an
+      artefact of it (JPEG ringing, demosaicing, blooming); 0 keeps every component.
+    - ``separate``: separate touching and overlapping streaks with the frame's own clean
+      streaks as templates (:mod:`blurtrack.detect.separate`).
     """
 
     smooth_sigma_px: float = 1.0
@@ -43,6 +48,9 @@ class DetectParams:
     saturation_level: float | None = None
     border_margin_px: float = 2.0
     max_streaks: int = 5000
+    artefact_ratio: float = 0.06
+    artefact_gap_px: int = 12
+    separate: bool = True
 
     def __post_init__(self) -> None:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
@@ -60,6 +68,14 @@ class DetectParams:
             raise ConfigError(f"detect min_area_px must be an integer >= 1: {self.min_area_px!r}")
         if not self.border_margin_px >= 0:
             raise ConfigError("detect parameter border_margin_px must be >= 0")
+        if not (math.isfinite(self.artefact_ratio) and 0.0 <= self.artefact_ratio < 1.0):
+            raise ConfigError(f"detect artefact_ratio not in [0, 1): {self.artefact_ratio!r}")
+        if int(self.artefact_gap_px) != self.artefact_gap_px or self.artefact_gap_px < 0:
+            raise ConfigError(
+                f"detect artefact_gap_px must be an integer >= 0: {self.artefact_gap_px!r}"
+            )
+        if not isinstance(self.separate, bool):
+            raise ConfigError(f"detect parameter separate must be true or false: {self.separate!r}")
         if int(self.max_streaks) != self.max_streaks or self.max_streaks < 1:
             raise ConfigError("detect parameter max_streaks must be a positive integer")
 

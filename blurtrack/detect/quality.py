@@ -21,6 +21,8 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pandas as pd
 
@@ -31,6 +33,91 @@ THICK_WIDTH_RATIO = 2.0
 #: Shape tolerance of ``quality_ok``: absolute (px) and relative to the consensus length.
 SHAPE_TOL_PX = 3.0
 SHAPE_TOL_REL = 0.25
+
+
+@dataclass(frozen=True)
+class Consensus:
+    """A frame's consensus start-to-end vector field (see :func:`consensus_field`).
+
+    ``c``: ``(N, 2)`` the consensus at each streak, with the sign nearest to its own vector;
+    ``dev``: ``(N,)`` the distance ``|v - c|``; ``use``: the voters the robust fit kept."""
+
+    c: np.ndarray
+    dev: np.ndarray
+    use: np.ndarray
+    coef: np.ndarray
+    centre: np.ndarray
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """``(M, 2)`` consensus vectors at points ``xy`` (the dominant direction's sign)."""
+        X = np.column_stack([np.ones(len(xy)), (xy - self.centre) / 100.0])
+        return np.asarray(X @ self.coef)
+
+
+def _robust_affine(
+    X: np.ndarray, vs: np.ndarray, voters: np.ndarray, start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Affine field from ``start``, refitted over rounds that keep the ``voters`` within 3x
+    the median residual; returns the coefficients and the voters of the last round."""
+    use = start.copy()
+    coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+    for _ in range(5):
+        coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+        r = np.hypot(*(vs - X @ coef).T)
+        cut = max(3.0 * float(np.median(r[use])), 0.5)
+        new = voters & (r <= cut)
+        if int(new.sum()) < MIN_REFERENCE:
+            break
+        use = new
+    return coef, use
+
+
+def consensus_field(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> Consensus | None:
+    """The frame's consensus start-to-end vector at every streak, orientation-free.
+
+    Args:
+        v: ``(N, 2)`` start-to-end (or A-to-B) vectors.
+        mid: ``(N, 2)`` time midpoints.
+        voters: ``(N,)`` bool, the streaks that may vote.
+    Returns:
+        The field, or None when fewer than :data:`MIN_REFERENCE` streaks vote.
+    """
+    if int(voters.sum()) < MIN_REFERENCE:
+        return None
+    ref = v[voters]
+    # Dominant direction from the second-moment matrix (orientation-free), then signs.
+    _, vecs = np.linalg.eigh(ref.T @ ref)
+    axis = vecs[:, -1]
+    sign = np.where(v @ axis < 0, -1.0, 1.0)[:, None]
+    vs = v * sign
+    centre = mid[voters].mean(axis=0)
+    X = np.column_stack([np.ones(len(v)), (mid - centre) / 100.0])
+    # Two starts: all voters, and those near the median vector (chains of several streaks
+    # can pull a least-squares start so far that no residual cut removes them); each round
+    # refits and re-admits the voters within 3x the median residual, so the field grows over
+    # the frame. The start whose field more voters agree with (within the tolerance) wins.
+    med = np.median(vs[voters], axis=0)
+    near = np.hypot(*(vs - med).T) <= 2.0 * max(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*med))
+    tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*vs.T))
+
+    def agreeing(coef: np.ndarray) -> int:
+        return int(np.sum(voters & (np.hypot(*(vs - X @ coef).T) <= tol)))
+
+    coef, use = _robust_affine(X, vs, voters, voters)
+    if int(np.sum(voters & near)) >= MIN_REFERENCE:
+        coef2, use2 = _robust_affine(X, vs, voters, voters & near)
+        if agreeing(coef2) > agreeing(coef):
+            coef, use = coef2, use2
+    c = (X @ coef) * sign
+    dev_plus = np.hypot(*(v - c).T)
+    dev_minus = np.hypot(*(v + c).T)
+    c = np.where((dev_minus < dev_plus)[:, None], -c, c)
+    return Consensus(c, np.minimum(dev_plus, dev_minus), use, coef, centre)
+
+
+def shape_tolerance(c: np.ndarray) -> np.ndarray:
+    """``(N,)`` largest shape deviation that ``quality_ok`` accepts for consensus ``c``."""
+    return np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
 
 
 def _frame_quality(d: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -45,29 +132,10 @@ def _frame_quality(d: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         thick = sat & (width > THICK_WIDTH_RATIO * w0)
     dev = np.full(len(d), np.nan)
     ok = ~(flagged | thick)
-    voters = ok
-    if int(voters.sum()) >= MIN_REFERENCE:
-        ref = v[voters]
-        # Dominant direction from the second-moment matrix (orientation-free), then signs.
-        _, vecs = np.linalg.eigh(ref.T @ ref)
-        axis = vecs[:, -1]
-        sign = np.where(v @ axis < 0, -1.0, 1.0)[:, None]
-        vs = v * sign
-        mid = d[["mid_x", "mid_y"]].to_numpy(float)
-        X = np.column_stack([np.ones(len(d)), (mid - mid[voters].mean(axis=0)) / 100.0])
-        use = voters.copy()
-        for _ in range(3):  # robust affine field: refit without the worst
-            coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
-            r = np.hypot(*(vs - X @ coef).T)
-            cut = max(3.0 * float(np.median(r[use])), 0.5)
-            use = voters & (r <= cut)
-            if int(use.sum()) < MIN_REFERENCE:
-                use = voters
-                break
-        c = X @ coef
-        dev = np.minimum(np.hypot(*(v - c * sign).T), np.hypot(*(v + c * sign).T))
-        tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
-        ok = ok & (dev <= tol)
+    field = consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), ok)
+    if field is not None:
+        dev = field.dev
+        ok = ok & (dev <= shape_tolerance(field.c))
     return dev, thick, ok
 
 

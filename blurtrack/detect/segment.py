@@ -100,6 +100,51 @@ def find_components(
     )
 
 
+def drop_artefacts(comps: Components, ratio: float, gap_px: int) -> Components:
+    """``comps`` without the faint artefacts of bright neighbours.
+
+    JPEG ringing, demosaicing and blooming leave faint blobs next to bright streaks, a few
+    per cent of their peak: a component whose peak is below ``ratio`` times the peak of
+    another component whose bounding box is within ``gap_px`` of its own is dropped."""
+    N = comps.ids.size
+    if N < 2 or ratio <= 0:
+        return comps
+    x0, y0, w, h = comps.boxes.T.astype(np.int64)
+    x1, y1 = x0 + w, y0 + h
+    # Only components that some neighbour outshines by 1 / ratio can go: test those alone.
+    weak = np.flatnonzero(comps.peaks < ratio * comps.peaks.max())
+    if weak.size == 0:
+        return comps
+    gx = np.maximum(x0[weak, None] - x1[None, :], x0[None, :] - x1[weak, None])
+    gy = np.maximum(y0[weak, None] - y1[None, :], y0[None, :] - y1[weak, None])
+    close = (np.maximum(gx, gy) <= gap_px) & (
+        comps.peaks[None, :] * ratio > comps.peaks[weak, None]
+    )
+    drop = weak[close.any(axis=1)]
+    if drop.size == 0:
+        return comps
+    keep = np.setdiff1d(np.arange(N), drop)
+    return subset(comps, keep)
+
+
+def subset(comps: Components, keep: np.ndarray) -> Components:
+    """The components ``keep`` (indices, increasing) of ``comps`` (same label image)."""
+    areas = comps.areas[keep]
+    starts = np.concatenate(([0], np.cumsum(areas)[:-1])).astype(np.int64)
+    pix = np.repeat(comps.starts[keep] - starts, areas) + np.arange(int(areas.sum()))
+    return Components(
+        labels=comps.labels,
+        ys=comps.ys[pix],
+        xs=comps.xs[pix],
+        ids=comps.ids[keep],
+        starts=starts,
+        boxes=comps.boxes[keep],
+        peaks=comps.peaks[keep],
+        areas=areas,
+        values=comps.values[pix],
+    )
+
+
 def axis_polylines(
     smooth: np.ndarray, comps: Components, sigma_px: float
 ) -> tuple[list[np.ndarray], np.ndarray]:

@@ -34,6 +34,7 @@ from blurtrack.report.metrics import (
     per_frame,
     stats,
 )
+from blurtrack.report.shape import shape_summary
 
 #: Frames drawn with their predicted and measured streaks.
 N_OVERLAYS = 3
@@ -162,7 +163,8 @@ def build_report(
     if fit_summary:
         warnings.extend(f"fit: {w}" for w in fit_summary.get("warnings", []))
     flags = {
-        "excluded_flags": list(EXCLUDED_FLAGS),
+        "excluded_flags": list(EXCLUDED_FLAGS)
+        + (["not quality_ok"] if "quality_ok" in table.columns else []),
         "n_flagged": int(np.count_nonzero(flagged)),
         "after": stats(errs["after"]["error_px"].to_numpy()[flagged]),
         "by_flag": flag_stats(errs["after"], table),
@@ -247,6 +249,7 @@ def build_report(
             "n_frames": int(table["frame"].nunique()),
             "n_uncovered": n_unc,
             "flagged": flags,
+            "shape_consistency": shape_summary(table),
             "overall": overall,
             "motion_models": model_stats,
             "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},

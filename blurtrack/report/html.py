@@ -16,6 +16,8 @@ from typing import Any
 
 import pandas as pd
 
+from blurtrack.report.shape import shape_section
+
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;padding:0 1em;color:#222}
 .tw{overflow-x:auto}
@@ -233,6 +235,7 @@ def render(
         parts.extend(_fit_section(fit))
     if summary.get("flagged"):
         parts.extend(_flag_section(summary["flagged"], int(summary["n_streaks"])))
+    parts.extend(shape_section(summary.get("shape_consistency")))
     for title, png in figs:
         parts.append(_figure(title, png))
     ba = frame_stats[frame_stats["variant"].isin(["before", "after"])]

@@ -56,11 +56,14 @@ EXCLUDED_FLAGS: tuple[str, ...] = ("clipped", "saturated", "merged")
 
 
 def flagged_mask(table: pd.DataFrame) -> np.ndarray:
-    """``(N,)`` bool: the streak carries one of :data:`EXCLUDED_FLAGS`."""
+    """``(N,)`` bool: the streak carries one of :data:`EXCLUDED_FLAGS`, or (tables that have
+    the column) is not ``quality_ok``, which calibration leaves out too."""
     m = np.zeros(len(table), dtype=bool)
     for f in EXCLUDED_FLAGS:
         if f in table.columns:
             m |= table[f].to_numpy(bool)
+    if "quality_ok" in table.columns:
+        m |= ~table["quality_ok"].to_numpy(bool)
     return m
 
 

@@ -146,6 +146,13 @@ def test_params_yaml_round_trip_and_validation(tmp_path: Path) -> None:
         DetectParams(smooth_sigma_px=float("nan"))
     with pytest.raises(ConfigError, match="unknown"):
         DetectParams.from_dict({"bogus": 1})
+    with pytest.raises(ConfigError, match="artefact_ratio"):
+        DetectParams(artefact_ratio=1.5)
+    with pytest.raises(ConfigError, match="artefact_gap_px"):
+        DetectParams(artefact_gap_px=-1)
+    with pytest.raises(ConfigError, match="separate"):
+        DetectParams.from_dict({"separate": "yes"})
+    assert DetectParams.from_dict({"separate": False, "artefact_ratio": 0.0}).separate is False
     (tmp_path / "bad.yaml").write_text("threshold_snr: [1, 2\n")
     with pytest.raises(ConfigError):
         DetectParams.from_yaml(tmp_path / "bad.yaml")

@@ -1,0 +1,100 @@
+"""Templates for :mod:`blurtrack.detect.separate`: a clean streak's pixels of the smoothed
+(and raw) frame, its support and halo, mapped onto another place of the frame by a rotation and
+scaling, and placements of them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.segment import Components
+
+#: Width (px) of the ring around a template's support that must be dark where it is placed.
+HALO_PX = 3
+
+
+@dataclass(frozen=True)
+class Template:
+    box: tuple[int, int, int, int]  # x, y, w, h in the frame
+    smooth: np.ndarray  # (h, w) float32, zero off the reference's component
+    raw: np.ndarray  # the same of the unsmoothed signal
+    support: np.ndarray  # (h, w) float32 0/1
+    halo: np.ndarray  # (h, w) float32 0/1: a ring of HALO_PX around the support
+    norm2: float
+    points: np.ndarray  # the reference's centre line, frame coordinates
+    area: int
+
+
+@dataclass(frozen=True)
+class Placement:
+    tpl: Template
+    shift: np.ndarray  # (2,) frame offset of the template (sub-pixel)
+    amp: float
+    comp: int
+
+
+def finish(
+    box: tuple[int, int, int, int],
+    sm: np.ndarray,
+    raw: np.ndarray,
+    sup: np.ndarray,
+    pts: np.ndarray,
+) -> Template:
+    """A template padded by :data:`HALO_PX` of zeros, with its halo."""
+    m = HALO_PX
+    x, y, w, h = box
+
+    def pad(a: np.ndarray) -> np.ndarray:
+        out = np.zeros((a.shape[0] + 2 * m, a.shape[1] + 2 * m), np.float32)
+        out[m:-m, m:-m] = a
+        return out
+
+    sm, raw, sup = pad(sm), pad(raw), pad(sup)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    halo = cv2.dilate(sup, k) - sup
+    return Template(
+        (x - m, y - m, w + 2 * m, h + 2 * m),
+        sm,
+        raw,
+        sup,
+        halo,
+        float(np.sum(sm * sm)),
+        pts,
+        int(sup.sum()),
+    )
+
+
+def template(
+    smooth: np.ndarray, signal: np.ndarray, comps: Components, c: int, pts: np.ndarray
+) -> Template:
+    x, y, w, h = (int(v) for v in comps.boxes[c])
+    sup = comps.labels[y : y + h, x : x + w] == comps.ids[c]
+    t = np.where(sup, smooth[y : y + h, x : x + w], 0.0)
+    raw = np.where(sup, signal[y : y + h, x : x + w], 0.0)
+    return finish((x, y, w, h), t, raw, sup, pts)
+
+
+def similar(t: Template, z: complex, pivot: np.ndarray) -> Template:
+    """``t`` rotated and scaled by the complex factor ``z`` about ``pivot`` (frame px)."""
+    M = np.array([[z.real, -z.imag], [z.imag, z.real]])
+    x, y, w, h = t.box
+    corners = np.array([[x, y], [x + w, y], [x, y + h], [x + w, y + h]], float)
+    moved = (corners - pivot) @ M.T + pivot
+    nx, ny = np.floor(moved.min(axis=0)).astype(int) - 1
+    nw, nh = (np.ceil(moved.max(axis=0)).astype(int) + 2) - (nx, ny)
+    A = np.hstack([M, (M @ (np.array([x, y], float) - pivot) + pivot - (nx, ny))[:, None]])
+
+    def warp(img: np.ndarray) -> np.ndarray:
+        return cv2.warpAffine(img, A, (int(nw), int(nh)), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+    sup = (warp(t.support) > 0.5).astype(np.float32)
+    sm, raw = warp(t.smooth) * sup, warp(t.raw) * sup
+    pts = (t.points - pivot) @ M.T + pivot
+    return finish((int(nx), int(ny), int(nw), int(nh)), sm, raw, sup, pts)
+
+
+def warp(t: np.ndarray, dx: float, dy: float, w: int, h: int) -> np.ndarray:
+    m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
+    return cv2.warpAffine(t, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
