@@ -190,10 +190,15 @@ class NaturalResult:
     axes: AxisSearch
     tracks: FeatureTracks
     streaks: StreakSet
+    #: The translation model used and why (:mod:`calib.natural_motion`).
+    translation: dict[str, Any] | None = None
+    #: The rotation-only fit, when the per-pair translation fit replaced it.
+    rotation_only: CalibResult | None = None
 
     def summary(self) -> dict[str, Any]:
         d = self.tracks.displacement_px
         return {
+            "translation": self.translation,
             "axes": self.axes.to_dict(),
             "features": {
                 "tracks": len(self.tracks),
@@ -209,8 +214,18 @@ def calibrate_natural(
     options: FitOptions,
     params: TrackParams | None = None,
     progress: Callable[[int, int], None] | None = None,
+    translation: str = "none",
 ) -> NaturalResult:
-    """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``)."""
+    """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``).
+
+    ``translation``: ``none`` (pure rotation), ``per-pair`` (an epipole per frame pair as a
+    nuisance, :mod:`calib.natural_motion`) or ``auto`` (per-pair when the rotation-only
+    fit leaves parallax, :func:`calib.natural_motion.prefers_translation`).
+    """
+    from calib.natural_motion import TRANSLATIONS
+
+    if translation not in TRANSLATIONS:
+        raise CalibError(f"translation must be one of {TRANSLATIONS}, got {translation!r}")
     frames = session.frames
     ts = frames["timestamp_ns"].to_numpy(np.int64)
     exp = frames["exposure_ns"].to_numpy(np.int64)
@@ -242,4 +257,8 @@ def calibrate_natural(
         residuals="endpoints",
     )
     res = calibrate(streaks, gyro, start, opts)
-    return NaturalResult(res, search, tracks, streaks)
+    if translation == "none":
+        return NaturalResult(res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"})
+    from calib.natural_motion import with_translation
+
+    return with_translation(NaturalResult(res, search, tracks, streaks), gyro, opts, translation)
