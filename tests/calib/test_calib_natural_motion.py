@@ -100,3 +100,13 @@ def test_free_epipole_per_pair_is_selectable(driving, tmp_path) -> None:
     assert d["translation"]["mode"] == "per-pair" and d["translation"]["chosen_by"] == "option"
     assert len(d["translation"]["epipoles"]) == 29  # one per frame pair
     assert abs(d["error_vs_truth"]["timeshift_s"]) < 1.5e-3
+
+
+def test_translation_nuisance_is_refused_on_laser_sessions(tmp_path, capsys) -> None:
+    from tests.calib.test_calib_commands import _write_session
+
+    s, _ = _write_session(tmp_path / "laser")
+    out = tmp_path / "c" / "calib.yaml"
+    assert main(["calibrate", str(s), "--out", str(out), "--translation", "per-pair"]) == 2
+    assert "applies to natural-scene sessions" in capsys.readouterr().err
+    assert not out.exists()
