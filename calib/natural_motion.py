@@ -76,48 +76,39 @@ def _homog(p: np.ndarray, c: np.ndarray, f: float) -> np.ndarray:
 def epipoles(
     pred: np.ndarray,
     obs: np.ndarray,
-    pair: np.ndarray,
-    n_pairs: int,
+    group: np.ndarray,
     centre: np.ndarray,
     f: float,
     weight: np.ndarray | None = None,
-    rounds: int = 3,
     maps: np.ndarray | None = None,
-    group: np.ndarray | None = None,
+    rounds: int = 3,
 ) -> np.ndarray:
-    """Least-squares epipoles ``(n_pairs, 3)`` (conditioned coordinates) of tracks
-    ``pred -> obs`` grouped by ``pair`` (see the module docstring).
-
-    With ``maps (n_pairs, 3, 3)`` and ``group (n_pairs,)`` the epipole of pair ``k`` is
-    ``maps[k] @ d_g`` with one unit direction ``d_g`` per group of pairs (``travel``).
-    """
+    """Least-squares epipole directions ``(G, 3)`` (unit) of tracks ``pred -> obs`` grouped
+    by ``group (N,)`` in ``0..G-1`` (see the module docstring): the epipole of track ``i``
+    (conditioned coordinates) is ``maps[i] @ d[group[i]]``, with ``maps (N, 3, 3)`` the
+    identity when ``None`` (a free epipole per group)."""
     qp, qo = _homog(pred, centre, f), _homog(obs, centre, f)
     m = np.cross(qp, qo)
     w0 = np.ones(len(m)) if weight is None else weight
-    if maps is None:
-        maps = np.broadcast_to(np.eye(3), (n_pairs, 3, 3))
-        group = np.arange(n_pairs)
-    assert group is not None
-    gt = group[pair]
-    mm = np.einsum("nji,nj->ni", maps[pair], m)  # A_kᵀ m: e · m = d · (A_kᵀ m)
-    E = np.zeros((n_pairs, 3))
-    E[:, 2] = 1.0
-    for k in np.unique(group):
-        sel = np.flatnonzero((gt == k) & (w0 > 0))
+    n_groups = int(group.max()) + 1 if group.size else 0
+    mm = m if maps is None else np.einsum("nji,nj->ni", maps, m)  # e · m = d · (Aᵀ m)
+    D = np.zeros((n_groups, 3))
+    D[:, 2] = 1.0
+    for k in range(n_groups):
+        sel = np.flatnonzero((group == k) & (w0 > 0))
         if sel.size < 3:
             continue
-        d = np.linalg.solve(maps[np.flatnonzero(group == k)[0]], [0.0, 0.0, 1.0])
+        d = np.array([0.0, 0.0, 1.0])
         for r in range(rounds):
             w = w0[sel].copy()
             if r:
-                e = np.einsum("nij,j->ni", maps[pair[sel]], d)
+                e = d[None, :] if maps is None else np.einsum("nij,j->ni", maps[sel], d)
                 l12 = np.cross(qo[sel], e)[:, :2]
                 w = w / np.maximum(np.sum(l12**2, axis=1), 1e-6)
             A = (mm[sel] * w[:, None]).T @ mm[sel]
             d = np.linalg.eigh(A)[1][:, 0]
-        rows = np.flatnonzero(group == k)
-        E[rows] = maps[rows] @ d
-    return E
+        D[k] = d
+    return D
 
 
 def camera_orientations(
@@ -192,46 +183,51 @@ class _Problem:
         counts = np.bincount(self.pair, minlength=self.n_pairs)
         self.usable = counts[self.pair] >= MIN_PAIR_TRACKS
         self.travel = travel
-        # each pair's later frame, dated at its centre row's exposure midpoint
+        # each pair's later frame, dated at its exposure midpoint (row 0)
         self.t_b = streaks.frame_t_s[first] + streaks.exposure_s[first]
-        self.group = np.floor((self.t_b - self.t_b[0]) / SEGMENT_S).astype(np.int64)
+        seg = np.floor((self.t_b - self.t_b[0]) / SEGMENT_S).astype(np.int64)
+        self.group = seg[self.pair] if travel else self.pair
+        self.row_b = streaks.rows[:, 1] / model.height
 
     def maps(self, theta: np.ndarray) -> np.ndarray | None:
-        """``travel``: per pair, world direction -> conditioned epipole of its later frame."""
+        """``travel``: per track, travel direction (first frame's camera axes) -> conditioned
+        epipole at the time its later point was seen (the pair's orientation from the gyro,
+        carried to the track's own row by the rate there)."""
         if not self.travel:
             return None
-        from calib.params import LAYOUT
+        from blurtrack.geometry.rotation import so3_exp
+        from calib.params import LAYOUT, scale_matrix
 
         fx, fy, cx, cy = theta[LAYOUT["intrinsics"]]
-        ro = theta[LAYOUT["readout_s"]]
+        ro = float(theta[LAYOUT["readout_s"]])
         Rw = camera_orientations(self.model, theta, self.t_b + ro / 2)
+        t_i = self.t_b[self.pair] + ro * self.row_b
+        R = so3_exp(theta[LAYOUT["rotation"]]) @ self.model.R0_cam_imu
+        w = np.stack(self.model.gyro.omega_components(t_i + theta[LAYOUT["timeshift_s"]]), 1)
+        w_cam = (w - theta[LAYOUT["bias"]]) @ (R @ np.linalg.inv(scale_matrix(theta))).T
+        dt = t_i - (self.t_b[self.pair] + ro / 2)
+        local = so3_exp(-w_cam * dt[:, None])  # R_w(t_i)ᵀ = exp(−ω δt) R_pairᵀ
         K = np.array(
             [[fx / self.f, 0, (cx - self.centre[0]) / self.f],
              [0, fy / self.f, (cy - self.centre[1]) / self.f], [0, 0, 1.0]]
         )  # fmt: skip
-        return K @ np.transpose(Rw, (0, 2, 1))
+        return K @ local @ np.transpose(Rw, (0, 2, 1))[self.pair]
 
     def predicted(self, theta: np.ndarray) -> np.ndarray:
         return self.model.residual_np(theta, self.streaks) + self.streaks.end
 
     def epipoles(self, theta: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """Per pair epipoles (free), or per segment travel directions ``(G, 3)``."""
-        maps = self.maps(theta)
-        E = epipoles(
-            self.predicted(theta), self.streaks.end, self.pair, self.n_pairs, self.centre,
-            self.f, weight * self.usable, maps=maps, group=self.group if self.travel else None,
+        return epipoles(
+            self.predicted(theta), self.streaks.end, self.group, self.centre, self.f,
+            weight * self.usable, self.maps(theta),
         )  # fmt: skip
-        if maps is None:
-            return E
-        first = np.unique(self.group, return_index=True)[1]
-        return np.stack([np.linalg.solve(maps[i], E[i]) for i in first])
 
     def residual(self, theta: np.ndarray, E: np.ndarray) -> np.ndarray:
         maps = self.maps(theta)
-        Ep = E if maps is None else np.einsum("kij,kj->ki", maps, E[self.group])
-        return epipolar_residual(
-            self.predicted(theta), self.streaks.end, Ep[self.pair], self.centre, self.f
-        )
+        d = E[self.group]
+        Ep = d if maps is None else np.einsum("nij,nj->ni", maps, d)
+        return epipolar_residual(self.predicted(theta), self.streaks.end, Ep, self.centre, self.f)
 
 
 def _weights(r: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, float]:

@@ -42,7 +42,7 @@ def test_epipolar_residual_vanishes_for_a_translating_camera(t) -> None:
     t = np.array(t)
     pred, obs = _pair(rng, t)
     c, f = np.array([160.0, 90.0]), 300.0
-    E = epipoles(pred, obs, np.zeros(len(obs), np.int64), 1, c, f)
+    E = epipoles(pred, obs, np.zeros(len(obs), np.int64), c, f)
     r = epipolar_residual(pred, obs, np.repeat(E, len(obs), 0), c, f)
     assert np.max(np.abs(r)) < 1e-6
     # the recovered epipole is K t (conditioned coordinates), up to scale and sign
