@@ -94,7 +94,10 @@ def main() -> None:
     out: dict = {"config": vars(args), "rates": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for rate in (float(r) for r in args.rates.split(",")):
-            recs = [one(Path(tmp), s, rate, args) for s in range(args.seeds)]
+            recs = []
+            for s in range(args.seeds):
+                recs.append(one(Path(tmp), s, rate, args))
+                print(json.dumps(recs[-1]), file=sys.stderr, flush=True)  # partial results
             ok = [r for r in recs if "abs_error" in r]
             med = (
                 {k: float(np.median([r["abs_error"][k] for r in ok])) for k in ok[0]["abs_error"]}
