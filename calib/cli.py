@@ -94,6 +94,9 @@ def register(subparsers: Any) -> None:
         "against the images and starts from the winner (refusing an ambiguous one); session "
         "keeps session.yaml's T_cam_imu",
     )
+    from calib.natural_cli import add_natural_args
+
+    add_natural_args(p)
     p.set_defaults(func=run_calibrate)
 
 

@@ -15,6 +15,19 @@ from typing import Any
 NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
 
 
+def add_natural_args(p: argparse.ArgumentParser) -> None:
+    """``blurtrack calibrate`` options of natural-scene sessions."""
+    p.add_argument(
+        "--translation",
+        choices=("none", "auto", "per-pair"),
+        default="auto",
+        help="natural scenes: the camera's translation between frames. none: a far static "
+        "scene (pure rotation); per-pair: an epipole per frame pair as a nuisance, every "
+        "point's depth eliminated (driving, near objects); auto (default): per-pair when "
+        "the rotation-only fit leaves more parallax than its missing coordinate explains",
+    )
+
+
 def is_natural(args: argparse.Namespace) -> bool:
     """Whether ``--target`` (or session.yaml's ``target.kind`` under ``auto``) says natural."""
     if args.target != "auto":
@@ -42,6 +55,10 @@ def laser_axes(
     Returns the search as a dict (``None`` when skipped) and the initial calibration to fit
     from. Tables without midpoints skip the search with a warning.
     """
+    if getattr(args, "translation", "auto") == "per-pair":
+        from calib.errors import CalibError
+
+        raise CalibError("--translation per-pair applies to natural-scene sessions")
     if args.axes != "search":
         return None, initial
     if streaks.mid is None:
@@ -99,7 +116,7 @@ def run_natural(
         shift_window_s=args.shift_window_ms * 1e-3,
         residuals=args.residuals,
     )
-    nat = calibrate_natural(session, options)
+    nat = calibrate_natural(session, options, translation=args.translation)
     res = nat.result
     summary = res.to_dict()
     summary.update(nat.summary())
@@ -119,6 +136,12 @@ def run_natural(
         f"{f['per_pair_median']:.0f} per pair, {f['displacement_px_median']:.1f} px motion)"
     )
     print_axes(nat.axes)
+    tr = nat.translation or {}
+    if "ratio" in tr:
+        print(
+            f"translation: {tr['mode']} (chosen by {tr['chosen_by']}; rotation-only / "
+            f"epipolar mean squared track error {tr['ratio']:.2f}, auto above {tr['auto_ratio']})"
+        )
     print("(the endpoint errors below are feature-track errors)")
     print_table(res, summary["initial"], truth)
     return write_results(res, out, details)

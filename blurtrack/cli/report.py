@@ -42,6 +42,12 @@ def run_report(args: argparse.Namespace) -> int:
     from blurtrack.report.build import build_report
 
     check_output(args.out, folder=True, force=args.force)
+    from blurtrack.io.session import load_session
+
+    if load_session(args.session).meta.target_kind == "natural":
+        from blurtrack.cli.report_natural import run_natural_report
+
+        return run_natural_report(args, load_session(args.session))
     session, table = load_session_and_streaks(args)
     after = Calibration.from_yaml(args.calib)
     before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()

@@ -66,6 +66,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="photograph for --target natural (default: one of "
         "../shared/data/backgrounds/bsds500/val chosen by the seed)",
     )
+    p.add_argument(
+        "--depth-m",
+        type=float,
+        default=None,
+        help="--target natural: the photograph on a plane this far away (default: at infinity)",
+    )
+    p.add_argument(
+        "--speed-mps",
+        type=float,
+        default=0.0,
+        help="--target natural: drive towards the plane at this speed (needs --depth-m)",
+    )
     p.set_defaults(func=run)
 
 
@@ -94,11 +106,19 @@ def run(args: argparse.Namespace) -> int:
         from rigs.sim.natural import NaturalRig
 
         rig = NaturalRig(
-            preset, args.seed, args.frames, shake=args.shake, background=args.background
+            preset,
+            args.seed,
+            args.frames,
+            shake=args.shake,
+            background=args.background,
+            depth_m=args.depth_m,
+            speed_mps=args.speed_mps,
         )
     else:
-        if args.background is not None:
-            raise BlurTrackError("--background applies to --target natural only")
+        if args.background is not None or args.depth_m is not None or args.speed_mps:
+            raise BlurTrackError(
+                "--background, --depth-m and --speed-mps apply to --target natural only"
+            )
         rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
     with Progress("simulate", "frame", args.quiet) as bar, atomic_dir(out) as tmp:
         # a failure (full disk, Ctrl-C) leaves no half session

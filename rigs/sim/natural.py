@@ -3,8 +3,13 @@
 :class:`NaturalRig` is a :class:`~rigs.sim.rig.SimRig` (same true calibration, true motion, gyro
 model, sensor noise and session writer) whose frames show a BSDS500 photograph on a plane at
 infinity (``z = 1`` in the world frame, the scene direction ``w`` seen at texture pixel
-``c_t + s_t · (w_x / w_z, w_y / w_z)``; pure rotation, DESIGN's scene model). Pixel ``x`` of
-row ``r`` at time ``t`` looks along ``w = R_c(t) K⁻¹ x̃`` (``R_c`` from
+``c_t + s_t · (w_x / w_z, w_y / w_z)``; pure rotation, DESIGN's scene model). With
+``depth_m`` the photograph lies on the plane ``z = depth_m`` instead, and with ``speed_mps``
+the camera drives towards it along the world ``z`` axis (``c(t) = speed · (t − t_first) · ẑ``,
+optionally varied by ``speed_wobble`` at 0.5 Hz): the ray ``c + s w`` meets the plane at
+``c + (depth − c_z) / w_z · w``, texture pixel ``c_t + s_t · (c_x + (depth − c_z) w_x / w_z,
+…) / depth`` (the "driving" nuisance: forward-motion zoom the rotation model cannot explain).
+Pixel ``x`` of row ``r`` at time ``t`` looks along ``w = R_c(t) K⁻¹ x̃`` (``R_c`` from
 :meth:`rigs.sim.motion.TrueMotion.orientation`); a blurred frame averages ``n`` such sharp
 views at the sub-times ``t_row + exposure · (k + ½) / n`` of each row (rolling shutter:
 ``t_row = t + readout · r / H``), ``n`` chosen so that consecutive views move by at most
@@ -77,6 +82,9 @@ class NaturalRig(SimRig):
 
     Args:
         background: a photograph, or ``None`` for :func:`pick_background` by ``seed``.
+        depth_m: distance of the textured plane (``None``: at infinity, pure rotation).
+        speed_mps: forward speed towards the plane (needs ``depth_m``).
+        speed_wobble: relative speed variation (``speed · (1 + wobble · sin(2π · 0.5 Hz · t))``).
     """
 
     def __init__(
@@ -86,10 +94,31 @@ class NaturalRig(SimRig):
         n_frames: int,
         shake: ShakeTrace | str | Path | None = None,
         background: str | Path | None = None,
+        depth_m: float | None = None,
+        speed_mps: float = 0.0,
+        speed_wobble: float = 0.0,
     ) -> None:
         if preset.distortion_coeffs:
             raise SimError("the natural-scene renderer draws no lens distortion")
+        if depth_m is not None and not (math.isfinite(depth_m) and depth_m > 0):
+            raise SimError(f"depth_m must be a positive distance, got {depth_m}")
+        if speed_mps and depth_m is None:
+            raise SimError("a forward speed needs a plane at finite depth (depth_m)")
+        if not (math.isfinite(speed_mps) and 0 <= abs(speed_wobble) < 1):
+            raise SimError("speed_mps must be finite and speed_wobble in (-1, 1)")
         super().__init__(preset, seed, n_frames, shake=shake)
+        self.depth_m = depth_m
+        self.speed_mps = float(speed_mps)
+        self.speed_wobble = float(speed_wobble)
+        self._t_first = float(self.frame_times_ns[0]) * 1e-9
+        if depth_m is not None:
+            t_end = float(self.frame_times_ns[-1]) * 1e-9 + 0.1
+            travel = float(self.position(np.array([t_end]))[0, 2])
+            if travel >= 0.5 * depth_m:
+                raise SimError(
+                    f"the camera would drive {travel:.1f} m, more than half way to the plane "
+                    f"at {depth_m} m"
+                )
         self.background = Path(background) if background else pick_background(seed)
         self.texture = load_texture(self.background)
         fx = self.camera.intrinsics[0]
@@ -104,9 +133,17 @@ class NaturalRig(SimRig):
         m = super().nominal_meta()
         return SessionMeta(m.camera, m.imu, "natural", extra=m.extra)
 
+    def position(self, t_s: np.ndarray) -> np.ndarray:
+        """Camera centre ``(M, 3)`` in the world (m) at camera times ``(M,)``."""
+        t = np.asarray(t_s, float).reshape(-1) - self._t_first
+        f = 2 * math.pi * 0.5
+        z = self.speed_mps * (t + self.speed_wobble * (1 - np.cos(f * t)) / f)
+        return np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+
     # ------------------------------------------------------------- render
-    def _view(self, R_rows: np.ndarray) -> np.ndarray:
-        """Sharp texture values ``(H, W)`` for per-row orientations ``R_rows (H, 3, 3)``."""
+    def _view(self, R_rows: np.ndarray, c_rows: np.ndarray | None = None) -> np.ndarray:
+        """Sharp texture values ``(H, W)`` for per-row orientations ``R_rows (H, 3, 3)`` and
+        camera centres ``c_rows (H, 3)`` (only with a plane at finite depth)."""
         cam = self.camera
         fx, fy, cx, cy = cam.intrinsics
         W, H = cam.width, cam.height
@@ -118,8 +155,15 @@ class NaturalRig(SimRig):
         A, B = A.astype(np.float32), B.astype(np.float32)
         wz = A[:, 2:3] * u + B[:, 2:3]
         s = np.float32(self.texel_scale) / wz
-        mx = (A[:, 0:1] * u + B[:, 0:1]) * s + np.float32(self.texture_centre[0])
-        my = (A[:, 1:2] * u + B[:, 1:2]) * s + np.float32(self.texture_centre[1])
+        ox: Any = np.float32(0.0)
+        oy: Any = np.float32(0.0)
+        if self.depth_m is not None and c_rows is not None:
+            c = c_rows.astype(np.float32)
+            s = s * (1 - c[:, 2:3] / np.float32(self.depth_m))
+            ox = c[:, 0:1] * np.float32(self.texel_scale / self.depth_m)
+            oy = c[:, 1:2] * np.float32(self.texel_scale / self.depth_m)
+        mx = (A[:, 0:1] * u + B[:, 0:1]) * s + ox + np.float32(self.texture_centre[0])
+        my = (A[:, 1:2] * u + B[:, 1:2]) * s + oy + np.float32(self.texture_centre[1])
         return cv2.remap(
             self.texture, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
         )
@@ -143,14 +187,18 @@ class NaturalRig(SimRig):
         row_t = t_start_s + cam.readout_s * np.arange(H) / H
         acc = np.zeros((H, cam.width), np.float32)
         for k in range(n):
-            acc += self._view(self.motion.orientation(row_t + p.exposure_s * (k + 0.5) / n))
+            t_k = row_t + p.exposure_s * (k + 0.5) / n
+            acc += self._view(self.motion.orientation(t_k), self.position(t_k))
         return acc * np.float32(self._scene_e / n)
 
     def sharp_electrons(self, t_ref_s: float) -> np.ndarray:
         """The scene without motion blur, every row seen at ``t_ref_s``."""
         H = self.camera.height
         R = np.broadcast_to(self.motion.orientation(np.array([t_ref_s]))[0], (H, 3, 3))
-        return self._view(np.ascontiguousarray(R)) * np.float32(self._scene_e)
+        c = np.broadcast_to(self.position(np.array([t_ref_s])), (H, 3))
+        return self._view(np.ascontiguousarray(R), np.ascontiguousarray(c)) * np.float32(
+            self._scene_e
+        )
 
     # --------------------------------------------------------------- truth
     def frame_truth(self, index: int) -> dict[str, Any]:
@@ -168,7 +216,12 @@ class NaturalRig(SimRig):
         info.pop("dots", None)
         info["scene"] = {
             "kind": "natural",
-            "model": "far plane (pure rotation)",
+            "model": "far plane (pure rotation)"
+            if self.depth_m is None
+            else "plane at finite depth, forward translation",
+            "depth_m": self.depth_m,
+            "speed_mps": self.speed_mps,
+            "speed_wobble": self.speed_wobble,
             "background": self.background.name,
             "texel_px": TEXEL_PX,
             "texture_size": list(self.texture.shape[::-1]),

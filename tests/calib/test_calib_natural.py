@@ -103,3 +103,31 @@ def test_foreign_gyro(natural, tmp_path, capsys) -> None:
 def test_no_rotation(tmp_path, capsys, shared_data) -> None:
     s = _simulate(tmp_path / "still", 3, 8, motion_scale=(0.002, 0.002))
     _refused(s, tmp_path, capsys, "no rotation")
+
+
+def test_thinning_spreads_each_pairs_tracks_over_the_image() -> None:
+    from blurtrack.features.tracks import FeatureTracks
+    from calib.natural import THIN_GRID, thinned
+
+    rng = np.random.default_rng(0)
+    n_pairs, per_pair = 5, 120
+    pts = []
+    for _ in range(n_pairs):
+        strong = rng.uniform([0, 0], [80, 60], (60, 2))  # the strongest corners: one corner
+        rest = rng.uniform([0, 0], [640, 360], (per_pair - 60, 2))
+        pts.append(np.vstack([strong, rest, [[0, 0], [640, 360]]]))
+    p = np.vstack(pts)
+    fa = np.repeat(np.arange(n_pairs), per_pair + 2)
+    tr = FeatureTracks(
+        fa, fa + 1, p, p + 1, np.zeros(len(p)), n_pairs + 1, np.full(n_pairs, per_pair + 2)
+    )
+    n_cells = THIN_GRID[0] * THIN_GRID[1]
+    out = thinned(tr, n_pairs * n_cells)
+    assert len(out) == n_pairs * n_cells
+    for f in range(n_pairs):
+        q = out.pts_a[out.frame_a == f]
+        cells = {(int(x // (640 / THIN_GRID[0])), int(y // (360 / THIN_GRID[1]))) for x, y in q}
+        assert len(cells) == n_cells  # one per cell
+        # negative control: the strongest-first share would all sit in the corner
+        first = tr.pts_a[tr.frame_a == f][:n_cells]
+        assert np.all(first[:, 0] < 80) and np.all(first[:, 1] < 60)

@@ -65,3 +65,37 @@ def test_simulate_command_target_natural(tmp_path, capsys, shared_data) -> None:
     assert load_session(out).meta.target_kind == "natural"
     assert main(["simulate", str(tmp_path / "l"), "--background", str(preset)]) == 2
     assert "--target natural" in capsys.readouterr().err
+
+
+def test_plane_at_depth_with_forward_motion_renders_the_true_parallax(shared_data) -> None:
+    p = get_preset("realistic").replace(**SMALL)
+    far = NaturalRig(p, 2, 6)
+    still = NaturalRig(p, 2, 6, depth_m=5.0)
+    # a camera at the origin sees a plane at any depth as the far plane
+    assert np.array_equal(far.render_sharp(1.0), still.render_sharp(1.0))
+    drive = NaturalRig(p, 2, 6, depth_m=5.0, speed_mps=4.0)
+    t0, t1 = 1.0, 1.03
+    A, B = (to_gray8(drive.render_sharp(t)) for t in (t0, t1))
+    pa, pb, _ = track_pair(A, B)
+    assert len(pa) > 50
+    cam = drive.camera
+    R0, R1 = drive.motion.orientation(np.array([t0, t1]))
+    c0, c1 = drive.position(np.array([t0, t1]))
+    w = cam.unproject(pa) @ R0.T
+    X = c0 + w * ((5.0 - c0[2]) / w[:, 2])[:, None]  # where each ray meets the plane
+    pred = cam.project((X - c1) @ R1)
+    rot_only = cam.project(w @ R1)
+    assert np.median(np.linalg.norm(pb - pred, axis=1)) < 0.1
+    # negative control: the zoom of forward motion is visible against pure rotation
+    assert np.median(np.linalg.norm(pb - rot_only, axis=1)) > 0.5
+    assert drive.simulator_info()["scene"]["speed_mps"] == 4.0
+
+
+def test_driving_options_are_checked(shared_data) -> None:
+    p = get_preset("realistic").replace(**SMALL)
+    with pytest.raises(SimError, match="finite depth"):
+        NaturalRig(p, 0, 2, speed_mps=1.0)
+    with pytest.raises(SimError, match="positive distance"):
+        NaturalRig(p, 0, 2, depth_m=-1.0)
+    with pytest.raises(SimError, match="half way"):
+        NaturalRig(p, 0, 60, depth_m=2.0, speed_mps=5.0)
