@@ -19,9 +19,10 @@ JSON document.
 ``--command`` times the whole ``blurtrack calibrate`` command (a subprocess, what a user runs:
 the session without truth.yaml, the true streaks as its streak table) on sessions simulated at
 each ``--imu-rates`` gyro rate (``--imu-rate`` of ``blurtrack simulate``) and reports wall and
-CPU seconds, time per track, stage times, the written calibration's errors against the truth
-and the |z| of each estimate (medians over ``--repeat`` runs and seeds); the baseline timed in
-the same run is the lowest gyro rate (``per_track_ratio``):
+CPU seconds, time per track, stage times, the axis search's decision and margin, the written
+calibration's errors against the truth and the |z| of each estimate (medians over ``--repeat``
+runs and seeds); the baseline timed in the same run is the lowest gyro rate
+(``per_track_ratio``):
 
     PYTHONPATH=. python bench/bench_calibrate.py --command --presets realistic --seeds 0 \\
         --frames 150 --imu-rates 200,1000 --work /tmp/bench_calib
@@ -160,6 +161,14 @@ def run_command(
         "stage_s": summary["timings_s"],
         "holdout_mean_px": summary["holdout_inliers"]["mean_px"],
     }
+    axes = summary.get("axes")  # the axis search's decision (absent under --axes session)
+    if axes:
+        run["axes"] = {
+            "R_cam_imu": axes["winner"]["R_cam_imu"],
+            "timeshift_s": axes["winner"]["timeshift_s"],
+            "score_px": axes["winner"]["score_px"],
+            "margin": axes["margin"],
+        }
     n_units = run["n_tracks"] or run["n_streaks"]
     run["wall_per_track_ms"] = 1e3 * wall / max(n_units, 1)
     run["cpu_per_track_ms"] = 1e3 * cpu / max(n_units, 1)
@@ -236,6 +245,8 @@ def command_bench(args: argparse.Namespace) -> dict:
                 k: float(max(abs(r["error"][k]) for r in rs if "error" in r)) for k in TARGETS
             },
             "within_3sigma": sum(bool(r.get("within_3sigma")) for r in rs),
+            "axes_margin": [r["axes"]["margin"] for r in rs if "axes" in r],
+            "axes_R_cam_imu": [r["axes"]["R_cam_imu"] for r in rs if "axes" in r][:1],
             "max_z": float(max(r.get("max_z") or 0.0 for r in rs)),
             "median_stage_s": {
                 k: float(np.median([r["stage_s"].get(k, np.nan) for r in rs]))

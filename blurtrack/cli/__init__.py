@@ -4,9 +4,10 @@ Each package registers its own commands: ``blurtrack/cli/<name>.py`` (simulate, 
 validate, detect, report, predict, synth, demo), ``calib/cli.py`` (calibrate) and ``rigs/cli.py``
 (record, recover); ``gamd/cli.py`` is the separate ``gamd`` program. Each module exposes
 ``register(subparsers) -> None``; each registered parser
-sets ``func`` to a callable ``(argparse.Namespace) -> int``. The modules of the other packages
-(rigs, calib) are imported only when the parser is built, and they import their heavy
-dependencies inside their command functions, so ``blurtrack --help`` stays fast.
+sets ``func`` to a callable ``(argparse.Namespace) -> int``. :data:`COMMANDS` declares every
+command (name, module, one-line help), so ``blurtrack CMD ...`` imports only CMD's module and
+lists the others from their declarations (``blurtrack --help`` imports none); the modules import
+their heavy dependencies inside their command functions.
 
 This is the only layer that prints summaries and chooses exit codes: library code raises
 :class:`blurtrack.errors.BlurTrackError` subclasses, which become one line on stderr and exit 2.
@@ -16,27 +17,54 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 from collections.abc import Sequence
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from blurtrack.errors import BlurTrackError
 
-#: Modules that contribute subcommands, in help order. A module that is missing from an
-#: installation (an optional package) is skipped, not fatal.
-COMMAND_MODULES: tuple[str, ...] = (
-    "blurtrack.cli.simulate",
-    "blurtrack.cli.importers",
-    "blurtrack.cli.validate",
-    "blurtrack.cli.detect",
-    "calib.cli",
-    "blurtrack.cli.report",
-    "blurtrack.cli.predict",
-    "blurtrack.cli.synth",
-    "rigs.cli",
-    "blurtrack.cli.export",
-    "blurtrack.cli.demo",
+#: Every subcommand in help order: its name, the module that registers it and its one-line
+#: help (the module's own, checked by the tests). A module missing from an installation (an
+#: optional package) contributes no commands, not an error.
+COMMANDS: tuple[tuple[str, str, str], ...] = (
+    (
+        "simulate",
+        "blurtrack.cli.simulate",
+        "render a simulated laser-grid session (with truth.yaml)",
+    ),
+    ("import", "blurtrack.cli.importers", "convert a third-party recording into a session folder"),
+    ("validate", "blurtrack.cli.validate", "check a session folder thoroughly"),
+    (
+        "detect",
+        "blurtrack.cli.detect",
+        "detect laser-dot streaks and write the streak table (Parquet)",
+    ),
+    ("calibrate", "calib.cli", "fit the gyro blur model to a session's streaks"),
+    ("report", "blurtrack.cli.report", "endpoint-error report of a calibration"),
+    (
+        "predict",
+        "blurtrack.cli.predict",
+        "per-frame blur heat maps and trajectories of a recording",
+    ),
+    (
+        "synth",
+        "blurtrack.cli.synth",
+        "synthesise calibrated training triplets (sharp, blur, heat maps)",
+    ),
+    ("synth-merge", "blurtrack.cli.synth", "combine dataset shards into one manifest"),
+    (
+        "record",
+        "rigs.cli",
+        "record an IMU and a camera into a crash-safe log and a session folder",
+    ),
+    ("recover", "rigs.cli", "salvage a recorder log cut short (crash, SIGKILL, full disk)"),
+    ("export", "blurtrack.cli.export", "write a session in another tool's format (ROS bag)"),
+    ("demo", "blurtrack.cli.demo", "run the whole pipeline on the simulated rig"),
 )
+
+#: Modules that contribute subcommands, in help order.
+COMMAND_MODULES: tuple[str, ...] = tuple(dict.fromkeys(m for _, m, _ in COMMANDS))
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -83,22 +111,53 @@ class CommandParser(argparse.ArgumentParser):
         return super()._add_action(action)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``blurtrack`` parser: every command in full (``command=None``), or only
+    ``command``'s module imported and registered and the other commands listed from
+    :data:`COMMANDS` (same top-level help, nothing of theirs imported)."""
     parser = CommandParser(
         prog="blurtrack",
         description="Calibration and validation workbench for gyro-assisted motion deblurring.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=CommandParser)
     sub.required = True
-    for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name is not None and name.startswith(exc.name):
-                continue  # that command module is not part of this installation
-            raise
-        module.register(sub)
+    wanted = {m for name, m, _ in COMMANDS if command is None or name == command}
+    done: set[str] = set()
+    for name, module_name, text in COMMANDS:
+        if module_name in wanted:
+            if module_name not in done:
+                done.add(module_name)
+                module = _command_module(module_name)
+                if module is not None:
+                    module.register(sub)
+        elif _installed(module_name):
+            sub.add_parser(name, help=text, add_help=False)
     return parser
+
+
+def _command_module(name: str) -> Any:
+    """The command module ``name``, or None where it is not part of this installation."""
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and name.startswith(exc.name):
+            return None  # that command module is not part of this installation
+        raise
+
+
+def _installed(name: str) -> bool:
+    """Whether command module ``name`` exists, without running it (its packages' __init__ are
+    imported, as for any submodule)."""
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def command_of(argv: Sequence[str]) -> str:
+    """The subcommand an argument list names: its first argument that is not an option
+    (``""`` where there is none, e.g. ``blurtrack --help``)."""
+    return next((a for a in argv if not a.startswith("-")), "")
 
 
 #: Optional third-party packages and the extra that installs each (pyproject.toml).
@@ -156,7 +215,8 @@ def run_command(program: str, args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_command("blurtrack", build_parser().parse_args(argv))
+    args = sys.argv[1:] if argv is None else list(argv)
+    return run_command("blurtrack", build_parser(command_of(args)).parse_args(args))
 
 
 if __name__ == "__main__":
