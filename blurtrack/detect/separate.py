@@ -66,6 +66,9 @@ FAIL_SUPPRESS_PX = 2
 #: Most light (squared, relative to that under the template) a template's halo (a ring of
 #: :data:`~blurtrack.detect.templates.HALO_PX`) may hold where it is placed.
 HALO_MAX = 0.25
+#: The same with whole-component references: real lights on a string touch their neighbours,
+#: whose light then lies in the halo.
+HALO_MAX_WHOLE = 1.0
 #: References whose median area a component's area is compared with.
 NEIGHBOURS = 6
 
@@ -93,7 +96,12 @@ def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 
 def _pursue(
-    residual: np.ndarray, comps: Components, c: int, tpl: Template, comp_of_label: np.ndarray
+    residual: np.ndarray,
+    comps: Components,
+    c: int,
+    tpl: Template,
+    comp_of_label: np.ndarray,
+    halo_max: float = HALO_MAX,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
@@ -128,7 +136,7 @@ def _pursue(
             halo = float(np.sum(w2 * tpl.halo))
             score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * norm + 1e-12)
             # A streak's template lies in the dark: no blob or wider streak fits it.
-            if score >= SCORE_MIN and halo <= HALO_MAX * den:
+            if score >= SCORE_MIN and halo <= halo_max * den:
                 picked.append((iy, ix, float(num[iy, ix]) / tpl.norm2))
                 ry, rx = sy, sx
             else:
@@ -373,7 +381,8 @@ def separate(
                 bases[k] = template(smooth, signal, comps, int(refs.own[k]), refs.points[k])
             base = bases[k]
             templates[key] = similar(base, z, refs.time_mid[k]) if abs(z - 1) > 0.02 else base
-        placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
+        halo = HALO_MAX_WHOLE if whole else HALO_MAX
+        placements += _pursue(residual, comps, ci, templates[key], comp_of_label, halo)
     if not placements:
         return done(None, None)
     # Candidates whose light the placements mostly explain are replaced.

@@ -120,3 +120,31 @@ def test_component_references_are_whole_where_the_first_pass_cuts_the_foot() -> 
     # Negative control: the first pass loses the foot of these streaks at its corner.
     plain = detect_frame(image, DetectParams(separate=False))
     assert _whole(plain.end_a, plain.end_b, curves, 1.5) <= 4
+
+
+def test_real_string_lights_come_out_whole(shared_data) -> None:
+    """night2.jpg (rows of small lights, every one the same "2", touching in columns): the
+    first pass finds too few line references, so separation takes whole components."""
+    import cv2
+
+    image = cv2.imread(str(shared_data / "real" / "light-streaks" / "night2.jpg"))
+    comps, prep = _components(image)
+    out = component_references(
+        prep.smooth, prep.signal, prep.saturation, None, comps, 2.0, 2.0, 1.0
+    )
+    assert out is not None
+    m, field = out
+    v = (m.end_b - m.end_a)[field.use]
+    v = v * np.where(v[:, 1] < 0, -1.0, 1.0)[:, None]
+    ref = np.median(v, axis=0)
+    assert 25.0 < np.hypot(*ref) < 45.0  # the README: every light drew a ~25 px tall curve
+
+    def whole(fs) -> int:
+        d = fs.end_b - fs.end_a
+        dev = np.minimum(np.hypot(*(d - ref).T), np.hypot(*(d + ref).T))
+        return int(np.sum(~fs.flags["clipped"] & (dev <= 0.25 * np.hypot(*ref))))
+
+    sep = whole(detect_frame(image))
+    plain = whole(detect_frame(image, DetectParams(separate=False)))
+    # Negative control: without separation the lights split at their hooks and chain.
+    assert sep >= 40 and sep >= 3 * plain
