@@ -4,7 +4,11 @@ No truth exists for these photographs; what is measured (docs/detection.md): how
 are found, how many of them pass the quality flag, and the spread of start-to-end vectors
 around the photograph's consensus (every light drew nearly the same curve), orientation-free,
 over streaks (neither clipped, crossing nor looped) whose length is within 30 % of their
-median length.
+median length. And, where the photograph's isolated lights form a modal cluster of
+components (:mod:`blurtrack.detect.modal`), a count of *whole* streaks that does not depend on
+the streaks detected: the reference vector is the median start-to-end vector of those whole
+components' skeleton lines, and a streak (not clipped) counts as whole when its vector is within
+max(3 px, 25 %) of it, either sign.
 
 Usage: ``python bench/real_streaks.py [--overlay-dir docs/figures]``
 """
@@ -22,12 +26,37 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from blurtrack.detect import detect_frame  # noqa: E402
+from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.detect.image import prepare_frame  # noqa: E402
+from blurtrack.detect.modal import component_references  # noqa: E402
 from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks  # noqa: E402
+from blurtrack.detect.quality import shape_tolerance  # noqa: E402
+from blurtrack.detect.segment import drop_artefacts, find_components  # noqa: E402
 from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "light-streaks"
+
+
+def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
+    """Median start-to-end vector of the photo's whole isolated lights (the modal cluster of
+    components, measured along their skeletons), dominant direction; None without one."""
+    p = DetectParams()
+    prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
+    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
+    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
+    sat = np.maximum.reduceat(prep.saturated[comps.ys, comps.xs], comps.starts)
+    out = component_references(
+        prep.smooth, prep.signal, prep.saturation, sat, comps, sigma_c, sigma_c, p.smooth_sigma_px
+    )
+    if out is None:
+        return None
+    m, field = out
+    v = (m.end_b - m.end_a)[field.use]
+    _, vecs = np.linalg.eigh(v.T @ v)
+    v = v * np.where(v @ vecs[:, -1] < 0, -1.0, 1.0)[:, None]
+    return np.asarray(np.median(v, axis=0))
 
 
 def measure(path: Path, overlay: Path | None) -> dict:
@@ -59,6 +88,17 @@ def measure(path: Path, overlay: Path | None) -> dict:
             consensus_vector_px=[float(c[0]), float(c[1])],
             median_length_px=float(np.median(L)),
             vector_deviation_median_px=float(np.median(dev)),
+        )
+    ref = whole_reference(img, fs.sigma_c_px)
+    if ref is not None:
+        u = table[~table.clipped]
+        vu = u[["end_x", "end_y"]].to_numpy() - u[["start_x", "start_y"]].to_numpy()
+        dev = np.minimum(np.hypot(*(vu - ref).T), np.hypot(*(vu + ref).T))
+        whole = dev <= shape_tolerance(ref[None])[0]
+        out.update(
+            whole_reference_vector_px=[float(ref[0]), float(ref[1])],
+            whole_streaks=int(whole.sum()),
+            whole_deviation_median_px=float(np.median(dev[whole])) if whole.any() else None,
         )
     if overlay is not None:
         pic = draw_streaks(img, table, scale=1)

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.measure import LineSet, measure_lines
+from blurtrack.detect.measure import combine as _combine
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import Ragged
@@ -132,29 +133,6 @@ def _first_lines(
             ls.looped.append(path.self_crossing)
     ls.lines = lines
     return ls
-
-
-def _combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
-    """Rows ``keep`` of ``a`` followed by all of ``b`` (if any)."""
-    k = np.flatnonzero(keep)
-    parts = [a] if b is None else [a, b]
-    idx = [k] if b is None else [k, np.arange(len(b))]
-
-    def cat(name: str) -> np.ndarray:
-        return np.concatenate([getattr(x, name)[i] for x, i in zip(parts, idx, strict=True)])
-
-    def lst(name: str) -> list[np.ndarray]:
-        return [getattr(x, name)[j] for x, i in zip(parts, idx, strict=True) for j in i]
-
-    arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
-    flags = ("saturated", "crossing", "looped", "short")
-    return Measured(
-        **{n: cat(n) for n in arrays + flags},
-        points=lst("points"),
-        profile=lst("profile"),
-        sigma_c=a.sigma_c,
-        sigma_raw=a.sigma_raw,
-    )
 
 
 def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:

@@ -134,3 +134,26 @@ def measure_lines(
         sigma_c=sigma_c,
         sigma_raw=sig_raw,
     )
+
+
+def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
+    """Rows ``keep`` of ``a`` followed by all of ``b`` (if any)."""
+    k = np.flatnonzero(keep)
+    parts = [a] if b is None else [a, b]
+    idx = [k] if b is None else [k, np.arange(len(b))]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(x, name)[i] for x, i in zip(parts, idx, strict=True)])
+
+    def lst(name: str) -> list[np.ndarray]:
+        return [getattr(x, name)[j] for x, i in zip(parts, idx, strict=True) for j in i]
+
+    arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
+    flags = ("saturated", "crossing", "looped", "short")
+    return Measured(
+        **{n: cat(n) for n in arrays + flags},
+        points=lst("points"),
+        profile=lst("profile"),
+        sigma_c=a.sigma_c,
+        sigma_raw=a.sigma_raw,
+    )

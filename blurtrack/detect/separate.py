@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.modal import component_references
 from blurtrack.detect.quality import (
     MIN_REFERENCE,
     Consensus,
@@ -65,6 +66,9 @@ FAIL_SUPPRESS_PX = 2
 #: Most light (squared, relative to that under the template) a template's halo (a ring of
 #: :data:`~blurtrack.detect.templates.HALO_PX`) may hold where it is placed.
 HALO_MAX = 0.25
+#: The same with whole-component references: real lights on a string touch their neighbours,
+#: whose light then lies in the halo.
+HALO_MAX_WHOLE = 1.0
 #: References whose median area a component's area is compared with.
 NEIGHBOURS = 6
 
@@ -92,7 +96,12 @@ def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 
 def _pursue(
-    residual: np.ndarray, comps: Components, c: int, tpl: Template, comp_of_label: np.ndarray
+    residual: np.ndarray,
+    comps: Components,
+    c: int,
+    tpl: Template,
+    comp_of_label: np.ndarray,
+    halo_max: float = HALO_MAX,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
@@ -127,7 +136,7 @@ def _pursue(
             halo = float(np.sum(w2 * tpl.halo))
             score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * norm + 1e-12)
             # A streak's template lies in the dark: no blob or wider streak fits it.
-            if score >= SCORE_MIN and halo <= HALO_MAX * den:
+            if score >= SCORE_MIN and halo <= halo_max * den:
                 picked.append((iy, ix, float(num[iy, ix]) / tpl.norm2))
                 ry, rx = sy, sx
             else:
@@ -263,46 +272,87 @@ def separate(
     single = n_lines[first.own] == 1
     voters = single & ~(first.crossing | first.looped | merged | clipped)
     field = consensus_field(v, first.time_mid, voters)
-    if field is None:
-        return Separation(None, None, None)
-    c, dev, use = field.c, field.dev, field.use
-    tol = shape_tolerance(c)
-    good = use & (dev <= 0.5 * tol)
-    if int(good.sum()) < MIN_REFERENCE:
-        return Separation(None, None, field)
+    refs = first  # the streaks the references are taken from
+    whole = False  # references from whole components (blurtrack.detect.modal)
+    good = np.zeros(len(first), bool)
+    if field is not None:
+        good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c))
+    if field is None or int(good.sum()) < MIN_REFERENCE:
+        # Too few whole first-pass lines: references from whole components instead.
+        alt = component_references(
+            smooth,
+            signal,
+            saturation,
+            sat_comp,
+            comps,
+            first.sigma_c,
+            first.sigma_raw,
+            smooth_sigma,
+        )
+        if alt is None:
+            return Separation(None, None, field)
+        # Whole components are references by their shape; their lines only need to agree.
+        alt_good = alt[1].use & (alt[1].dev <= shape_tolerance(alt[1].c))
+        if int(alt_good.sum()) < MIN_REFERENCE:
+            return Separation(None, None, field)
+        (refs, field), good, whole = alt, alt_good, True
+        cf = field.at(first.time_mid)
+        dev = np.minimum(np.hypot(*(v - cf).T), np.hypot(*(v + cf).T))
+        tol = shape_tolerance(cf)
+    else:
+        dev, tol = field.dev, shape_tolerance(field.c)
     bad_line = ~clipped & ((dev > tol) | first.crossing | first.looped | merged)
+
+    def done(m: Measured | None, replaced: np.ndarray | None) -> Separation:
+        """With component references, their whole lines replace their components' lines
+        where the first pass's were broken: a component whose one plain first-pass line
+        agrees with the field keeps it (measured on the image itself)."""
+        if not whole:
+            return Separation(m, replaced, field)
+        rep = np.zeros(C, bool) if replaced is None else replaced.copy()
+        # Components all of whose reference lines agree with the field, and whose first pass
+        # did not already measure them whole.
+        bad = np.zeros(C, bool)
+        bad[refs.own[~good]] = True
+        fine = ~(clipped | first.crossing | first.looped) & (dev <= tol)
+        bad[first.own[fine & (n_lines[first.own] == 1)]] = True
+        rows = ~bad[refs.own] & ~rep[refs.own]
+        rep[refs.own[rows]] = True
+        return Separation(combine(refs, rows, m), rep, field)
+
     cand = np.zeros(C, bool)
     cand[first.own[bad_line]] = True
     cand |= folded | (n_lines == 0)
     ref_idx = np.flatnonzero(good)
     # A component is compared with its nearest references other than itself: a chain of two
     # streaks whose one line measured the first of them looks clean but has twice the area.
-    ref_area = comps.areas[first.own[ref_idx]].astype(np.float64)
+    ref_area = comps.areas[refs.own[ref_idx]].astype(np.float64)
     x, y, w, h = comps.boxes.T.astype(np.float64)
     centre = np.stack([x + w / 2, y + h / 2], axis=1)
-    ref_mid = first.time_mid[ref_idx]
+    ref_mid = refs.time_mid[ref_idx]
     d2 = (centre[:, None, 0] - ref_mid[None, :, 0]) ** 2 + (
         centre[:, None, 1] - ref_mid[None, :, 1]
     ) ** 2
-    d2[first.own[ref_idx], np.arange(ref_idx.size)] = np.inf
+    d2[refs.own[ref_idx], np.arange(ref_idx.size)] = np.inf
     k_near = min(NEIGHBOURS, ref_idx.size - 1)
     near = np.argpartition(d2, k_near - 1, axis=1)[:, :k_near]
     cand |= comps.areas > AREA_FACTOR * np.median(ref_area[near], axis=1)
-    keep_ref = ~cand[first.own[ref_idx]]
+    # (Whole components are references whatever their first-pass lines were.)
+    keep_ref = np.full(ref_idx.size, True) if whole else ~cand[refs.own[ref_idx]]
     if int(keep_ref.sum()) < MIN_REFERENCE:
-        return Separation(None, None, field)
+        return done(None, None)
     ref_idx, ref_mid, d2 = ref_idx[keep_ref], ref_mid[keep_ref], d2[:, keep_ref]
     # Every component's nearest reference (local: the streaks' shape varies over the frame).
     nearest = ref_idx[np.argmin(d2, axis=1)]
-    cand[first.own[ref_idx]] = False
+    cand[refs.own[ref_idx]] = False
     # One plain line in a component of about a reference's area is one streak measured a
     # little off: no template can split or join it.
     plain_one = np.zeros(C, bool)
     plain_one[first.own[~(first.crossing | first.looped | merged)]] = True
-    ratio = comps.areas / comps.areas[first.own[nearest]]
+    ratio = comps.areas / comps.areas[refs.own[nearest]]
     cand &= ~(plain_one & (n_lines == 1) & ~folded & (ratio > 0.75) & (ratio < 1.3))
     if not cand.any():
-        return Separation(None, None, field)
+        return done(None, None)
     # Residual image: the candidates' light only (clean neighbours are not matched).
     is_cand = np.zeros(int(comps.labels.max()) + 1, bool)
     is_cand[comps.ids[cand]] = True
@@ -320,7 +370,7 @@ def separate(
     for ci in order.tolist():
         k = int(nearest[ci])
         # The reference mapped onto the local consensus by a rotation and scaling.
-        vk = complex(*field.at(first.time_mid[k : k + 1])[0])
+        vk = complex(*field.at(refs.time_mid[k : k + 1])[0])
         zt = complex(*local[ci])
         z = zt / vk if (zt / vk).real > 0 else -zt / vk
         if not 0.7 < abs(z) < 1.4:
@@ -328,12 +378,13 @@ def separate(
         key = (k, round(abs(z) / 0.02), round(float(np.angle(z)) / 0.02))
         if key not in templates:
             if k not in bases:
-                bases[k] = template(smooth, signal, comps, int(first.own[k]), first.points[k])
+                bases[k] = template(smooth, signal, comps, int(refs.own[k]), refs.points[k])
             base = bases[k]
-            templates[key] = similar(base, z, first.time_mid[k]) if abs(z - 1) > 0.02 else base
-        placements += _pursue(residual, comps, ci, templates[key], comp_of_label)
+            templates[key] = similar(base, z, refs.time_mid[k]) if abs(z - 1) > 0.02 else base
+        halo = HALO_MAX_WHOLE if whole else HALO_MAX
+        placements += _pursue(residual, comps, ci, templates[key], comp_of_label, halo)
     if not placements:
-        return Separation(None, None, field)
+        return done(None, None)
     # Candidates whose light the placements mostly explain are replaced.
     before = np.zeros(C)
     after = np.zeros(C)
@@ -358,7 +409,7 @@ def separate(
     replaced &= ~((n_place == 1) & (n_lines == 1) & plain)
     placements = [p for p in placements if replaced[p.comp]]
     if not placements:
-        return Separation(None, None, field)
+        return done(None, None)
     pad = int(np.ceil(6.0 * first.sigma_c)) + 8
     mos_s, mos_r, lines, back = _mosaic(smooth, signal, placements, pad)
     ls = LineSet(
@@ -375,4 +426,4 @@ def separate(
     m.end_b = m.end_b + off
     m.time_mid = m.time_mid + off
     m.points = [pt + o for pt, o in zip(m.points, off, strict=True)]
-    return Separation(m, replaced, field)
+    return done(m, replaced)
