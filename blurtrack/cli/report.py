@@ -35,20 +35,12 @@ def register(subparsers: Any) -> None:
     r.set_defaults(func=run_report)
 
 
-def run_report(args: argparse.Namespace) -> int:
+def load_calibrations(args: argparse.Namespace, session: Any) -> tuple[Any, Any]:
+    """The calibrations to compare (``--before``, default the session's own, and ``--calib``),
+    each checked to be for the session's frame size."""
     from blurtrack.errors import BlurTrackError
-    from blurtrack.io import streaks as streak_table
     from blurtrack.io.calibration import Calibration
-    from blurtrack.report.build import build_report
 
-    check_output(args.out, folder=True, force=args.force)
-    from blurtrack.io.session import load_session
-
-    if load_session(args.session).meta.target_kind == "natural":
-        from blurtrack.cli.report_natural import run_natural_report
-
-        return run_natural_report(args, load_session(args.session))
-    session, table = load_session_and_streaks(args)
     after = Calibration.from_yaml(args.calib)
     before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
     want = tuple(session.meta.camera.resolution)
@@ -58,18 +50,43 @@ def run_report(args: argparse.Namespace) -> int:
                 f"{name} is a calibration for {cal.camera.resolution[0]}x"
                 f"{cal.camera.resolution[1]} frames; {args.session} has {want[0]}x{want[1]}"
             )
-    streak_table.check_matches_session(table, session.frames, want)
-    fs_path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
-    fit = None
-    if fs_path.is_file():
-        try:
-            fit = json.loads(fs_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise BlurTrackError(f"fit summary {fs_path} is not valid JSON ({exc})") from None
-        if not isinstance(fit, dict):
-            raise BlurTrackError(f"fit summary {fs_path} is not a JSON object")
-    elif args.fit_summary:
-        raise BlurTrackError(f"fit summary not found: {fs_path}")
+    return before, after
+
+
+def load_fit_summary(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The fit summary: ``--fit-summary``, else the one calibrate wrote next to ``--calib``
+    if present (None when there is none)."""
+    from blurtrack.errors import BlurTrackError
+
+    path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
+    if not path.is_file():
+        if args.fit_summary:
+            raise BlurTrackError(f"fit summary not found: {path}")
+        return None
+    try:
+        fit = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise BlurTrackError(f"fit summary {path} is not valid JSON ({exc})") from None
+    if not isinstance(fit, dict):
+        raise BlurTrackError(f"fit summary {path} is not a JSON object")
+    return fit
+
+
+def run_report(args: argparse.Namespace) -> int:
+    from blurtrack.io import streaks as streak_table
+    from blurtrack.io.session import load_session
+    from blurtrack.report.build import build_report
+
+    check_output(args.out, folder=True, force=args.force)
+    session = load_session(args.session)
+    if session.meta.target_kind == "natural":
+        from blurtrack.cli.report_natural import run_natural_report
+
+        return run_natural_report(args, session)
+    session, table = load_session_and_streaks(args)
+    before, after = load_calibrations(args, session)
+    streak_table.check_matches_session(table, session.frames, session.meta.camera.resolution)
+    fit = load_fit_summary(args)
     with Progress("report", "step", args.quiet) as bar:
         summary = build_report(
             session,

@@ -4,48 +4,21 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.progress import Progress
-from blurtrack.cli.sources import summary_path
-
-
-def _fit_summary(args: argparse.Namespace) -> dict[str, Any] | None:
-    from blurtrack.errors import BlurTrackError
-
-    path = Path(args.fit_summary) if args.fit_summary else summary_path(args.calib)
-    if not path.is_file():
-        if args.fit_summary:
-            raise BlurTrackError(f"fit summary not found: {path}")
-        return None
-    try:
-        fit = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise BlurTrackError(f"fit summary {path} is not valid JSON ({exc})") from None
-    if not isinstance(fit, dict):
-        raise BlurTrackError(f"fit summary {path} is not a JSON object")
-    return fit
+from blurtrack.cli.report import load_calibrations, load_fit_summary
 
 
 def run_natural_report(args: argparse.Namespace, session: Any) -> int:
     from blurtrack.errors import BlurTrackError
-    from blurtrack.io.calibration import Calibration
     from blurtrack.report.natural import build_natural_report
 
     if args.streaks or args.from_truth:
         raise BlurTrackError("--streaks and --from-truth apply to laser sessions")
-    after = Calibration.from_yaml(args.calib)
-    before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
-    want = tuple(session.meta.camera.resolution)
-    for name, cal in (("--calib", after), ("--before", before)):
-        if tuple(cal.camera.resolution) != want:
-            raise BlurTrackError(
-                f"{name} is a calibration for {cal.camera.resolution[0]}x"
-                f"{cal.camera.resolution[1]} frames; {args.session} has {want[0]}x{want[1]}"
-            )
-    fit = _fit_summary(args)
+    before, after = load_calibrations(args, session)
+    fit = load_fit_summary(args)
     with Progress("report", "frame pair", args.quiet) as bar:
         summary = build_natural_report(session, before, after, args.out, fit, progress=bar)
     nat = summary["natural"]
