@@ -4,11 +4,13 @@
 python bench/train_shipped.py data                 # blurtrack synth: BSDS500 train+val, real shake
 python bench/train_shipped.py train --net gamd     # configs/gamd/shipped_gamd.yaml (resumable)
 python bench/train_shipped.py train --net gamd_finetune  # from runs/gamd (shipped_gamd_finetune)
+python bench/train_shipped.py train --net gamd_finetune2  # from runs/gamd_finetune
 python bench/train_shipped.py train --net gamd_only
 python bench/train_shipped.py export               # runs/*/checkpoints/last.pt -> gamd/weights/
 ```
-The shipped ``gamd.pt`` is the fine-tune (``runs/gamd_finetune``: 3000 more steps at a lower
-learning rate, starting from the 6000-step ``runs/gamd``); ``gamd_only.pt`` is ``runs/gamd_only``.
+The shipped ``gamd.pt`` is the second fine-tune (``runs/gamd_finetune2``): the 6000-step
+``runs/gamd``, then 3000 steps from lr 3e-4 (``runs/gamd_finetune``), then 3000 from lr 1.5e-4;
+``gamd_only.pt`` is ``runs/gamd_only``.
 Data (``bench_out/shipped``, seeds fixed): 256 × 256 global-shutter pinhole cameras with
 focal lengths 600 px and 2400 px (blur of about 0–8 and 0–40 px), exposures 10–30 ms, the real
 GyroDeblurNet hand shake; 200 + 200 triplets from BSDS500 train and 100 + 100 from val form
@@ -38,9 +40,9 @@ TRAIN_SETS = (
 )
 SIZE = (256, 256)
 #: Shipped weights file -> the training run (``OUT/runs/<run>``) whose last checkpoint it is.
-EXPORT_RUNS = {"gamd": "gamd_finetune", "gamd_only": "gamd_only"}
+EXPORT_RUNS = {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
 #: Runs ``train --net`` knows, each from ``configs/gamd/shipped_<run>.yaml``.
-RUNS = ("gamd", "gamd_finetune", "gamd_only")
+RUNS = ("gamd", "gamd_finetune", "gamd_finetune2", "gamd_only")
 
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Path:

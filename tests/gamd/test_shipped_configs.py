@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -46,17 +47,21 @@ def test_shipped_finetune_continues_the_shipped_run_with_its_data_and_restore_op
     import importlib.util
 
     folder = CONFIGS[0].parent
-    base = RunConfig.from_yaml(folder / "shipped_gamd.yaml")
-    fine = RunConfig.from_yaml(folder / "shipped_gamd_finetune.yaml")
-    assert fine.model == base.model and fine.data == base.data
-    assert fine.data.restore_options() == base.data.restore_options()
-    assert fine.train.init_from == str(Path(base.train.out_dir) / "checkpoints" / "last.pt")
-    assert fine.train.out_dir != base.train.out_dir and fine.train.lr < base.train.lr
-    assert base.train.init_from is None
+    chain = [
+        RunConfig.from_yaml(folder / f"shipped_{run}.yaml")
+        for run in ("gamd", "gamd_finetune", "gamd_finetune2")
+    ]
+    assert chain[0].train.init_from is None
+    for base, fine in itertools.pairwise(chain):
+        assert fine.model == base.model and fine.data == base.data
+        assert fine.data.restore_options() == base.data.restore_options()
+        assert fine.train.init_from == str(Path(base.train.out_dir) / "checkpoints" / "last.pt")
+        assert fine.train.out_dir != base.train.out_dir and fine.train.lr < base.train.lr
+        assert fine.train.seed != base.train.seed
     bench = folder.parents[1] / "bench" / "train_shipped.py"
     spec = importlib.util.spec_from_file_location("train_shipped", bench)
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    assert mod.EXPORT_RUNS == {"gamd": "gamd_finetune", "gamd_only": "gamd_only"}
+    assert mod.EXPORT_RUNS == {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
     assert set(mod.RUNS) == {p.stem.removeprefix("shipped_") for p in folder.glob("shipped_*")}
