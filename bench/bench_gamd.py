@@ -89,6 +89,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     p.add_argument("--shipped-count-256", type=int, default=100)
     p.add_argument("--shipped-count-512", type=int, default=60)
+    p.add_argument(
+        "--shipped-gamd", type=Path, default=None, help="with --shipped: these GAMD weights instead"
+    )
     return p.parse_args(argv)
 
 
@@ -117,8 +120,10 @@ def shipped(args: argparse.Namespace) -> dict:
     data = args.out / "data"
     counts = {"test256": args.shipped_count_256, "test512": args.shipped_count_512}
     out: dict = {"tests": {}}
-    nets = {n: load_model(shipped_weights(n)) for n in ("gamd", "gamd_only")}
-    out["weights"] = {n: {"step": v[2], "file": str(shipped_weights(n))} for n, v in nets.items()}
+    files = {n: shipped_weights(n) for n in ("gamd", "gamd_only")}
+    files["gamd"] = args.shipped_gamd or files["gamd"]
+    nets = {n: load_model(f) for n, f in files.items()}
+    out["weights"] = {n: {"step": v[2], "file": str(files[n])} for n, v in nets.items()}
     tables = []
     for split, size, focal, seed, max_blur in SHIPPED_TESTS:
         t0 = _time.perf_counter()

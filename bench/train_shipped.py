@@ -3,9 +3,14 @@
 ```
 python bench/train_shipped.py data                 # blurtrack synth: BSDS500 train+val, real shake
 python bench/train_shipped.py train --net gamd     # configs/gamd/shipped_gamd.yaml (resumable)
+python bench/train_shipped.py train --net gamd_finetune  # from runs/gamd (shipped_gamd_finetune)
+python bench/train_shipped.py train --net gamd_finetune2  # from runs/gamd_finetune
 python bench/train_shipped.py train --net gamd_only
 python bench/train_shipped.py export               # runs/*/checkpoints/last.pt -> gamd/weights/
 ```
+The shipped ``gamd.pt`` is the second fine-tune (``runs/gamd_finetune2``): the 6000-step
+``runs/gamd``, then 3000 steps from lr 3e-4 (``runs/gamd_finetune``), then 3000 from lr 1.5e-4;
+``gamd_only.pt`` is ``runs/gamd_only``.
 Data (``bench_out/shipped``, seeds fixed): 256 × 256 global-shutter pinhole cameras with
 focal lengths 600 px and 2400 px (blur of about 0–8 and 0–40 px), exposures 10–30 ms, the real
 GyroDeblurNet hand shake; 200 + 200 triplets from BSDS500 train and 100 + 100 from val form
@@ -34,6 +39,10 @@ TRAIN_SETS = (
     ("val_f2400", "val", 2400.0, 1, 100),
 )
 SIZE = (256, 256)
+#: Shipped weights file -> the training run (``OUT/runs/<run>``) whose last checkpoint it is.
+EXPORT_RUNS = {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
+#: Runs ``train --net`` knows, each from ``configs/gamd/shipped_<run>.yaml``.
+RUNS = ("gamd", "gamd_finetune", "gamd_finetune2", "gamd_only")
 
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Path:
@@ -105,7 +114,7 @@ def export(out: Path = OUT, dest: Path | None = None) -> list[Path]:
 
     written = []
     for net in SHIPPED:
-        src = out / "runs" / net / "checkpoints" / "last.pt"
+        src = out / "runs" / EXPORT_RUNS[net] / "checkpoints" / "last.pt"
         written.append(export_weights(src, (dest or WEIGHTS_DIR) / f"{net}.pt"))
     return written
 
@@ -116,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = p.add_subparsers(dest="what", required=True)
     sub.add_parser("data")
     t = sub.add_parser("train")
-    t.add_argument("--net", choices=("gamd", "gamd_only"), required=True)
+    t.add_argument("--net", choices=RUNS, required=True)
     sub.add_parser("export")
     args = p.parse_args(argv)
     if args.what == "data":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -37,3 +38,30 @@ def test_tiny_config_trains_one_step_on_a_dataset_given_by_data(
     summary = json.loads((out / "summary.json").read_text())
     assert summary["end_step"] == 1 and Path(summary["checkpoint"]).is_file()
     assert "gamd train" in capsys.readouterr().out
+
+
+def test_shipped_finetune_continues_the_shipped_run_with_its_data_and_restore_options() -> None:
+    """The fine-tune (gamd.pt) must present data exactly as the run it starts from (inference
+    reads the restore options from the checkpoint), start from that run's last checkpoint,
+    and learn more slowly; ``bench/train_shipped.py export`` ships it as gamd.pt."""
+    import importlib.util
+
+    folder = CONFIGS[0].parent
+    chain = [
+        RunConfig.from_yaml(folder / f"shipped_{run}.yaml")
+        for run in ("gamd", "gamd_finetune", "gamd_finetune2")
+    ]
+    assert chain[0].train.init_from is None
+    for base, fine in itertools.pairwise(chain):
+        assert fine.model == base.model and fine.data == base.data
+        assert fine.data.restore_options() == base.data.restore_options()
+        assert fine.train.init_from == str(Path(base.train.out_dir) / "checkpoints" / "last.pt")
+        assert fine.train.out_dir != base.train.out_dir and fine.train.lr < base.train.lr
+        assert fine.train.seed != base.train.seed
+    bench = folder.parents[1] / "bench" / "train_shipped.py"
+    spec = importlib.util.spec_from_file_location("train_shipped", bench)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.EXPORT_RUNS == {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
+    assert set(mod.RUNS) == {p.stem.removeprefix("shipped_") for p in folder.glob("shipped_*")}
