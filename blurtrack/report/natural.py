@@ -33,6 +33,7 @@ import pandas as pd
 from blurtrack.features.tracks import FeatureTracks, track_frames
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.kernels import row_start_c
 from blurtrack.geometry.rotation import so3_log
 from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.calibration import Calibration
@@ -64,14 +65,22 @@ def _covered(model: BlurModel, t_a: np.ndarray, t_b: np.ndarray) -> np.ndarray:
     return (np.minimum(t_a, t_b) + s >= g.t_s[0]) & (np.maximum(t_a, t_b) + s <= g.t_s[-1])
 
 
+def _point_times(
+    tracks: FeatureTracks, t: np.ndarray, e: np.ndarray, cam: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each track's two points dated at their rows' exposure midpoints (s, camera clock)."""
+    ta = row_start_c(t[tracks.frame_a], tracks.pts_a[:, 1], cam.readout_s, cam.height)
+    tb = row_start_c(t[tracks.frame_b], tracks.pts_b[:, 1], cam.readout_s, cam.height)
+    return ta + e[tracks.frame_a] / 2, tb + e[tracks.frame_b] / 2
+
+
 def track_errors(tracks: FeatureTracks, session: Session, calib: Calibration) -> pd.DataFrame:
     """Per track: frames, points and the rotation model's error (px; NaN where the gyro does
     not cover the interval)."""
     model, t, e = _model(session, calib)
     cam = calib.camera
-    a, b = tracks.frame_a, tracks.frame_b
-    ta = t[a] + cam.readout_s * tracks.pts_a[:, 1] / cam.height + e[a] / 2
-    tb = t[b] + cam.readout_s * tracks.pts_b[:, 1] / cam.height + e[b] / 2
+    a = tracks.frame_a
+    ta, tb = _point_times(tracks, t, e, cam)
     cov = _covered(model, ta, tb)
     err = np.full(len(tracks), np.nan)
     if np.any(cov):
@@ -116,9 +125,8 @@ def pair_rotations(tracks: FeatureTracks, session: Session, calib: Calibration) 
     average alike), and the angle between the two (deg and px at ``fx``)."""
     model, t, e = _model(session, calib)
     cam = calib.camera
-    a, b = tracks.frame_a, tracks.frame_b
-    ta = t[a] + cam.readout_s * tracks.pts_a[:, 1] / cam.height + e[a] / 2
-    tb = t[b] + cam.readout_s * tracks.pts_b[:, 1] / cam.height + e[b] / 2
+    a = tracks.frame_a
+    ta, tb = _point_times(tracks, t, e, cam)
     cov = _covered(model, ta, tb)
     rows = []
     for f in np.unique(a):
