@@ -104,11 +104,25 @@ def classify(
     """Endpoint errors ``(N,)``, outlier mask and wrongly-oriented mask at ``theta``."""
     rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
     out = rho > threshold_px
-    flipped = np.zeros_like(out)
+    flipped, _ = _fit_reversed(model, theta, streaks, out, threshold_px)
+    return rho, out, flipped
+
+
+def _fit_reversed(
+    model: ResidualModel,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    out: np.ndarray,
+    threshold_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the outliers ``out`` fit within ``threshold_px`` with start and end swapped
+    (mask over all streaks), and the outliers' endpoint errors reversed ``(out.sum(),)``."""
+    fits = np.zeros_like(out)
+    rf = np.zeros(0)
     if np.any(out):
         rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
-        flipped[np.flatnonzero(out)] = rf <= threshold_px
-    return rho, out, flipped
+        fits[np.flatnonzero(out)] = rf <= threshold_px
+    return fits, rf
 
 
 def _reorient(
@@ -125,14 +139,11 @@ def _reorient(
     if rho is None:
         rho = np.linalg.norm(model.residual_np(theta, streaks), axis=1)
     out = rho > threshold_px
-    flip = np.zeros_like(out)
-    if np.any(out):
-        rf = np.linalg.norm(model.residual_np(theta, streaks.subset(out).flipped()), axis=1)
-        flip[np.flatnonzero(out)] = rf <= threshold_px
-        if np.any(flip):
-            streaks = streaks.reoriented(flip)
-            rho = rho.copy()
-            rho[flip] = rf[flip[out]]
+    flip, rf = _fit_reversed(model, theta, streaks, out, threshold_px)
+    if np.any(flip):
+        streaks = streaks.reoriented(flip)
+        rho = rho.copy()
+        rho[flip] = rf[flip[out]]
     return streaks, rho, flip
 
 
