@@ -19,12 +19,16 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
     """``blurtrack calibrate`` options of natural-scene sessions."""
     p.add_argument(
         "--translation",
-        choices=("none", "auto", "per-pair"),
+        # Spelled out, not imported from calib.natural_motion (that import costs CasADi at
+        # parse time); a test checks the two lists agree.
+        choices=("none", "auto", "per-pair", "travel"),
         default="auto",
         help="natural scenes: the camera's translation between frames. none: a far static "
         "scene (pure rotation); per-pair: an epipole per frame pair as a nuisance, every "
-        "point's depth eliminated (driving, near objects); auto (default): per-pair when "
-        "the rotation-only fit leaves more parallax than its missing coordinate explains",
+        "point's depth eliminated (near objects); travel: one direction of travel per "
+        "second, carried to each frame and row by the gyro (driving); auto (default): "
+        "travel when the rotation-only fit leaves more parallax than its missing "
+        "coordinate explains",
     )
 
 

@@ -115,3 +115,18 @@ def test_translation_nuisance_is_refused_on_laser_sessions(tmp_path, capsys) -> 
     assert main(["calibrate", str(s), "--out", str(out), "--translation", "per-pair"]) == 2
     assert "applies to natural-scene sessions" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_cli_offers_every_translation_model() -> None:
+    """The CLI spells the choices out (no CasADi import at parse time); they must be the
+    library's, ``travel`` included."""
+    import argparse
+
+    from calib.natural_cli import add_natural_args
+    from calib.natural_motion import TRANSLATIONS
+
+    p = argparse.ArgumentParser()
+    add_natural_args(p)
+    (action,) = [a for a in p._actions if a.dest == "translation"]
+    assert tuple(action.choices) == TRANSLATIONS
+    assert p.parse_args(["--translation", "travel"]).translation == "travel"
