@@ -1,0 +1,106 @@
+"""Joint refinement of template placements that overlap (:mod:`blurtrack.detect.separate`).
+
+The matching pursuit places one template at a time, each at the best match of what the
+earlier ones left. Where two streaks run along each other (a dot's streak overlapping the next
+one's for part of its length, collinear or offset by a pixel or two) the correlation of one
+template with the pair is *flat* along the shared part: for straight streaks of length ``L``
+whose union has length ``L_c``, every position in ``[0, L_c - L]`` covers the doubled part
+and correlates alike, so the first placement lands anywhere there and the measured ends land
+several pixels off. The least-squares fit of both placements together is unique (the union's
+two ends anchor them), and coordinate descent finds it: each placement in turn is moved to the
+best match of the light minus the *other* placements' templates (unclamped, so light that an
+earlier placement took twice shows as a deficit), its amplitude re-solved, for a few rounds.
+In one dimension one step from any start in ``[0, L_c - L]`` lands the second placement on
+an end, and the next puts the first on the other.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.templates import Placement, warp
+
+#: Coordinate-descent rounds over the overlapping placements.
+ROUNDS = 3
+#: How far (px) one step may move a placement: this fraction of the template's larger side,
+#: within [REACH_MIN_PX, REACH_MAX_PX].
+REACH_FRACTION = 0.2
+REACH_MIN_PX = 3
+REACH_MAX_PX = 16
+#: A step whose amplitude would fall below this keeps the placement where it was.
+AMP_KEEP = 0.4
+
+
+def _paint(model: np.ndarray, p: Placement, sign: float) -> None:
+    """Add ``sign * p.amp * template`` at its sub-pixel place into ``model`` (in place)."""
+    H, W = model.shape
+    x, y, w, h = p.tpl.box
+    ox, oy = x + p.shift[0], y + p.shift[1]
+    bx, by = int(np.floor(ox)), int(np.floor(oy))
+    tile = warp(p.tpl.smooth, ox - bx, oy - by, w + 1, h + 1)
+    x0, y0, x1, y1 = max(bx, 0), max(by, 0), min(bx + w + 1, W), min(by + h + 1, H)
+    if x1 > x0 and y1 > y0:
+        model[y0:y1, x0:x1] += sign * p.amp * tile[y0 - by : y1 - by, x0 - bx : x1 - bx]
+
+
+def _meeting(pl: list[Placement]) -> np.ndarray:
+    """``(P,)`` bool: the placement's template box meets another's."""
+    org = np.array([[p.tpl.box[0] + p.shift[0], p.tpl.box[1] + p.shift[1]] for p in pl])
+    end = org + np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl], float)
+    meet = np.all(np.maximum(org[:, None], org[None]) < np.minimum(end[:, None], end[None]), axis=2)
+    np.fill_diagonal(meet, False)
+    return np.asarray(meet.any(axis=1))
+
+
+def _parabola(a: float, b: float, c: float) -> float:
+    den = a - 2.0 * b + c
+    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
+def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.ndarray | None]:
+    """Coordinate descent of the placements whose templates meet another's on ``light``
+    (the candidates' light, float32, frame coordinates).
+
+    Returns the placements (moved and re-scaled where that fits better; the others as they
+    were) and the model image ``sum amp * template`` of all of them (None when no
+    placement meets another: nothing moved).
+    """
+    if len(pl) < 2:
+        return pl, None
+    moving = np.flatnonzero(_meeting(pl))
+    if moving.size == 0:
+        return pl, None
+    H, W = light.shape
+    out = list(pl)
+    model = np.zeros_like(light)
+    for p in out:
+        _paint(model, p, 1.0)
+    for _ in range(ROUNDS):
+        moved = False
+        for k in moving.tolist():
+            p = out[k]
+            x, y, w, h = p.tpl.box
+            r = int(np.clip(REACH_FRACTION * max(w, h), REACH_MIN_PX, REACH_MAX_PX))
+            bx, by = int(np.rint(x + p.shift[0])), int(np.rint(y + p.shift[1]))
+            x0, y0 = max(bx - r, 0), max(by - r, 0)
+            x1, y1 = min(bx + w + r, W), min(by + h + r, H)
+            if x1 - x0 < w + 2 or y1 - y0 < h + 2:
+                continue
+            _paint(model, p, -1.0)
+            rest = light[y0:y1, x0:x1] - model[y0:y1, x0:x1]
+            num = cv2.matchTemplate(rest, p.tpl.smooth, cv2.TM_CCORR)
+            iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(num)), num.shape))
+            amp = float(num[iy, ix]) / p.tpl.norm2
+            if amp >= AMP_KEEP:
+                nh, nw = num.shape
+                fx = _parabola(*num[iy, ix - 1 : ix + 2]) if 0 < ix < nw - 1 else 0.0
+                fy = _parabola(*num[iy - 1 : iy + 2, ix]) if 0 < iy < nh - 1 else 0.0
+                shift = np.array([x0 + ix + fx - x, y0 + iy + fy - y])
+                moved |= bool(np.any(np.abs(shift - p.shift) > 0.05))
+                p = Placement(p.tpl, shift, amp, p.comp)
+                out[k] = p
+            _paint(model, p, 1.0)
+        if not moved:
+            break
+    return out, model
