@@ -27,35 +27,54 @@ ROUNDS = 3
 #: within [REACH_MIN_PX, REACH_MAX_PX].
 REACH_FRACTION = 0.2
 REACH_MIN_PX = 3
-REACH_MAX_PX = 16
+REACH_MAX_PX = 8
 #: A step whose amplitude would fall below this keeps the placement where it was.
 AMP_KEEP = 0.4
 
 
-def _paint(model: np.ndarray, p: Placement, sign: float) -> None:
-    """Add ``sign * p.amp * template`` at its sub-pixel place into ``model`` (in place)."""
-    H, W = model.shape
+def _tile(p: Placement) -> tuple[int, int, np.ndarray]:
+    """``amp * template`` at its sub-pixel place: the integer origin and the tile."""
     x, y, w, h = p.tpl.box
     ox, oy = x + p.shift[0], y + p.shift[1]
     bx, by = int(np.floor(ox)), int(np.floor(oy))
-    tile = warp(p.tpl.smooth, ox - bx, oy - by, w + 1, h + 1)
-    x0, y0, x1, y1 = max(bx, 0), max(by, 0), min(bx + w + 1, W), min(by + h + 1, H)
+    return bx, by, p.amp * warp(p.tpl.smooth, ox - bx, oy - by, w + 1, h + 1)
+
+
+def _paint(model: np.ndarray, tile: tuple[int, int, np.ndarray], sign: float) -> None:
+    """Add ``sign`` x a :func:`_tile` into ``model`` (in place)."""
+    H, W = model.shape
+    bx, by, t = tile
+    h, w = t.shape
+    x0, y0, x1, y1 = max(bx, 0), max(by, 0), min(bx + w, W), min(by + h, H)
     if x1 > x0 and y1 > y0:
-        model[y0:y1, x0:x1] += sign * p.amp * tile[y0 - by : y1 - by, x0 - bx : x1 - bx]
+        model[y0:y1, x0:x1] += sign * t[y0 - by : y1 - by, x0 - bx : x1 - bx]
 
 
-def _meeting(pl: list[Placement]) -> np.ndarray:
-    """``(P,)`` bool: the placement's template box meets another's."""
-    org = np.array([[p.tpl.box[0] + p.shift[0], p.tpl.box[1] + p.shift[1]] for p in pl])
-    end = org + np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl], float)
+def _neighbours(pl: list[Placement]) -> list[list[int]]:
+    """Per placement, the others whose support meets its support or halo (the light they
+    model is shared)."""
+    org = np.rint([[p.tpl.box[0] + p.shift[0], p.tpl.box[1] + p.shift[1]] for p in pl])
+    org = org.astype(np.int64)
+    end = org + np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl], np.int64)
     meet = np.all(np.maximum(org[:, None], org[None]) < np.minimum(end[:, None], end[None]), axis=2)
-    np.fill_diagonal(meet, False)
-    return np.asarray(meet.any(axis=1))
+    out: list[list[int]] = [[] for _ in pl]
+    for i, j in zip(*np.nonzero(np.triu(meet, 1)), strict=True):
+        lo, hi = np.maximum(org[i], org[j]), np.minimum(end[i], end[j])
+        oi, oj = lo - org[i], lo - org[j]
+        ext = hi - lo
+        ai = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
+        aj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
+        hi_ = pl[i].tpl.halo[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
+        hj = pl[j].tpl.halo[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
+        if np.any(ai * (aj + hj)) or np.any(aj * hi_):
+            out[int(i)].append(int(j))
+            out[int(j)].append(int(i))
+    return out
 
 
 def _parabola(a: float, b: float, c: float) -> float:
     den = a - 2.0 * b + c
-    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+    return min(max(0.5 * (a - c) / den, -0.5), 0.5) if den < 0 else 0.0
 
 
 def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.ndarray | None]:
@@ -68,17 +87,19 @@ def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.n
     """
     if len(pl) < 2:
         return pl, None
-    moving = np.flatnonzero(_meeting(pl))
-    if moving.size == 0:
+    nb = _neighbours(pl)
+    active = {k for k in range(len(pl)) if nb[k]}
+    if not active:
         return pl, None
     H, W = light.shape
     out = list(pl)
     model = np.zeros_like(light)
-    for p in out:
-        _paint(model, p, 1.0)
+    tiles = [_tile(p) for p in out]
+    for t in tiles:
+        _paint(model, t, 1.0)
     for _ in range(ROUNDS):
-        moved = False
-        for k in moving.tolist():
+        moved: set[int] = set()
+        for k in sorted(active):
             p = out[k]
             x, y, w, h = p.tpl.box
             r = int(np.clip(REACH_FRACTION * max(w, h), REACH_MIN_PX, REACH_MAX_PX))
@@ -87,20 +108,23 @@ def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.n
             x1, y1 = min(bx + w + r, W), min(by + h + r, H)
             if x1 - x0 < w + 2 or y1 - y0 < h + 2:
                 continue
-            _paint(model, p, -1.0)
+            _paint(model, tiles[k], -1.0)
             rest = light[y0:y1, x0:x1] - model[y0:y1, x0:x1]
             num = cv2.matchTemplate(rest, p.tpl.smooth, cv2.TM_CCORR)
             iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(num)), num.shape))
             amp = float(num[iy, ix]) / p.tpl.norm2
             if amp >= AMP_KEEP:
                 nh, nw = num.shape
-                fx = _parabola(*num[iy, ix - 1 : ix + 2]) if 0 < ix < nw - 1 else 0.0
-                fy = _parabola(*num[iy - 1 : iy + 2, ix]) if 0 < iy < nh - 1 else 0.0
+                fx = _parabola(*num[iy, ix - 1 : ix + 2].tolist()) if 0 < ix < nw - 1 else 0.0
+                fy = _parabola(*num[iy - 1 : iy + 2, ix].tolist()) if 0 < iy < nh - 1 else 0.0
                 shift = np.array([x0 + ix + fx - x, y0 + iy + fy - y])
-                moved |= bool(np.any(np.abs(shift - p.shift) > 0.05))
-                p = Placement(p.tpl, shift, amp, p.comp)
-                out[k] = p
-            _paint(model, p, 1.0)
-        if not moved:
+                if np.any(np.abs(shift - p.shift) > 0.05):
+                    moved.add(k)
+                out[k] = Placement(p.tpl, shift, amp, p.comp)
+                tiles[k] = _tile(out[k])
+            _paint(model, tiles[k], 1.0)
+        # Next round: the placements that moved and those sharing light with them.
+        active = moved.union(*(nb[k] for k in moved))
+        if not active:
             break
     return out, model

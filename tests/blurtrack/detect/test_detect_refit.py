@@ -7,7 +7,7 @@ import numpy as np
 
 from blurtrack.detect import DetectParams
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.refit import _paint, refit
+from blurtrack.detect.refit import _paint, _tile, refit
 from blurtrack.detect.segment import find_components
 from blurtrack.detect.templates import Placement, Template, template
 from blurtrack.testing.streak_frames import quantise, render_streaks
@@ -70,7 +70,7 @@ def test_overlapping_placements_slide_to_the_ends() -> None:
     # Negative control: the residual of the starting placements is much larger.
     m0 = np.zeros_like(light)
     for p in start:
-        _paint(m0, p, 1.0)
+        _paint(m0, _tile(p), 1.0)
     assert np.sum((light - m0) ** 2) > 4.0 * np.sum((light - model) ** 2)
 
 
