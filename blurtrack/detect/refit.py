@@ -72,9 +72,29 @@ def _neighbours(pl: list[Placement]) -> list[list[int]]:
     return out
 
 
-def _parabola(a: float, b: float, c: float) -> float:
-    den = a - 2.0 * b + c
-    return min(max(0.5 * (a - c) / den, -0.5), 0.5) if den < 0 else 0.0
+_U, _V = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0])
+#: Least-squares fit of ``c0 + c1 u + c2 v + c3 u^2 + c4 u v + c5 v^2`` to a 3 x 3 patch.
+_QUAD = np.linalg.pinv(
+    np.column_stack(
+        [np.ones(9), _U.ravel(), _V.ravel(), _U.ravel() ** 2, (_U * _V).ravel(), _V.ravel() ** 2]
+    )
+)
+
+
+def _peak(num: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
+    """Sub-pixel offset of the integer maximum ``num[iy, ix]``: the stationary point of the
+    2-D quadratic fitted to its 3 x 3 neighbourhood (a streak's correlation peak is a ridge
+    along the streak, which separate parabolas in x and y misplace where it runs
+    diagonally), within one pixel; (0, 0) at the border or where the fit has no maximum."""
+    h, w = num.shape
+    if not (0 < iy < h - 1 and 0 < ix < w - 1):
+        return 0.0, 0.0
+    c = _QUAD @ num[iy - 1 : iy + 2, ix - 1 : ix + 2].ravel().astype(np.float64)
+    hess = np.array([[2.0 * c[3], c[4]], [c[4], 2.0 * c[5]]])
+    if not (hess[0, 0] < 0 and np.linalg.det(hess) > 0):
+        return 0.0, 0.0
+    fx, fy = np.linalg.solve(hess, -c[1:3])
+    return float(np.clip(fx, -1.0, 1.0)), float(np.clip(fy, -1.0, 1.0))
 
 
 def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.ndarray | None]:
@@ -114,9 +134,7 @@ def refit(light: np.ndarray, pl: list[Placement]) -> tuple[list[Placement], np.n
             iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(num)), num.shape))
             amp = float(num[iy, ix]) / p.tpl.norm2
             if amp >= AMP_KEEP:
-                nh, nw = num.shape
-                fx = _parabola(*num[iy, ix - 1 : ix + 2].tolist()) if 0 < ix < nw - 1 else 0.0
-                fy = _parabola(*num[iy - 1 : iy + 2, ix].tolist()) if 0 < iy < nh - 1 else 0.0
+                fx, fy = _peak(num, iy, ix)
                 shift = np.array([x0 + ix + fx - x, y0 + iy + fy - y])
                 if np.any(np.abs(shift - p.shift) > 0.05):
                     moved.add(k)

@@ -17,7 +17,8 @@ isolated streak is a matched template for its neighbours (shape *and* brightness
    the best placement above :data:`SCORE_MIN` with an amplitude ``<T, X> / |T|^2`` above
    :data:`AMP_MIN` is accepted and ``a T`` subtracted from the candidates' residual image, until
    none is left. Fragments of one streak (a dim middle) are joined: one placement explains
-   both. Components that the accepted placements explain (most of their light) are replaced.
+   both. Placements that share light are then fitted together (:mod:`blurtrack.detect.refit`).
+   Components that the accepted placements explain (most of their light) are replaced.
 4. **Measurement**: each placement gets its own image, the smoothed (and raw) frame around it
    minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
    the placed centre lines (the reference's, shifted) are measured there by
