@@ -91,3 +91,63 @@ def test_faint_artefacts_next_to_bright_streaks_are_dropped() -> None:
         np.linalg.norm(every.end_b - ghost[-1], axis=1),
     )
     assert ghost_end.min() < 1.0
+
+
+def _first_pass(image: np.ndarray):  # type: ignore[no-untyped-def]
+    """The first pass of detect_frame up to separation: prepared frame, components, lines."""
+    from blurtrack.detect.frame import _first_lines
+    from blurtrack.detect.image import prepare_frame
+    from blurtrack.detect.measure import measure_lines
+    from blurtrack.detect.segment import axis_polylines, find_components
+
+    p = DetectParams()
+    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
+    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
+    sigma_c = float(np.sqrt(1.5**2 + 1.0 + 1.0 / 12.0))
+    polys, folded = axis_polylines(prep.smooth, comps, sigma_c)
+    ls = _first_lines(comps, polys, folded, 2.0 * sigma_c + 3.0)
+    m = measure_lines(prep.smooth, prep.signal, prep.saturation, None, ls, sigma_c, True, 1.0)
+    return prep, comps, folded, m
+
+
+def _collapse(m, i: int) -> None:  # type: ignore[no-untyped-def]
+    """Make streak ``i``'s measured line a 1 px stub at its midpoint."""
+    mid = m.time_mid[i]
+    half = np.array([0.5, 0.0])
+    m.end_a[i], m.end_b[i] = mid - half, mid + half
+    m.length_px[i] = 1.0
+    m.points[i] = np.stack([m.end_a[i], m.end_b[i]])
+
+
+def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import blurtrack.detect.separate as sep
+
+    image, curves = _frame()
+    prep, comps, folded, m = _first_pass(image)
+    n = len(m)
+    # The isolated streak nearest the frame's middle (12 isolated ones: curves[:12]).
+    target = curves[4]
+    i = int(np.argmin(np.linalg.norm(m.time_mid - target[len(target) // 2], axis=1)))
+    _collapse(m, i)
+    c = int(m.own[i])
+
+    def run() -> sep.Separation:
+        no = np.zeros(n, bool)
+        return sep.separate(
+            prep.smooth, prep.signal, prep.saturation, None, comps, m, folded, no, no, 1.0
+        )
+
+    out = run()
+    assert out.replaced is not None and out.replaced[c] and out.streaks is not None
+    rows = np.flatnonzero(out.streaks.own == c)
+    assert rows.size == 1
+    e = _ends(target)
+    got = np.stack([out.streaks.end_a[rows[0]], out.streaks.end_b[rows[0]]])
+    err = min(np.abs(got - e).max(), np.abs(got - e[::-1]).max())
+    assert err < 1.0
+    # Negative control: without the stub rule the collapsed line stands (one plain line in
+    # a component of a reference's area).
+    monkeypatch.setattr(sep, "STUB_FRACTION", 0.0)
+    again = run()
+    assert again.replaced is None or not again.replaced[c]
