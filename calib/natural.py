@@ -431,7 +431,8 @@ def calibrate_natural(
     for _ in range(passes - 1):
         if blur != "equal-blur" or res.status == "failed":
             break
-        tracks = equal_blur_tracks(lk, read, ts, exp, res.calibration, gyro)
+        # from the previous pass's points: they are within a few hundredths of a pixel
+        tracks = equal_blur_tracks(tracks, read, ts, exp, res.calibration, gyro)
         check_tracks(tracks)
         streaks = tracks_to_streaks(tracks, ts, exp)
         res = calibrate(streaks, gyro, res.calibration, opts)

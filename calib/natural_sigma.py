@@ -16,7 +16,7 @@ clustered by frame pair) leaves out two things that natural scenes have:
    session.yaml (not the identity) counts as known (``σ_s = 0``); fitted entries are
    estimated, not considered.
 
-Jacobians are finite differences of :meth:`calib.problem.ResidualModel.residual_np`, the
+Jacobians are forward differences of :meth:`calib.problem.ResidualModel.residual_np`, the
 model the fit itself evaluates (numpy side of the CasADi twin).
 """
 
@@ -48,17 +48,19 @@ def _step(name: str) -> float:
 
 
 def _jacobian(
-    model: ResidualModel, theta: np.ndarray, streaks: StreakSet, names: tuple[str, ...]
+    model: ResidualModel,
+    theta: np.ndarray,
+    streaks: StreakSet,
+    names: tuple[str, ...],
+    r0: np.ndarray,
 ) -> np.ndarray:
-    """``(2N, k)`` central differences of the stacked residuals."""
+    """``(2N, k)`` forward differences of the stacked residuals (``r0`` at ``theta``)."""
     cols = []
     for n in names:
         h = _step(n)
-        tp, tm = theta.copy(), theta.copy()
+        tp = theta.copy()
         tp[LAYOUT[n]] += h
-        tm[LAYOUT[n]] -= h
-        d = model.residual_np(tp, streaks) - model.residual_np(tm, streaks)
-        cols.append(d.reshape(-1) / (2 * h))
+        cols.append((model.residual_np(tp, streaks) - r0).reshape(-1) / h)
     return np.stack(cols, axis=1)
 
 
@@ -92,7 +94,7 @@ def honest_sigma(
     w1[norm > OUTLIER_SIGMAS * s] = 0.0
     w = np.repeat(w1, 2)
     r = r2.reshape(-1)
-    Jf = _jacobian(model, theta, streaks, fitted)
+    Jf = _jacobian(model, theta, streaks, fitted, r2)
     A = (Jf * w[:, None]).T @ Jf
     Ainv = np.linalg.pinv(A)
     block = np.asarray(streaks.frame) // BLOCK_PAIRS
@@ -102,7 +104,7 @@ def honest_sigma(
     var_scale = np.zeros(len(fitted))
     sens: dict[str, dict[str, float]] = {}
     if considered:
-        Js = _jacobian(model, theta, streaks, considered)
+        Js = _jacobian(model, theta, streaks, considered, r2)
         S = -Ainv @ ((Jf * w[:, None]).T @ Js)
         # theta holds the symmetric part of M − I: an off-diagonal entry averages two
         # independent matrix entries (the antisymmetric part is a mounting rotation, fitted)

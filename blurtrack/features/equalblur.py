@@ -120,8 +120,8 @@ def refine_equal_blur(
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``img (N, P, P)`` sampled at ``x, y (N, M)`` (inside by construction)."""
     n, P, _ = img.shape
-    x = np.clip(x, 0, P - 1.001)
-    y = np.clip(y, 0, P - 1.001)
+    x = np.clip(x, 0, P - 1.001).astype(np.float32)
+    y = np.clip(y, 0, P - 1.001).astype(np.float32)
     x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
     fx, fy = x - x0, y - y0
     flat = img.reshape(n, -1)
@@ -141,7 +141,7 @@ def lucas_kanade(
     """Translations ``(N, 2)`` (px) of ``template (N, w+2, w+2)``'s inner ``w × w`` window in
     ``target (N, P, P)`` relative to both patches' centres (inverse-compositional
     Lucas–Kanade, float, vectorised over the tracks) and whether each converged ``(N,)``."""
-    T = np.asarray(template, np.float64)
+    T = np.asarray(template, np.float32)
     n, q, _ = T.shape
     w = q - 2
     gx = (T[:, 1:-1, 2:] - T[:, 1:-1, :-2]) / 2
@@ -159,7 +159,7 @@ def lucas_kanade(
     g = np.arange(w) - (w - 1) / 2
     ux = np.tile(g, w)[None, :]
     uy = np.repeat(g, w)[None, :]
-    tg = np.asarray(target, np.float64)
+    tg = np.asarray(target, np.float32)
     d = np.zeros((n, 2))
     conv = np.zeros(n, bool)
     for _ in range(iterations):
