@@ -39,13 +39,14 @@ def one(root: Path, seed: int, rate: float, args: argparse.Namespace) -> dict:
         focal_px=1000.0 * args.width / 1280,
         imu_rate_hz=rate,
     )
-    sess = root / f"s{seed}_{int(rate)}"
+    sess = Path(args.sessions or root) / f"s{seed}_{int(rate)}"
     drive = (
         dict(depth_m=args.depth_m, speed_mps=args.speed_mps, speed_wobble=0.3)
         if args.depth_m
         else {}
     )
-    write_session(NaturalRig(preset, seed, args.frames, **drive), sess)
+    if not (args.sessions and (sess / "truth.yaml").exists()):  # --sessions: reuse
+        write_session(NaturalRig(preset, seed, args.frames, **drive), sess)
     out = root / f"c{seed}_{int(rate)}" / "calib.yaml"
     cmd = [sys.executable, "-m", "blurtrack", "calibrate", str(sess), "--out", str(out)]
     cmd += ["--translation", args.translation] + (["--fit", args.fit] if args.fit else [])
@@ -90,12 +91,15 @@ def main() -> None:
     ap.add_argument("--speed-mps", type=float, default=3.0, help="driving: forward speed")
     ap.add_argument("--translation", default="auto", choices=("none", "auto", "per-pair", "travel"))
     ap.add_argument("--fit", default=None, help="--fit for calibrate (default: natural's)")
+    ap.add_argument("--seed-list", default=None, help="comma-separated seeds (overrides --seeds)")
+    ap.add_argument("--sessions", default=None, help="keep sessions here as s<seed>_<rate>, reuse")
     args = ap.parse_args()
     out: dict = {"config": vars(args), "rates": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for rate in (float(r) for r in args.rates.split(",")):
             recs = []
-            for s in range(args.seeds):
+            seeds = [int(x) for x in args.seed_list.split(",")] if args.seed_list else None
+            for s in seeds if seeds is not None else range(args.seeds):
                 recs.append(one(Path(tmp), s, rate, args))
                 print(json.dumps(recs[-1]), file=sys.stderr, flush=True)  # partial results
             ok = [r for r in recs if "abs_error" in r]
