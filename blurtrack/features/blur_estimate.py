@@ -44,12 +44,15 @@ class BlurVector:
         length_px: ``|vector|``.
         angle_deg: direction in ``[0, 180)`` degrees, x towards y (image coordinates).
         score: :func:`kernel_score` of that line kernel against the tile.
+        margin: ``score`` minus the score of the same line turned by 90°: how much better the
+            found direction explains the tile than the perpendicular one.
     """
 
     vector_px: tuple[float, float]
     length_px: float
     angle_deg: float
     score: float
+    margin: float
 
 
 def _check_tile(tile: np.ndarray, radius: int) -> np.ndarray:
@@ -68,6 +71,8 @@ def _check_tile(tile: np.ndarray, radius: int) -> np.ndarray:
 #: Floor added to the direction-normalised power spectrum before the log (the tile's noise
 #: and the kernel's ``sinc`` zeros both end there).
 LOG_FLOOR = 1e-3
+#: Default frequency taper of the log spectrum (cycles/px): see :func:`tile_cepstrum`.
+DEFAULT_TAPER = 0.2
 
 
 def fft_size(tile_shape: tuple[int, ...]) -> int:
@@ -81,21 +86,31 @@ def _crop(c: np.ndarray, radius: int) -> np.ndarray:
     return c[np.ix_(idx, idx)]
 
 
-def _cepstrum(F: np.ndarray, radius: int) -> np.ndarray:
-    """Cepstrum map of a square spectrum ``F (n, n)``, power normalised per frequency ring."""
+def _cepstrum(F: np.ndarray, radius: int, taper: float | None) -> np.ndarray:
+    """Cepstrum map of a square spectrum ``F (n, n)``: power normalised per frequency ring,
+    log, weighted by ``exp(-(|f| / taper)²)`` (cycles/px), inverse transform."""
     n = F.shape[0]
     P = np.abs(F) ** 2
     f = np.fft.fftfreq(n)
     ring = np.minimum((np.hypot(f[None, :], f[:, None]) * n).astype(int), n // 2)
     mean = np.bincount(ring.ravel(), P.ravel()) / np.maximum(np.bincount(ring.ravel()), 1)
     W = P / np.maximum(mean[ring], 1e-300)
-    return _crop(np.fft.ifft2(np.log(W + LOG_FLOOR)).real, radius)
+    logw = np.log(W + LOG_FLOOR)
+    if taper is not None:
+        logw *= np.exp(-((np.hypot(f[None, :], f[:, None]) / taper) ** 2))
+    return _crop(np.fft.ifft2(logw).real, radius)
 
 
-def tile_cepstrum(tile: np.ndarray, radius: int = 32) -> np.ndarray | None:
+def tile_cepstrum(
+    tile: np.ndarray, radius: int = 32, taper: float | None = DEFAULT_TAPER
+) -> np.ndarray | None:
     """Cepstrum map ``(2r+1, 2r+1)`` of a gray tile ``(h, w)`` (any units of intensity).
 
     The tile minus its mean is Hann-windowed and transformed on the :func:`fft_size` grid.
+    ``taper`` (cycles/px): the log spectrum is weighted by ``exp(-(|f| / taper)²)`` so that
+    the high frequencies, where a strongly blurred tile holds only noise and the JPEG block
+    grid (whose spectral lines print axis-aligned ridges into the map), count little. Pass
+    the same to :func:`kernel_cepstrum`; ``None`` keeps every frequency.
     Returns ``None`` for a tile with no texture (windowed variance below 1e-12 of its squared
     mean level, or exactly zero): its blur is undetermined, not a number.
     """
@@ -105,7 +120,7 @@ def tile_cepstrum(tile: np.ndarray, radius: int = 32) -> np.ndarray | None:
     if float(np.mean(tw**2)) <= 1e-12 * max(float(np.mean(t)) ** 2, 1e-12):
         return None
     n = fft_size(t.shape)
-    return _cepstrum(np.fft.fft2(tw, s=(n, n)), radius)
+    return _cepstrum(np.fft.fft2(tw, s=(n, n)), radius, taper)
 
 
 def rasterize(traj: np.ndarray, size: int, samples_per_px: float = 4.0) -> np.ndarray:
@@ -146,7 +161,9 @@ def rasterize(traj: np.ndarray, size: int, samples_per_px: float = 4.0) -> np.nd
     return k / k.sum()
 
 
-def kernel_cepstrum(kernel: np.ndarray, radius: int, n: int) -> np.ndarray:
+def kernel_cepstrum(
+    kernel: np.ndarray, radius: int, n: int, taper: float | None = DEFAULT_TAPER
+) -> np.ndarray:
     """What :func:`tile_cepstrum` predicts for a tile blurred by ``kernel`` (square, sum > 0)
     on the FFT grid of side ``n`` (:func:`fft_size` of the tile): ``(2r+1, 2r+1)``."""
     k = np.asarray(kernel, dtype=np.float64)
@@ -154,7 +171,7 @@ def kernel_cepstrum(kernel: np.ndarray, radius: int, n: int) -> np.ndarray:
         raise BlurEstimateError(f"a kernel must be square, of positive sum, <= {n}: {k.shape}")
     if not 2 <= radius <= n // 2 - 1:
         raise BlurEstimateError(f"radius {radius} does not fit an FFT grid of {n}")
-    return _cepstrum(np.fft.fft2(k, s=(n, n)), radius)
+    return _cepstrum(np.fft.fft2(k, s=(n, n)), radius, taper)
 
 
 def annulus(radius: int, r_min: float) -> np.ndarray:
@@ -192,8 +209,10 @@ def estimate_blur_vector(
     tile: np.ndarray,
     radius: int = 32,
     r_min: float = 6.0,
-    min_score: float = 0.08,
+    min_score: float = 0.25,
+    min_margin: float = 0.1,
     angle_step_deg: float = 6.0,
+    taper: float | None = DEFAULT_TAPER,
 ) -> BlurVector | None:
     """The straight-line blur vector of a gray tile ``(h, w)``, or ``None`` if undetermined.
 
@@ -202,8 +221,9 @@ def estimate_blur_vector(
     and length (``r_min`` to ``radius - 2`` px in steps of ``r_min / 2``), then a Nelder–Mead
     refinement of ``(dx, dy)``. A curved trajectory yields about its chord. Undetermined
     (``None``): no texture, or a best score below ``min_score`` (the tile does not look like any
-    straight blur). Blurs shorter than ``r_min`` or longer than ``radius - 2`` px are outside its
-    range; the tile should be at least ``3 · radius`` px on a side.
+    straight blur), or a ``margin`` below ``min_margin`` (the perpendicular line explains it
+    about as well: no direction). Blurs shorter than ``r_min`` or longer than ``radius - 2``
+    px are outside its range; the tile should be at least ``3 · radius`` px on a side.
 
     >>> rng = np.random.default_rng(0)
     >>> f = np.hypot(*np.meshgrid(np.fft.fftfreq(192), np.fft.fftfreq(192))) + 1 / 192
@@ -217,7 +237,7 @@ def estimate_blur_vector(
     """
     from scipy.optimize import minimize
 
-    tmap = tile_cepstrum(tile, radius)
+    tmap = tile_cepstrum(tile, radius, taper)
     if tmap is None:
         return None
     n = fft_size(np.shape(tile))
@@ -226,7 +246,8 @@ def estimate_blur_vector(
     def score(v: np.ndarray) -> float:
         if not np.hypot(v[0], v[1]) <= radius - 2:
             return -1.0
-        return kernel_score(tmap, kernel_cepstrum(line_kernel(v, size), radius, n), r_min)
+        kmap = kernel_cepstrum(line_kernel(v, size), radius, n, taper)
+        return kernel_score(tmap, kmap, r_min)
 
     best, best_v = -np.inf, np.zeros(2)
     for L in np.arange(r_min, radius - 2 + 1e-9, max(r_min / 2, 1.0)):
@@ -243,7 +264,8 @@ def estimate_blur_vector(
         options={"xatol": 0.05, "fatol": 1e-5, "initial_simplex": simplex},
     )
     v, sc = (np.asarray(res.x, float), -float(res.fun)) if -res.fun > best else (best_v, best)
-    if sc < min_score:
+    margin = sc - score(np.array([-v[1], v[0]]))
+    if sc < min_score or margin < min_margin:
         return None
     dx, dy = float(v[0]), float(v[1])
     if dy < 0 or (dy == 0 and dx < 0):
@@ -253,6 +275,7 @@ def estimate_blur_vector(
         length_px=float(np.hypot(dx, dy)),
         angle_deg=float(np.degrees(np.arctan2(dy, dx)) % 180.0),
         score=sc,
+        margin=float(margin),
     )
 
 
