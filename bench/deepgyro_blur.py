@@ -13,17 +13,20 @@ calibration (BlurModel.point_track of the tile centre over its row's exposure):
 
 Calibrations: the axis search of ``blurtrack calibrate`` (bench/deepgyro_deblur.calibration:
 R_cam_imu and +22 ms from inter-frame tracks, published intrinsics and readout 24.49 ms), scans
-of the time offset, readout and a gain (on fx = fy, or on the gyro), and the importer's axes as
-the negative control. Only tiles whose rows' exposures the gyro covers for every candidate of a
-scan count: the "wide" scan (offset -40..+60 ms) leaves frames 3-4, the "narrow" one
-(-10..+40 ms) frames 2-5 (frame 5 without its bottom tiles). Uncertainty of the best offset:
-bootstrap over tiles (argmax of the resampled mean score, parabola-refined) and the curvature of
-the mean-score parabola scaled by the score's standard error.
+of the time offset jointly with a gain on fx = fy (the offset's profile: best gain at each
+offset), of the readout at the best offset and on an offset x readout grid, of a gain on fx or
+on the gyro rates, and the importer's axes and the axis search's runner-up as negative controls.
+Only tiles whose rows' exposures the gyro covers for every candidate of a scan count: the
+"wide" scan (offset -40..+60 ms) leaves frames 3-4, the "narrow" one (-10..+40 ms) frames 2-5
+(frame 5 without its bottom tiles). Uncertainty of the best offset: bootstrap over tiles (peak
+of the resampled profile, parabola-refined) and the sandwich (M-estimator) sigma: per-tile score
+slopes over the summed curvature at the peak.
 
     PYTHONPATH=$PWD .venv/bin/python bench/deepgyro_blur.py [--out results.json] \
         [--figure docs/figures/deepgyro_blur_agreement.jpg]
 
-Prints JSON. Several minutes on 2 busy CPU cores (the straight-line search per tile dominates).
+Prints JSON. About 15 minutes on 2 busy CPU cores with the docs/natural.md settings (the
+straight-line search per tile and the offset x gain grid dominate).
 """
 
 from __future__ import annotations
