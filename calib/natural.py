@@ -320,14 +320,17 @@ def discover_axes(
     initial: Calibration,
     window_s: float,
     source: str,
+    strict: bool = True,
 ) -> tuple[AxisSearch, Calibration]:
-    """Axis search (refusing an undecided one) and the initial calibration it implies (the
-    winner's axes and time shift)."""
+    """Axis search (refusing an undecided one unless ``strict`` is off, for diagnostics that
+    never write a calibration) and the initial calibration it implies (the winner's axes and
+    time shift)."""
     g = relative_gyro(gyro, t0_s)
     search = search_axes(
         rots, g, initial.camera.intrinsics[0], initial.timeshift_cam_imu_s, window_s, source
     )
-    check_axes(search)
+    if strict:
+        check_axes(search)
     start = initial.with_(R_cam_imu=search.R_cam_imu, timeshift_cam_imu_s=search.winner.timeshift_s)
     return search, start
 
@@ -370,12 +373,14 @@ def calibrate_natural(
     translation: str = "none",
     blur: str = "equal-blur",
     passes: int = EQUAL_BLUR_PASSES,
+    strict_axes: bool = True,
 ) -> NaturalResult:
     """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``).
 
     ``translation``: ``none`` (pure rotation), ``per-pair`` (an epipole per frame pair as a
     nuisance, :mod:`calib.natural_motion`) or ``auto`` (per-pair when the rotation-only
-    fit leaves parallax, :func:`calib.natural_motion.prefers_translation`).
+    fit leaves parallax, :func:`calib.natural_motion.prefers_translation`). ``strict_axes``
+    off: fit from an undecided axis search's winner (diagnostics that write nothing).
     """
     from calib.natural_motion import TRANSLATIONS
 
@@ -398,7 +403,7 @@ def calibrate_natural(
     rots = image_rotations(tracks, ts, exp, initial)
     gyro = session.gyro()
     search, start = discover_axes(
-        rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks"
+        rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks", strict_axes
     )
     lk = thinned(tracks, MAX_FIT_TRACKS)
     if blur == "equal-blur":

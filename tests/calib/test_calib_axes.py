@@ -96,3 +96,20 @@ def test_no_rotation_and_no_coverage_are_refused() -> None:
     late = GyroTrace(gyro.t_s + 100.0, gyro.omega_radps)
     with pytest.raises(AxisSearchError, match="does not cover"):
         search_axes(rots, late, rig.camera.intrinsics[0], 0.0, 0.06, "test")
+
+
+def test_discover_axes_refuses_an_undecided_search_unless_told_not_to() -> None:
+    """``strict=False`` (diagnostics that write nothing, bench/mars_readout.py) returns the
+    winner of a search ``check_axes`` refuses; the default refuses it."""
+    from calib.natural import discover_axes
+
+    rig, rots, _ = _sim(0)
+    _, _, other = _sim(7)
+    with pytest.raises(AxisSearchError, match="explains|ambiguous"):
+        discover_axes(rots, other, 0.0, rig.calibration, 0.06, "test")
+    search, start = discover_axes(rots, other, 0.0, rig.calibration, 0.06, "test", strict=False)
+    assert np.allclose(start.R_cam_imu, search.R_cam_imu)
+    assert start.timeshift_cam_imu_s == search.winner.timeshift_s
+    # the true gyro passes either way, with the true axes
+    _, start = discover_axes(rots, _sim(0)[2], 0.0, rig.calibration, 0.06, "test")
+    assert np.allclose(start.R_cam_imu, NOMINAL_R_CAM_IMU)
