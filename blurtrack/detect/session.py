@@ -24,7 +24,7 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.table import build_table, frame_rows
+from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import CoverageError, DetectionError
 
@@ -231,12 +231,13 @@ def detect_session(
     for k, c in enumerate(continuity_cues(found, timings, tentative)):
         llrs[k][:, 2] = c
     parts = []
+    stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
     sources: dict[str, int] = {}
     conf: list[np.ndarray] = []
     for k, fs in enumerate(found):
         ori = combine(llrs[k])
         fs.reverse(ori.swap)
-        parts.append(frame_rows(idx[k], int(session.frames["timestamp_ns"].iloc[idx[k]]), fs, ori))
+        parts.append(frame_columns(idx[k], int(stamps[idx[k]]), fs, ori))
         for s in ori.source:
             sources[s] = sources.get(s, 0) + 1
         conf.append(ori.confidence)
