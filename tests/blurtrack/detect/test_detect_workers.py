@@ -153,3 +153,26 @@ def test_timeshift_scan_with_the_resampled_trace_given_is_the_same(session_folde
     # Negative control: a trace resampled otherwise gives other costs.
     other = estimate_timeshift(res.frames, timings, calib, trace, model_gyro=trace.upsampled(2))
     assert other is not None and not np.array_equal(other.cost, plain.cost)
+
+
+def test_frames_pickle_back_unchanged(session_folder: Path) -> None:
+    import pickle
+
+    from blurtrack.detect.frame import _pack, _unpack
+
+    fs = detect_session(load_session(session_folder), gyro="off").frames[0]
+    back = pickle.loads(pickle.dumps(fs, protocol=pickle.HIGHEST_PROTOCOL))
+    assert len(back) == len(fs) > 5
+    for name in ("points", "profile"):
+        a, b = getattr(fs, name), getattr(back, name)
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert x.dtype == y.dtype and x.shape == y.shape
+            np.testing.assert_array_equal(x, y)
+    for name in ("end_a", "end_b", "time_mid", "plateau", "length_px", "width_px", "snr"):
+        np.testing.assert_array_equal(getattr(fs, name), getattr(back, name))
+    # Arrays that do not share a dtype stay a list (and come back as they were).
+    mixed = [np.zeros((3, 2)), np.zeros((2, 2), np.float32)]
+    assert isinstance(_pack(mixed), list)
+    assert [x.dtype for x in _unpack(_pack(mixed))] == [np.float64, np.float32]
+    assert isinstance(_pack([np.zeros(3), np.ones(4)]), tuple)
