@@ -257,10 +257,11 @@ def detect_session(
         uncovered.sort()
     # Continuity twice: any neighbouring end first, then (with that tentative orientation)
     # only the previous frame's ends and the next frame's starts.
-    for k, c in enumerate(continuity_cues(found, timings)):
+    basis: dict[int, Any] = {}  # the frames do not change between the two passes
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis)):
         llrs[k][:, 2] = c
     tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative)):
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis)):
         llrs[k][:, 2] = c
     parts = []
     stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
