@@ -8,6 +8,11 @@ image), ``start_brightness``/``end_brightness`` (profile plateau at each end), `
 ``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
 ``shape_deviation_px``, ``thick_saturated``, ``quality_ok`` (:mod:`blurtrack.detect.quality`).
 The column ``merged`` of the core schema means "merged with or crossing another streak".
+
+In the table :func:`build_table` returns, a ``centerline`` cell is an ``(n, 2)`` float64 array
+and a ``profile`` cell an ``(n,)`` one (views of one rounded array per frame: no per-value
+Python floats); :func:`write_table` writes them as Parquet lists, the very file
+``DataFrame.to_parquet`` writes from lists (and reading it back gives what it always gave).
 """
 
 from __future__ import annotations
