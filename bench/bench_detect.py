@@ -13,10 +13,13 @@ run ``detect_session`` and compare with ``truth.yaml``:
   SESSION`` as a subprocess (start-up, decoding, detection, orientation, time-shift scan,
   writing), with ``--workers 1`` and with the default workers (all cores), against the
   single-core baseline ``cv2.imread`` + ``GaussianBlur`` + ``threshold`` +
-  ``connectedComponentsWithStats`` over the same image files, interleaved in the same run.
+  ``connectedComponentsWithStats`` over the same image files, interleaved in the same run;
+  wall ratios (what a user waits: the workers use every core, the baseline one) and CPU
+  ratios (core-seconds). ``--before ROOT`` times another code tree the same way.
 
 Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``;
-``python bench/bench_detect.py --command --presets dense hard --seeds 1 --frames 100``
+``python bench/bench_detect.py --command --presets dense hard --seeds 1 --frames 100``;
+``git -C MAIN archive HEAD | tar -x -C /tmp/old`` then ``... --command --before /tmp/old``
 """
 
 from __future__ import annotations
@@ -183,13 +186,23 @@ def _baseline_files(paths: list[Path]) -> None:
         cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
 
 
-def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
-    """Wall time of ``blurtrack detect`` (subprocess) against the file baseline, interleaved."""
+def command_speed(
+    folder: Path, repeat: int, work: Path, before: Path | None = None
+) -> dict[str, Any]:
+    """Wall and CPU time of ``blurtrack detect`` (subprocess) against the file baseline,
+    interleaved; with ``before``, also that of the code tree at ``before`` (another checkout,
+    run with the same interpreter), so that both are timed under the same load."""
     cv2.setNumThreads(1)
     session = load_session(folder)
     paths = [session.image_path(i) for i in range(len(session.frames))]
     out = work / f"{folder.name}.bench.parquet"
-    variants = {"workers_1": ["--workers", "1"], "workers_default": []}
+    variants: dict[str, tuple[Path, list[str]]] = {
+        "workers_1": (ROOT, ["--workers", "1"]),
+        "workers_default": (ROOT, []),
+    }
+    if before is not None:
+        variants["before_workers_1"] = (before, ["--workers", "1"])
+        variants["before_workers_default"] = (before, [])
     times: dict[str, list[float]] = {"baseline": [], **{k: [] for k in variants}}
     cpu: dict[str, list[float]] = {k: [] for k in times}
     for _ in range(repeat):  # interleaved, so that machine load affects all alike
@@ -197,7 +210,7 @@ def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
         _baseline_files(paths)
         times["baseline"].append(time.perf_counter() - t0)
         cpu["baseline"].append(time.process_time() - c0)
-        for name, extra in variants.items():
+        for name, (root, extra) in variants.items():
             cmd = [
                 sys.executable,
                 "-m",
@@ -208,9 +221,10 @@ def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
                 str(out),
                 "--force",
             ]
+            env = dict(os.environ, PYTHONPATH=str(root))
             r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
-            subprocess.run(cmd + extra, check=True, cwd=ROOT, capture_output=True)
+            subprocess.run(cmd + extra, check=True, cwd=root, capture_output=True, env=env)
             times[name].append(time.perf_counter() - t0)
             r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu[name].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
@@ -223,7 +237,7 @@ def command_speed(folder: Path, repeat: int, work: Path) -> dict[str, Any]:
         res[f"{k}_fps"] = n / v
         res[f"{k}_cpu_s"] = med_cpu[k]
     for k in variants:
-        # Wall ratio (what a user waits) and CPU ratio (core-seconds; independent of load).
+        # Wall ratio (what a user waits) and CPU ratio (core-seconds; less sensitive to load).
         res[f"ratio_{k}"] = med[k] / med["baseline"]
         res[f"cpu_ratio_{k}"] = med_cpu[k] / med_cpu["baseline"]
     res["streaks_per_frame"] = len(pd.read_parquet(out)) / n
@@ -271,6 +285,14 @@ def main() -> int:
         action="store_true",
         help="time the whole `blurtrack detect` command against the file baseline",
     )
+    ap.add_argument(
+        "--before",
+        type=Path,
+        default=None,
+        metavar="ROOT",
+        help="with --command: also time the command of the code tree at ROOT (e.g. "
+        "`git archive` of main unpacked there), interleaved, with this interpreter",
+    )
     args = ap.parse_args()
     if args.command:
         args.work.mkdir(parents=True, exist_ok=True)
@@ -281,7 +303,7 @@ def main() -> int:
                 r = {
                     "preset": preset,
                     "seed": seed,
-                    **command_speed(folder, args.repeat, args.work),
+                    **command_speed(folder, args.repeat, args.work, args.before),
                 }
                 print(json.dumps(r), file=sys.stderr)
                 runs.append(r)

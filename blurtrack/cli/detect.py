@@ -101,6 +101,10 @@ def detect_to_table(
     from blurtrack.detect.table import write_table
 
     cv2.setNumThreads(1)
+
+    def meanwhile() -> None:
+        import pyarrow.parquet  # noqa: F401  # the writer's import, while the workers detect
+
     total = len(frames) if frames is not None else len(session.frames)
     with Progress("detect", "frame", quiet) as bar:
         done = [0]
@@ -116,6 +120,7 @@ def detect_to_table(
             frames=frames,
             on_frame=on_frame,
             workers=default_workers() if workers is None else workers,
+            meanwhile=meanwhile,
         )
     write_table(result.table, out)
     return result

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -56,6 +57,20 @@ class FrameStreaks:
     def __len__(self) -> int:
         return int(self.end_a.shape[0])
 
+    def __getstate__(self) -> dict[str, Any]:
+        # Workers send frames back pickled: the per-streak lines as one array each (a few
+        # hundred small arrays pickle several times slower), unpacked as views.
+        state = dict(self.__dict__)
+        state["points"] = _pack(self.points)
+        state["profile"] = _pack(self.profile)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        state["points"] = _unpack(state["points"])
+        state["profile"] = _unpack(state["profile"])
+        self.__dict__.update(state)
+
     def reverse(self, which: np.ndarray) -> None:
         """Swap ends A and B (and reverse the lines) of the streaks where ``which`` is True."""
         for i in np.flatnonzero(which):
@@ -63,6 +78,22 @@ class FrameStreaks:
             self.plateau[i] = self.plateau[i][::-1].copy()
             self.points[i] = self.points[i][::-1].copy()
             self.profile[i] = self.profile[i][::-1].copy()
+
+
+def _pack(arrays: list[np.ndarray]) -> Any:
+    """Per-streak arrays as ``(flat, sizes)`` when they share a dtype and trailing shape
+    (they do: float64 lines, float64 profiles), else the list itself."""
+    if not arrays or len({(a.dtype, a.shape[1:]) for a in arrays}) != 1:
+        return list(arrays)
+    return np.concatenate(arrays), np.fromiter(map(len, arrays), np.int64, len(arrays))
+
+
+def _unpack(packed: Any) -> list[np.ndarray]:
+    """The inverse of :func:`_pack`: views of the flat array, one per streak."""
+    if isinstance(packed, list):
+        return packed
+    flat, sizes = packed
+    return np.split(flat, np.cumsum(sizes)[:-1])
 
 
 def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:

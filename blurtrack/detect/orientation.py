@@ -175,11 +175,11 @@ def _outward_tangents(points: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndar
     return da / na, db / nb
 
 
-def _extrapolated_ends(
-    fs: FrameStreaks, timing: FrameTiming, gap_s: float
+def _extrapolation_basis(
+    fs: FrameStreaks, timing: FrameTiming
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ends A and B pushed outwards over ``gap_s`` at the speed their brightness implies, and
-    the per-streak uncertainty (px) of that extrapolation."""
+    """Outward tangents at ends A and B and the speed (px/s) at each end, ``(N, 2)`` each:
+    the part of :func:`_extrapolated_ends` that does not depend on the gap."""
     out_a, out_b = _outward_tangents(fs.points)
     mean_speed = fs.length_px / max(timing.exposure_s, 1e-6)  # px/s
     sizes = np.array([p.size for p in fs.profile], dtype=np.int64)
@@ -192,7 +192,20 @@ def _extrapolated_ends(
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(fs.plateau > 0, level[:, None] / fs.plateau, 1.0)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 0.2, 5.0)
-    step = mean_speed[:, None] * ratio * gap_s  # (N, 2) px travelled in the gap
+    return out_a, out_b, mean_speed[:, None] * ratio
+
+
+def _extrapolated_ends(
+    fs: FrameStreaks,
+    timing: FrameTiming,
+    gap_s: float,
+    basis: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ends A and B pushed outwards over ``gap_s`` at the speed their brightness implies, and
+    the per-streak uncertainty (px) of that extrapolation (``basis``: the frame's
+    :func:`_extrapolation_basis`, if already known)."""
+    out_a, out_b, speed = _extrapolation_basis(fs, timing) if basis is None else basis
+    step = speed * gap_s  # (N, 2) px travelled in the gap
     ext_a = fs.end_a + out_a * step[:, 0:1]
     ext_b = fs.end_b + out_b * step[:, 1:2]
     unc = 2.0 + 0.5 * np.max(step, axis=1)
@@ -220,15 +233,19 @@ def continuity_cues(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     swaps: Sequence[np.ndarray] | None = None,
+    cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> list[np.ndarray]:
     """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence).
 
     Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
     (a tentative orientation of every frame: True where end B is the start) only the
     previous frame's ends and the next frame's starts count, which removes the ambiguity of
-    a dot that reverses in the gap between exposures.
+    a dot that reverses in the gap between exposures. ``cache``: per frame index, its
+    :func:`_extrapolation_basis` (filled here; pass the same dict to calls on the same,
+    unchanged frames to compute it once).
     """
     out = [np.zeros(len(fs)) for fs in frames]
+    bases = {} if cache is None else cache
 
     def tree(k: int, want: str) -> np.ndarray | None:
         fs = frames[k]
@@ -254,7 +271,9 @@ def continuity_cues(
             t = tree(nb, "ends" if nb < k else "starts")
             if t is None:
                 continue
-            ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap)
+            if k not in bases:
+                bases[k] = _extrapolation_basis(fs, timings[k])
+            ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap, bases[k])
             gate = 3.0 * unc
             d_a = np.minimum(nearest_distance(ext_a, t), gate)
             d_b = np.minimum(nearest_distance(ext_b, t), gate)

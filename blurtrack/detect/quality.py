@@ -120,19 +120,19 @@ def shape_tolerance(c: np.ndarray) -> np.ndarray:
     return np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
 
 
-def _frame_quality(d: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
-    flagged = (d["clipped"] | d["merged"] | d["crossing"] | d["looped"]).to_numpy(bool)
-    width = d["width_px"].to_numpy(float)
-    sat = d["saturated"].to_numpy(bool)
+def _frame_quality(
+    v: np.ndarray, mid: np.ndarray, flagged: np.ndarray, width: np.ndarray, sat: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shape deviation, ``thick_saturated`` and ``quality_ok`` of one frame's streaks from
+    their start-to-end vectors, time midpoints, flags, widths and saturation."""
     ref_w = width[~sat & np.isfinite(width)]
     ref_w = ref_w if ref_w.size else width[np.isfinite(width)]
     w0 = float(np.median(ref_w)) if ref_w.size else np.nan
     with np.errstate(invalid="ignore"):
         thick = sat & (width > THICK_WIDTH_RATIO * w0)
-    dev = np.full(len(d), np.nan)
+    dev = np.full(len(v), np.nan)
     ok = ~(flagged | thick)
-    field = consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), ok)
+    field = consensus_field(v, mid, ok)
     if field is not None:
         dev = field.dev
         ok = ok & (dev <= shape_tolerance(field.c))
@@ -145,11 +145,20 @@ def add_quality(table: pd.DataFrame) -> pd.DataFrame:
     n = len(out)
     dev, thick, ok = np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool)
     if n:
+        # The columns as arrays once; the frames are then slices of them (no per-frame
+        # DataFrame indexing, which cost more than the fits).
+        v = out[["end_x", "end_y"]].to_numpy(float) - out[["start_x", "start_y"]].to_numpy(float)
+        mid = out[["mid_x", "mid_y"]].to_numpy(float)
+        flagged = (out["clipped"] | out["merged"] | out["crossing"] | out["looped"]).to_numpy(bool)
+        width = out["width_px"].to_numpy(float)
+        sat = out["saturated"].to_numpy(bool)
         frames = out["frame"].to_numpy()
         order = np.argsort(frames, kind="stable")
         bounds = np.flatnonzero(np.diff(frames[order])) + 1
         for rows in np.split(order, bounds):
-            dev[rows], thick[rows], ok[rows] = _frame_quality(out.iloc[rows])
+            dev[rows], thick[rows], ok[rows] = _frame_quality(
+                v[rows], mid[rows], flagged[rows], width[rows], sat[rows]
+            )
     out["shape_deviation_px"] = dev
     out["thick_saturated"] = thick
     out["quality_ok"] = ok

@@ -24,9 +24,10 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.table import build_table, frame_rows
+from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import CoverageError, DetectionError
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
 GYRO_MODES = ("auto", "on", "off")
 
@@ -50,25 +51,38 @@ def _worker_detect(i: int) -> FrameStreaks:
 
 
 def detect_frames(
-    session: Any, idx: list[int], params: DetectParams, workers: int = 1
+    session: Any,
+    idx: list[int],
+    params: DetectParams,
+    workers: int = 1,
+    meanwhile: Callable[[], None] | None = None,
 ) -> Iterator[FrameStreaks]:
     """Decode and detect the frames ``idx`` of a session, in order, in ``workers`` processes.
 
     Frames are independent, so the workers' results are exactly those of one process. Workers
     are forked (they inherit the loaded session, nothing is pickled but the results); where
     the platform cannot fork, or for a single worker or frame, the frames are detected here.
+    ``meanwhile``: work of this process that does not need the frames (imports, gyro
+    resampling), run while the workers detect (before the first frame without workers).
     """
     if workers < 1:
         raise DetectionError(f"workers must be >= 1, got {workers}")
     n = min(workers, len(idx))
     if n <= 1 or "fork" not in mp.get_all_start_methods():
+        if meanwhile is not None:
+            meanwhile()
         for i in idx:
             yield detect_frame(session.read_image(i), params)
         return
     _WORKER_STATE.update(session=session, params=params)
     try:
         with ProcessPoolExecutor(n, mp_context=mp.get_context("fork")) as pool:
-            yield from pool.map(_worker_detect, idx, chunksize=max(1, min(8, len(idx) // (4 * n))))
+            # Small chunks: the results come back in order, the first ones early.
+            chunk = max(1, min(4, len(idx) // (8 * n)))
+            results = pool.map(_worker_detect, idx, chunksize=chunk)  # submits every frame
+            if meanwhile is not None:
+                meanwhile()
+            yield from results
     finally:
         _WORKER_STATE.clear()
 
@@ -154,6 +168,7 @@ def detect_session(
     on_frame: Callable[[int, FrameStreaks], None] | None = None,
     refine_timeshift: bool = True,
     workers: int = 1,
+    meanwhile: Callable[[], None] | None = None,
 ) -> DetectionResult:
     """Detect and orient the streaks of every frame of a loaded session.
 
@@ -169,6 +184,8 @@ def detect_session(
         refine_timeshift: before using the gyro, scan the camera-IMU time shift around the
             session's guess (:mod:`blurtrack.detect.timeshift`); the guess may be off by more
             than an exposure.
+        meanwhile: the caller's own preparation (say, importing the table writer), run while
+            the workers detect.
     Raises:
         DetectionError: no streak in any frame.
     """
@@ -182,9 +199,19 @@ def detect_session(
     t_s = session.frame_times_s
     exp_s = session.exposures_s
     inputs = _gyro_inputs(session, gyro)
+    resampled: list[Any] = []
+
+    def prepare() -> None:
+        # The gyro resampled once (the scan and the cues use the same model trace).
+        if inputs is not None:
+            resampled.append(inputs[1].upsampled(GYRO_UPSAMPLE))
+        if meanwhile is not None:
+            meanwhile()
+
     found: list[FrameStreaks] = []
     timings: list[FrameTiming] = []
-    for i, fs in zip(idx, detect_frames(session, idx, p, workers), strict=True):
+    frames_iter = detect_frames(session, idx, p, workers, prepare)
+    for i, fs in zip(idx, frames_iter, strict=True):
         found.append(fs)
         timings.append(FrameTiming(float(t_s[i]), float(exp_s[i])))
         if on_frame is not None:
@@ -196,12 +223,17 @@ def detect_session(
         from blurtrack.geometry.blur_model import BlurModel
 
         calib, trace = inputs
-        shift = estimate_timeshift(found, timings, calib, trace) if refine_timeshift else None
+        up = resampled[0]
+        shift = (
+            estimate_timeshift(found, timings, calib, trace, model_gyro=up)
+            if refine_timeshift
+            else None
+        )
         found_shift = shift is not None and shift.status == "found"
         if found_shift:
             assert shift is not None  # found_shift implies a shift
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
-        model = BlurModel(calib, trace, max_substep_s=CUE_SUBSTEP_S)
+        model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL
         covered = []
         for k, (fs, tm) in enumerate(zip(found, timings, strict=True)):
@@ -225,18 +257,20 @@ def detect_session(
         uncovered.sort()
     # Continuity twice: any neighbouring end first, then (with that tentative orientation)
     # only the previous frame's ends and the next frame's starts.
-    for k, c in enumerate(continuity_cues(found, timings)):
+    basis: dict[int, Any] = {}  # the frames do not change between the two passes
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis)):
         llrs[k][:, 2] = c
     tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative)):
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis)):
         llrs[k][:, 2] = c
     parts = []
+    stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
     sources: dict[str, int] = {}
     conf: list[np.ndarray] = []
     for k, fs in enumerate(found):
         ori = combine(llrs[k])
         fs.reverse(ori.swap)
-        parts.append(frame_rows(idx[k], int(session.frames["timestamp_ns"].iloc[idx[k]]), fs, ori))
+        parts.append(frame_columns(idx[k], int(stamps[idx[k]]), fs, ori))
         for s in ori.source:
             sources[s] = sources.get(s, 0) + 1
         conf.append(ori.confidence)

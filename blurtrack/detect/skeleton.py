@@ -141,7 +141,12 @@ def _chain(
 ) -> list[TracedPath]:
     """Prune spurs, merge close junctions, pair edge ends at junctions and chain the edges."""
     ends = [[int(node_of[e[0]]), int(node_of[e[-1]])] for e in edges]
-    lengths = [float(np.sum(np.linalg.norm(np.diff(yx[e], axis=0), axis=1))) for e in edges]
+    # Arc length per edge: the steps of all edges in one pass (rows stepping from one edge
+    # into the next are never summed), each edge's own steps summed as a contiguous slice.
+    flat = yx[np.concatenate(edges)].astype(np.float64)
+    step = np.linalg.norm(np.diff(flat, axis=0), axis=1)
+    first = np.cumsum([0] + [len(e) for e in edges[:-1]])
+    lengths = [float(np.sum(step[a : a + len(e) - 1])) for a, e in zip(first, edges, strict=True)]
     alive = [True] * len(edges)
 
     def degrees() -> dict[int, int]:

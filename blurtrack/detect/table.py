@@ -8,12 +8,18 @@ image), ``start_brightness``/``end_brightness`` (profile plateau at each end), `
 ``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
 ``shape_deviation_px``, ``thick_saturated``, ``quality_ok`` (:mod:`blurtrack.detect.quality`).
 The column ``merged`` of the core schema means "merged with or crossing another streak".
+
+In the table :func:`build_table` returns, a ``centerline`` cell is an ``(n, 2)`` float64 array
+and a ``profile`` cell an ``(n,)`` one (views of one rounded array per frame: no per-value
+Python floats); :func:`write_table` writes them as Parquet lists, the very file
+``DataFrame.to_parquet`` writes from lists (and reading it back gives what it always gave).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -21,7 +27,7 @@ import pandas as pd
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import Orientation
 from blurtrack.detect.quality import add_quality
-from blurtrack.io import streaks
+from blurtrack.io import atomic, streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
     "crossing": "bool",
@@ -41,20 +47,25 @@ EXTRA_COLUMNS: dict[str, str] = {
 }
 
 
-def _nested_lists(arrays: Sequence[np.ndarray], decimals: int) -> list[list]:
-    """Per-streak arrays rounded and turned into Python lists (one rounding and one
-    ``tolist`` for the whole frame, then sliced)."""
-    if not arrays:
-        return []
-    flat = np.round(np.concatenate(arrays), decimals).tolist()
-    ends = np.cumsum([len(a) for a in arrays]).tolist()
-    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
+    """Per-streak arrays rounded (one rounding for the whole frame), as an object array of
+    views of that one rounded array: no per-value Python floats, and the writer can hand
+    them to Parquet as flat buffers (:func:`write_table`)."""
+    out = np.empty(len(arrays), object)
+    if not len(arrays):
+        return out
+    flat = np.round(np.concatenate(arrays), decimals)
+    for i, cell in enumerate(np.split(flat, np.cumsum([len(a) for a in arrays])[:-1])):
+        out[i] = cell
+    return out
 
 
-def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation) -> pd.DataFrame:
-    """The rows of one frame, ``fs`` already oriented (end A = start)."""
+def frame_columns(
+    frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
+) -> dict[str, Any]:
+    """The rows of one frame as columns (arrays; ``orientation_source`` a list), ``fs``
+    already oriented (end A = start); :func:`build_table` joins them."""
     N = len(fs)
-    pts = _nested_lists(fs.points, 4)
     data = {
         "frame": np.full(N, frame, np.int64),
         "timestamp_ns": np.full(N, timestamp_ns, np.int64),
@@ -64,8 +75,8 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
         "end_x": fs.end_b[:, 0],
         "end_y": fs.end_b[:, 1],
         "length_px": fs.length_px,
-        "centerline": pts,
-        "profile": _nested_lists(fs.profile, 6),
+        "centerline": _cells(fs.points, 4),
+        "profile": _cells(fs.profile, 6),
         "orientation_confidence": ori.confidence,
         "orientation_source": list(ori.source),
         "clipped": fs.flags["clipped"],
@@ -84,24 +95,105 @@ def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
     # Evidence for the recorded orientation (the LLRs were for the unswapped end A).
     signed = np.where(ori.swap[:, None], -ori.llr, ori.llr) if N else np.zeros((0, 3))
     data["llr_gyro"], data["llr_profile"], data["llr_continuity"] = signed.T
+    return data
+
+
+def frame_rows(frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation) -> pd.DataFrame:
+    """The rows of one frame, ``fs`` already oriented (end A = start)."""
+    return pd.DataFrame(frame_columns(frame, timestamp_ns, fs, ori))
+
+
+def _join(parts: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """One DataFrame of the columns of ``parts`` (:func:`frame_columns`), as ``pd.concat``
+    of their frames would give, without building a DataFrame per frame."""
+    data = {
+        c: [v for p in parts for v in p[c]]
+        if isinstance(parts[0][c], list)
+        else np.concatenate([p[c] for p in parts])
+        for c in parts[0]
+    }
     return pd.DataFrame(data)
 
 
-def build_table(parts: Sequence[pd.DataFrame]) -> pd.DataFrame:
-    """Concatenate per-frame rows into a validated table (empty table if none)."""
-    parts = [p for p in parts if len(p)]
+def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFrame:
+    """Concatenate per-frame rows (:func:`frame_rows` or :func:`frame_columns`) into a
+    validated table (empty table if none)."""
+    parts = [p for p in parts if len(p["frame"])]
     if not parts:
         df = streaks.empty()
         for c, dt in EXTRA_COLUMNS.items():
             df[c] = pd.Series(dtype=dt)
         return df
-    df = add_quality(pd.concat(parts, ignore_index=True))
+    if all(isinstance(p, Mapping) for p in parts):
+        joined = _join([p for p in parts if isinstance(p, Mapping)])
+    else:
+        frames = [p if isinstance(p, pd.DataFrame) else pd.DataFrame(p) for p in parts]
+        joined = pd.concat(frames, ignore_index=True)
+    df = add_quality(joined)
     return streaks.validate(df)
 
 
+#: The list columns and their Arrow types (what pandas infers from lists of floats).
+_LIST_TYPES = {"centerline": 2, "profile": 1}
+
+
+def _list_array(cells: Sequence[np.ndarray], ndim: int) -> Any:
+    """An Arrow ``list<double>`` (``ndim`` 1) or ``list<list<double>>`` (``ndim`` 2, rows of
+    ``(n, 2)`` points) array from per-row float64 arrays, through flat buffers."""
+    import pyarrow as pa
+
+    sizes = np.fromiter(map(len, cells), np.int64, len(cells))
+    offsets = np.zeros(sizes.size + 1, np.int32)
+    np.cumsum(sizes, out=offsets[1:])
+    flat = np.concatenate(cells) if len(cells) else np.zeros((0, 2) if ndim == 2 else 0)
+    values = pa.array(flat.reshape(-1), pa.float64())
+    if ndim == 2:
+        pairs = np.arange(0, 2 * flat.shape[0] + 1, 2, dtype=np.int32)
+        values = pa.ListArray.from_arrays(pa.array(pairs), values)
+    return pa.ListArray.from_arrays(pa.array(offsets), values)
+
+
+def _is_cells(column: pd.Series, ndim: int) -> bool:
+    """Whether every cell is a float64 array of points (``ndim`` 2) or values (1)."""
+    return all(
+        isinstance(c, np.ndarray)
+        and c.dtype == np.float64
+        and c.ndim == ndim
+        and (ndim == 1 or c.shape[1] == 2)
+        for c in column.to_numpy(object)
+    )
+
+
+def to_arrow(df: pd.DataFrame) -> Any:
+    """``df`` (validated) as the Arrow table that ``DataFrame.to_parquet`` would write (the
+    same schema and pandas metadata), with the list columns built from flat buffers when
+    their cells are arrays (:func:`frame_rows`): converting lists of Python floats costs more
+    than the rest of writing. Other tables go through ``pa.Table.from_pandas`` as a whole."""
+    import pyarrow as pa
+
+    lists = [c for c in _LIST_TYPES if c in df.columns]
+    if not len(df) or not all(_is_cells(df[c], _LIST_TYPES[c]) for c in lists):
+        return pa.Table.from_pandas(df, preserve_index=False)
+    rest = pa.Table.from_pandas(df.drop(columns=lists), preserve_index=False)
+    arrays = {c: _list_array(df[c].to_numpy(object), _LIST_TYPES[c]) for c in lists}
+    fields = [
+        pa.field(c, arrays[c].type) if c in arrays else rest.schema.field(c) for c in df.columns
+    ]
+    schema = pa.schema(fields)
+    # pandas metadata as from_pandas writes it for these column types (from the empty head).
+    meta = pa.Table.from_pandas(df.iloc[:0], schema=schema, preserve_index=False).schema.metadata
+    columns = [arrays[c] if c in arrays else rest.column(c) for c in df.columns]
+    return pa.Table.from_arrays(columns, schema=schema.with_metadata(meta))
+
+
 def write_table(df: pd.DataFrame, path: str | Path) -> None:
-    """Write the table as Parquet, atomically (see :func:`blurtrack.io.streaks.write`)."""
-    streaks.write(df, path)
+    """Write the table as Parquet, atomically: the file :func:`blurtrack.io.streaks.write`
+    writes (validated, snappy), through :func:`to_arrow`."""
+    import pyarrow.parquet as pq
+
+    table = to_arrow(streaks.validate(df))
+    # a file handle, not a path: pyarrow cannot encode non-UTF-8 file names
+    atomic.write_atomic(path, lambda f: pq.write_table(table, f, compression="snappy"))
 
 
 def read_table(path: str) -> pd.DataFrame:

@@ -97,12 +97,15 @@ def estimate_timeshift(
     gyro: GyroTrace,
     search_s: float = 0.05,
     step_s: float = 0.003,
+    model_gyro: GyroTrace | None = None,
 ) -> TimeshiftEstimate | None:
     """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage,
     ``status="undetermined"`` (and no shift) if the cost does not depend on the shift.
 
     ``calib`` is a :class:`blurtrack.io.calibration.Calibration` (its ``timeshift_cam_imu_s``
-    is the initial guess), ``gyro`` a :class:`blurtrack.geometry.gyro.GyroTrace`.
+    is the initial guess), ``gyro`` a :class:`blurtrack.geometry.gyro.GyroTrace`;
+    ``model_gyro``: that trace already resampled as the blur model resamples it
+    (``gyro.upsampled(GYRO_UPSAMPLE)``, when the caller has it: it is not resampled again).
     """
     from blurtrack.geometry.blur_model import BlurModel
 
@@ -150,7 +153,12 @@ def estimate_timeshift(
         exposure_s=np.concatenate([np.full(len(sel), tm.exposure_s) for _, sel, tm in parts]),
     )
 
-    model = BlurModel(calib, gyro, max_substep_s=CUE_SUBSTEP_S, check_coverage=False)
+    if model_gyro is None:
+        model = BlurModel(calib, gyro, max_substep_s=CUE_SUBSTEP_S, check_coverage=False)
+    else:
+        model = BlurModel(
+            calib, model_gyro, max_substep_s=CUE_SUBSTEP_S, check_coverage=False, gyro_upsample=1
+        )
     t_lo_s = float(np.min(batch.frame_t_s)) + initial
     t_hi_s = float(np.max(batch.frame_t_s + batch.exposure_s)) + readout + initial
 

@@ -142,6 +142,30 @@ def test_continuity_orients_a_chain_of_streaks() -> None:
     assert ori.swap[0] and ori.source == ["continuity"] and ori.confidence[0] > 0.9
 
 
+def test_continuity_cache_gives_the_same_cues() -> None:
+    timings = [FrameTiming(0.012 * k, 0.010) for k in range(3)]
+    frames = [
+        _streaks([[10, 50], [60, 20]], [[20, 50], [70, 24]]),
+        _streaks([[32, 50], [72, 25]], [[22, 50], [82, 29]]),
+        _streaks([[34, 50], [84, 30]], [[44, 50], [94, 34]]),
+    ]
+    plain = continuity_cues(frames, timings)
+    cache: dict = {}
+    first = continuity_cues(frames, timings, cache=cache)
+    assert sorted(cache) == [0, 1, 2]
+    swaps = [np.array([False, False]), np.array([True, False]), np.array([False, False])]
+    again = continuity_cues(frames, timings, swaps, cache=cache)
+    for a, b, c, d in zip(
+        plain, first, again, continuity_cues(frames, timings, swaps), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(c, d)
+    # Negative control: the cache is what is used (a stale one changes the cues).
+    stale = {k: (-oa, -ob, sp) for k, (oa, ob, sp) in cache.items()}
+    moved = continuity_cues(frames, timings, cache=stale)
+    assert not all(np.array_equal(a, b) for a, b in zip(plain, moved, strict=True))
+
+
 def test_combine_without_evidence_is_undecided() -> None:
     ori = combine(np.zeros((2, 3)))
     assert not ori.swap.any()

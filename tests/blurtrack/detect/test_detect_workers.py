@@ -119,3 +119,60 @@ def test_16_bit_and_colour_sessions_match_gray(session_folder: Path, tmp_path: P
     assert len(a) == len(b)
     d = np.hypot(a.start_x - b.start_x, a.start_y - b.start_y)
     assert float(np.median(d)) < 0.05
+
+
+def test_meanwhile_runs_once_and_changes_nothing(session_folder: Path) -> None:
+    session = load_session(session_folder)
+    calls: list[int] = []
+    for workers in (1, 2):
+        res = detect_session(session, workers=workers, meanwhile=lambda: calls.append(1))
+        assert len(calls) == workers  # once per run, with or without worker processes
+        assert res.summary["gyro_timeshift_status"] == "found"
+    pd.testing.assert_frame_equal(res.table, detect_session(session).table, check_exact=True)
+
+
+def test_timeshift_scan_with_the_resampled_trace_given_is_the_same(session_folder: Path) -> None:
+    from blurtrack.detect.orientation import FrameTiming
+    from blurtrack.detect.timeshift import estimate_timeshift
+    from blurtrack.geometry.gyro import GYRO_UPSAMPLE
+
+    session = load_session(session_folder)
+    res = detect_session(session, gyro="off")
+    timings = [
+        FrameTiming(float(t), float(e))
+        for t, e in zip(session.frame_times_s, session.exposures_s, strict=True)
+    ]
+    calib, trace = session.initial_calibration(), session.gyro()
+    plain = estimate_timeshift(res.frames, timings, calib, trace)
+    given = estimate_timeshift(
+        res.frames, timings, calib, trace, model_gyro=trace.upsampled(GYRO_UPSAMPLE)
+    )
+    assert plain is not None and given is not None and plain.status == "found"
+    np.testing.assert_array_equal(plain.cost, given.cost)
+    assert plain.timeshift_s == given.timeshift_s
+    # Negative control: a trace resampled otherwise gives other costs.
+    other = estimate_timeshift(res.frames, timings, calib, trace, model_gyro=trace.upsampled(2))
+    assert other is not None and not np.array_equal(other.cost, plain.cost)
+
+
+def test_frames_pickle_back_unchanged(session_folder: Path) -> None:
+    import pickle
+
+    from blurtrack.detect.frame import _pack, _unpack
+
+    fs = detect_session(load_session(session_folder), gyro="off").frames[0]
+    back = pickle.loads(pickle.dumps(fs, protocol=pickle.HIGHEST_PROTOCOL))
+    assert len(back) == len(fs) > 5
+    for name in ("points", "profile"):
+        a, b = getattr(fs, name), getattr(back, name)
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert x.dtype == y.dtype and x.shape == y.shape
+            np.testing.assert_array_equal(x, y)
+    for name in ("end_a", "end_b", "time_mid", "plateau", "length_px", "width_px", "snr"):
+        np.testing.assert_array_equal(getattr(fs, name), getattr(back, name))
+    # Arrays that do not share a dtype stay a list (and come back as they were).
+    mixed = [np.zeros((3, 2)), np.zeros((2, 2), np.float32)]
+    assert isinstance(_pack(mixed), list)
+    assert [x.dtype for x in _unpack(_pack(mixed))] == [np.float64, np.float32]
+    assert isinstance(_pack([np.zeros(3), np.ones(4)]), tuple)

@@ -1,0 +1,107 @@
+"""The streak table's fast paths give what the plain ones give: the Parquet file built from
+flat buffers is byte for byte the one ``DataFrame.to_parquet`` writes from lists, and the
+array-based quality columns equal a per-frame DataFrame computation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blurtrack.detect import quality
+from blurtrack.detect.session import detect_session
+from blurtrack.detect.table import read_table, to_arrow, write_table
+from blurtrack.io import streaks
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
+    folder = tmp_path_factory.mktemp("tablefast") / "s"
+    write_synthetic_session(folder, n_frames=3, seed=7)
+    return detect_session(load_session(folder)).table
+
+
+def _as_lists(df: pd.DataFrame) -> pd.DataFrame:
+    """The table as earlier versions built it: list cells of Python floats."""
+    out = df.copy()
+    for c in ("centerline", "profile"):
+        out[c] = pd.Series([np.asarray(v).tolist() for v in out[c]], dtype=object)
+    return out
+
+
+def test_cells_are_the_rounded_lines(table: pd.DataFrame) -> None:
+    assert len(table) > 10
+    for cl, pr in zip(table["centerline"], table["profile"], strict=True):
+        assert cl.shape == (len(pr), 2) and cl.dtype == pr.dtype == np.float64
+        np.testing.assert_array_equal(cl, np.round(cl, 4))
+        np.testing.assert_array_equal(pr, np.round(pr, 6))
+
+
+def test_parquet_bytes_equal_the_pandas_writer(table: pd.DataFrame, tmp_path: Path) -> None:
+    fast, plain = tmp_path / "fast.parquet", tmp_path / "plain.parquet"
+    write_table(table, fast)
+    streaks.write(_as_lists(table), plain)
+    assert fast.read_bytes() == plain.read_bytes()
+    back = read_table(str(fast))
+    assert len(back) == len(table)
+    for a, b in zip(back["centerline"], table["centerline"], strict=True):
+        np.testing.assert_array_equal(np.stack(list(a)), b)
+    # Negative control: one coordinate moved by the last kept decimal changes the file.
+    moved = _as_lists(table)
+    moved.at[3, "centerline"] = [
+        [x + 1e-4 * (i == 0), y] for i, (x, y) in enumerate(moved.at[3, "centerline"])
+    ]
+    streaks.write(moved, tmp_path / "moved.parquet")
+    assert (tmp_path / "moved.parquet").read_bytes() != plain.read_bytes()
+
+
+def test_list_cells_take_the_general_path(table: pd.DataFrame) -> None:
+    lists = _as_lists(streaks.validate(table))
+    assert to_arrow(lists).equals(to_arrow(streaks.validate(table)), check_metadata=True)
+
+
+def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
+    """Per frame, from that frame's DataFrame rows (the definition in quality's docstring)."""
+    out = table.copy()
+    dev = np.full(len(out), np.nan)
+    thick = np.zeros(len(out), bool)
+    ok = np.zeros(len(out), bool)
+    for _, d in out.groupby("frame", sort=False):
+        rows = d.index.to_numpy()
+        v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+        flagged = (d["clipped"] | d["merged"] | d["crossing"] | d["looped"]).to_numpy(bool)
+        width = d["width_px"].to_numpy(float)
+        sat = d["saturated"].to_numpy(bool)
+        ref = width[~sat & np.isfinite(width)]
+        ref = ref if ref.size else width[np.isfinite(width)]
+        w0 = float(np.median(ref)) if ref.size else np.nan
+        with np.errstate(invalid="ignore"):
+            th = sat & (width > quality.THICK_WIDTH_RATIO * w0)
+        good = ~(flagged | th)
+        field = quality.consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), good)
+        if field is not None:
+            dev[rows] = field.dev
+            good = good & (field.dev <= quality.shape_tolerance(field.c))
+        thick[rows], ok[rows] = th, good
+    out["shape_deviation_px"], out["thick_saturated"], out["quality_ok"] = dev, thick, ok
+    return out
+
+
+def test_quality_columns_equal_the_per_frame_definition(table: pd.DataFrame) -> None:
+    base = table.drop(columns=["shape_deviation_px", "thick_saturated", "quality_ok"])
+    fast = quality.add_quality(base)
+    ref = _quality_reference(base)
+    assert np.isfinite(fast["shape_deviation_px"]).sum() > 10
+    for c in ("shape_deviation_px", "thick_saturated", "quality_ok"):
+        np.testing.assert_array_equal(fast[c].to_numpy(), ref[c].to_numpy())
+    # Negative control: a streak bent far from its frame's consensus changes its columns.
+    bent = base.copy()
+    k = int(np.flatnonzero(fast["quality_ok"].to_numpy())[0])
+    bent.loc[k, "end_x"] += 25.0
+    moved = quality.add_quality(bent)
+    assert moved.loc[k, "shape_deviation_px"] > fast.loc[k, "shape_deviation_px"] + 10
+    assert not moved.loc[k, "quality_ok"]
