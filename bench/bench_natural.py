@@ -46,7 +46,8 @@ def run_seed(
     first: Path | None = None
     for rate in rates:
         sess = root / f"{tag}{seed}_{int(rate)}"
-        sim = simulate(sess, seed, rate, args, drive, frames_from=first)
+        frames = args.drive_frames if driving else args.frames
+        sim = simulate(sess, seed, rate, frames, args, drive, frames_from=first)
         first = first or sess
         rec: dict[str, Any] = {"seed": seed, "rate_hz": rate, "simulate_wall_s": sim["wall_s"]}
         rec["frames_rendered"] = sess == first
@@ -62,16 +63,17 @@ def run_seed(
 def report(
     args: argparse.Namespace, cases: dict[str, list[dict[str, Any]]], t0: float
 ) -> dict[str, Any]:
-    video_s = args.frames / 30.0
     out: dict[str, Any] = {
         "config": vars(args),
-        "video_s": video_s,
         "elapsed_s": time.perf_counter() - t0,
         "cases": {},
         "records": cases,
     }
     for name, recs in cases.items():
-        out["cases"][name] = summarise(recs, video_s, driving=name.startswith("driving"))
+        driving = name.startswith("driving")
+        video_s = (args.drive_frames if driving else args.frames) / 30.0
+        out["cases"][name] = summarise(recs, video_s, driving=driving)
+        out["cases"][name]["video_s"] = video_s
         out["cases"][name]["seeds"] = sorted({r["seed"] for r in recs})
     return out
 
@@ -88,6 +90,12 @@ def main() -> None:
         default="",
         help="seeds of the driving case: a list 0,1 or a range 0-1 (none)",
     )
+    ap.add_argument(
+        "--drive-frames",
+        type=int,
+        default=30,
+        help="frames of the driving case (default 30: 10 s at 3 m/s would reach the plane)",
+    )
     ap.add_argument("--drive-rates", default="200", help="gyro rates of the driving case")
     ap.add_argument("--depth-m", type=float, default=8.0, help="driving: plane distance")
     ap.add_argument("--speed-mps", type=float, default=3.0, help="driving: forward speed")
@@ -97,6 +105,7 @@ def main() -> None:
     )
     ap.add_argument("--translation", default="auto", choices=("none", "auto", "per-pair", "travel"))
     ap.add_argument("--fit", default=None, help="--fit for calibrate (default: natural's)")
+    ap.add_argument("--axes", default=None, choices=("search", "session"), help="calibrate --axes")
     ap.add_argument("--workers", type=int, default=1, help="simulation worker processes")
     ap.add_argument("--budget-s", type=float, default=None, help="start no seed after this")
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")

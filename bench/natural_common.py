@@ -57,6 +57,7 @@ def simulate(
     folder: Path,
     seed: int,
     rate: float,
+    frames: int,
     args: Any,
     drive: dict[str, float] | None = None,
     frames_from: Path | None = None,
@@ -64,7 +65,7 @@ def simulate(
     """One session; ``frames_from``: a session of the same seed at another gyro rate whose
     frames it shares (checked by re-rendering two of them). Returns its timing."""
     t0 = time.perf_counter()
-    rig = NaturalRig(preset_for(args.width, args.height, rate), seed, args.frames, **(drive or {}))
+    rig = NaturalRig(preset_for(args.width, args.height, rate), seed, frames, **(drive or {}))
     summ = write_session(rig, folder, workers=args.workers, frames_from=frames_from)
     return {"wall_s": time.perf_counter() - t0, "render_s": summ["seconds"]["render"]}
 
@@ -75,6 +76,7 @@ def calibrate(sess: Path, out_dir: Path, args: Any) -> dict[str, Any]:
     out = out_dir / "calib.yaml"
     cmd = [sys.executable, "-m", "blurtrack", "calibrate", str(sess), "--out", str(out)]
     cmd += ["--translation", args.translation] + (["--fit", args.fit] if args.fit else [])
+    cmd += ["--axes", args.axes] if args.axes else []
     out_dir.mkdir(parents=True, exist_ok=True)
     err_path = out_dir / "stderr.txt"
     t0 = time.perf_counter()

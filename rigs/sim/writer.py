@@ -37,9 +37,10 @@ def _render_chunk(times_ns: list[int]) -> list[np.ndarray]:
 
 
 def rendered_frames(rig: SimRig, workers: int = 1) -> Generator[np.ndarray, None, None]:
-    """Every frame of ``rig`` in order, rendered by ``workers`` processes (forked, chunks of
-    :data:`CHUNK_FRAMES`). Each frame depends on its timestamp only (its noise stream is keyed
-    by it), so the frames are identical whatever ``workers``."""
+    """Every frame of ``rig`` in order, rendered by ``workers`` processes (spawned, each with a
+    pickled copy of the rig: forking a process whose OpenCV threads have run can deadlock;
+    chunks of :data:`CHUNK_FRAMES`). Each frame depends on its timestamp only (its noise
+    stream is keyed by it), so the frames are identical whatever ``workers``."""
     times = [int(t) for t in rig.frame_times_ns]
     if not 1 <= int(workers) <= MAX_WORKERS:
         raise SimError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
@@ -48,7 +49,7 @@ def rendered_frames(rig: SimRig, workers: int = 1) -> Generator[np.ndarray, None
             yield rig.render_frame(t * 1e-9)
         return
     chunks = [times[i : i + CHUNK_FRAMES] for i in range(0, len(times), CHUNK_FRAMES)]
-    ctx = multiprocessing.get_context("fork")
+    ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
         int(workers), mp_context=ctx, initializer=_init_worker, initargs=(rig,)
     ) as pool:
