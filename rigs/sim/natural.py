@@ -18,7 +18,12 @@ views at the sub-times ``t_row + exposure · (k + ½) / n`` of each row (rolling
 ``distortion_coeffs: ()``.
 
 Per row the texture coordinates are ratios of functions linear in the column ``u``
-(``w = u · A_row + B_row``), so a sub-view costs a few array operations and one ``cv2.remap``.
+(``w = u · A_row + B_row``): :mod:`rigs.sim.natural_render` evaluates all sub-views of a band
+of rows at once and samples them with one ``cv2.remap`` per band;
+:meth:`NaturalRig.reference_electrons` is the one-sub-view-at-a-time formulation it is tested
+against (float32 rounding apart). The midpoint sum over sub-views is within ~1 DN (8-bit) of
+the exposure integral (tests/rigs/sim/test_sim_natural_render.py measures it against 8x finer
+sub-views).
 """
 
 from __future__ import annotations
