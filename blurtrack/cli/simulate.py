@@ -78,6 +78,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=0.0,
         help="--target natural: drive towards the plane at this speed (needs --depth-m)",
     )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="render frames in this many processes (default 1; the session is identical "
+        "for any number)",
+    )
     p.set_defaults(func=run)
 
 
@@ -122,7 +129,9 @@ def run(args: argparse.Namespace) -> int:
         rig = SimRig(preset, args.seed, args.frames, shake=args.shake)
     with Progress("simulate", "frame", args.quiet) as bar, atomic_dir(out) as tmp:
         # a failure (full disk, Ctrl-C) leaves no half session
-        summary = dict(write_session(rig, tmp, progress=bar), session=str(out))
+        summary = dict(
+            write_session(rig, tmp, progress=bar, workers=args.workers), session=str(out)
+        )
     write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")
