@@ -123,6 +123,8 @@ def main() -> None:
         jobs = jobs[:2] + [(s, True) for s in dseeds] + jobs[2:]
     cases: dict[str, list[dict[str, Any]]] = {}
     t0 = time.perf_counter()
+    if args.root is not None:
+        args.root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.root) as tmp:
         root = Path(tmp) if not args.keep else (args.root or Path(tmp))
         for seed, driving in jobs:
