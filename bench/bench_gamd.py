@@ -13,6 +13,8 @@
 
 Prints one JSON object; also writes OUT/results.json and OUT/results.md. Budget options
 (--steps, --count-*) scale it from a smoke run to the hour-long run on 2 cores.
+``--shipped`` instead evaluates the shipped weights against issue 19's targets, near-still
+sets included (bench/gamd_shipped.py).
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+from gamd_shipped import add_arguments, shipped  # noqa: E402
 
 NETS = ("gamd", "gamd_only", "mimo_unet", "mimo_pro")
 #: Smallest clean heat-map gain (dB) whose surviving share is reported.
@@ -81,94 +86,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--eval-limit", type=int, default=None)
     p.add_argument("--time-repeats", type=int, default=3)
     p.add_argument("--time-paper", action="store_true", help="also time the paper-size nets")
-    p.add_argument(
-        "--shipped",
-        action="store_true",
-        help="evaluate the shipped weights (gamd/weights) on BSDS500 test at 256² and 512² "
-        "against the issue's targets instead of training the four networks",
-    )
-    p.add_argument("--shipped-count-256", type=int, default=100)
-    p.add_argument("--shipped-count-512", type=int, default=60)
-    p.add_argument(
-        "--shipped-gamd", type=Path, default=None, help="with --shipped: these GAMD weights instead"
-    )
+    add_arguments(p)
     return p.parse_args(argv)
-
-
-#: The shipped-weights test sets: (split, size, focal px, seed, max blur of the target bin).
-SHIPPED_TESTS = (("test256", (256, 256), 1500.0, 2, 30.0), ("test512", (512, 512), 3000.0, 3, 60.0))
-#: Targets (issue 19): median PSNR gain over the input in the target bin, per size.
-SHIPPED_TARGET_DB = {"test256": 2.0, "test512": 1.0}
-NEAR_STILL_TARGET_DB = 45.0
-
-
-def shipped(args: argparse.Namespace) -> dict:
-    """Shipped GAMD and its twin on BSDS500 test with real shake: binned gains over the input,
-    the working resolution against full-size restoration, and the issue's targets."""
-    import time as _time
-
-    from gamd.checkpoint import load_model
-    from gamd.data import DeblurDataset
-    from gamd.evaluate import evaluate, gain_stats, gain_table
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/train_shipped.py
-    from train_shipped import link_split, synth
-
-    from gamd.weights import shipped_weights
-
-    bg = args.shared / "backgrounds" / "bsds500" / "test"
-    data = args.out / "data"
-    counts = {"test256": args.shipped_count_256, "test512": args.shipped_count_512}
-    out: dict = {"tests": {}}
-    files = {n: shipped_weights(n) for n in ("gamd", "gamd_only")}
-    files["gamd"] = args.shipped_gamd or files["gamd"]
-    nets = {n: load_model(f) for n, f in files.items()}
-    out["weights"] = {n: {"step": v[2], "file": str(files[n])} for n, v in nets.items()}
-    tables = []
-    for split, size, focal, seed, max_blur in SHIPPED_TESTS:
-        t0 = _time.perf_counter()
-        synth(bg, args.out / "synth" / split, size, focal, seed, counts[split], args.shared)
-        link_split(args.out / "synth" / split, data / split, split)
-        entry: dict = {"size": list(size), "focal_px": focal, "synth_s": _time.perf_counter() - t0}
-        variants = [("gamd", True), ("gamd", False), ("gamd_only", True)]
-        for name, work in variants:
-            model, cfg, _ = nets[name]
-            opts = cfg.data.restore_options()
-            ds = DeblurDataset(
-                data, split, crop=None, augment=False, heat_scale_px=opts.heat_scale_px
-            )
-            t1 = _time.perf_counter()
-            res = evaluate(model, ds, options=opts, work=work, limit=args.eval_limit)
-            key = name if work else f"{name} (full size, no working resolution)"
-            target_rows = [
-                r for r in res.rows if r["bin"] != "near-still" and r["blur_length_px"] <= max_blur
-            ]
-            still = [r for r in res.rows if r["bin"] == "near-still"]
-            entry[key] = {
-                "eval_s": _time.perf_counter() - t1,
-                "bins": res.bins,
-                "blurred": res.blurred,
-                "overall": res.overall,
-                f"target_bin_le_{max_blur:g}px": gain_stats(target_rows),
-                "near_still_min_psnr_db": min((r["psnr_db"] for r in still), default=None),
-            }
-            tables.append(f"### {split} {key}\n\n{gain_table(res)}\n")
-        tgt = entry["gamd"][f"target_bin_le_{max_blur:g}px"]
-        twin = entry["gamd_only"][f"target_bin_le_{max_blur:g}px"]
-        still_min = entry["gamd"]["near_still_min_psnr_db"]
-        entry["targets"] = {
-            "median_gain_db": tgt.get("median_psnr_gain_db"),
-            "target_db": SHIPPED_TARGET_DB[split],
-            "met": bool(tgt.get("count"))
-            and tgt["median_psnr_gain_db"] >= SHIPPED_TARGET_DB[split],
-            "gamd_ahead_of_twin": bool(tgt.get("count"))
-            and tgt["median_psnr_gain_db"] > twin["median_psnr_gain_db"],
-            "near_still_min_psnr_db": still_min,
-            "near_still_met": still_min is None or still_min >= NEAR_STILL_TARGET_DB,
-        }
-        out["tests"][split] = entry
-    out["tables"] = "\n".join(tables)
-    return out
 
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> None:

@@ -38,11 +38,22 @@ TRAIN_SETS = (
     ("val_f600", "val", 600.0, 0, 100),
     ("val_f2400", "val", 2400.0, 1, 100),
 )
+#: More triplets between the two cameras (blur of about 0-20 px: working scales 1-2.5, where
+#: the 600 px camera gives none and the 2400 px one few), from the same BSDS500 train and val
+#: photos with new shake segments and crops; with TRAIN_SETS they form the split
+#: ``train_ft3`` of the third fine-tune stage.
+EXTRA_SETS = (
+    ("train_f1200", "train", 1200.0, 4, 200),
+    ("val_f1200", "val", 1200.0, 4, 100),
+)
 SIZE = (256, 256)
 #: Shipped weights file -> the training run (``OUT/runs/<run>``) whose last checkpoint it is.
 EXPORT_RUNS = {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
+#: Self-ensemble size written into both shipped files' ``data.ensemble`` at export (inference
+#: only: ``gamd eval`` and ``gamd deblur`` average over the 4 flips unless ``--ensemble``).
+EXPORT_ENSEMBLE = 4
 #: Runs ``train --net`` knows, each from ``configs/gamd/shipped_<run>.yaml``.
-RUNS = ("gamd", "gamd_finetune", "gamd_finetune2", "gamd_only")
+RUNS = ("gamd", "gamd_finetune", "gamd_finetune2", "gamd_finetune3", "gamd_only")
 
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Path:
@@ -97,25 +108,30 @@ def link_split(src: Path, dst_split: Path, tag: str) -> int:
 
 
 def build_data(out: Path = OUT, shared: Path = SHARED) -> Path:
-    """The training split of the shipped weights at ``out/data/train``."""
+    """The training splits of the shipped weights: ``out/data/train`` (TRAIN_SETS) and
+    ``out/data/train_ft3`` (TRAIN_SETS + EXTRA_SETS)."""
     bg = shared / "backgrounds" / "bsds500"
     if not bg.is_dir():
         raise GamdDataError(f"BSDS500 not found at {bg}")
-    for name, folder, focal, seed, count in TRAIN_SETS:
+    for name, folder, focal, seed, count in TRAIN_SETS + EXTRA_SETS:
         synth(bg / folder, out / "synth" / name, SIZE, focal, seed, count, shared)
-        link_split(out / "synth" / name, out / "data" / "train", name)
+        if (name, folder, focal, seed, count) in TRAIN_SETS:
+            link_split(out / "synth" / name, out / "data" / "train", name)
+        link_split(out / "synth" / name, out / "data" / "train_ft3", name)
     return out / "data"
 
 
 def export(out: Path = OUT, dest: Path | None = None) -> list[Path]:
-    """Copy each run's last checkpoint, weights only, to ``gamd/weights/<net>.pt``."""
+    """Copy each run's last checkpoint, weights only, to ``gamd/weights/<net>.pt``, with the
+    self-ensemble of :data:`EXPORT_ENSEMBLE`."""
     from gamd.checkpoint import export_weights
     from gamd.weights import SHIPPED, WEIGHTS_DIR
 
     written = []
     for net in SHIPPED:
         src = out / "runs" / EXPORT_RUNS[net] / "checkpoints" / "last.pt"
-        written.append(export_weights(src, (dest or WEIGHTS_DIR) / f"{net}.pt"))
+        dst = (dest or WEIGHTS_DIR) / f"{net}.pt"
+        written.append(export_weights(src, dst, {"ensemble": EXPORT_ENSEMBLE}))
     return written
 
 

@@ -103,10 +103,17 @@ def load_model(path: str | Path) -> tuple[DeblurNet, RunConfig, int]:
     return model, config, int(state["step"])
 
 
-def export_weights(src: str | Path, dst: str | Path) -> Path:
+def export_weights(src: str | Path, dst: str | Path, data_overrides: dict | None = None) -> Path:
     """A shippable copy of checkpoint ``src``: config, weights and step only (no optimiser,
-    scheduler or RNG state), float32, written atomically to ``dst``."""
+    scheduler or RNG state), float32, written atomically to ``dst``. ``data_overrides``
+    replace keys of the config's ``data`` section (inference-only ones such as ``ensemble``);
+    the result must still be a valid config."""
     state = load_checkpoint(src)
+    if data_overrides:
+        config = dict(state["config"])
+        config["data"] = {**config["data"], **data_overrides}
+        RunConfig.from_dict(config)  # refuse an override that makes the config invalid
+        state["config"] = config
     weights = {
         k: v.detach().float().contiguous() if v.is_floating_point() else v.contiguous()
         for k, v in state["model"].items()

@@ -79,6 +79,8 @@ def _eval(args: argparse.Namespace) -> int:
     ckpt = _checkpoint(args)
     model, config, step = load_model(ckpt)
     options = config.data.restore_options()
+    if args.ensemble is not None:
+        options = replace(options, ensemble=args.ensemble)
     dataset = DeblurDataset(
         args.data,
         args.split,
@@ -100,7 +102,7 @@ def _eval(args: argparse.Namespace) -> int:
         options=options,
         length_dataset=lengths,
     )
-    print(f"weights: {ckpt} ({config.model.name}, step {step})")
+    print(f"weights: {ckpt} ({config.model.name}, step {step}, self-ensemble {options.ensemble})")
     print(summary_table({f"{config.model.name}@{step}": res}))
     print("gain over the blurred input by median blur length (near-still: < 0.5 px):")
     print(gain_table(res))
@@ -120,6 +122,7 @@ def _deblur(args: argparse.Namespace) -> int:
         args.out,
         limit=args.limit,
         skip_missing=args.skip_missing,
+        ensemble=args.ensemble,
     )
     skipped = f", {len(s.skipped)} skipped (no heat map)" if s.skipped else ""
     print(
@@ -138,6 +141,14 @@ def _weights_options(p: argparse.ArgumentParser) -> None:
         choices=("gamd", "gamd_only"),
         default="gamd",
         help="which shipped weights without --checkpoint (default gamd)",
+    )
+    p.add_argument(
+        "--ensemble",
+        type=int,
+        choices=(1, 2, 4, 8),
+        default=None,
+        help="self-ensemble: average over this many flips/quarter turns (1: off; default: "
+        "the weights' own setting, 4 for the shipped ones)",
     )
 
 

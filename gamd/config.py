@@ -68,12 +68,16 @@ class DataConfig:
     gate_px: tuple[float, float] | None = None
     #: Resample off-centre (rolling-shutter) blur to the reference view (gamd.restorer.recentre).
     recentre: bool = True
+    #: Inference only: self-ensemble size (1, 2, 4, 8; gamd.restorer.ensemble_forward).
+    ensemble: int = 1
 
     def __post_init__(self) -> None:
         if not self.root:
             raise GamdConfigError("data.root is required")
         try:
-            check_restore_options(self.heat_scale_px, self.work_blur_px, self.gate_px)
+            check_restore_options(
+                self.heat_scale_px, self.work_blur_px, self.gate_px, self.ensemble
+            )
         except GamdConfigError as exc:
             raise GamdConfigError(f"data.{exc}") from None
         if self.gate_px is not None:
@@ -87,12 +91,15 @@ class DataConfig:
 
     def restore_options(self) -> RestoreOptions:
         """How inference must present images to a network trained on this data."""
-        return RestoreOptions(self.heat_scale_px, self.work_blur_px, self.gate_px, self.recentre)
+        return RestoreOptions(
+            self.heat_scale_px, self.work_blur_px, self.gate_px, self.recentre, self.ensemble
+        )
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Optimisation settings: Adam, multi-step learning rate, logging and checkpoints."""
+    """Optimisation settings: Adam, a multi-step or cosine learning rate, logging and
+    checkpoints."""
 
     out_dir: str
     steps: int = 1000
@@ -100,6 +107,10 @@ class TrainConfig:
     lr: float = 1e-4
     milestones: tuple[int, ...] = ()
     gamma: float = 0.5
+    #: Learning-rate schedule: "step" (x gamma at each milestone) or "cosine" (from lr down to
+    #: lr_min over the run's steps; milestones must then be empty).
+    schedule: str = "step"
+    lr_min: float = 0.0
     seed: int = 0
     loss: str = "auto"
     omega: float = 0.6
@@ -130,6 +141,12 @@ class TrainConfig:
             raise GamdConfigError(
                 f"train.milestones must be increasing steps >= 1, got {list(self.milestones)}"
             )
+        if self.schedule not in ("step", "cosine"):
+            raise GamdConfigError(f"train.schedule must be step or cosine, got {self.schedule!r}")
+        if self.schedule == "cosine" and self.milestones:
+            raise GamdConfigError("train.milestones must be empty with schedule cosine")
+        if not 0 <= self.lr_min < self.lr:
+            raise GamdConfigError(f"train.lr_min must be in [0, lr), got {self.lr_min!r}")
         if self.loss != "auto" and self.loss not in LOSSES:
             raise GamdConfigError(f"train.loss must be auto or one of {sorted(LOSSES)}")
         if self.num_workers < 0:

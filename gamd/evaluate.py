@@ -59,6 +59,13 @@ def psnr_ssim(pred_hwc: np.ndarray, sharp_hwc: np.ndarray) -> tuple[float, float
     return psnr, ssim
 
 
+def psnr_vs(a_hwc: np.ndarray, b_hwc: np.ndarray) -> float:
+    """PSNR (dB, data range 1) of ``a`` against ``b``; ``inf`` when they are identical (the
+    do-no-harm measure: output against input)."""
+    mse = float(np.mean((np.asarray(a_hwc, np.float64) - np.asarray(b_hwc, np.float64)) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+
 @torch.inference_mode()
 def restore(
     model: DeblurNet,
@@ -184,8 +191,9 @@ def evaluate(
         has_heat = dataset.triplets[i].heat is not None
         pred = restore(model, item["blur"], item["heat"], options, work=work)
         sharp = item["sharp"].permute(1, 2, 0).numpy()
-        p, s = psnr_ssim(pred.permute(1, 2, 0).numpy(), sharp)
-        bp, bs = psnr_ssim(item["blur"].permute(1, 2, 0).numpy(), sharp)
+        pred_hwc, blur_hwc = pred.permute(1, 2, 0).numpy(), item["blur"].permute(1, 2, 0).numpy()
+        p, s = psnr_ssim(pred_hwc, sharp)
+        bp, bs = psnr_ssim(blur_hwc, sharp)
         src = length_dataset.full(i) if length_dataset is not None else item
         scale = dataset.heat_scale_px if length_dataset is None else length_dataset.heat_scale_px
         length = median_length_px(src["heat"] * scale) if has_heat else math.nan
@@ -198,6 +206,7 @@ def evaluate(
                 "blur_ssim": bs,
                 "blur_length_px": length,
                 "bin": blur_bin(length),
+                "vs_input_psnr_db": psnr_vs(pred_hwc, blur_hwc),
             }
         )
 

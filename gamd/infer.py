@@ -8,7 +8,7 @@ inference sees the same scale as training.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -78,6 +78,7 @@ class DeblurSummary:
     frames: list[int] = field(default_factory=list)
     skipped: list[int] = field(default_factory=list)
     heat_scale_px: float = 0.0
+    ensemble: int = 1
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -90,16 +91,20 @@ def deblur_session(
     out_dir: str | Path,
     limit: int | None = None,
     skip_missing: bool = False,
+    ensemble: int | None = None,
 ) -> DeblurSummary:
     """Deblur the frames of ``session`` into ``out_dir/<timestamp_ns>.png``.
 
     ``heat_dir`` is ``blurtrack predict``'s output folder (or its ``heat`` subfolder); every
-    frame needs its heat map when the network uses them (no silent fallback).
+    frame needs its heat map when the network uses them (no silent fallback). ``ensemble``
+    overrides the checkpoint's self-ensemble size (:func:`gamd.restorer.ensemble_forward`).
     """
     from blurtrack.io.session import load_session
 
     model, config, _ = load_model(checkpoint)
     options = config.data.restore_options()
+    if ensemble is not None:
+        options = replace(options, ensemble=ensemble)
     needs_heat = model.uses_heat or options.needs_heat
     sess = load_session(session)
     heat_root = None
@@ -142,6 +147,7 @@ def deblur_session(
         frames=done,
         skipped=skipped,
         heat_scale_px=config.data.heat_scale_px,
+        ensemble=options.ensemble,
     )
     write_text_atomic(out / "summary.json", summary.to_json())
     return summary

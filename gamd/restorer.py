@@ -28,6 +28,11 @@ reference view, then restores as usual. When the largest offset is under
 :data:`RECENTRE_MIN_PX` (every global-shutter triplet: there ``m`` is only the Bézier fit
 error) nothing is resampled and the result is bit-identical to restoring without it.
 
+**Self-ensemble.** ``ensemble = n`` (1, 2, 4 or 8) runs the network on the first ``n`` of the
+eight flips and quarter turns of the working image, with heat maps transformed consistently
+(:mod:`gamd.heat`), undoes each transform on the output and averages, before the gate: ``n``
+times the network's cost, the same result for a network that is itself equivariant.
+
 Shapes: images ``(B, 3, H, W)`` in [0, 1], heat maps ``(B, 6, H, W)`` in pixels (DESIGN).
 """
 
@@ -40,6 +45,7 @@ import torch
 from torch.nn import functional
 
 from gamd.errors import GamdConfigError
+from gamd.heat import hflip, rot90, vflip
 
 #: Working-resolution images keep at least this many pixels on their short side.
 MIN_WORK_SIDE = 32
@@ -47,6 +53,19 @@ MIN_WORK_SIDE = 32
 RECENTRE_MIN_PX = 0.05
 #: Fixed-point iterations of the inverse warp ``x = y − m(x)`` (m is smooth: 3 are plenty).
 RECENTRE_ITERS = 3
+#: Transforms of the self-ensemble (horizontal flip, vertical flip, quarter turns), applied in
+#: that order; the first ``n`` are used for ``ensemble = n``.
+ENSEMBLE_TRANSFORMS = (
+    (False, False, 0),
+    (True, False, 0),
+    (False, True, 0),
+    (True, True, 0),
+    (False, False, 1),
+    (True, False, 1),
+    (False, True, 1),
+    (True, True, 1),
+)
+ENSEMBLE_SIZES = (1, 2, 4, 8)
 
 
 def blur_length_px(heat_px: torch.Tensor) -> torch.Tensor:
@@ -156,9 +175,11 @@ class RestoreOptions:
     gate_px: tuple[float, float] | None = None
     #: Resample off-centre (rolling-shutter) blur to the reference view first (:func:`recentre`).
     recentre: bool = True
+    #: Self-ensemble size (1: off): average over this many flips/quarter turns.
+    ensemble: int = 1
 
     def __post_init__(self) -> None:
-        check_restore_options(self.heat_scale_px, self.work_blur_px, self.gate_px)
+        check_restore_options(self.heat_scale_px, self.work_blur_px, self.gate_px, self.ensemble)
         if self.gate_px is not None:
             object.__setattr__(self, "gate_px", tuple(float(v) for v in self.gate_px))
 
@@ -169,9 +190,14 @@ class RestoreOptions:
 
 
 def check_restore_options(
-    heat_scale_px: float, work_blur_px: float | None, gate_px: tuple[float, float] | None
+    heat_scale_px: float,
+    work_blur_px: float | None,
+    gate_px: tuple[float, float] | None,
+    ensemble: int = 1,
 ) -> None:
     """Range checks shared by :class:`RestoreOptions` and the data config."""
+    if type(ensemble) is not int or ensemble not in ENSEMBLE_SIZES:
+        raise GamdConfigError(f"ensemble must be one of {list(ENSEMBLE_SIZES)}, got {ensemble!r}")
     if not (isinstance(heat_scale_px, (int, float)) and math.isfinite(heat_scale_px)):
         raise GamdConfigError(f"heat_scale_px must be a finite number, got {heat_scale_px!r}")
     if heat_scale_px <= 0:
@@ -187,6 +213,33 @@ def check_restore_options(
             raise GamdConfigError(
                 f"gate_px must be [lo, hi] with 0 <= lo < hi <= 100 px, got {gate_px!r}"
             )
+
+
+def ensemble_forward(
+    model: torch.nn.Module, x: torch.Tensor, heat: torch.Tensor | None, ensemble: int = 1
+) -> torch.Tensor:
+    """The network's finest output for ``x (B, 3, H, W)`` (``heat``: its normalised input or
+    None), averaged over the first ``ensemble`` of :data:`ENSEMBLE_TRANSFORMS`."""
+    if ensemble == 1:
+        return model(x, heat)[0]
+    total = torch.zeros_like(x)
+    for flip_h, flip_v, turns in ENSEMBLE_TRANSFORMS[:ensemble]:
+        xt, ht = x, heat
+        if flip_h:
+            xt, ht = hflip(xt, ht)
+        if flip_v:
+            xt, ht = vflip(xt, ht)
+        if turns:
+            xt, ht = rot90(xt, ht, turns)
+        y = model(xt, ht)[0]
+        if turns:
+            y = torch.rot90(y, -turns, dims=(-2, -1))
+        if flip_v:
+            y = torch.flip(y, dims=(-2,))
+        if flip_h:
+            y = torch.flip(y, dims=(-1,))
+        total = total + y
+    return total / ensemble
 
 
 @torch.inference_mode()
@@ -208,7 +261,7 @@ def restore_image(
         raise GamdConfigError("this network and its restoration need heat maps")
     scale = 1.0
     if hp is None:  # a heat-free network without gate or working scale: restore as is
-        return model(x, None)[0][0].clamp(0.0, 1.0).cpu()
+        return ensemble_forward(model, x, None, options.ensemble)[0].clamp(0.0, 1.0).cpu()
     if options.recentre:
         (x,), hp = recentre([x], hp)
     if work and options.work_blur_px is not None:
@@ -219,7 +272,7 @@ def restore_image(
     else:
         xs, hs = x, hp
     net_heat = hs / options.heat_scale_px if model.uses_heat else None
-    out = model(xs, net_heat)[0]
+    out = ensemble_forward(model, xs, net_heat, options.ensemble)
     if options.gate_px is not None:
         out = apply_gate(out, xs, hs, options.gate_px)
     if scale > 1.0:

@@ -1,4 +1,4 @@
-"""Training as a plain function: Adam, multi-step learning rate, exact resume, CSV and
+"""Training as a plain function: Adam, multi-step or cosine learning rate, exact resume, CSV and
 TensorBoard logs, a progress bar, and data-parallel training under ``torchrun``.
 
 Distributed: when ``WORLD_SIZE > 1`` (torchrun sets it), :func:`train` joins the process group
@@ -22,7 +22,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from gamd.checkpoint import load_checkpoint, load_model, save_checkpoint
-from gamd.config import RunConfig
+from gamd.config import RunConfig, TrainConfig
 from gamd.data import DeblurDataset, StepBatchSampler
 from gamd.errors import CheckpointError, GamdConfigError, GamdDataError
 from gamd.losses import LOSSES
@@ -102,6 +102,15 @@ def _restore_state(state: dict, model, optimizer, scheduler, device, path) -> in
     return int(state["step"])
 
 
+def build_scheduler(
+    optimizer: torch.optim.Optimizer, tc: TrainConfig
+) -> torch.optim.lr_scheduler.LRScheduler:
+    """The learning-rate schedule of ``tc``, stepped once per training step."""
+    if tc.schedule == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, tc.steps, tc.lr_min)
+    return torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)
+
+
 def train(config: RunConfig, resume: str | Path | None = None, force: bool = False) -> TrainResult:
     """Train ``config``'s network for ``config.train.steps`` steps (total, resume included).
 
@@ -147,7 +156,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
         recentre=config.data.recentre,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=tc.lr)
-    scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, list(tc.milestones), tc.gamma)
+    scheduler = build_scheduler(optimizer, tc)
 
     start = 0
     if resume == "auto":

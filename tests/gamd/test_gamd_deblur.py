@@ -135,6 +135,35 @@ def test_frame_to_rgb_conventions() -> None:
     assert frame_to_rgb(np.full((2, 2), 255, np.uint8)).shape == (2, 2, 3)
 
 
+def test_deblur_ensemble_option_reaches_the_restoration(checkpoint, tmp_path) -> None:
+    """``--ensemble`` overrides the weights' own setting (1 here): the summary records it and
+    the frames differ from the plain ones (the 1-step network is not flip-equivariant)."""
+    session, pred, stamps = _session(tmp_path, False)
+    base = ["deblur", str(session), "--checkpoint", str(checkpoint), "--heat", str(pred)]
+    assert main([*base, "--out", str(tmp_path / "plain")]) == 0
+    assert main([*base, "--out", str(tmp_path / "ens"), "--ensemble", "4"]) == 0
+    plain = json.loads((tmp_path / "plain/summary.json").read_text())
+    ens = json.loads((tmp_path / "ens/summary.json").read_text())
+    assert plain["ensemble"] == 1 and ens["ensemble"] == 4
+    a = cv2.imread(str(tmp_path / "plain" / f"{stamps[0]}.png")).astype(int)
+    b = cv2.imread(str(tmp_path / "ens" / f"{stamps[0]}.png")).astype(int)
+    assert np.abs(a - b).max() > 0
+
+
+def test_export_sets_the_inference_ensemble_and_refuses_a_bad_one(checkpoint, tmp_path) -> None:
+    from gamd.checkpoint import export_weights, load_model
+    from gamd.errors import GamdConfigError
+
+    out = export_weights(checkpoint, tmp_path / "w.pt", {"ensemble": 4})
+    _, cfg, _ = load_model(out)
+    assert cfg.data.restore_options().ensemble == 4
+    _, plain, _ = load_model(export_weights(checkpoint, tmp_path / "p.pt"))
+    assert plain.data.ensemble == 1 and plain.data.heat_scale_px == cfg.data.heat_scale_px
+    with pytest.raises(GamdConfigError, match="ensemble"):
+        export_weights(checkpoint, tmp_path / "bad.pt", {"ensemble": 3})
+    assert not (tmp_path / "bad.pt").exists()
+
+
 def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
     from blurtrack.cli.demo import demo_train
 
