@@ -160,11 +160,10 @@ def equal_blur_tracks(
     calib: Calibration,
     gyro: GyroTrace,
 ) -> FeatureTracks:
-    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur`: each
-    frame's patch blurred by the other end's kernel (:func:`exposure_offsets` under
-    ``calib``), so that Lucas–Kanade compares equally blurred patches and the refined points
-    are mid-exposure positions. Frames are read again (once each); tracks whose refinement
-    fails are dropped.
+    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur` (pairs on
+    every core): each frame's patch blurred by the other end's kernel (:func:`exposure_offsets`
+    under ``calib``), so Lucas–Kanade compares equally blurred patches and the refined points
+    are mid-exposure positions. Tracks whose refinement fails are dropped.
 
     Lucas–Kanade between differently blurred frames is pulled along the difference of the two
     blurs: on a simulated 720p far scene (seed 0, 100 frames, truth) the tracked end erred by
@@ -172,6 +171,7 @@ def equal_blur_tracks(
     at small to 1.3 px at large blur differences; equally blurred, +0.00 and 0.17–0.70 px.
     """
     from blurtrack.features.equalblur import refine_equal_blur
+    from blurtrack.features.pairs import map_pairs
     from blurtrack.features.tracks import to_gray8
 
     t = np.asarray(frame_t_ns, np.int64) * 1e-9
@@ -181,16 +181,16 @@ def equal_blur_tracks(
     ob = exposure_offsets(tracks.pts_b, t[b], e[b], calib, gyro)
     pts_b = tracks.pts_b.copy()
     keep = np.zeros(len(tracks), bool)
-    cache: dict[int, np.ndarray] = {}
-    for f in np.unique(a):
-        sel = np.flatnonzero(a == f)
-        img_a = cache.pop(int(f), None)
-        img_a = to_gray8(read_frame(int(f))) if img_a is None else img_a
-        img_b = to_gray8(read_frame(int(f) + 1))
-        cache = {int(f) + 1: img_b}
-        pts_b[sel], keep[sel] = refine_equal_blur(
-            img_a, img_b, tracks.pts_a[sel], tracks.pts_b[sel], oa[sel], ob[sel]
-        )
+    firsts = np.unique(a)
+    sels = {int(f): np.flatnonzero(a == f) for f in firsts}
+
+    def refine(f: int, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = sels[f]
+        return refine_equal_blur(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
+
+    done = map_pairs(refine, lambda i: to_gray8(read_frame(i)), firsts)
+    for f, (p, k) in zip(firsts, done, strict=True):
+        pts_b[sels[int(f)]], keep[sels[int(f)]] = p, k
     return _subset(replace(tracks, pts_b=pts_b), keep)
 
 

@@ -175,33 +175,32 @@ def track_frames(
     n_frames: int,
     params: TrackParams = TrackParams(),
     progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
 ) -> FeatureTracks:
     """Tracks of every consecutive pair of ``n_frames`` frames read by ``read_frame(i)``.
 
-    Each frame is read once. Raises :class:`FeatureTrackError` for fewer than two frames.
+    Pairs are tracked on ``workers`` threads (default: every usable core; the tracks do not
+    depend on it, :mod:`blurtrack.features.pairs`). Raises :class:`FeatureTrackError` for
+    fewer than two frames.
     """
+    from blurtrack.features.pairs import map_pairs
+
     if n_frames < 2:
         raise FeatureTrackError(f"feature tracks need at least 2 frames, got {n_frames}")
-    fa, fb_, pa, pb, err, per = [], [], [], [], [], []
-    prev = to_gray8(read_frame(0))
-    for i in range(n_frames - 1):
-        cur = to_gray8(read_frame(i + 1))
-        a, b, e = track_pair(prev, cur, params)
-        fa.append(np.full(len(a), i))
-        fb_.append(np.full(len(a), i + 1))
-        pa.append(a)
-        pb.append(b)
-        err.append(e)
-        per.append(len(a))
-        prev = cur
-        if progress is not None:
-            progress(i + 1, n_frames - 1)
+    pairs = map_pairs(
+        lambda f, a, b: track_pair(a, b, params),
+        lambda i: to_gray8(read_frame(i)),
+        range(n_frames - 1),
+        workers,
+        progress,
+    )
+    fa = [np.full(len(a), i) for i, (a, _, _) in enumerate(pairs)]
     return FeatureTracks(
         np.concatenate(fa),
-        np.concatenate(fb_),
-        np.concatenate(pa),
-        np.concatenate(pb),
-        np.concatenate(err),
+        np.concatenate(fa) + 1,
+        np.concatenate([a for a, _, _ in pairs]),
+        np.concatenate([b for _, b, _ in pairs]),
+        np.concatenate([e for _, _, e in pairs]),
         int(n_frames),
-        np.array(per, dtype=np.int64),
+        np.array([len(a) for a, _, _ in pairs], dtype=np.int64),
     )

@@ -57,7 +57,7 @@ def test_track_frames_reads_each_frame_and_labels_pairs() -> None:
         return frames[i]
 
     tr = track_frames(read, 4)
-    assert reads == [0, 1, 2, 3]
+    assert sorted(reads) == [0, 1, 2, 3]  # each frame once (threads: any order)
     assert tr.n_frames == 4 and tr.per_pair.shape == (3,)
     assert np.all(tr.frame_b == tr.frame_a + 1)
     assert np.allclose(np.median(tr.pts_b - tr.pts_a, axis=0), [2.0, 0.5], atol=0.06)

@@ -1,0 +1,71 @@
+"""Work on consecutive frame pairs ``(f, f + 1)`` of a video, on all usable cores, in order.
+
+Threads, not processes: OpenCV's decoding, corner detection and Lucas–Kanade release the GIL,
+so two threads use two cores without pickling frames between processes (a 720p gray frame is
+0.9 MB; a process pool would copy each one twice). Frames are read in blocks, each frame once
+per block, so memory stays at about two blocks of frames however long the video is. The
+results are those of a plain loop, in the same order: each pair's work depends only on its
+two frames.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+#: Frame pairs handled per block (frames held in memory: about ``BLOCK + 1``).
+BLOCK = 16
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity mask), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def map_pairs(
+    fn: Callable[[int, np.ndarray, np.ndarray], T],
+    read_frame: Callable[[int], np.ndarray],
+    firsts: Sequence[int],
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[T]:
+    """``[fn(f, read_frame(f), read_frame(f + 1)) for f in firsts]`` (``firsts`` ascending),
+    with the reads and calls spread over ``workers`` threads (default: :func:`usable_cores`).
+
+    ``read_frame`` and ``fn`` are called from several threads at once; each frame is read once
+    per block of :data:`BLOCK` pairs. ``progress(done, total)`` is called after each block.
+
+    >>> frames = [np.full((2, 2), i) for i in range(4)]
+    >>> map_pairs(lambda f, a, b: int(b[0, 0] - a[0, 0]) * f, frames.__getitem__, [0, 1, 2])
+    [0, 1, 2]
+    """
+    firsts = [int(f) for f in firsts]
+    if any(b <= a for a, b in itertools.pairwise(firsts)):
+        raise ValueError("frame pairs must be given in ascending order of their first frame")
+    n = workers if workers is not None else usable_cores()
+    if n < 1:
+        raise ValueError(f"workers must be at least 1, got {n}")
+    out: list[T] = []
+    held: dict[int, np.ndarray] = {}
+    with ThreadPoolExecutor(max_workers=n) as pool:
+        for start in range(0, len(firsts), BLOCK):
+            block = firsts[start : start + BLOCK]
+            need = sorted(set(block) | {f + 1 for f in block})
+            held = {i: held[i] for i in need if i in held}
+            missing = [i for i in need if i not in held]
+            held.update(zip(missing, pool.map(read_frame, missing), strict=True))
+            frames = held
+            out.extend(pool.map(lambda f, h=frames: fn(f, h[f], h[f + 1]), block))
+            if progress is not None:
+                progress(len(out), len(firsts))
+    return out
