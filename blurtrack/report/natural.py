@@ -6,9 +6,8 @@ Three things a lab checks before trusting a calibration made from ordinary video
   (:mod:`blurtrack.features.tracks`) carried by the rotation model
   (:meth:`~blurtrack.geometry.blur_model.BlurModel.warp`) from its row's exposure midpoint in
   frame ``i`` to its row's in frame ``i + 1``; the error is the distance to where it was
-  tracked. (Raw tracks: the calibration itself also removes the blur-centroid low-pass of
-  about ``(2πF · exposure)² / 24`` of the motion, so these errors are slightly larger than the
-  fit's.)
+  tracked. (Raw tracks: the calibration refines its own by equal-blur Lucas–Kanade,
+  :mod:`blurtrack.features.equalblur`, so these errors are somewhat larger than the fit's.)
 * **The axis search**: the 24 proper signed axis permutations' scores from the fit summary
   (``axes``), the winner and its margin over the runner-up.
 * **Registered against gyro rotations**: per frame pair the rotation of the bearings
