@@ -22,12 +22,12 @@ Prints JSON. About 2 minutes on 2 busy CPU cores.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
+from json_out import emit
 
 from blurtrack.features import blur_estimate as be
 from blurtrack.synth.images import list_images, load_image, split_of
@@ -142,11 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "samples": rows,
     }
-    text = json.dumps(res, indent=1)
-    print(text)
-    if args.out:
-        args.out.write_text(text + "\n")
-    return 0
+    return emit(res, args.out, indent=1)
 
 
 if __name__ == "__main__":

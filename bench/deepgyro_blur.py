@@ -41,6 +41,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from json_out import emit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from deepgyro_deblur import DEEPGYRO_READOUT_S, DEFAULT_DATA, calibration, set_readout
@@ -434,11 +435,7 @@ def main(argv: list[str] | None = None) -> int:
                 from deepgyro_blur_figure import figure
 
                 result["figure"] = figure(args.figure, session, base, tiles, result[name], args)
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.out:
-        args.out.write_text(text + "\n")
-    return 0
+    return emit(result, args.out, indent=1)
 
 
 if __name__ == "__main__":

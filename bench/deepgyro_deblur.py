@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 import torch
 import yaml
+from json_out import emit
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "real" / "deepgyro-shield"
@@ -280,11 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         "skipped": summary["skipped"],
         "figure": str(args.figure) if fig_done else None,
     }
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out:
-        args.out.write_text(text + "\n")
-    return 0
+    return emit(result, args.out, indent=2)
 
 
 if __name__ == "__main__":

@@ -25,13 +25,13 @@ and the undirected distance ``min(|d − f|, |d + f|)`` DeepGyro's sign-normalis
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from json_out import emit
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "real" / "deepgyro-shield"
@@ -126,11 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         "intrinsics": list(calib.camera.intrinsics),
         "axis_margin": search.margin,
     }
-    text = json.dumps(res, indent=2)
-    print(text)
-    if args.out:
-        args.out.write_text(text + "\n")
-    return 0
+    return emit(res, args.out, indent=2)
 
 
 if __name__ == "__main__":

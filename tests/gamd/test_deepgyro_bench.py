@@ -4,6 +4,7 @@ DeepGyro SHIELD")."""
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import cv2
@@ -18,6 +19,8 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def bench():
     path = REPO / "bench" / "deepgyro_deblur.py"
+    if str(path.parent) not in sys.path:  # its sibling modules, as when run as a script
+        sys.path.insert(0, str(path.parent))
     spec = importlib.util.spec_from_file_location("deepgyro_deblur", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

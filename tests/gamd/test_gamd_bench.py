@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -99,6 +100,8 @@ def _fake_session(omega_radps: np.ndarray, readout_s: float):
 
 
 def test_heat_maps_are_not_forward_displacements() -> None:
+    if str(REPO / "bench") not in sys.path:  # its sibling modules, as when run as a script
+        sys.path.insert(0, str(REPO / "bench"))
     spec = importlib.util.spec_from_file_location("hvf", REPO / "bench" / "heat_vs_forward.py")
     hvf = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hvf)
