@@ -218,3 +218,31 @@ def test_tracks_refused_without_midpoints(session_dir, tmp_path: Path, capsys) -
     summ = json.loads((tmp_path / "c.summary.json").read_text())
     assert summ["residuals"] == "endpoints"
     assert any("no time midpoints" in w for w in summ["warnings"])
+
+
+def test_truth_rotation_is_the_one_the_gyro_data_define() -> None:
+    """``truth_values``: the gyro scale matrix's rotation factor belongs to the mounting
+    rotation (polar decomposition), its symmetric part to the scale entries."""
+    from types import SimpleNamespace
+
+    from blurtrack.geometry.camera import Camera
+    from blurtrack.geometry.rotation import so3_exp, so3_log
+    from calib.cli import truth_values
+
+    R = so3_exp(np.array([0.02, -0.01, 0.03]))
+    initial = Calibration(Camera((64, 48), (50.0, 50.0, 32.0, 24.0)))
+    truth = Calibration(Camera((64, 48), (50.0, 50.0, 32.0, 24.0)), R_cam_imu=R)
+    Q = so3_exp(np.array([0.0, 0.004, -0.003]))
+    P = np.eye(3) + np.diag([0.002, -0.001, 0.003])
+    sim = {"gyro": {"scale_matrix": (P @ Q).tolist()}}
+    tv = truth_values(
+        SimpleNamespace(truth={"calibration": truth.to_dict(), "simulator": sim}), initial
+    )
+    rot = np.array([tv["rot_x"], tv["rot_y"], tv["rot_z"]])
+    assert np.allclose(rot, so3_log(R @ Q.T), atol=1e-12)
+    # the symmetric part of M - I: P - I to first order (second-order terms ~1e-5)
+    assert abs(tv["scale_xx"] - 0.002) < 1e-4 and abs(tv["scale_zz"] - 0.003) < 1e-4
+    # negative control: without the scale matrix the truth is the stated rotation
+    plain = truth_values(SimpleNamespace(truth={"calibration": truth.to_dict()}), initial)
+    assert np.allclose([plain["rot_x"], plain["rot_y"], plain["rot_z"]], so3_log(R), atol=1e-12)
+    assert np.degrees(np.linalg.norm(rot - so3_log(R))) > 0.2
