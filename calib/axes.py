@@ -54,6 +54,10 @@ COARSE_STEP_S = 2e-3
 FINE_STEP_S = 2e-4
 
 
+#: A frame pair's rotation fit: ``(a, b, threshold_rad, seed) -> (R, inliers, translating)``.
+PairFit = Callable[[np.ndarray, np.ndarray, float, int], "tuple[np.ndarray, np.ndarray, bool]"]
+
+
 class AxisSearchError(CalibError):
     """The data cannot decide the camera–IMU axis mapping."""
 
@@ -139,6 +143,8 @@ class ImageRotations:
         R_img: ``(K, 3, 3)`` rotations with ``bearing_b ≈ R_img · bearing_a``.
         n_points: ``(K,)`` inlier point pairs behind each rotation.
         frame_a: ``(K,)`` index of the earlier frame.
+        translating: ``(K,)`` whether the rotation was measured with the camera's translation
+            as a nuisance (:mod:`calib.axes_translation`); all false when ``None``.
     """
 
     t_a_s: np.ndarray
@@ -146,9 +152,14 @@ class ImageRotations:
     R_img: np.ndarray
     n_points: np.ndarray
     frame_a: np.ndarray
+    translating: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         k = np.asarray(self.t_a_s).size
+        tr = np.zeros(k, bool) if self.translating is None else np.asarray(self.translating)
+        if tr.shape != (k,):
+            raise CalibError(f"image rotations: translating must have shape {(k,)}")
+        object.__setattr__(self, "translating", tr.astype(bool))
         for name, shape in (
             ("t_a_s", (k,)),
             ("t_b_s", (k,)),
@@ -173,6 +184,7 @@ def rotations_from_pairs(
     exposure_s: np.ndarray,
     camera: Camera,
     threshold_px: float = 2.0,
+    pair_fit: PairFit | None = None,
 ) -> ImageRotations:
     """Per-frame-pair rotations from matched points.
 
@@ -182,10 +194,12 @@ def rotations_from_pairs(
         pair: ``(N,)`` index ``a`` of the earlier frame of each match; the later frame is
             ``a + 1``; ``frame_t_s``/``exposure_s`` are indexed by frame.
         threshold_px: RANSAC inlier gate (converted to an angle with fx).
+        pair_fit: ``(a, b, threshold_rad, seed) -> (R, inliers, translating)`` on a pair's
+            unit bearings; default :func:`fit_rotation` (pure rotation).
     """
     fx = camera.intrinsics[0]
     H = camera.height
-    ta, tb, Rs, npts, fa = [], [], [], [], []
+    ta, tb, Rs, npts, fa, tr = [], [], [], [], [], []
     for f in np.unique(pair):
         sel = pair == f
         if np.count_nonzero(sel) < MIN_POINTS:
@@ -194,7 +208,11 @@ def rotations_from_pairs(
         bb = camera.unproject(pts_b[sel])
         ba /= np.linalg.norm(ba, axis=1, keepdims=True)
         bb /= np.linalg.norm(bb, axis=1, keepdims=True)
-        R, inl = fit_rotation(ba, bb, threshold_px / fx, seed=int(f))
+        if pair_fit is None:
+            R, inl = fit_rotation(ba, bb, threshold_px / fx, seed=int(f))
+            moved = False
+        else:
+            R, inl, moved = pair_fit(ba, bb, threshold_px / fx, int(f))
         if np.count_nonzero(inl) < MIN_POINTS:
             continue
         g = int(f) + 1
@@ -205,12 +223,15 @@ def rotations_from_pairs(
         Rs.append(R)
         npts.append(np.count_nonzero(inl))
         fa.append(f)
+        tr.append(moved)
     if len(ta) < MIN_PAIRS:
         raise AxisSearchError(
             f"too few frame pairs with {MIN_POINTS}+ matched points to measure rotations "
             f"({len(ta)}; need {MIN_PAIRS})"
         )
-    return ImageRotations(np.array(ta), np.array(tb), np.stack(Rs), np.array(npts), np.array(fa))
+    return ImageRotations(
+        np.array(ta), np.array(tb), np.stack(Rs), np.array(npts), np.array(fa), np.array(tr, bool)
+    )
 
 
 @dataclass(frozen=True)
@@ -336,6 +357,9 @@ def search_axes(
 
     shifts, scores = scan_candidates(score, shift0_s, window_s)
     ang = np.linalg.norm(rv_img, axis=1)
+    n_tr = int(np.count_nonzero(np.asarray(rots.translating, bool)[ok]))
+    if n_tr:
+        source += f" ({n_tr} of {int(np.count_nonzero(ok))} pairs with translation)"
     return ranked(shifts, scores, float(np.median(ang) * fx), int(np.count_nonzero(ok)), source)
 
 

@@ -301,16 +301,13 @@ def check_tracks(tracks: FeatureTracks) -> None:
 def image_rotations(
     tracks: FeatureTracks, frame_t_ns: np.ndarray, exposure_ns: np.ndarray, initial: Calibration
 ) -> ImageRotations:
-    """Per-frame-pair rotations measured by the tracks (times relative to the first frame)."""
-    ts = np.asarray(frame_t_ns, np.int64)
-    return rotations_from_pairs(
-        tracks.pts_a,
-        tracks.pts_b,
-        tracks.frame_a,
-        (ts - ts[0]) * 1e-9,
-        np.asarray(exposure_ns, np.int64) * 1e-9,
-        initial.camera,
-    )
+    """Per-frame-pair rotations measured by the tracks (times relative to the first frame),
+    translation a nuisance where the data need it (:mod:`calib.axes_translation`)."""
+    from calib.axes_translation import fit_rotation_translating as fit
+
+    ts, e = np.asarray(frame_t_ns, np.int64), np.asarray(exposure_ns, np.int64) * 1e-9
+    t, cam = (ts - ts[0]) * 1e-9, initial.camera
+    return rotations_from_pairs(tracks.pts_a, tracks.pts_b, tracks.frame_a, t, e, cam, pair_fit=fit)
 
 
 def discover_axes(
