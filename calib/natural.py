@@ -188,7 +188,7 @@ def equal_blur_tracks(
         s = sels[f]
         return refine_equal_blur(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
 
-    done = map_pairs(refine, lambda i: to_gray8(read_frame(i)), firsts)
+    done = map_pairs(refine, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
     for f, (p, k) in zip(firsts, done, strict=True):
         pts_b[sels[int(f)]], keep[sels[int(f)]] = p, k
     return _subset(replace(tracks, pts_b=pts_b), keep)
