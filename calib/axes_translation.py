@@ -107,19 +107,22 @@ def fit_rotation_zoom(
     threshold_rad: float,
     seed: int = 0,
     R0: np.ndarray | None = None,
+    s0: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Rotation, inlier mask, zoom ``s`` and median residual (rad) of the zoom model: ``s``
     from :func:`zoom_estimate`, refined by a parabola through three rotation fits
-    :data:`ZOOM_STEP` apart. ``R0``: the pair's rotation-only fit, when already made."""
+    :data:`ZOOM_STEP` apart. ``R0``, ``s0``: the pair's rotation-only fit and
+    linear zoom, when already made."""
 
     def at(s: float) -> tuple[float, np.ndarray, np.ndarray]:
         az = zoomed(a, s)
         R, inl = fit_rotation(az, b, threshold_rad, seed=seed)
         return _median_residual(az, b, R), R, inl
 
-    if R0 is None:
-        R0, _ = fit_rotation(a, b, threshold_rad, seed=seed)
-    s0, _ = zoom_estimate(a, b, R0)
+    if s0 is None:
+        if R0 is None:
+            R0, _ = fit_rotation(a, b, threshold_rad, seed=seed)
+        s0, _ = zoom_estimate(a, b, R0)
     grid = [s0 - ZOOM_STEP, s0, s0 + ZOOM_STEP]
     fits = [at(s) for s in grid]
     (r_m, _, _), (r_0, _, _), (r_p, _, _) = fits
@@ -143,9 +146,12 @@ def fit_rotation_translating(
     r_rot = _median_residual(a, b, R0)
     if r_rot <= MIN_RESIDUAL_FRACTION * threshold_rad or np.any(a[:, 2] <= 0):
         return R0, inl0, False
-    if np.any(b[:, 2] <= 0) or zoom_estimate(a, b, R0)[1] <= RESIDUAL_RATIO:
+    if np.any(b[:, 2] <= 0):
+        return R0, inl0, False
+    s0, ratio = zoom_estimate(a, b, R0)
+    if ratio <= RESIDUAL_RATIO:
         return R0, inl0, False  # the linear screen: the zoom explains too little
-    R, inl, _, r_zoom = fit_rotation_zoom(a, b, threshold_rad, seed, R0)
+    R, inl, _, r_zoom = fit_rotation_zoom(a, b, threshold_rad, seed, R0, s0)
     if r_rot <= RESIDUAL_RATIO * r_zoom:
         return R0, inl0, False
     return R, inl, True

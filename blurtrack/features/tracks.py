@@ -194,10 +194,10 @@ def track_frames(
         workers,
         progress,
     )
-    fa = [np.full(len(a), i) for i, (a, _, _) in enumerate(pairs)]
+    frame_a = np.concatenate([np.full(len(a), i) for i, (a, _, _) in enumerate(pairs)])
     return FeatureTracks(
-        np.concatenate(fa),
-        np.concatenate(fa) + 1,
+        frame_a,
+        frame_a + 1,
         np.concatenate([a for a, _, _ in pairs]),
         np.concatenate([b for _, b, _ in pairs]),
         np.concatenate([e for _, _, e in pairs]),
