@@ -12,7 +12,7 @@ from blurtrack.detect.measure import LineSet, measure_lines
 from blurtrack.detect.measure import combine as _combine
 from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import Ragged
+from blurtrack.detect.ragged import Ragged, split_at
 from blurtrack.detect.segment import (
     Components,
     axis_polylines,
@@ -93,7 +93,7 @@ def _unpack(packed: Any) -> list[np.ndarray]:
     if isinstance(packed, list):
         return packed
     flat, sizes = packed
-    return np.split(flat, np.cumsum(sizes)[:-1])
+    return split_at(flat, np.cumsum(sizes)[:-1])
 
 
 def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:

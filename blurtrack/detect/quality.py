@@ -22,9 +22,12 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # the table's type only: detection itself does not need pandas
+    import pandas as pd
 
 #: Fewest unflagged streaks in a frame for a shape consensus.
 MIN_REFERENCE = 5

@@ -27,6 +27,7 @@ import pandas as pd
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import Orientation
 from blurtrack.detect.quality import add_quality
+from blurtrack.detect.ragged import split_at
 from blurtrack.io import atomic, streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
@@ -55,7 +56,7 @@ def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
     if not len(arrays):
         return out
     flat = np.round(np.concatenate(arrays), decimals)
-    for i, cell in enumerate(np.split(flat, np.cumsum([len(a) for a in arrays])[:-1])):
+    for i, cell in enumerate(split_at(flat, np.cumsum([len(a) for a in arrays])[:-1])):
         out[i] = cell
     return out
 
