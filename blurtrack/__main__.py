@@ -1,7 +1,6 @@
-"""``python -m blurtrack``: the blurtrack CLI."""
+"""``python -m blurtrack``: the blurtrack CLI (which ends without the interpreter's teardown,
+:func:`blurtrack.cli.exit_program`)."""
 
-import sys
+from blurtrack.cli import exit_program, main
 
-from blurtrack.cli import main
-
-sys.exit(main())
+exit_program(main())
