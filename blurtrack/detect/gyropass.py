@@ -11,10 +11,9 @@ rendered with the frame's cross-section and brightness, is the template.
 
 Per frame whose predicted curves are hairpins (chord under :data:`HAIRPIN_CHORD` of the arc):
 
-1. **Candidates**: components (not at the border) whose first-pass lines do not match the
-   prediction: not exactly one line, or one whose ends (either orientation) lie more than
-   ``TOL_PX + TOL_REL * arc`` from the predicted curve's ends placed at the component's light
-   centroid.
+1. **Candidates**: every component (not at the border, at least :data:`MIN_ARC_PX` of
+   predicted arc) whose predicted curve, placed with its light centroid on the component's,
+   is a hairpin.
 2. **Shape search**: calibration is nominal (intrinsics, ``R_cam_imu``, gyro bias, scale are
    guesses), so the predicted curve is off by a px or two: the curve rotated by up to
    :data:`ROTATIONS_RAD` and scaled by :data:`SCALES` about its centroid, the variant whose
@@ -28,11 +27,12 @@ Per frame whose predicted curves are hairpins (chord under :data:`HAIRPIN_CHORD`
    ends, midpoints and profiles are the image's, not the prediction's. The prior decides
    *segmentation* (which pixels are one dot's, which way its line runs), not the endpoints,
    so calibration from these streaks is not circular.
-5. **Refusal**: a placement whose measured ends lie farther from its placed curve's than the
-   tolerance is dropped (its component keeps its first-pass lines); a frame where fewer than
-   :data:`ACCEPT_MIN` of the candidates' placements survive keeps its first pass entirely
-   (a wrong prior, e.g. a gyro of the wrong sign, draws shapes the image does not hold: the
-   correlations fail and nothing is replaced).
+5. **Refusal**: a placement whose measured ends (either orientation) lie farther than
+   ``TOL_PX + TOL_REL * arc`` from its placed curve's is dropped (its component keeps its
+   first-pass lines), and so is one replacing a single first-pass line that fits that curve
+   at least as well; a frame where fewer than :data:`ACCEPT_MIN` of the placements survive
+   keeps its first pass entirely (a wrong prior, e.g. a gyro of the wrong sign, draws shapes
+   the image does not hold: the correlations or the measured ends disagree with it).
 """
 
 from __future__ import annotations
@@ -118,13 +118,19 @@ def _mismatch(a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.
 def _best_shape(
     light: np.ndarray, comps: Components, c: int, pts: np.ndarray, make: Any
 ) -> tuple[Template | None, float]:
-    """The variant of curve ``pts`` (rotated, scaled) whose template correlates best with the
-    light in component ``c``'s box (support-normalised, at the matched filter's peak)."""
+    """The variant of curve ``pts`` (rotated, scaled) whose template explains the light in
+    component ``c``'s box best, and its support-normalised correlation there.
+
+    The variants are ranked by the correlation normalised over the support *and the halo*:
+    the support-normalised one alone (the pursuit's) is as high for a template too small,
+    lying inside the streak, as for the right one; light past the template's ends, in its
+    halo, tells them apart.
+    """
     import cv2
 
     H, W = light.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
-    best: tuple[Template | None, float] = (None, -1.0)
+    best: tuple[Template | None, float, float] = (None, -1.0, -1.0)
     for r in ROTATIONS_RAD:
         for s in SCALES:
             tpl: Template = make(similar_curve(pts, s * np.exp(1j * r)))
@@ -135,12 +141,16 @@ def _best_shape(
                 continue
             region = light[y0:y1, x0:x1]
             num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-            den = cv2.matchTemplate(region * region, tpl.support, cv2.TM_CCORR)
-            score = num / (np.sqrt(np.maximum(den, 1e-20)) * np.sqrt(tpl.norm2))
-            k = float(score.max())
-            if k > best[1]:
-                best = (tpl, k)
-    return best
+            sq = region * region
+            den_s = cv2.matchTemplate(sq, tpl.support, cv2.TM_CCORR)
+            den_h = den_s + cv2.matchTemplate(sq, tpl.halo, cv2.TM_CCORR)
+            norm = np.sqrt(tpl.norm2)
+            rank = num / (np.sqrt(np.maximum(den_h, 1e-20)) * norm)
+            k = int(np.argmax(rank))
+            if float(rank.flat[k]) > best[2]:
+                score = float(num.flat[k] / (np.sqrt(max(float(den_s.flat[k]), 1e-20)) * norm))
+                best = (tpl, score, float(rank.flat[k]))
+    return best[0], best[1]
 
 
 def _as_streaks(
@@ -261,13 +271,9 @@ def refine_frame(
     own = _line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)
     tol = TOL_PX + TOL_REL * arc
-    ok1 = np.zeros(C, bool)
-    one = own >= 0
-    if one.any():
-        o = own[one]
-        mis = _mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])
-        ok1[o[mis <= tol[o]]] = True
-    cand = long_ & ~((n_lines == 1) & ok1)
+    # Every long component of a hairpin frame is a candidate: a line that the first pass
+    # measured well stays (below: the better of the two against the fitted curve).
+    cand = long_
     if not cand.any():
         return fs, FrameOutcome("skipped")
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
@@ -315,13 +321,22 @@ def refine_frame(
     placed = [placements[s] for s in m.src.tolist()]
     ps = np.array([q.tpl.points[0] + q.shift for q in placed]).reshape(-1, 2)
     pe = np.array([q.tpl.points[-1] + q.shift for q in placed]).reshape(-1, 2)
-    good = _mismatch(m.end_a, m.end_b, ps, pe) <= tol[m.own]
+    mis_new = _mismatch(m.end_a, m.end_b, ps, pe)
+    good = mis_new <= tol[m.own]
     # Components replaced only where every placement of theirs was measured and confirmed.
     n_place = np.bincount([q.comp for q in placements], minlength=C)
     n_good = np.bincount(m.own[good], minlength=C)
     whole = replaced & (n_good == n_place) & (n_place > 0)
     if int(n_good[whole].sum()) < ACCEPT_MIN * len(placements):
-        return fs, FrameOutcome("refused", n_cand)
+        return fs, FrameOutcome("refused", int(cand.sum()))
+    # One dot, one first-pass line: that line stays unless the new one fits the curve better.
+    single = np.flatnonzero((n_place[m.own] == 1) & (n_lines[m.own] == 1) & whole[m.own])
+    if single.size:
+        line_of = np.full(C, -1, np.int64)
+        line_of[own[own >= 0]] = np.flatnonzero(own >= 0)
+        li = line_of[m.own[single]]
+        mis_old = _mismatch(fs.end_a[li], fs.end_b[li], ps[single], pe[single])
+        whole[m.own[single[mis_old <= mis_new[single]]]] = False
     keep_new = whole[m.own] & good
     from blurtrack.detect.measure import combine
 
