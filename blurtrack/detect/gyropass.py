@@ -70,7 +70,8 @@ TOL_PX = 2.5
 TOL_REL = 0.1
 #: Shape search (calibration error): rotations (rad) and scales of the predicted curve.
 ROTATIONS_RAD = (-0.06, -0.03, 0.0, 0.03, 0.06)
-SCALES = (0.92, 1.0, 1.08)
+SCALES = (0.92, 0.94, 0.96, 0.98, 1.0, 1.02, 1.04, 1.06, 1.08)
+FINE_ROTATIONS_RAD = (-0.015, 0.015)
 #: Lowest support-normalised correlation of the best shape (below it: refused).
 SHAPE_SCORE_MIN = 0.8
 #: A frame keeps its first pass unless this fraction of its placements is measured whole.
@@ -130,26 +131,37 @@ def _best_shape(
 
     H, W = light.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
-    best: tuple[Template | None, float, float] = (None, -1.0, -1.0)
-    for r in ROTATIONS_RAD:
-        for s in SCALES:
-            tpl: Template = make(similar_curve(pts, s * np.exp(1j * r)))
-            _, _, tw, th = tpl.box
-            x0, y0 = max(x - tw // 2 - 2, 0), max(y - th // 2 - 2, 0)
-            x1, y1 = min(x + w + tw // 2 + 2, W), min(y + h + th // 2 + 2, H)
-            if x1 - x0 < tw or y1 - y0 < th:
-                continue
-            region = light[y0:y1, x0:x1]
-            num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-            sq = region * region
-            den_s = cv2.matchTemplate(sq, tpl.support, cv2.TM_CCORR)
-            den_h = den_s + cv2.matchTemplate(sq, tpl.halo, cv2.TM_CCORR)
-            norm = np.sqrt(tpl.norm2)
-            rank = num / (np.sqrt(np.maximum(den_h, 1e-20)) * norm)
-            k = int(np.argmax(rank))
-            if float(rank.flat[k]) > best[2]:
-                score = float(num.flat[k] / (np.sqrt(max(float(den_s.flat[k]), 1e-20)) * norm))
-                best = (tpl, score, float(rank.flat[k]))
+
+    def trial(z: complex) -> tuple[Template | None, float, float]:
+        tpl: Template = make(similar_curve(pts, z))
+        _, _, tw, th = tpl.box
+        x0, y0 = max(x - tw // 2 - 2, 0), max(y - th // 2 - 2, 0)
+        x1, y1 = min(x + w + tw // 2 + 2, W), min(y + h + th // 2 + 2, H)
+        if x1 - x0 < tw or y1 - y0 < th:
+            return None, -1.0, -1.0
+        region = light[y0:y1, x0:x1]
+        num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
+        sq = region * region
+        den_s = cv2.matchTemplate(sq, tpl.support, cv2.TM_CCORR)
+        den_h = den_s + cv2.matchTemplate(sq, tpl.halo, cv2.TM_CCORR)
+        norm = np.sqrt(tpl.norm2)
+        rank = num / (np.sqrt(np.maximum(den_h, 1e-20)) * norm)
+        k = int(np.argmax(rank))
+        score = float(num.flat[k] / (np.sqrt(max(float(den_s.flat[k]), 1e-20)) * norm))
+        return tpl, score, float(rank.flat[k])
+
+    # Coordinate search: the rotation at the nominal scale, the scale at that rotation, then
+    # the rotation once more on a finer grid.
+    best = (None, -1.0, -1.0)
+    rot, scale = 0.0, 1.0
+    for grid, which in ((ROTATIONS_RAD, "r"), (SCALES, "s"), (FINE_ROTATIONS_RAD, "f")):
+        pick = (rot, scale)
+        for v in grid:
+            r, sc = (v, scale) if which == "r" else (rot, v) if which == "s" else (rot + v, scale)
+            got = trial(sc * np.exp(1j * r))
+            if got[2] > best[2]:
+                best, pick = got, (r, sc)
+        rot, scale = pick
     return best[0], best[1]
 
 
