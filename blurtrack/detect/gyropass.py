@@ -76,6 +76,10 @@ FINE_ROTATIONS_RAD = (-0.015, 0.015)
 SHAPE_SCORE_MIN = 0.8
 #: A frame keeps its first pass unless this fraction of its placements is measured whole.
 ACCEPT_MIN = 0.5
+#: Other frames are refined where more than this fraction of the long first-pass streaks
+#: miss the prediction.
+BAD_FRACTION = 0.08
+LONG_GATE = True
 #: The typical dot's light: this quantile of the components' light (chains are brighter).
 LIGHT_QUANTILE = 0.4
 
@@ -248,8 +252,17 @@ def refine_frame(
     except CoverageError:
         return fs, FrameOutcome("skipped")
     g_long = gate.arc >= MIN_ARC_PX
-    if not g_long.any() or float(np.median(gate.chord[g_long] / gate.arc[g_long])) >= HAIRPIN_CHORD:
+    if not g_long.any():
         return fs, FrameOutcome("skipped")
+    hairpin = float(np.median(gate.chord[g_long] / gate.arc[g_long])) < HAIRPIN_CHORD
+    if not hairpin:
+        # Streaks the first pass measured far from the prediction (placed at their time
+        # midpoints): chains and fragments of long streaks.
+        g_pts = gate.pts - gate.pts[:, gate.pts.shape[1] // 2, None] + fs.time_mid[inside, None]
+        a, b = fs.end_a[inside], fs.end_b[inside]
+        bad = _mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
+        if not (LONG_GATE and float(np.mean(bad[g_long])) > BAD_FRACTION):
+            return fs, FrameOutcome("skipped")
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.smooth.shape
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
@@ -279,13 +292,21 @@ def refine_frame(
     # Each curve placed with its light centroid (its mean: uniform in time) on the component's.
     pts = curves.pts - curves.pts.mean(axis=1, keepdims=True) + centre[:, None, :]
     arc, chord = curves.arc, curves.chord
-    long_ = ~border & (arc >= MIN_ARC_PX) & (chord < HAIRPIN_CHORD * arc)
+    long_ = ~border & (arc >= MIN_ARC_PX) & ((chord < HAIRPIN_CHORD * arc) | (not hairpin))
+    # Every long component of a hairpin frame is a candidate: a line that the first pass
+    # measured well stays (below: the better of the two against the fitted curve). In other
+    # frames, components whose lines are not one line matching the prediction.
+    cand = long_.copy()
     own = _line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)
     tol = TOL_PX + TOL_REL * arc
-    # Every long component of a hairpin frame is a candidate: a line that the first pass
-    # measured well stays (below: the better of the two against the fitted curve).
-    cand = long_
+    if not hairpin:
+        ok1 = np.zeros(C, bool)
+        one = own >= 0
+        o = own[one]
+        mis1 = _mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])
+        ok1[o[mis1 <= tol[o]]] = True
+        cand &= ~((n_lines == 1) & ok1)
     if not cand.any():
         return fs, FrameOutcome("skipped")
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
@@ -341,14 +362,20 @@ def refine_frame(
     whole = replaced & (n_good == n_place) & (n_place > 0)
     if int(n_good[whole].sum()) < ACCEPT_MIN * len(placements):
         return fs, FrameOutcome("refused", int(cand.sum()))
-    # One dot, one first-pass line: that line stays unless the new one fits the curve better.
-    single = np.flatnonzero((n_place[m.own] == 1) & (n_lines[m.own] == 1) & whole[m.own])
-    if single.size:
-        line_of = np.full(C, -1, np.int64)
-        line_of[own[own >= 0]] = np.flatnonzero(own >= 0)
-        li = line_of[m.own[single]]
-        mis_old = _mismatch(fs.end_a[li], fs.end_b[li], ps[single], pe[single])
-        whole[m.own[single[mis_old <= mis_new[single]]]] = False
+    # A component's first-pass lines stay unless the new streaks fit their placed curves
+    # better: per placement, the nearest of the component's old lines against its new line.
+    has_old = np.flatnonzero(whole[m.own] & (n_lines[m.own] > 0))
+    if has_old.size:
+        lines = np.flatnonzero(own >= 0)
+        old_best = np.full(has_old.size, np.inf)
+        for j, r in enumerate(has_old.tolist()):
+            li = lines[own[lines] == m.own[r]]
+            k = np.full(li.size, r)
+            old_best[j] = float(np.min(_mismatch(fs.end_a[li], fs.end_b[li], ps[k], pe[k])))
+        comp = m.own[has_old]
+        cost_old = np.bincount(comp, old_best, C)
+        cost_new = np.bincount(comp, mis_new[has_old], C)
+        whole[comp[cost_old[comp] <= cost_new[comp]]] = False
     keep_new = whole[m.own] & good
     from blurtrack.detect.measure import combine
 

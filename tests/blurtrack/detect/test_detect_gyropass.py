@@ -119,3 +119,55 @@ def test_straight_streaks_are_left_to_the_first_pass() -> None:
     first = detect_frame(image)
     out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
     assert what.status == "skipped" and out is first
+
+
+def _hairpin_gyro(fps: float, reach_px: float, drift_px: float, f_px: float):
+    """A ``shake`` stand-in: about y, one period per frame (out and back within an exposure
+    of half a period, the frames starting on whole periods); about x, a slow drift."""
+    period = 1.0 / fps
+
+    def omega(t_s: np.ndarray, seed: int, amplitude_radps: float) -> np.ndarray:
+        a = reach_px / f_px * 2 * np.pi / period
+        wy = a * np.cos(2 * np.pi * t_s / period)
+        wx = np.full_like(t_s, drift_px / f_px / (period / 2))
+        return np.stack([wx, wy, 0.0 * t_s], axis=1)
+
+    return omega
+
+
+def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
+    # Every frame of this session is a hairpin frame, which fools the time-shift scan (it
+    # compares the first pass's lines with the predicted ends): the session's guess (the
+    # truth here) is used as it is.
+    from blurtrack.detect import DetectParams
+    from blurtrack.detect.session import detect_session
+    from blurtrack.io.session import load_session
+    from blurtrack.testing import mini_session
+
+    fps, w = 25.0, 320
+    monkeypatch.setattr(mini_session, "shake", _hairpin_gyro(fps, 14.0, 3.0, 0.9 * w))
+    truth = mini_session.write_synthetic_session(
+        tmp_path / "s", n_frames=3, seed=5, fps=fps, exposure_s=0.5 / fps, sigma_px=1.3
+    )
+    session = load_session(tmp_path / "s")
+    on = detect_session(session, gyro="on", refine_timeshift=False)
+    off = detect_session(
+        session, DetectParams(gyro_template=False), gyro="on", refine_timeshift=False
+    )
+    assert on.summary["gyro_template_frames"] == {"refined": 3}
+    assert off.summary["gyro_template_frames"] == {}
+    for res, least, most in ((on, 0.9, 1.0), (off, 0.0, 0.2)):
+        hit = n = 0
+        for fr in truth["frames"]:
+            d = res.table[res.table.frame == fr["index"]]
+            s = d[["start_x", "start_y"]].to_numpy()
+            e = d[["end_x", "end_y"]].to_numpy()
+            for st in fr["streaks"]:
+                if not st["inside"]:
+                    continue
+                n += 1
+                err = np.maximum(
+                    np.hypot(*(s - st["start"]).T), np.hypot(*(e - st["end"]).T)
+                )  # oriented: start and end as the session resolved them
+                hit += int(err.min() < 1.0)
+        assert least * n <= hit <= most * n
