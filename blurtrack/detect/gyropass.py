@@ -79,7 +79,6 @@ ACCEPT_MIN = 0.5
 #: Other frames are refined where more than this fraction of the long first-pass streaks
 #: miss the prediction.
 BAD_FRACTION = 0.08
-LONG_GATE = True
 #: The typical dot's light: this quantile of the components' light (chains are brighter).
 LIGHT_QUANTILE = 0.4
 
@@ -261,7 +260,7 @@ def refine_frame(
         g_pts = gate.pts - gate.pts[:, gate.pts.shape[1] // 2, None] + fs.time_mid[inside, None]
         a, b = fs.end_a[inside], fs.end_b[inside]
         bad = _mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
-        if not (LONG_GATE and float(np.mean(bad[g_long])) > BAD_FRACTION):
+        if not float(np.mean(bad[g_long])) > BAD_FRACTION:
             return fs, FrameOutcome("skipped")
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.smooth.shape
