@@ -78,7 +78,7 @@ SHAPE_SCORE_MIN = 0.8
 ACCEPT_MIN = 0.5
 #: Other frames are refined where more than this fraction of the long first-pass streaks
 #: miss the prediction.
-BAD_FRACTION = 0.08
+BAD_FRACTION = 0.0
 #: The typical dot's light: this quantile of the components' light (chains are brighter).
 LIGHT_QUANTILE = 0.4
 
