@@ -53,7 +53,14 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, _near_border
+from blurtrack.detect.frame import (
+    FLAG_NAMES,
+    MERGED_WIDTH,
+    SPOT_FRACTION,
+    SPOT_MIN_PX,
+    FrameStreaks,
+    _near_border,
+)
 from blurtrack.detect.gyrocurve import (
     Curves,
     curve_template,
@@ -89,6 +96,9 @@ ACCEPT_MIN = 0.5
 #: Other frames are refined where more than this fraction of the long first-pass streaks
 #: miss the prediction.
 BAD_FRACTION = 0.0
+#: In a refined frame, first-pass lines longer than this times their predicted arc are
+#: dropped (chains).
+CHAIN_FACTOR = 1.6
 #: The typical dot's light: this quantile of the components' light (chains are brighter).
 LIGHT_QUANTILE = 0.4
 
@@ -390,6 +400,14 @@ def refine_frame(
 
     m = combine(m, keep_new)
     keep_old = ~((own >= 0) & whole[np.maximum(own, 0)])
+    # A remaining first-pass spot far shorter than its predicted curve is a remnant (of a
+    # chain, a blob), as frame.py drops those far shorter than the image consensus; a line
+    # far longer is a chain of several dots' streaks that the pass could not split.
+    pred_arc = np.zeros(len(fs))
+    pred_arc[inside] = gate.arc
+    long_pred = pred_arc >= SPOT_MIN_PX
+    keep_old &= ~(long_pred & (fs.length_px < SPOT_FRACTION * pred_arc))
+    keep_old &= ~(long_pred & (fs.length_px > CHAIN_FACTOR * pred_arc))
     out = _as_streaks(fs, keep_old, m, comps, prep, p)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))
 
