@@ -175,7 +175,7 @@ def _best_shape(
 
     # Coordinate search: the rotation at the nominal scale, the scale at that rotation, then
     # the rotation once more on a finer grid.
-    best = (None, -1.0, -1.0)
+    best: tuple[Template | None, float, float] = (None, -1.0, -1.0)
     rot, scale = 0.0, 1.0
     for grid, which in ((ROTATIONS_RAD, "r"), (SCALES, "s"), (FINE_ROTATIONS_RAD, "f")):
         pick = (rot, scale)
