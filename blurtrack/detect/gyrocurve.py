@@ -100,18 +100,20 @@ def curve_template(
     sigma_raw: float,
     light: float,
     ceiling: float | None,
+    with_raw: bool = True,
 ) -> Template:
     """A :class:`~blurtrack.detect.templates.Template` of the predicted curve ``pts`` (frame
     px): its smoothed image holds ``light`` (the light of a typical dot of the frame, in the
     smoothed image's units, summed over pixels) and is clipped at ``ceiling`` (the
     saturation level: a saturated tip is flat in the image too); ``points`` is the curve
-    itself, the coarse centre line that the measurement refines."""
+    itself, the coarse centre line that the measurement refines. ``with_raw=False`` leaves
+    the unsmoothed image zero (a template only to be correlated: half the work)."""
     pad = int(np.ceil(3.0 * max(sigma_smooth, sigma_raw))) + 2
     x0, y0 = (np.floor(pts.min(axis=0)).astype(int) - pad).tolist()
     x1, y1 = (np.ceil(pts.max(axis=0)).astype(int) + pad + 1).tolist()
     w, h = x1 - x0, y1 - y0
     sm = _render(pts, sigma_smooth, x0, y0, w, h)
-    raw = _render(pts, sigma_raw, x0, y0, w, h)
+    raw = _render(pts, sigma_raw, x0, y0, w, h) if with_raw else np.zeros_like(sm)
     sup = sm > SUPPORT_LEVEL * sm.max()
     tot = float(np.sum(sm[sup]))
     a = light / max(tot, 1e-12)

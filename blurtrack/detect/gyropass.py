@@ -165,13 +165,13 @@ def _best_shape(
         region = light[y0:y1, x0:x1]
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
         sq = region * region
-        den_s = cv2.matchTemplate(sq, tpl.support, cv2.TM_CCORR)
-        den_h = den_s + cv2.matchTemplate(sq, tpl.halo, cv2.TM_CCORR)
+        den_h = cv2.matchTemplate(sq, tpl.support + tpl.halo, cv2.TM_CCORR)
         norm = np.sqrt(tpl.norm2)
         rank = num / (np.sqrt(np.maximum(den_h, 1e-20)) * norm)
-        k = int(np.argmax(rank))
-        score = float(num.flat[k] / (np.sqrt(max(float(den_s.flat[k]), 1e-20)) * norm))
-        return tpl, score, float(rank.flat[k])
+        ky, kx = (int(v) for v in np.unravel_index(int(np.argmax(rank)), rank.shape))
+        den_s = float(np.sum(sq[ky : ky + th, kx : kx + tw] * tpl.support))
+        score = float(num[ky, kx]) / (np.sqrt(max(den_s, 1e-20)) * norm)
+        return tpl, score, float(rank[ky, kx])
 
     # Coordinate search: the rotation at the nominal scale, the scale at that rotation, then
     # the rotation once more on a finer grid.
@@ -334,8 +334,8 @@ def refine_frame(
     dot_light = float(np.quantile(lw[~border], LIGHT_QUANTILE)) if (~border).any() else 0.0
     ceiling = prep.saturation if prep.saturated.any() else None
 
-    def make(curve: np.ndarray) -> Template:
-        return curve_template(curve, sig_s, sig_r, dot_light, ceiling)
+    def make(curve: np.ndarray, with_raw: bool = False) -> Template:
+        return curve_template(curve, sig_s, sig_r, dot_light, ceiling, with_raw)
 
     pix_cand = cand[pix]
     light = np.zeros(prep.smooth.shape, np.float32)
@@ -350,6 +350,7 @@ def refine_frame(
         tpl, score = _best_shape(light, comps, c, pts[c], make)
         if tpl is None or score < SHAPE_SCORE_MIN:
             continue
+        tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
         placements += _pursue(residual, comps, c, tpl, comp_of_label, HALO_MAX)
     n_cand = int(cand.sum())
     if not placements:
