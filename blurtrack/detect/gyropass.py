@@ -47,10 +47,12 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
+import cv2
 import numpy as np
 
 from blurtrack.detect.frame import (
@@ -69,7 +71,7 @@ from blurtrack.detect.gyrocurve import (
 )
 from blurtrack.detect.gyromeasure import measure_placements
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import Measured
+from blurtrack.detect.measure import Measured, combine
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.refit import refit
@@ -150,8 +152,6 @@ def _best_shape(
     lying inside the streak, as for the right one; light past the template's ends, in its
     halo, tells them apart.
     """
-    import cv2
-
     H, W = light.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
 
@@ -251,14 +251,15 @@ def _as_streaks(
 
 
 def refine_frame(
-    image: np.ndarray,
+    image: np.ndarray | Callable[[], np.ndarray],
     fs: FrameStreaks,
     timing: FrameTiming,
     model: Any,
     params: DetectParams | None = None,
 ) -> tuple[FrameStreaks, FrameOutcome]:
     """The second pass on one frame (see the module text): the frame's streaks (``fs`` itself
-    when nothing changed) and what happened. ``model``: a
+    when nothing changed) and what happened. ``image``: the frame as stored, or a function
+    that reads it (called only when the gate lets the frame through). ``model``: a
     :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
     ``point_track``) covering the frame."""
     p = params or DetectParams()
@@ -282,6 +283,8 @@ def refine_frame(
         bad = _mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
         if not float(np.mean(bad[g_long])) > BAD_FRACTION:
             return fs, FrameOutcome("skipped")
+    if callable(image):
+        image = image()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.smooth.shape
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
@@ -396,10 +399,7 @@ def refine_frame(
         cost_old = np.bincount(comp, old_best, C)
         cost_new = np.bincount(comp, mis_new[has_old], C)
         whole[comp[cost_old[comp] <= cost_new[comp]]] = False
-    keep_new = whole[m.own] & good
-    from blurtrack.detect.measure import combine
-
-    m = combine(m, keep_new)
+    m = combine(m, whole[m.own] & good)
     keep_old = ~((own >= 0) & whole[np.maximum(own, 0)])
     # A remaining first-pass spot far shorter than its predicted curve is a remnant (of a
     # chain, a blob), as frame.py drops those far shorter than the image consensus; a line
@@ -423,11 +423,14 @@ def refine_frames(
     params: DetectParams,
 ) -> dict[str, int]:
     """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
-    is updated in place; ``idx`` their frame indices, the images re-read from ``session``).
+    is updated in place; ``idx`` their frame indices, the images re-read from ``session``
+    only for the frames the gate lets through; in this process, one frame after another).
     Returns the count of frames per outcome status."""
     counts: dict[str, int] = {}
     for k in covered:
-        out, what = refine_frame(session.read_image(idx[k]), found[k], timings[k], model, params)
+        out, what = refine_frame(
+            partial(session.read_image, idx[k]), found[k], timings[k], model, params
+        )
         found[k] = out
         counts[what.status] = counts.get(what.status, 0) + 1
     return counts

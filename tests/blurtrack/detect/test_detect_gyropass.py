@@ -119,6 +119,21 @@ def test_straight_streaks_are_left_to_the_first_pass() -> None:
     first = detect_frame(image)
     out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
     assert what.status == "skipped" and out is first
+    # The gate needs no image: a session's frames are read again only where it passes.
+    read: list[int] = []
+
+    def reader(img: np.ndarray):
+        def read_it() -> np.ndarray:
+            read.append(1)
+            return img
+
+        return read_it
+
+    assert refine_frame(reader(image), first, FrameTiming(T0, EXP), model)[0] is first
+    assert not read
+    hp_image, _ = _frame()
+    refine_frame(reader(hp_image), detect_frame(hp_image), FrameTiming(T0, EXP), _model())
+    assert read == [1]
 
 
 def _hairpin_gyro(fps: float, reach_px: float, drift_px: float, f_px: float):
