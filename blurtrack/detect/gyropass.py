@@ -256,12 +256,14 @@ def refine_frame(
     timing: FrameTiming,
     model: Any,
     params: DetectParams | None = None,
+    sigma_c: float | None = None,
 ) -> tuple[FrameStreaks, FrameOutcome]:
     """The second pass on one frame (see the module text): the frame's streaks (``fs`` itself
     when nothing changed) and what happened. ``image``: the frame as stored, or a function
     that reads it (called only when the gate lets the frame through). ``model``: a
     :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
-    ``point_track``) covering the frame."""
+    ``point_track``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
+    the templates and the measurement (None: the frame's, ``fs.sigma_c_px``)."""
     p = params or DetectParams()
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
     if not inside.any():
@@ -332,7 +334,7 @@ def refine_frame(
     if not cand.any():
         return fs, FrameOutcome("skipped")
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
-    sig_s = fs.sigma_c_px
+    sig_s = fs.sigma_c_px if sigma_c is None else float(sigma_c)
     sig_r = float(np.sqrt(max(sig_s**2 - p.smooth_sigma_px**2, 0.25)))
     dot_light = float(np.quantile(lw[~border], LIGHT_QUANTILE)) if (~border).any() else 0.0
     ceiling = prep.saturation if prep.saturated.any() else None
@@ -427,9 +429,13 @@ def refine_frames(
     only for the frames the gate lets through; in this process, one frame after another).
     Returns the count of frames per outcome status."""
     counts: dict[str, int] = {}
+    # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
+    # (measured on lines down the middle of both arms) is too wide. The session's median.
+    sig = [fs.sigma_c_px for fs in found if len(fs)]
+    sigma_c = float(np.median(sig)) if sig else None
     for k in covered:
         out, what = refine_frame(
-            partial(session.read_image, idx[k]), found[k], timings[k], model, params
+            partial(session.read_image, idx[k]), found[k], timings[k], model, params, sigma_c
         )
         found[k] = out
         counts[what.status] = counts.get(what.status, 0) + 1
