@@ -244,9 +244,11 @@ def command_speed(
     return res
 
 
-def run_one(folder: Path, gyro: str, repeat: int) -> dict[str, Any]:
+def run_one(
+    folder: Path, gyro: str, repeat: int, params: DetectParams | None = None
+) -> dict[str, Any]:
     session = load_session(folder)
-    params = DetectParams()
+    params = params or DetectParams()
     t0 = time.perf_counter()
     res = detect_session(session, params, gyro=gyro)
     wall = time.perf_counter() - t0
@@ -281,6 +283,13 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=ROOT / "bench_out" / "detect")
     ap.add_argument("--session", type=Path, default=None, help="benchmark this session only")
     ap.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="detection parameters (YAML, as `blurtrack detect --params`), e.g. "
+        "`gyro_template: false` for the first pass alone",
+    )
+    ap.add_argument(
         "--command",
         action="store_true",
         help="time the whole `blurtrack detect` command against the file baseline",
@@ -294,6 +303,7 @@ def main() -> int:
         "`git archive` of main unpacked there), interleaved, with this interpreter",
     )
     args = ap.parse_args()
+    params = DetectParams.from_yaml(args.params) if args.params is not None else None
     if args.command:
         args.work.mkdir(parents=True, exist_ok=True)
         runs = []
@@ -311,7 +321,7 @@ def main() -> int:
         return 0
     results: dict[str, Any] = {"runs": []}
     if args.session is not None:
-        one = run_one(args.session, args.gyro, args.repeat)
+        one = run_one(args.session, args.gyro, args.repeat, params)
         one.pop("_errors", None)
         one.pop("_counts", None)
         results["runs"].append({"session": str(args.session), **one})
@@ -320,7 +330,7 @@ def main() -> int:
         for preset in args.presets:
             for seed in args.seeds:
                 folder = simulate(args.work, preset, args.frames, seed)
-                r = run_one(folder, args.gyro, args.repeat)
+                r = run_one(folder, args.gyro, args.repeat, params)
                 results["runs"].append({"preset": preset, "seed": seed, **r})
                 print(
                     json.dumps(

@@ -36,6 +36,8 @@ class DetectParams:
       artefact of it (JPEG ringing, demosaicing, blooming); 0 keeps every component.
     - ``separate``: separate touching and overlapping streaks with the frame's own clean
       streaks as templates (:mod:`blurtrack.detect.separate`).
+    - ``gyro_template``: in a session with a gyro, a second pass on frames of hairpin
+      streaks with the gyro's predicted curve as the template (:mod:`blurtrack.detect.gyropass`).
     """
 
     smooth_sigma_px: float = 1.0
@@ -51,6 +53,7 @@ class DetectParams:
     artefact_ratio: float = 0.06
     artefact_gap_px: int = 12
     separate: bool = True
+    gyro_template: bool = True
 
     def __post_init__(self) -> None:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
@@ -76,6 +79,10 @@ class DetectParams:
             )
         if not isinstance(self.separate, bool):
             raise ConfigError(f"detect parameter separate must be true or false: {self.separate!r}")
+        if not isinstance(self.gyro_template, bool):
+            raise ConfigError(
+                f"detect parameter gyro_template must be true or false: {self.gyro_template!r}"
+            )
         if int(self.max_streaks) != self.max_streaks or self.max_streaks < 1:
             raise ConfigError("detect parameter max_streaks must be a positive integer")
 

@@ -219,6 +219,7 @@ def detect_session(
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = None
+    template_pass: dict[str, int] = {}
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
 
@@ -245,6 +246,12 @@ def detect_session(
                 raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
             else:
                 uncovered.append(idx[k])
+        if p.gyro_template and covered:
+            # Second pass: the gyro's predicted shape as the template (hairpin frames).
+            from blurtrack.detect.gyropass import refine_frames
+
+            template_pass = refine_frames(session, found, timings, idx, covered, model, p)
+            llrs = [np.zeros((len(fs), 3)) for fs in found]
         for k, llr in zip(
             covered, _gyro_llrs(found, timings, covered, model, sigma_rel), strict=True
         ):
@@ -295,6 +302,7 @@ def detect_session(
         else float(inputs[0].timeshift_cam_imu_s),
         "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
+        "gyro_template_frames": template_pass,
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),

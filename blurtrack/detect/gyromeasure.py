@@ -1,0 +1,154 @@
+"""Measurement of the gyro pass's placements (:mod:`blurtrack.detect.gyropass`) on their own
+images, hairpins as two arms joined at the turn.
+
+A hairpin's two arms lie 2-4 px apart, closer than the cross-section windows of
+:func:`blurtrack.detect.measure.measure_lines`: measured as one out-and-back line, each arm's
+centroids are pulled towards the other and the edge fits see both arms' light. So each arm
+is measured on its own image, the frame minus the other arm's and the other placements'
+templates (the prior decides which light is which arm's), from the turn outwards; the start
+is the first arm's far end, the end the second's, both edge fits of the image.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from blurtrack.detect.gyrocurve import arm_templates, turn_index
+from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.separate import _mosaic, _overlaps
+from blurtrack.detect.templates import Placement
+
+#: Placements whose curve's chord is under this fraction of its arc are measured as two arms.
+ARMS_CHORD = 0.8
+
+
+def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, Any]:
+    """One streak from its two measured arms ``rows`` (each measured from the turn outwards,
+    in either direction): start = the first arm's far end, end = the second's."""
+    parts = []
+    for r, outward in zip(rows, (False, True), strict=True):
+        a_far = np.hypot(*(m.end_a[r] - turn)) > np.hypot(*(m.end_b[r] - turn))
+        # Oriented start -> turn for the first arm, turn -> end for the second.
+        fwd = a_far != outward
+        pts, prof, pl = m.points[r], m.profile[r], m.plateau[r]
+        if not fwd:
+            pts, prof, pl = pts[::-1], prof[::-1], pl[::-1]
+        parts.append((pts, prof, pl))
+    pts = np.concatenate([parts[0][0], parts[1][0]])
+    prof = np.concatenate([parts[0][1], parts[1][1]])
+    step = np.hypot(*np.diff(pts, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (prof[1:] + prof[:-1]) * step)])
+    half = 0.5 * cum[-1]
+    j = int(np.clip(np.searchsorted(cum, half), 1, len(cum) - 1))
+    f = (half - cum[j - 1]) / max(cum[j] - cum[j - 1], 1e-12)
+    return {
+        "end_a": pts[0],
+        "end_b": pts[-1],
+        "time_mid": pts[j - 1] + f * (pts[j] - pts[j - 1]),
+        "plateau": np.array([parts[0][2][0], parts[1][2][1]]),
+        "length_px": float(m.length_px[rows[0]] + m.length_px[rows[1]]),
+        "width_px": float(np.nanmean(m.width_px[list(rows)])),
+        "points": pts,
+        "profile": prof,
+        "saturated": bool(m.saturated[list(rows)].any()),
+        "crossing": bool(m.crossing[list(rows)].any()),
+        "short": False,
+    }
+
+
+def measure_placements(
+    prep: Any,
+    placements: list[Placement],
+    sig_s: float,
+    sig_r: float,
+    smooth_sigma: float,
+    sat_comp: np.ndarray | None,
+) -> Measured:
+    """Each placement measured on its own image by :func:`measure_lines`, frame coordinates;
+    ``src`` indexes ``placements``. A hairpin is measured as its two arms (each on its own
+    image: the frame minus the other arm's and the other placements' templates, so the prior
+    decides which light is which arm's), joined at the turn."""
+    flat: list[Placement] = []
+    arm_of: list[tuple[int, int]] = []
+    for j, q in enumerate(placements):
+        pts = q.tpl.points
+        k = turn_index(pts)
+        chord = float(np.hypot(*(pts[-1] - pts[0])))
+        arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+        if 3 <= k <= len(pts) - 4 and chord < ARMS_CHORD * arc:
+            a1, a2 = arm_templates(q.tpl, sig_s, sig_r)
+            flat += [Placement(a1, q.shift, q.amp, q.comp), Placement(a2, q.shift, q.amp, q.comp)]
+            arm_of += [(j, 0), (j, 1)]
+        else:
+            flat.append(q)
+            arm_of.append((j, -1))
+    pad = int(np.ceil(6.0 * sig_s)) + 8
+    mos_s, mos_r, lines, back = _mosaic(prep.smooth, prep.signal, flat, pad)
+    # Arms of one hairpin share light by design: each takes its whole placement's flag.
+    whole_cross = _overlaps(placements)
+    cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
+    ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
+    m = measure_lines(
+        mos_s, mos_r, prep.saturation, sat_comp, ls, sig_s, False, smooth_sigma, sig_r
+    )
+    off = back[m.src]
+    m.end_a, m.end_b, m.time_mid = m.end_a + off, m.end_b + off, m.time_mid + off
+    m.points = [q + o for q, o in zip(m.points, off, strict=True)]
+    rows_of: dict[int, list[int]] = {}
+    for r, i in enumerate(m.src.tolist()):
+        rows_of.setdefault(i, []).append(r)
+    out: list[dict[str, Any]] = []
+    srcs: list[int] = []
+    own: list[int] = []
+    for j, q in enumerate(placements):
+        idx = [i for i, (jj, _) in enumerate(arm_of) if jj == j]
+        got = [rows_of.get(i, []) for i in idx]
+        if any(len(g) != 1 for g in got):
+            continue  # an arm split or lost: not measured whole
+        if len(idx) == 1:
+            r = got[0][0]
+            out.append({n: getattr(m, n)[r] for n in _FIELDS})
+        else:
+            turn = q.tpl.points[turn_index(q.tpl.points)] + q.shift
+            out.append(_joined(m, (got[0][0], got[1][0]), turn))
+        srcs.append(j)
+        own.append(q.comp)
+
+    def arr(name: str, shape: tuple[int, ...], dtype: Any = float) -> np.ndarray:
+        return np.array([o[name] for o in out], dtype).reshape((len(out), *shape))
+
+    return Measured(
+        own=np.array(own, np.int64),
+        src=np.array(srcs, np.int64),
+        end_a=arr("end_a", (2,)),
+        end_b=arr("end_b", (2,)),
+        time_mid=arr("time_mid", (2,)),
+        plateau=arr("plateau", (2,)),
+        length_px=arr("length_px", ()),
+        width_px=arr("width_px", ()),
+        points=[np.asarray(o["points"], float) for o in out],
+        profile=[np.asarray(o["profile"], float) for o in out],
+        saturated=arr("saturated", (), bool),
+        crossing=arr("crossing", (), bool),
+        looped=np.zeros(len(out), bool),
+        short=arr("short", (), bool),
+        sigma_c=m.sigma_c,
+        sigma_raw=m.sigma_raw,
+    )
+
+
+_FIELDS = (
+    "end_a",
+    "end_b",
+    "time_mid",
+    "plateau",
+    "length_px",
+    "width_px",
+    "points",
+    "profile",
+    "saturated",
+    "crossing",
+    "short",
+)

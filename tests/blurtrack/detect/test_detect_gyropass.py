@@ -1,0 +1,188 @@
+"""The gyro-template second pass (blurtrack.detect.gyropass) on an exactly rendered frame of
+hairpin streaks: the shake reverses within the exposure and every dot comes back 3 px beside
+its own trail, which the image-only first pass measures as one line down the middle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blurtrack.detect import detect_frame
+from blurtrack.detect.gyrocurve import predict_curves
+from blurtrack.detect.gyropass import refine_frame
+from blurtrack.detect.orientation import FrameTiming
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
+from blurtrack.testing.streak_frames import quantise, render_streaks
+
+W, H = 480, 360
+F = 400.0
+T0, EXP = 0.05, 0.04
+#: Excursion (px) of the hairpin and the sideways drift that separates its arms.
+REACH_PX, DRIFT_PX = 20.0, 3.0
+
+
+def _model(sign: float = 1.0, readout_s: float = 0.0) -> BlurModel:
+    """A rotation about the camera's y axis that goes out and back within the exposure
+    (``REACH_PX`` at mid-exposure) and a slow one about x (``DRIFT_PX`` over the exposure)."""
+    cam = Camera(
+        resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2), readout_s=readout_s
+    )
+    t = np.arange(0.0, 0.2, 1e-3)
+    wy = REACH_PX * np.pi / (F * EXP) * np.cos(np.pi * (t - T0) / EXP)
+    wx = np.full_like(t, DRIFT_PX / (F * EXP))
+    omega = sign * np.stack([wx, wy, 0.0 * t], axis=1)
+    calib = Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0)
+    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+
+
+def _frame() -> tuple[np.ndarray, list[np.ndarray]]:
+    """Twelve hairpins on a 4 x 3 grid; the truth curves from the model's point tracks
+    (no rolling shutter: every row exposes over ``[T0, T0 + EXP]``)."""
+    model = _model()
+    dots = np.stack(np.meshgrid(70.0 + 110.0 * np.arange(4), 70.0 + 110.0 * np.arange(3)), -1)
+    dots = dots.reshape(-1, 2)
+    times = T0 + EXP * np.linspace(0.0, 1.0, 800)
+    tracks = model.point_track(dots, np.full(len(dots), T0 + EXP / 2), times)
+    curves = [tracks[i] for i in range(len(dots))]
+    image = render_streaks((H, W), curves, flux_per_px=0.6, sigma_px=1.3, noise=0.004, seed=4)
+    return quantise(image), curves
+
+
+def _matched(fs, curves: list[np.ndarray], tol: float) -> int:
+    """True streaks with a detection whose both ends (either order) lie within ``tol``."""
+    det = np.stack([fs.end_a, fs.end_b], axis=1)
+    found = 0
+    for c in curves:
+        e = np.stack([c[0], c[-1]])
+        d = np.minimum(
+            np.hypot(*(det - e[None]).transpose(2, 0, 1)).max(axis=1),
+            np.hypot(*(det - e[None, ::-1]).transpose(2, 0, 1)).max(axis=1),
+        )
+        found += int(np.any(d < tol))
+    return found
+
+
+@pytest.fixture(scope="module")
+def hairpins():
+    image, curves = _frame()
+    return image, curves, detect_frame(image)
+
+
+def test_the_predicted_curves_are_hairpins_that_start_where_the_dot_starts() -> None:
+    # The convention the pass relies on: samples run from the start of exposure to its end.
+    model = _model()
+    c = predict_curves(model, np.array([[200.0, 150.0]]), T0, EXP)
+    assert c.arc[0] == pytest.approx(2 * np.hypot(REACH_PX, DRIFT_PX / 2), rel=0.05)
+    assert c.chord[0] == pytest.approx(DRIFT_PX, abs=0.3)
+    # A positive rotation about the camera's y axis (down) turns the optical axis towards +x,
+    # so static points move towards -x: first out to -REACH_PX at mid-exposure, then back,
+    # drifting towards -y (the rotation about x turns the axis towards -y... the image +y).
+    mid = c.pts[0, c.pts.shape[1] // 2] - c.pts[0, 0]
+    assert mid[0] == pytest.approx(-REACH_PX, abs=1.0)
+
+
+def test_the_gyro_template_finds_hairpins_whole(hairpins) -> None:
+    image, curves, first = hairpins
+    # Negative control: the image alone measures the hairpins as single lines.
+    assert _matched(first, curves, 1.0) <= 2
+    out, what = refine_frame(image, first, FrameTiming(T0, EXP), _model())
+    assert what.status == "refined"
+    assert _matched(out, curves, 1.0) >= len(curves) - 1
+    assert len(out) == len(curves)
+    # Every streak's centre line goes out and back: its arc is the hairpin's.
+    assert np.all(out.length_px > 1.7 * REACH_PX)
+
+
+def test_a_wrong_sign_gyro_is_refused(hairpins) -> None:
+    image, _, first = hairpins
+    out, what = refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))
+    assert what.status == "refused"
+    assert out is first
+
+
+def test_straight_streaks_are_left_to_the_first_pass() -> None:
+    # A motion that does not reverse: no hairpin frame, the first pass stands untouched.
+    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
+    t = np.arange(0.0, 0.2, 1e-3)
+    omega = np.stack([0.0 * t, np.full_like(t, 30.0 / (F * EXP)), 0.0 * t], axis=1)
+    model = BlurModel(
+        Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
+        GyroTrace(t, omega),
+        gyro_upsample=1,
+    )
+    dots = np.array([[100.0, 100.0], [300.0, 200.0]])
+    tracks = model.point_track(dots, np.full(2, T0 + EXP / 2), T0 + EXP * np.linspace(0, 1, 400))
+    image = quantise(render_streaks((H, W), list(tracks), flux_per_px=0.6, sigma_px=1.3))
+    first = detect_frame(image)
+    out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    assert what.status == "skipped" and out is first
+    # The gate needs no image: a session's frames are read again only where it passes.
+    read: list[int] = []
+
+    def reader(img: np.ndarray):
+        def read_it() -> np.ndarray:
+            read.append(1)
+            return img
+
+        return read_it
+
+    assert refine_frame(reader(image), first, FrameTiming(T0, EXP), model)[0] is first
+    assert not read
+    hp_image, _ = _frame()
+    refine_frame(reader(hp_image), detect_frame(hp_image), FrameTiming(T0, EXP), _model())
+    assert read == [1]
+
+
+def _hairpin_gyro(fps: float, reach_px: float, drift_px: float, f_px: float):
+    """A ``shake`` stand-in: about y, one period per frame (out and back within an exposure
+    of half a period, the frames starting on whole periods); about x, a slow drift."""
+    period = 1.0 / fps
+
+    def omega(t_s: np.ndarray, seed: int, amplitude_radps: float) -> np.ndarray:
+        a = reach_px / f_px * 2 * np.pi / period
+        wy = a * np.cos(2 * np.pi * t_s / period)
+        wx = np.full_like(t_s, drift_px / f_px / (period / 2))
+        return np.stack([wx, wy, 0.0 * t_s], axis=1)
+
+    return omega
+
+
+def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
+    # Every frame of this session is a hairpin frame, which fools the time-shift scan (it
+    # compares the first pass's lines with the predicted ends): the session's guess (the
+    # truth here) is used as it is.
+    from blurtrack.detect import DetectParams
+    from blurtrack.detect.session import detect_session
+    from blurtrack.io.session import load_session
+    from blurtrack.testing import mini_session
+
+    fps, w = 25.0, 320
+    monkeypatch.setattr(mini_session, "shake", _hairpin_gyro(fps, 14.0, 3.0, 0.9 * w))
+    truth = mini_session.write_synthetic_session(
+        tmp_path / "s", n_frames=3, seed=5, fps=fps, exposure_s=0.5 / fps, sigma_px=1.3
+    )
+    session = load_session(tmp_path / "s")
+    on = detect_session(session, gyro="on", refine_timeshift=False)
+    off = detect_session(
+        session, DetectParams(gyro_template=False), gyro="on", refine_timeshift=False
+    )
+    assert on.summary["gyro_template_frames"] == {"refined": 3}
+    assert off.summary["gyro_template_frames"] == {}
+    for res, least, most in ((on, 0.9, 1.0), (off, 0.0, 0.2)):
+        hit = n = 0
+        for fr in truth["frames"]:
+            d = res.table[res.table.frame == fr["index"]]
+            s = d[["start_x", "start_y"]].to_numpy()
+            e = d[["end_x", "end_y"]].to_numpy()
+            for st in fr["streaks"]:
+                if not st["inside"]:
+                    continue
+                n += 1
+                err = np.maximum(
+                    np.hypot(*(s - st["start"]).T), np.hypot(*(e - st["end"]).T)
+                )  # oriented: start and end as the session resolved them
+                hit += int(err.min() < 1.0)
+        assert least * n <= hit <= most * n
