@@ -170,7 +170,7 @@ def equal_blur_tracks(
     −0.03 px per px of blur difference (a time-offset signature, −0.6 ms) and by 0.28 px RMS
     at small to 1.3 px at large blur differences; equally blurred, +0.00 and 0.17–0.70 px.
     """
-    from blurtrack.features.equalblur import refine_equal_blur
+    from blurtrack.features.equalblur import equal_blur_patches, refine_patches
     from blurtrack.features.pairs import map_pairs
     from blurtrack.features.tracks import to_gray8
 
@@ -179,18 +179,20 @@ def equal_blur_tracks(
     a, b = tracks.frame_a, tracks.frame_b
     oa = exposure_offsets(tracks.pts_a, t[a], e[a], calib, gyro)
     ob = exposure_offsets(tracks.pts_b, t[b], e[b], calib, gyro)
-    pts_b = tracks.pts_b.copy()
-    keep = np.zeros(len(tracks), bool)
     firsts = np.unique(a)
     sels = {int(f): np.flatnonzero(a == f) for f in firsts}
 
-    def refine(f: int, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def patches(f: int, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, ...]:
         s = sels[f]
-        return refine_equal_blur(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
+        return equal_blur_patches(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
 
-    done = map_pairs(refine, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
-    for f, (p, k) in zip(firsts, done, strict=True):
-        pts_b[sels[int(f)]], keep[sels[int(f)]] = p, k
+    # the patches pair by pair on every core, Lucas–Kanade on all of them at once
+    done = map_pairs(patches, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
+    pts_b, keep = tracks.pts_b.copy(), np.zeros(len(tracks), bool)
+    if done:
+        idx = np.concatenate([sels[int(f)] for f in firsts])
+        cat = (np.concatenate(c) for c in zip(*done, strict=True))
+        pts_b[idx], keep[idx] = refine_patches(tracks.pts_b[idx], *cat)
     return _subset(replace(tracks, pts_b=pts_b), keep)
 
 

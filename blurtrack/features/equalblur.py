@@ -83,6 +83,23 @@ def refine_equal_blur(
     its mid-exposure position, in its own frame. Returns the refined ``pts_b`` ``(N, 2)`` and
     whether each refinement converged inside the margin ``(N,)`` (others keep ``pts_b``).
     """
+    patches = equal_blur_patches(img_a, img_b, pts_a, pts_b, offsets_a, offsets_b, window_px)
+    return refine_patches(pts_b, *patches)
+
+
+def equal_blur_patches(
+    img_a: np.ndarray,
+    img_b: np.ndarray,
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    offsets_a: np.ndarray,
+    offsets_b: np.ndarray,
+    window_px: int = WINDOW_PX,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The equally blurred patches :func:`refine_equal_blur` matches (arguments as there):
+    templates ``(N, w+2, w+2)`` around ``pts_a``, targets ``(N, P, P)`` around ``pts_b`` and
+    which tracks have kernels short enough to refine ``(N,)``. Patches of several frame pairs
+    concatenated go to one :func:`refine_patches` (the same result as pair by pair)."""
     pa, pb = np.asarray(pts_a, float), np.asarray(pts_b, float)
     oa, ob = np.asarray(offsets_a, float), np.asarray(offsets_b, float)
     n = len(pa)
@@ -90,17 +107,16 @@ def refine_equal_blur(
         raise FeatureTrackError("equal-blur refinement: points and kernels differ in shape")
     if window_px < 5 or window_px % 2 == 0:
         raise FeatureTrackError(f"window_px must be odd and >= 5, got {window_px}")
-    A = np.asarray(img_a, np.float32)
-    B = np.asarray(img_b, np.float32)
-    out, ok = pb.copy(), np.zeros(n, bool)
-    if n == 0:
-        return out, ok
-    ext = np.maximum(np.abs(oa).max(axis=(1, 2)), np.abs(ob).max(axis=(1, 2)))
-    usable = ext <= MAX_KERNEL_PX
     h = window_px // 2
     half = h + MARGIN_PX + 1
     ta = np.zeros((n, 2 * h + 3, 2 * h + 3), np.float32)
     jb = np.zeros((n, 2 * half + 1, 2 * half + 1), np.float32)
+    if n == 0:
+        return ta, jb, np.zeros(0, bool)
+    A = np.asarray(img_a, np.float32)
+    B = np.asarray(img_b, np.float32)
+    ext = np.maximum(np.abs(oa).max(axis=(1, 2)), np.abs(ob).max(axis=(1, 2)))
+    usable = ext <= MAX_KERNEL_PX
     rad = np.ceil(np.where(usable, ext, 0)).astype(np.int64) + 1
     R = int(rad.max())
     ka, kb = kernel_stack(oa, R), kernel_stack(ob, R)
@@ -111,7 +127,19 @@ def refine_equal_blur(
         b = cv2.filter2D(_patch(B, pb[i], half + r), -1, ka[i, c, c])
         ta[i] = a[r:-r, r:-r]
         jb[i] = b[r:-r, r:-r]
-    d, conv = lucas_kanade(ta, jb)
+    return ta, jb, usable
+
+
+def refine_patches(
+    pts_b: np.ndarray, template: np.ndarray, target: np.ndarray, usable: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`refine_equal_blur`'s result from :func:`equal_blur_patches`'s: Lucas–Kanade
+    on the patches, each point moved by its converged translation inside the margin."""
+    pb = np.asarray(pts_b, float)
+    out, ok = pb.copy(), np.zeros(len(pb), bool)
+    if len(pb) == 0:
+        return out, ok
+    d, conv = lucas_kanade(template, target)
     good = usable & conv & np.all(np.abs(d) < MARGIN_PX, axis=1)
     out[good] = pb[good] + d[good]
     return out, good

@@ -39,6 +39,9 @@ class GyroTrace:
     omega_radps: np.ndarray
     max_gap_s: float | None = None
     _gap_starts: np.ndarray = field(init=False, repr=False, compare=False)
+    #: ``omega_radps``'s columns as contiguous arrays: ``np.interp`` copies a strided column
+    #: on every call (80 000 samples of an upsampled 1 kHz trace: 10x the interpolation).
+    _columns: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         t = np.ascontiguousarray(self.t_s, dtype=float)
@@ -59,6 +62,7 @@ class GyroTrace:
         object.__setattr__(self, "omega_radps", w)
         object.__setattr__(self, "max_gap_s", gap)
         object.__setattr__(self, "_gap_starts", np.flatnonzero(dt > gap))
+        object.__setattr__(self, "_columns", tuple(np.ascontiguousarray(w[:, k]) for k in range(3)))
 
     @property
     def rate_hz(self) -> float:
@@ -67,12 +71,12 @@ class GyroTrace:
     def omega_at(self, t_s: np.ndarray) -> np.ndarray:
         """ω (rad/s, IMU frame) at IMU-clock times ``t_s (M,)`` -> ``(M, 3)``, no coverage check."""
         t = np.asarray(t_s, dtype=float)
-        return np.stack([np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3)], axis=-1)
+        return np.stack([np.interp(t, self.t_s, c) for c in self._columns], axis=-1)
 
     def omega_components(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Like :meth:`omega_at` but as the ``(wx, wy, wz)`` tuple the model functions take."""
         t = np.asarray(t_s, dtype=float)
-        return tuple(np.interp(t, self.t_s, self.omega_radps[:, k]) for k in range(3))  # type: ignore[return-value]
+        return tuple(np.interp(t, self.t_s, c) for c in self._columns)  # type: ignore[return-value]
 
     def covers(self, t0_s: float, t1_s: float) -> bool:
         try:
