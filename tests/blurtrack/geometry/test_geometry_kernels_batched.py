@@ -1,6 +1,7 @@
-"""The numpy fast paths of the gyro integration (blurtrack.geometry.kernels.relative_rotation
-with all sub-steps at once; GyroTrace's contiguous columns) give bit for bit the values of the
-step-by-step loop and of ``np.interp`` on the trace's own columns."""
+"""The numpy fast paths of the gyro integration give bit for bit the values of the plain
+code: blurtrack.geometry.kernels.relative_rotation with all sub-steps at once against the
+step-by-step loop, GyroTrace's contiguous columns against ``np.interp`` on its own columns,
+its cached upsampling against a fresh one."""
 
 from __future__ import annotations
 
@@ -62,3 +63,13 @@ def test_gyro_interpolation_equals_np_interp_of_its_columns() -> None:
     assert np.array_equal(g.omega_at(t), ref)
     assert all(np.array_equal(c, ref[:, k]) for k, c in enumerate(g.omega_components(t)))
     assert np.array_equal(g.omega_at(t[:5]), g.omega_radps[[0, 7, 100, -2, -1]])
+
+
+def test_upsampled_trace_is_computed_once_and_equals_a_fresh_resampling() -> None:
+    g = _trace(5)
+    up = g.upsampled(8)
+    assert g.upsampled(8) is up and g.upsampled(1) is g
+    fresh = GyroTrace(g.t_s.copy(), g.omega_radps.copy()).upsampled(8)
+    assert np.array_equal(up.t_s, fresh.t_s) and np.array_equal(up.omega_radps, fresh.omega_radps)
+    other = g.upsampled(4)
+    assert other.t_s.size != up.t_s.size  # the cache is per factor
