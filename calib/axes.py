@@ -212,42 +212,19 @@ def rotations_from_pairs(
         pair_fit: ``(a, b, threshold_rad, seed) -> (R, inliers, translating)`` on a pair's
             unit bearings; default :func:`fit_rotation` (pure rotation).
     """
-    fx = camera.intrinsics[0]
-    H = camera.height
-    ta, tb, Rs, npts, fa, tr = [], [], [], [], [], []
+    from calib.axes_pairs import collect_rotations, pair_rotation
+
     # each pair's matches in their order, without a mask over all matches per pair
     order = np.argsort(pair, kind="stable")
     firsts, starts = np.unique(pair[order], return_index=True)
-    for f, sel in zip(firsts, np.split(order, starts[1:]) if firsts.size else [], strict=True):
-        if sel.size < MIN_POINTS:
-            continue
-        ba = camera.unproject(pts_a[sel])
-        bb = camera.unproject(pts_b[sel])
-        ba /= np.linalg.norm(ba, axis=1, keepdims=True)
-        bb /= np.linalg.norm(bb, axis=1, keepdims=True)
-        if pair_fit is None:
-            R, inl = fit_rotation(ba, bb, threshold_px / fx, seed=int(f))
-            moved = False
-        else:
-            R, inl, moved = pair_fit(ba, bb, threshold_px / fx, int(f))
-        if np.count_nonzero(inl) < MIN_POINTS:
-            continue
-        g = int(f) + 1
-        ya = float(np.mean(pts_a[sel][inl, 1]))
-        yb = float(np.mean(pts_b[sel][inl, 1]))
-        ta.append(frame_t_s[f] + camera.readout_s * ya / H + exposure_s[f] / 2)
-        tb.append(frame_t_s[g] + camera.readout_s * yb / H + exposure_s[g] / 2)
-        Rs.append(R)
-        npts.append(np.count_nonzero(inl))
-        fa.append(f)
-        tr.append(moved)
-    if len(ta) < MIN_PAIRS:
-        raise AxisSearchError(
-            f"too few frame pairs with {MIN_POINTS}+ matched points to measure rotations "
-            f"({len(ta)}; need {MIN_PAIRS})"
-        )
-    return ImageRotations(
-        np.array(ta), np.array(tb), np.stack(Rs), np.array(npts), np.array(fa), np.array(tr, bool)
+    sels = np.split(order, starts[1:]) if firsts.size else []
+    return collect_rotations(
+        [
+            pair_rotation(
+                pts_a[s], pts_b[s], int(f), frame_t_s, exposure_s, camera, threshold_px, pair_fit
+            )
+            for f, s in zip(firsts, sels, strict=True)
+        ]
     )
 
 

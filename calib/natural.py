@@ -29,13 +29,15 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.features.tracks import FeatureTracks, TrackParams, track_frames
+from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib.axes import AxisSearch, ImageRotations, check_axes, rotations_from_pairs, search_axes
+from calib.axes_pairs import collect_rotations
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
+from calib.natural_pairs import track_and_rotate
 from calib.result import CalibResult
 
 #: Fewest feature tracks and frame pairs a natural calibration starts from.
@@ -172,7 +174,6 @@ def equal_blur_tracks(
     """
     from blurtrack.features.equalblur import equal_blur_patches, refine_patches
     from blurtrack.features.pairs import map_pairs
-    from blurtrack.features.tracks import to_gray8
 
     t = np.asarray(frame_t_ns, np.int64) * 1e-9
     e = np.asarray(exposure_ns, np.int64) * 1e-9
@@ -237,8 +238,6 @@ class _FrameCache:
         self.keep: bool | None = None
 
     def __call__(self, i: int) -> np.ndarray:
-        from blurtrack.features.tracks import to_gray8
-
         if i in self.frames:
             return self.frames[i]
         img = to_gray8(self.read_frame(i))
@@ -395,11 +394,11 @@ def calibrate_natural(
             f"too few frames for a natural-scene calibration: {ts.size} (need {MIN_FRAMES})"
         )
     read = _FrameCache(session.read_image, ts.size)
-    tracks = track_frames(read, ts.size, params or TrackParams(), progress)
-    check_tracks(tracks)
     initial = session.initial_calibration()
+    tracks, pair_rots = track_and_rotate(read, ts, exp, initial, params or TrackParams(), progress)
+    check_tracks(tracks)
     streaks = tracks_to_streaks(tracks, ts, exp)
-    rots = image_rotations(tracks, ts, exp, initial)
+    rots = collect_rotations(pair_rots)
     gyro = session.gyro()
     search, start = discover_axes(
         rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks", strict_axes
