@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -173,13 +174,13 @@ def equal_blur_tracks(
     at small to 1.3 px at large blur differences; equally blurred, +0.00 and 0.17–0.70 px.
     """
     from blurtrack.features.equalblur import equal_blur_patches, refine_patches
-    from blurtrack.features.pairs import map_pairs
+    from blurtrack.features.pairs import concurrently, map_pairs
 
     t = np.asarray(frame_t_ns, np.int64) * 1e-9
     e = np.asarray(exposure_ns, np.int64) * 1e-9
     a, b = tracks.frame_a, tracks.frame_b
-    oa = exposure_offsets(tracks.pts_a, t[a], e[a], calib, gyro)
-    ob = exposure_offsets(tracks.pts_b, t[b], e[b], calib, gyro)
+    ends = ((tracks.pts_a, a), (tracks.pts_b, b))  # the two ends' kernels on two cores
+    oa, ob = concurrently([partial(exposure_offsets, p, t[f], e[f], calib, gyro) for p, f in ends])
     firsts = np.unique(a)
     sels = {int(f): np.flatnonzero(a == f) for f in firsts}
 
@@ -192,8 +193,8 @@ def equal_blur_tracks(
     pts_b, keep = tracks.pts_b.copy(), np.zeros(len(tracks), bool)
     if done:
         idx = np.concatenate([sels[int(f)] for f in firsts])
-        cat = (np.concatenate(c) for c in zip(*done, strict=True))
-        pts_b[idx], keep[idx] = refine_patches(tracks.pts_b[idx], *cat)
+        ta, jb, ok = (np.concatenate(c) for c in zip(*done, strict=True))
+        pts_b[idx], keep[idx] = refine_patches(tracks.pts_b[idx], ta, jb, ok, workers=None)
     return _subset(replace(tracks, pts_b=pts_b), keep)
 
 

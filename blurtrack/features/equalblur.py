@@ -24,9 +24,13 @@ single-level Lucas–Kanade refines ``pts_b`` from its first estimate.
 
 from __future__ import annotations
 
+from functools import partial
+from itertools import pairwise
+
 import cv2
 import numpy as np
 
+from blurtrack.features.pairs import concurrently, usable_cores
 from blurtrack.features.tracks import FeatureTrackError
 
 #: Lucas–Kanade window (px) and how far (px) a refinement may move a point.
@@ -34,6 +38,8 @@ WINDOW_PX = 21
 MARGIN_PX = 4
 #: Longest kernel (px from its centre) the refinement accepts; longer tracks are dropped.
 MAX_KERNEL_PX = 60
+#: Fewest tracks per thread of :func:`refine_patches`.
+MIN_CHUNK = 256
 
 
 def kernel_stack(offsets: np.ndarray, radius: int) -> np.ndarray:
@@ -131,15 +137,29 @@ def equal_blur_patches(
 
 
 def refine_patches(
-    pts_b: np.ndarray, template: np.ndarray, target: np.ndarray, usable: np.ndarray
+    pts_b: np.ndarray,
+    template: np.ndarray,
+    target: np.ndarray,
+    usable: np.ndarray,
+    workers: int | None = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`refine_equal_blur`'s result from :func:`equal_blur_patches`'s: Lucas–Kanade
-    on the patches, each point moved by its converged translation inside the margin."""
+    on the patches, each point moved by its converged translation inside the margin.
+
+    ``workers`` threads (``None``: every usable core) share the tracks in chunks of at least
+    :data:`MIN_CHUNK` (numpy's array work runs without the GIL; each track's translation
+    depends on its own patches only, so the result does not depend on the split)."""
     pb = np.asarray(pts_b, float)
     out, ok = pb.copy(), np.zeros(len(pb), bool)
     if len(pb) == 0:
         return out, ok
-    d, conv = lucas_kanade(template, target)
+    k = max(1, min(len(pb) // MIN_CHUNK, usable_cores() if workers is None else workers))
+    cuts = np.linspace(0, len(pb), k + 1).astype(int)
+    parts = concurrently(
+        [partial(lucas_kanade, template[a:b], target[a:b]) for a, b in pairwise(cuts)]
+    )
+    d = np.concatenate([p[0] for p in parts])
+    conv = np.concatenate([p[1] for p in parts])
     good = usable & conv & np.all(np.abs(d) < MARGIN_PX, axis=1)
     out[good] = pb[good] + d[good]
     return out, good

@@ -33,6 +33,20 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def concurrently(calls: Sequence[Callable[[], T]], workers: int | None = None) -> list[T]:
+    """``[c() for c in calls]`` with the calls on up to ``workers`` threads (default:
+    :func:`usable_cores`): for work on large arrays, which numpy and OpenCV do without the GIL.
+
+    >>> concurrently([lambda: 1, lambda: 2])
+    [1, 2]
+    """
+    n = min(len(calls), workers if workers is not None else usable_cores())
+    if n <= 1:
+        return [c() for c in calls]
+    with ThreadPoolExecutor(max_workers=n) as pool:
+        return list(pool.map(lambda c: c(), calls))
+
+
 def map_pairs(
     fn: Callable[[int, np.ndarray, np.ndarray], T],
     read_frame: Callable[[int], np.ndarray],

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from blurtrack.features import equalblur
 from blurtrack.features.equalblur import (
     equal_blur_patches,
     kernel_stack,
@@ -132,7 +133,7 @@ def test_refinement_validates_shapes() -> None:
     assert out.shape == (0, 2) and ok.shape == (0,)
 
 
-def test_patches_of_several_pairs_refine_as_pair_by_pair() -> None:
+def test_patches_of_several_pairs_refine_as_pair_by_pair(monkeypatch) -> None:
     """Lucas–Kanade on the concatenated patches of two frame pairs (how calib.natural runs
     it) gives exactly the pair-by-pair refinement; a pair refined with the other pair's
     kernels does not (negative control: the comparison sees the kernels)."""
@@ -163,6 +164,10 @@ def test_patches_of_several_pairs_refine_as_pair_by_pair() -> None:
     assert np.array_equal(pts, np.concatenate([o[0] for o in one]))
     assert np.array_equal(ok, np.concatenate([o[1] for o in one]))
     assert ok.mean() > 0.8
+    # shared by threads in chunks (a chunk of 7 tracks here): the same again
+    monkeypatch.setattr(equalblur, "MIN_CHUNK", 7)
+    split = refine_patches(np.concatenate([p[3] for p in pairs]), *cat, workers=3)
+    assert np.array_equal(split[0], pts) and np.array_equal(split[1], ok)
     swapped = refine_equal_blur(*pairs[0][:4], pairs[1][4], pairs[1][5])
     assert not np.array_equal(swapped[0], one[0][0])
     none2, none3 = np.zeros((0, 2)), np.zeros((0, 4, 2))
