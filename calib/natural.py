@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
-from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib.axes import AxisSearch, ImageRotations, check_axes, rotations_from_pairs, search_axes
 from calib.axes_pairs import collect_rotations
@@ -163,10 +163,10 @@ def equal_blur_tracks(
     calib: Calibration,
     gyro: GyroTrace,
 ) -> FeatureTracks:
-    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur` (pairs on
-    every core): each frame's patch blurred by the other end's kernel (:func:`exposure_offsets`
-    under ``calib``), so Lucas–Kanade compares equally blurred patches and the refined points
-    are mid-exposure positions. Tracks whose refinement fails are dropped.
+    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur` (patches
+    pair by pair on every core, then one Lucas–Kanade): each frame's patch blurred by the other
+    end's kernel (:func:`exposure_offsets` under ``calib``), so Lucas–Kanade compares equally
+    blurred patches; refined points are mid-exposure positions, failed refinements dropped.
 
     Lucas–Kanade between differently blurred frames is pulled along the difference of the two
     blurs: on a simulated 720p far scene (seed 0, 100 frames, truth) the tracked end erred by
@@ -188,7 +188,6 @@ def equal_blur_tracks(
         s = sels[f]
         return equal_blur_patches(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
 
-    # the patches pair by pair on every core, Lucas–Kanade on all of them at once
     done = map_pairs(patches, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
     pts_b, keep = tracks.pts_b.copy(), np.zeros(len(tracks), bool)
     if done:
@@ -395,12 +394,14 @@ def calibrate_natural(
             f"too few frames for a natural-scene calibration: {ts.size} (need {MIN_FRAMES})"
         )
     read = _FrameCache(session.read_image, ts.size)
-    initial = session.initial_calibration()
-    tracks, pair_rots = track_and_rotate(read, ts, exp, initial, params or TrackParams(), progress)
+    initial, gyro = session.initial_calibration(), session.gyro()
+    up = partial(gyro.upsampled, GYRO_UPSAMPLE)  # resampled while the frames are tracked
+    tracks, pair_rots = track_and_rotate(
+        read, ts, exp, initial, params or TrackParams(), progress, meanwhile=[up]
+    )
     check_tracks(tracks)
     streaks = tracks_to_streaks(tracks, ts, exp)
     rots = collect_rotations(pair_rots)
-    gyro = session.gyro()
     search, start = discover_axes(
         rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks", strict_axes
     )

@@ -11,7 +11,8 @@ followed by :func:`calib.natural.image_rotations`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -37,11 +38,17 @@ def track_and_rotate(
     params: TrackParams,
     progress: Callable[[int, int], None] | None = None,
     workers: int | None = None,
+    meanwhile: Sequence[Callable[[], object]] = (),
 ) -> tuple[FeatureTracks, list[PairRotation | None]]:
     """Tracks of every consecutive frame pair and each pair's rotation (``None`` where too few
     points; gather them with :func:`calib.axes_pairs.collect_rotations`), translation a
     nuisance where the data need it (:mod:`calib.axes_translation`); times relative to the
-    first frame."""
+    first frame.
+
+    ``meanwhile``: calls run on one more thread while the frames are tracked, for work the
+    calibration needs next whose result they keep themselves (the gyro's resampling,
+    :meth:`~blurtrack.geometry.gyro.GyroTrace.upsampled`, and its scipy import: 0.5 s off the
+    critical path). Their errors are ignored here: the later call meets them again."""
     ts = np.asarray(frame_t_ns, np.int64)
     n = int(ts.size)
     if n < 2:
@@ -54,5 +61,9 @@ def track_and_rotate(
         tr = track_pair(a, b, params)
         return tr, pair_rotation(tr[0], tr[1], f, t, e, cam, pair_fit=fit_rotation_translating)
 
-    done = map_pairs(work, lambda i: to_gray8(read_frame(i)), range(n - 1), workers, progress)
+    with ThreadPoolExecutor(max_workers=1) as side:
+        pending = [side.submit(c) for c in meanwhile]
+        done = map_pairs(work, lambda i: to_gray8(read_frame(i)), range(n - 1), workers, progress)
+        for p in pending:
+            p.exception()  # waits; an error is raised again where the result is needed
     return tracks_of_pairs([d[0] for d in done], n), [d[1] for d in done]

@@ -63,3 +63,23 @@ def test_too_few_pairs_and_mismatched_pairs_are_refused(session) -> None:
         )
     with pytest.raises(FeatureTrackError, match="2 frame pairs tracked for 4 frames"):
         tracks_of_pairs([(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))] * 2, 4)
+
+
+def test_work_given_meanwhile_is_done_and_its_errors_left_for_later(session) -> None:
+    ts = session.frames["timestamp_ns"].to_numpy(np.int64)[:4]
+    ex = session.frames["exposure_ns"].to_numpy(np.int64)[:4]
+    ran: list[str] = []
+
+    def fails() -> None:
+        ran.append("fails")
+        raise ValueError("met again later")
+
+    tracks, _ = track_and_rotate(
+        session.read_image,
+        ts,
+        ex,
+        session.initial_calibration(),
+        TrackParams(),
+        meanwhile=[lambda: ran.append("ok"), fails],
+    )
+    assert sorted(ran) == ["fails", "ok"] and tracks.n_frames == 4
