@@ -25,17 +25,20 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
 
-from blurtrack.features.tracks import FeatureTracks, TrackParams, track_frames
-from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
+from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib.axes import AxisSearch, ImageRotations, check_axes, rotations_from_pairs, search_axes
+from calib.axes_pairs import collect_rotations
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
+from calib.natural_pairs import track_and_rotate
 from calib.result import CalibResult
 
 #: Fewest feature tracks and frame pairs a natural calibration starts from.
@@ -160,37 +163,37 @@ def equal_blur_tracks(
     calib: Calibration,
     gyro: GyroTrace,
 ) -> FeatureTracks:
-    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur` (pairs on
-    every core): each frame's patch blurred by the other end's kernel (:func:`exposure_offsets`
-    under ``calib``), so Lucas–Kanade compares equally blurred patches and the refined points
-    are mid-exposure positions. Tracks whose refinement fails are dropped.
+    """The tracks refined by :func:`blurtrack.features.equalblur.refine_equal_blur` (patches
+    pair by pair on every core, then one Lucas–Kanade): each frame's patch blurred by the other
+    end's kernel (:func:`exposure_offsets` under ``calib``), so Lucas–Kanade compares equally
+    blurred patches; refined points are mid-exposure positions, failed refinements dropped.
 
     Lucas–Kanade between differently blurred frames is pulled along the difference of the two
     blurs: on a simulated 720p far scene (seed 0, 100 frames, truth) the tracked end erred by
     −0.03 px per px of blur difference (a time-offset signature, −0.6 ms) and by 0.28 px RMS
     at small to 1.3 px at large blur differences; equally blurred, +0.00 and 0.17–0.70 px.
     """
-    from blurtrack.features.equalblur import refine_equal_blur
-    from blurtrack.features.pairs import map_pairs
-    from blurtrack.features.tracks import to_gray8
+    from blurtrack.features.equalblur import equal_blur_patches, refine_patches
+    from blurtrack.features.pairs import concurrently, map_pairs
 
     t = np.asarray(frame_t_ns, np.int64) * 1e-9
     e = np.asarray(exposure_ns, np.int64) * 1e-9
     a, b = tracks.frame_a, tracks.frame_b
-    oa = exposure_offsets(tracks.pts_a, t[a], e[a], calib, gyro)
-    ob = exposure_offsets(tracks.pts_b, t[b], e[b], calib, gyro)
-    pts_b = tracks.pts_b.copy()
-    keep = np.zeros(len(tracks), bool)
+    ends = ((tracks.pts_a, a), (tracks.pts_b, b))  # the two ends' kernels on two cores
+    oa, ob = concurrently([partial(exposure_offsets, p, t[f], e[f], calib, gyro) for p, f in ends])
     firsts = np.unique(a)
     sels = {int(f): np.flatnonzero(a == f) for f in firsts}
 
-    def refine(f: int, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def patches(f: int, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, ...]:
         s = sels[f]
-        return refine_equal_blur(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
+        return equal_blur_patches(img_a, img_b, tracks.pts_a[s], tracks.pts_b[s], oa[s], ob[s])
 
-    done = map_pairs(refine, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
-    for f, (p, k) in zip(firsts, done, strict=True):
-        pts_b[sels[int(f)]], keep[sels[int(f)]] = p, k
+    done = map_pairs(patches, lambda i: to_gray8(read_frame(i)), [int(f) for f in firsts])
+    pts_b, keep = tracks.pts_b.copy(), np.zeros(len(tracks), bool)
+    if done:
+        idx = np.concatenate([sels[int(f)] for f in firsts])
+        ta, jb, ok = (np.concatenate(c) for c in zip(*done, strict=True))
+        pts_b[idx], keep[idx] = refine_patches(tracks.pts_b[idx], ta, jb, ok, workers=None)
     return _subset(replace(tracks, pts_b=pts_b), keep)
 
 
@@ -235,8 +238,6 @@ class _FrameCache:
         self.keep: bool | None = None
 
     def __call__(self, i: int) -> np.ndarray:
-        from blurtrack.features.tracks import to_gray8
-
         if i in self.frames:
             return self.frames[i]
         img = to_gray8(self.read_frame(i))
@@ -393,12 +394,14 @@ def calibrate_natural(
             f"too few frames for a natural-scene calibration: {ts.size} (need {MIN_FRAMES})"
         )
     read = _FrameCache(session.read_image, ts.size)
-    tracks = track_frames(read, ts.size, params or TrackParams(), progress)
+    initial, gyro = session.initial_calibration(), session.gyro()
+    up = partial(gyro.upsampled, GYRO_UPSAMPLE)  # resampled while the frames are tracked
+    tracks, pair_rots = track_and_rotate(
+        read, ts, exp, initial, params or TrackParams(), progress, meanwhile=[up]
+    )
     check_tracks(tracks)
-    initial = session.initial_calibration()
     streaks = tracks_to_streaks(tracks, ts, exp)
-    rots = image_rotations(tracks, ts, exp, initial)
-    gyro = session.gyro()
+    rots = collect_rotations(pair_rots)
     search, start = discover_axes(
         rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks", strict_axes
     )

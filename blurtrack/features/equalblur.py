@@ -24,9 +24,13 @@ single-level Lucas–Kanade refines ``pts_b`` from its first estimate.
 
 from __future__ import annotations
 
+from functools import partial
+from itertools import pairwise
+
 import cv2
 import numpy as np
 
+from blurtrack.features.pairs import concurrently, usable_cores
 from blurtrack.features.tracks import FeatureTrackError
 
 #: Lucas–Kanade window (px) and how far (px) a refinement may move a point.
@@ -34,6 +38,8 @@ WINDOW_PX = 21
 MARGIN_PX = 4
 #: Longest kernel (px from its centre) the refinement accepts; longer tracks are dropped.
 MAX_KERNEL_PX = 60
+#: Fewest tracks per thread of :func:`refine_patches`.
+MIN_CHUNK = 256
 
 
 def kernel_stack(offsets: np.ndarray, radius: int) -> np.ndarray:
@@ -83,6 +89,23 @@ def refine_equal_blur(
     its mid-exposure position, in its own frame. Returns the refined ``pts_b`` ``(N, 2)`` and
     whether each refinement converged inside the margin ``(N,)`` (others keep ``pts_b``).
     """
+    patches = equal_blur_patches(img_a, img_b, pts_a, pts_b, offsets_a, offsets_b, window_px)
+    return refine_patches(pts_b, *patches)
+
+
+def equal_blur_patches(
+    img_a: np.ndarray,
+    img_b: np.ndarray,
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    offsets_a: np.ndarray,
+    offsets_b: np.ndarray,
+    window_px: int = WINDOW_PX,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The equally blurred patches :func:`refine_equal_blur` matches (arguments as there):
+    templates ``(N, w+2, w+2)`` around ``pts_a``, targets ``(N, P, P)`` around ``pts_b`` and
+    which tracks have kernels short enough to refine ``(N,)``. Patches of several frame pairs
+    concatenated go to one :func:`refine_patches` (the same result as pair by pair)."""
     pa, pb = np.asarray(pts_a, float), np.asarray(pts_b, float)
     oa, ob = np.asarray(offsets_a, float), np.asarray(offsets_b, float)
     n = len(pa)
@@ -90,17 +113,16 @@ def refine_equal_blur(
         raise FeatureTrackError("equal-blur refinement: points and kernels differ in shape")
     if window_px < 5 or window_px % 2 == 0:
         raise FeatureTrackError(f"window_px must be odd and >= 5, got {window_px}")
-    A = np.asarray(img_a, np.float32)
-    B = np.asarray(img_b, np.float32)
-    out, ok = pb.copy(), np.zeros(n, bool)
-    if n == 0:
-        return out, ok
-    ext = np.maximum(np.abs(oa).max(axis=(1, 2)), np.abs(ob).max(axis=(1, 2)))
-    usable = ext <= MAX_KERNEL_PX
     h = window_px // 2
     half = h + MARGIN_PX + 1
     ta = np.zeros((n, 2 * h + 3, 2 * h + 3), np.float32)
     jb = np.zeros((n, 2 * half + 1, 2 * half + 1), np.float32)
+    if n == 0:
+        return ta, jb, np.zeros(0, bool)
+    A = np.asarray(img_a, np.float32)
+    B = np.asarray(img_b, np.float32)
+    ext = np.maximum(np.abs(oa).max(axis=(1, 2)), np.abs(ob).max(axis=(1, 2)))
+    usable = ext <= MAX_KERNEL_PX
     rad = np.ceil(np.where(usable, ext, 0)).astype(np.int64) + 1
     R = int(rad.max())
     ka, kb = kernel_stack(oa, R), kernel_stack(ob, R)
@@ -111,7 +133,33 @@ def refine_equal_blur(
         b = cv2.filter2D(_patch(B, pb[i], half + r), -1, ka[i, c, c])
         ta[i] = a[r:-r, r:-r]
         jb[i] = b[r:-r, r:-r]
-    d, conv = lucas_kanade(ta, jb)
+    return ta, jb, usable
+
+
+def refine_patches(
+    pts_b: np.ndarray,
+    template: np.ndarray,
+    target: np.ndarray,
+    usable: np.ndarray,
+    workers: int | None = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`refine_equal_blur`'s result from :func:`equal_blur_patches`'s: Lucas–Kanade
+    on the patches, each point moved by its converged translation inside the margin.
+
+    ``workers`` threads (``None``: every usable core) share the tracks in chunks of at least
+    :data:`MIN_CHUNK` (numpy's array work runs without the GIL; each track's translation
+    depends on its own patches only, so the result does not depend on the split)."""
+    pb = np.asarray(pts_b, float)
+    out, ok = pb.copy(), np.zeros(len(pb), bool)
+    if len(pb) == 0:
+        return out, ok
+    k = max(1, min(len(pb) // MIN_CHUNK, usable_cores() if workers is None else workers))
+    cuts = np.linspace(0, len(pb), k + 1).astype(int)
+    parts = concurrently(
+        [partial(lucas_kanade, template[a:b], target[a:b]) for a, b in pairwise(cuts)]
+    )
+    d = np.concatenate([p[0] for p in parts])
+    conv = np.concatenate([p[1] for p in parts])
     good = usable & conv & np.all(np.abs(d) < MARGIN_PX, axis=1)
     out[good] = pb[good] + d[good]
     return out, good

@@ -15,7 +15,7 @@ that. Pixels follow DESIGN (``(0, 0)`` is the centre of the top-left pixel), as 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -194,6 +194,16 @@ def track_frames(
         workers,
         progress,
     )
+    return tracks_of_pairs(pairs, n_frames)
+
+
+def tracks_of_pairs(
+    pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], n_frames: int
+) -> FeatureTracks:
+    """:class:`FeatureTracks` of :func:`track_pair`'s results for the pairs ``(i, i + 1)``,
+    ``i = 0 … n_frames − 2`` in order."""
+    if len(pairs) != n_frames - 1:
+        raise FeatureTrackError(f"{len(pairs)} frame pairs tracked for {n_frames} frames")
     frame_a = np.concatenate([np.full(len(a), i) for i, (a, _, _) in enumerate(pairs)])
     return FeatureTracks(
         frame_a,

@@ -153,12 +153,30 @@ def relative_rotation(
     0.479425538604
     """
     h = (t_to_s - t_from_s) / n_sub
+    if ops is NUMPY_OPS and n_sub > 1 and isinstance(h, np.ndarray) and h.ndim == 1:
+        return _relative_rotation_np(np.asarray(t_from_s, float), h, omega_cam_at, n_sub)
     R: Mat3 | None = None
     for k in range(n_sub):
         wx, wy, wz = omega_cam_at(t_from_s + (k + 0.5) * h)
         step = so3_exp_c(wx * h, wy * h, wz * h, ops)
         R = step if R is None else matmul3(R, step)
     assert R is not None
+    return R
+
+
+def _relative_rotation_np(
+    t_from_s: np.ndarray, h: np.ndarray, omega_cam_at: OmegaFn, n_sub: int
+) -> Mat3:
+    """:func:`relative_rotation` on numpy arrays ``(N,)`` with ω and the sub-step rotations
+    evaluated for all ``n_sub`` sub-steps at once (``(n_sub, N)`` arrays; the same elementwise
+    arithmetic, so the same values as the loop: 30x fewer array operations on a 300-pair axis
+    search)."""
+    mid = (np.arange(n_sub, dtype=float)[:, None] + 0.5) * h
+    wx, wy, wz = omega_cam_at(t_from_s + mid)
+    steps = so3_exp_c(wx * h, wy * h, wz * h, NUMPY_OPS)
+    R: Mat3 = tuple(c[0] for c in steps)  # type: ignore[assignment]
+    for k in range(1, n_sub):
+        R = matmul3(R, tuple(c[k] for c in steps))  # type: ignore[arg-type]
     return R
 
 

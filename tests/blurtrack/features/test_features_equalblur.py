@@ -8,7 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.features.equalblur import kernel_stack, lucas_kanade, refine_equal_blur
+from blurtrack.features import equalblur
+from blurtrack.features.equalblur import (
+    equal_blur_patches,
+    kernel_stack,
+    lucas_kanade,
+    refine_equal_blur,
+    refine_patches,
+)
 from blurtrack.features.tracks import FeatureTrackError, track_pair
 
 
@@ -124,3 +131,45 @@ def test_refinement_validates_shapes() -> None:
         img, img, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 4, 2)), np.zeros((0, 4, 2))
     )
     assert out.shape == (0, 2) and ok.shape == (0,)
+
+
+def test_patches_of_several_pairs_refine_as_pair_by_pair(monkeypatch) -> None:
+    """Lucas–Kanade on the concatenated patches of two frame pairs (how calib.natural runs
+    it) gives exactly the pair-by-pair refinement; a pair refined with the other pair's
+    kernels does not (negative control: the comparison sees the kernels)."""
+    sharp = _texture(5)
+    rng = np.random.default_rng(7)
+    pairs = []
+    for k, (va, vb) in enumerate((([2.0, 1.0], [9.0, -4.0]), ([-6.0, 3.0], [1.0, 12.0]))):
+        s = np.array([3.1, -1.7]) * (k + 1)
+        oa, ob = _path(np.array(va), np.zeros(2)), _path(np.array(vb), np.array([2.0, 0.0]))
+        img_a, img_b = _blurred(sharp, oa), _blurred(_shift(sharp, s), ob)
+        pa = rng.uniform(50, 190, (25, 2))
+        pb = pa + s + rng.normal(0, 0.5, pa.shape)
+        n = len(pa)
+        pairs.append(
+            (
+                img_a,
+                img_b,
+                pa,
+                pb,
+                np.broadcast_to(oa, (n, *oa.shape)),
+                np.broadcast_to(ob, (n, *ob.shape)),
+            )
+        )
+    one = [refine_equal_blur(*p) for p in pairs]
+    patches = [equal_blur_patches(*p) for p in pairs]
+    cat = [np.concatenate(c) for c in zip(*patches, strict=True)]
+    pts, ok = refine_patches(np.concatenate([p[3] for p in pairs]), *cat)
+    assert np.array_equal(pts, np.concatenate([o[0] for o in one]))
+    assert np.array_equal(ok, np.concatenate([o[1] for o in one]))
+    assert ok.mean() > 0.8
+    # shared by threads in chunks (a chunk of 7 tracks here): the same again
+    monkeypatch.setattr(equalblur, "MIN_CHUNK", 7)
+    split = refine_patches(np.concatenate([p[3] for p in pairs]), *cat, workers=3)
+    assert np.array_equal(split[0], pts) and np.array_equal(split[1], ok)
+    swapped = refine_equal_blur(*pairs[0][:4], pairs[1][4], pairs[1][5])
+    assert not np.array_equal(swapped[0], one[0][0])
+    none2, none3 = np.zeros((0, 2)), np.zeros((0, 4, 2))
+    empty = equal_blur_patches(*pairs[0][:2], none2, none2, none3, none3)
+    assert refine_patches(none2, *empty)[0].shape == (0, 2)

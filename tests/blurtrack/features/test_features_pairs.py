@@ -47,6 +47,25 @@ def test_a_frame_shared_by_two_blocks_is_read_once(monkeypatch) -> None:
     assert sorted(reads) == list(range(7))
 
 
+def test_a_failed_read_stops_the_work_a_block_ahead_at_most(monkeypatch) -> None:
+    """Frames are read one block ahead: a read error surfaces before later blocks are read
+    (pairs [4, 5] need frames 4-6; nothing past block [4, 5] was asked for)."""
+    monkeypatch.setattr(pairs, "BLOCK", 2)
+    reads: list[int] = []
+    lock = threading.Lock()
+
+    def read(i: int) -> np.ndarray:
+        with lock:
+            reads.append(i)
+        if i == 5:
+            raise OSError("frame 5 unreadable")
+        return np.zeros(1)
+
+    with pytest.raises(OSError, match="frame 5"):
+        map_pairs(lambda f, a, b: f, read, range(40), 2)
+    assert 5 in reads and max(reads) <= 6
+
+
 def test_bad_orders_and_worker_counts() -> None:
     with pytest.raises(ValueError, match="ascending"):
         map_pairs(lambda f, a, b: f, lambda i: np.zeros(1), [2, 1])
