@@ -125,6 +125,7 @@ def test_known_or_freely_fitted_scale_gets_no_prior(case) -> None:
     assert info["gyro_scale"] == "known"
     assert not set(SCALE_NAMES) & set(out.fitted)
     assert out.values == known.values  # the fit itself untouched
+    assert out.calibration.sigma["intrinsics"][0] == out.sigma["fx"]  # the file says the same
     free = replace(res, fitted=res.fitted + SCALE_NAMES)
     with pytest.raises(CalibError, match="unknown scale unfitted"):
         with_scale_prior(free, nat.streaks, s.gyro(), FIT_OPTS)
