@@ -39,6 +39,7 @@ from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
 from calib.natural_pairs import track_and_rotate
+from calib.natural_scale import DEFAULT_SCALE_PRIOR, check_scale_prior, natural_sigma_fit
 from calib.result import CalibResult
 
 #: Fewest feature tracks and frame pairs a natural calibration starts from.
@@ -345,7 +346,7 @@ class NaturalResult:
     translation: dict[str, Any] | None = None
     #: The rotation-only fit, when the per-pair translation fit replaced it.
     rotation_only: CalibResult | None = None
-    #: How the rotation-only fit's sigma was widened (:mod:`calib.natural_sigma`).
+    #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural_scale`).
     sigma: dict[str, Any] | None = None
 
     def summary(self) -> dict[str, Any]:
@@ -372,6 +373,7 @@ def calibrate_natural(
     blur: str = "equal-blur",
     passes: int = EQUAL_BLUR_PASSES,
     strict_axes: bool = True,
+    scale_prior: str = DEFAULT_SCALE_PRIOR,
 ) -> NaturalResult:
     """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``).
 
@@ -379,6 +381,7 @@ def calibrate_natural(
     nuisance, :mod:`calib.natural_motion`) or ``auto`` (per-pair when the rotation-only
     fit leaves parallax, :func:`calib.natural_motion.prefers_translation`). ``strict_axes``
     off: fit from an undecided axis search's winner (diagnostics that write nothing).
+    ``scale_prior``: the unfitted gyro scale's treatment (:mod:`calib.natural_scale`).
     """
     from calib.natural_motion import TRANSLATIONS
 
@@ -386,6 +389,7 @@ def calibrate_natural(
         raise CalibError(f"translation must be one of {TRANSLATIONS}, got {translation!r}")
     if blur not in BLUR_MODES:
         raise CalibError(f"blur must be one of {BLUR_MODES}, got {blur!r}")
+    check_scale_prior(scale_prior)
     frames = session.frames
     ts = frames["timestamp_ns"].to_numpy(np.int64)
     exp = frames["exposure_ns"].to_numpy(np.int64)
@@ -443,8 +447,5 @@ def calibrate_natural(
         res = calibrate(streaks, gyro, res.calibration, opts)
     sigma_info = None
     if res.status != "failed":
-        from calib.natural_sigma import honest_sigma
-
-        sigma, sigma_info = honest_sigma(res, streaks, gyro, opts)
-        res = replace(res, sigma=sigma)
+        res, sigma_info = natural_sigma_fit(res, streaks, gyro, opts, scale_prior)
     return replace(nat, result=res, tracks=tracks, streaks=streaks, sigma=sigma_info)

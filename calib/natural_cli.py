@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 #: --fit default for natural scenes: the gyro scale is not observable from a few hundred
-#: inter-frame rotations of hand shake (it trades with the focal lengths).
+#: inter-frame rotations of hand shake (it trades with the focal lengths); it is fitted under
+#: a prior instead (--gyro-scale-prior, :mod:`calib.natural_scale`).
 NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
 
 
@@ -29,6 +30,15 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
         "second, carried to each frame and row by the gyro (driving); auto (default): "
         "travel when the rotation-only fit leaves more parallax than its missing "
         "coordinate explains",
+    )
+    p.add_argument(
+        "--gyro-scale-prior",
+        # spelled out as --translation's (calib.natural_scale.SCALE_PRIORS; a test checks)
+        choices=("map", "consider"),
+        default="map",
+        help="natural scenes with an unknown gyro scale (session.yaml gives none) and --fit "
+        "without scale: map (default): its six entries fitted under a 0.3 %% Gaussian prior, "
+        "sigma the posterior's; consider: left at the identity, its spread added to the sigma",
     )
 
 
@@ -120,7 +130,9 @@ def run_natural(
         shift_window_s=args.shift_window_ms * 1e-3,
         residuals=args.residuals,
     )
-    nat = calibrate_natural(session, options, translation=args.translation)
+    nat = calibrate_natural(
+        session, options, translation=args.translation, scale_prior=args.gyro_scale_prior
+    )
     res = nat.result
     summary = res.to_dict()
     summary.update(nat.summary())

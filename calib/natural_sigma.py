@@ -7,8 +7,9 @@ clustered by frame pair) leaves out two things that natural scenes have:
    under nearly the same blur for several consecutive pairs, so the residual left by one
    patch repeats; a sandwich clustered by blocks of :data:`BLOCK_PAIRS` consecutive pairs
    keeps that correlation (the larger of the two sandwiches is used).
-2. **The gyro's scale and cross-axis matrix.** Natural fits leave it unfitted (it trades
-   with the focal lengths), but it is not known: an error ``δs`` of its six entries moves
+2. **The gyro's scale and cross-axis matrix**, under ``--gyro-scale-prior consider`` (the
+   default fits it under a prior instead: :mod:`calib.natural_scale`). Left unfitted (it
+   trades with the focal lengths), it is not known: an error ``δs`` of its six entries moves
    the fitted parameters by ``S δs`` with ``S = −(J_fᵀ W J_f)⁻¹ J_fᵀ W J_s`` (Jacobians of
    the same residual at the optimum). The *consider* covariance ``S P Sᵀ`` with
    ``P`` from :data:`GYRO_SCALE_SIGMA` per matrix entry is added (``sensitivity`` in the

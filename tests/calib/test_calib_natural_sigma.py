@@ -46,7 +46,7 @@ class _WithScale:
 def test_scale_sensitivity_predicts_a_refit_and_sigma_is_widened(session) -> None:
     s = load_session(session)
     opts = FitOptions(fit=NATURAL_FIT, holdout_fraction=0.2, shift_window_s=0.05)
-    nat = calibrate_natural(s, opts, translation="none", passes=1)
+    nat = calibrate_natural(s, opts, translation="none", passes=1, scale_prior="consider")
     info = nat.sigma
     assert info is not None and info["gyro_scale_sigma"] > 0
     assert len(info["gyro_scale_considered"]) == 6
@@ -63,7 +63,9 @@ def test_scale_sensitivity_predicts_a_refit_and_sigma_is_widened(session) -> Non
     M = np.eye(3)
     k = "xyz".index(entry[-1])
     M[k, k] += DELTA
-    known = calibrate_natural(_WithScale(s, M), opts, translation="none", passes=1)
+    known = calibrate_natural(
+        _WithScale(s, M), opts, translation="none", passes=1, scale_prior="consider"
+    )
     assert known.sigma is not None and known.sigma["gyro_scale_sigma"] == 0.0
     assert all(p["gyro_scale"] == 0.0 for p in known.sigma["parts"].values())
     moved = known.result.values["fx"] - fx
