@@ -11,10 +11,14 @@ which the fit re-estimates at every step (variable projection). Its sigma theref
    image centre) is only as well known as the two together.
 2. **Track errors correlated within a frame pair and across neighbouring pairs.** The gyro's
    noise integrated over one frame interval moves every track of that pair alike, and the
-   same texture is tracked under nearly the same blur for several pairs: sandwiches
-   clustered by frame pair and by blocks of :data:`calib.natural_sigma.BLOCK_PAIRS` pairs
-   (the largest of the plain ``s² A⁻¹`` and the two sandwiches is kept, as for rotation-only
-   fits).
+   same texture is tracked under nearly the same blur for several pairs: leave-one-cluster-out
+   jackknives (linearised: leaving cluster ``c`` out moves the estimate by
+   ``(A − A_c)⁻¹ g_c``) clustered by frame pair and by blocks of
+   :data:`calib.natural_sigma.BLOCK_PAIRS` pairs; the largest of the plain ``s² A⁻¹`` and the
+   two is kept. (Rotation-only fits use sandwiches; a driving session is short, 29 pairs or 6
+   blocks in 1 s for 14 parameters and nuisances, and a sandwich with that few clusters is
+   biased low, of rank at most the number of clusters. The jackknife is not; on the four
+   720p driving sessions it gave a median 1.12× the pair sandwich and 1.17× the block one.)
 3. **The unfitted gyro scale matrix** as a *consider* covariance ``S P Sᵀ``,
    ``S = −[(JᵀWJ)⁻¹ JᵀW J_s]_θ`` (the nuisances absorb what they can of a scale error), with
    ``P`` from :data:`calib.natural_sigma.GYRO_SCALE_SIGMA`; a scale matrix given in
@@ -74,13 +78,22 @@ def full_jacobian(
     return Jt, Jd
 
 
-def _sandwich(J: np.ndarray, wr: np.ndarray, cluster: np.ndarray, Ainv: np.ndarray) -> np.ndarray:
-    """Cluster-robust covariance ``A⁻¹ (Σ_c g_c g_cᵀ · C/(C−1)) A⁻¹``, ``g_c = Σ_c J w r``."""
+def _jackknife(J: np.ndarray, w: np.ndarray, r: np.ndarray, cluster: np.ndarray) -> np.ndarray:
+    """Leave-one-cluster-out (linearised) jackknife covariance: cluster ``c`` left out moves
+    the estimate by ``(A − A_c)⁻¹ g_c`` (``A_c``, ``g_c``: its normal matrix and gradient);
+    ``(C−1)/C Σ (δ_c − δ̄)(δ_c − δ̄)ᵀ``. Unlike the sandwich it is not biased low for few
+    clusters (CR3)."""
     uniq, inv = np.unique(cluster, return_inverse=True)
-    G = np.zeros((uniq.size, J.shape[1]))
-    np.add.at(G, inv, J * wr[:, None])
+    A = (J * w[:, None]).T @ J
+    deltas = np.zeros((uniq.size, J.shape[1]))
+    for c in range(uniq.size):
+        sel = inv == c
+        Jc = J[sel]
+        Ac = (Jc * w[sel, None]).T @ Jc
+        deltas[c] = np.linalg.lstsq(A - Ac, Jc.T @ (w[sel] * r[sel]), rcond=None)[0]
+    d = deltas - deltas.mean(axis=0)
     nc = uniq.size
-    return Ainv @ (G.T @ G * (nc / max(nc - 1, 1))) @ Ainv
+    return d.T @ d * ((nc - 1) / max(nc, 1))
 
 
 def translation_sigma(
@@ -109,8 +122,8 @@ def translation_sigma(
     # without the nuisances' uncertainty (what the fit reported before)
     var_held = s2 * np.diag(np.linalg.pinv((Jt[keep] * wk[:, None]).T @ Jt[keep]))
     pair = pb.pair[keep]
-    var_pair = np.diag(_sandwich(J, wk * rk, pair, Ainv))[:k]
-    var_block = np.diag(_sandwich(J, wk * rk, pair // BLOCK_PAIRS, Ainv))[:k]
+    var_pair = np.diag(_jackknife(J, wk, rk, pair))[:k]
+    var_block = np.diag(_jackknife(J, wk, rk, pair // BLOCK_PAIRS))[:k]
     considered = () if scale_known else tuple(n for n in SCALE_NAMES if n not in names)
     var_scale = np.zeros(k)
     sens: dict[str, dict[str, float]] = {}
