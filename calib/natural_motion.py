@@ -33,18 +33,17 @@ keeps its direction while the camera shakes; what ``auto`` fits).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from blurtrack.geometry.gyro import GyroTrace
-from calib.data import StreakSet, relative_gyro
+from calib.data import StreakSet
 from calib.errors import CalibError
 from calib.fitcore import FitOptions
-from calib.params import THETA_NAMES, apply_theta, bounded_step, parse_fit, theta_from
-from calib.problem import ResidualModel, choose_substeps
-from calib.result import ErrorStats, named
+from calib.params import THETA_NAMES, bounded_step
+from calib.problem import ResidualModel
 
 if TYPE_CHECKING:
     from calib.natural import NaturalResult
@@ -358,69 +357,13 @@ def prefers_translation(ms_rotation: float, ms_epipolar: float) -> bool:
 def with_translation(
     nat: NaturalResult, gyro: GyroTrace, options: FitOptions, mode: str
 ) -> NaturalResult:
-    """``nat`` (a rotation-only natural fit) refitted with a per-pair translation nuisance
-    when ``mode`` is ``per-pair``, or ``auto`` and the data ask for it (module docstring).
+    """``nat`` (a rotation-only natural fit) refitted with a translation nuisance when
+    ``mode`` is ``per-pair`` or ``travel``, or ``auto`` and the data ask for it (module
+    docstring): from both the rotation-only estimate and the axis search's start (the lower
+    robust cost wins), with a hold-out of whole frame pairs (each predicted with its own
+    refitted translation), the refit on every pair and the sigma of
+    :mod:`calib.natural_motion_sigma`. Track errors are epipolar distances. See
+    :mod:`calib.natural_travel`."""
+    from calib.natural_travel import refit_with_translation
 
-    The per-pair fit starts from both the rotation-only estimate and the axis search's start
-    and keeps the lower robust cost; its track errors are epipolar distances, and it has no
-    hold-out evaluation (``holdout.n == 0``).
-    """
-    res, streaks = nat.result, nat.streaks
-    base = res.initial
-    cam = base.camera
-    g = relative_gyro(gyro.upsampled(options.gyro_upsample), streaks.t0_s)
-    n_sub = choose_substeps(streaks, cam.height, max(2 * cam.readout_s, 0.05))
-    model = ResidualModel(g, base.R_cam_imu, cam.dist, cam.height, n_sub)
-    centre, f = np.array(cam.intrinsics[2:4], float), float(cam.intrinsics[0])
-    th_rot = np.array([res.values[n] for n in THETA_NAMES])
-    ms_rot, ms_epi = mean_squares(model, streaks, th_rot, centre, f)
-    wanted = mode != "auto" or prefers_translation(ms_rot, ms_epi)
-    chosen = AUTO_MODEL if mode == "auto" else mode
-    info: dict[str, Any] = {
-        "mode": chosen if wanted else "none",
-        "chosen_by": "data" if mode == "auto" else "option",
-        "ms_rotation_px2": ms_rot,
-        "ms_epipolar_px2": ms_epi,
-        "ratio": ms_rot / ms_epi if ms_epi > 0 else float("inf"),
-        "auto_ratio": AUTO_RATIO,
-    }
-    if not wanted:
-        return replace(nat, translation=info)
-    fit_idx = parse_fit(options.fit)
-    fits = [
-        fit_translation(model, streaks, t0, fit_idx, centre, f, travel=chosen == "travel")
-        for t0 in (th_rot, theta_from(base))
-    ]
-    best = min(fits, key=lambda ft: ft.cost)
-    info["start"] = "rotation-only fit" if best is fits[0] else "axis search"
-    info["epipoles"] = best.epipoles.tolist()
-    r = np.abs(best.residual_px)
-    fitted = tuple(THETA_NAMES[i] for i in fit_idx)
-    out = replace(
-        res,
-        status="ok" if best.converged else "warning",
-        calibration=apply_theta(base, best.theta),
-        values=named(best.theta),
-        sigma=dict(best.sigma),
-        correlation={},
-        fitted=fitted,
-        fixed_unobservable=(),
-        iterations=best.iterations,
-        converged=best.converged,
-        train=ErrorStats.of(r[best.inlier]),
-        train_all=ErrorStats.of(r),
-        holdout=ErrorStats.of(np.zeros(0)),
-        holdout_all=ErrorStats.of(np.zeros(0)),
-        n_outliers=int(np.count_nonzero(~best.inlier)),
-        residual_sigma_px=best.rms_px,
-        warnings=tuple(
-            [
-                "translation modelled per frame pair: track errors are epipolar distances, "
-                "no hold-out"
-            ]
-            + ([] if best.converged else ["the per-pair translation fit did not converge"])
-        ),
-        tracks=None,
-        holdout_fit_values=None,
-    )
-    return replace(nat, result=out, translation=info, rotation_only=res)
+    return refit_with_translation(nat, gyro, options, mode)

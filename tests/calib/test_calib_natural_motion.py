@@ -78,6 +78,8 @@ def test_driving_session_offset_with_the_nuisance_and_not_without(driving, tmp_p
     d = _summary(out)
     assert d["translation"]["mode"] == "travel" and d["translation"]["chosen_by"] == "data"
     assert d["translation"]["ratio"] > AUTO_RATIO
+    # held-out frame pairs predicted by the travel fit (calib.natural_travel)
+    assert d["holdout_all"]["n"] > 0 and d["refitted_on_all_frames"]
     err, tru = d["error_vs_truth"], d["truth"]
     assert abs(err["timeshift_s"]) < 1e-3
     assert abs(err["fx"]) / tru["fx"] < 0.02 and abs(err["fy"]) / tru["fy"] < 0.02
@@ -104,6 +106,7 @@ def test_free_epipole_per_pair_is_selectable(driving, tmp_path) -> None:
     d = _summary(out)
     assert d["translation"]["mode"] == "per-pair" and d["translation"]["chosen_by"] == "option"
     assert len(d["translation"]["epipoles"]) == 29  # one per frame pair
+    assert d["holdout_all"]["n"] > 0
     assert abs(d["error_vs_truth"]["timeshift_s"]) < 1.5e-3
 
 
