@@ -11,14 +11,15 @@ search, exact CasADi Jacobian, robust LM with outlier rejection, cluster-robust 
 hold-out as laser tracks.
 
 Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping from the same tracks
-(:mod:`calib.axes`) and the fit starts from the winner and its time shift.
+(:mod:`calib.axes`); the fit starts from the winner and its time shift. The gyro scale is then
+fitted under a prior (:mod:`calib.natural_scale`).
 
-Lucas–Kanade's points in blurred frames are not mid-exposure positions, and matching a patch
-to a differently blurred one is pulled along the difference of the two blurs. The fit's tracks
-are therefore refined on equally blurred patches (:func:`equal_blur_tracks`: each end's patch
-convolved with the other end's kernel, predicted by the same blur model from the axis search's
-start), which makes them mid-exposure positions; the refinement is repeated with the fitted
-calibration's kernels and the fit redone (:data:`EQUAL_BLUR_PASSES`).
+Lucas–Kanade's points in blurred frames are not mid-exposure positions (a patch matched to a
+differently blurred one is pulled along the difference of the two blurs), so the fit's tracks
+are refined on equally blurred patches (:func:`equal_blur_tracks`: each end's patch convolved
+with the other end's kernel, predicted by the same blur model from the axis search's start),
+making them mid-exposure positions; this is repeated with the fitted calibration's kernels and
+the fit redone (:data:`EQUAL_BLUR_PASSES`).
 """
 
 from __future__ import annotations
