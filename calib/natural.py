@@ -10,16 +10,13 @@ residual of :mod:`calib.tracks`, written as a pseudo-streak (``start = p``, ``en
 search, exact CasADi Jacobian, robust LM with outlier rejection, cluster-robust σ and frame
 hold-out as laser tracks.
 
-Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping from the same tracks
-(:mod:`calib.axes`); the fit starts from the winner and its time shift. The gyro scale is then
-fitted under a prior (:mod:`calib.natural_scale`).
+Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping (:mod:`calib.axes`);
+the fit starts from the winner and fits the gyro scale under a prior (:mod:`calib.natural_scale`).
 
-Lucas–Kanade's points in blurred frames are not mid-exposure positions (a patch matched to a
-differently blurred one is pulled along the difference of the two blurs), so the fit's tracks
-are refined on equally blurred patches (:func:`equal_blur_tracks`: each end's patch convolved
-with the other end's kernel, predicted by the same blur model from the axis search's start),
-making them mid-exposure positions; this is repeated with the fitted calibration's kernels and
-the fit redone (:data:`EQUAL_BLUR_PASSES`).
+Lucas–Kanade between differently blurred frames is pulled along the difference of the blurs:
+tracks are refined on equally blurred patches (:func:`equal_blur_tracks`, each end convolved
+with the other end's kernel from the same blur model), making them mid-exposure positions; this
+is repeated with the fitted calibration's kernels and the fit redone (:data:`EQUAL_BLUR_PASSES`).
 """
 
 from __future__ import annotations
