@@ -68,7 +68,7 @@ def prior_sigma(name: str, sigma: float = GYRO_SCALE_SIGMA) -> float:
     >>> prior_sigma("scale_xx", 0.004), round(prior_sigma("scale_xy", 0.004), 6)
     (0.004, 0.002828)
     """
-    return sigma if name[-2] == name[-1] else sigma / np.sqrt(2.0)
+    return float(sigma if name[-2] == name[-1] else sigma / np.sqrt(2.0))
 
 
 @dataclass(frozen=True)
