@@ -1,6 +1,7 @@
-"""``python -m blurtrack``: the blurtrack CLI (which ends without the interpreter's teardown,
-:func:`blurtrack.cli.exit_program`)."""
+"""``python -m blurtrack``: the blurtrack CLI."""
 
-from blurtrack.cli import exit_program, main
+import sys
 
-exit_program(main())
+from blurtrack.cli import main
+
+sys.exit(main())

@@ -20,7 +20,7 @@ import importlib
 import importlib.util
 import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn, TypeVar
+from typing import Any, TypeVar
 
 from blurtrack.errors import BlurTrackError
 
@@ -212,37 +212,6 @@ def run_command(program: str, args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"{program} {args.command}: interrupted", file=sys.stderr)
         return 130
-
-
-def exit_program(code: int) -> NoReturn:
-    """End the ``blurtrack`` process with ``code`` once a command has returned, skipping the
-    interpreter's teardown (freeing every module: ~0.2 core-seconds once pandas, scipy and
-    pyarrow are loaded, as much as decoding 20 frames).
-
-    The standard streams are flushed and the ``atexit`` handlers run, as at any exit; what is
-    skipped is only the final garbage collection and module clean-up, after every output has
-    been written and closed. With another thread still running the exit is the ordinary one
-    (``sys.exit``), which waits for it. Only the program entry points call this (never library
-    code, and not :func:`main`, which tests call in-process).
-    """
-    import atexit
-    import contextlib
-    import os
-    import threading
-
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed pipe or stream: nothing more can go there
-            if stream is sys.stdout:
-                quiet_stdout()
-    if threading.active_count() > 1 or not hasattr(atexit, "_run_exitfuncs"):
-        sys.exit(code)
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(OSError, ValueError):
-            stream.flush()
-    os._exit(code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
