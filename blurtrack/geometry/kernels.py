@@ -171,8 +171,9 @@ def _relative_rotation_np(
     evaluated for all ``n_sub`` sub-steps at once (``(n_sub, N)`` arrays; the same elementwise
     arithmetic, so the same values as the loop: 30x fewer array operations on a 300-pair axis
     search)."""
-    mid = (np.arange(n_sub, dtype=float)[:, None] + 0.5) * h
-    wx, wy, wz = omega_cam_at(t_from_s + mid)
+    t_mid = t_from_s + (np.arange(n_sub, dtype=float)[:, None] + 0.5) * h
+    # omega functions take 1-D times (an (N, 3) gyro lookup flattens nothing): ask flat, reshape
+    wx, wy, wz = (np.asarray(w, float).reshape(t_mid.shape) for w in omega_cam_at(t_mid.ravel()))
     steps = so3_exp_c(wx * h, wy * h, wz * h, NUMPY_OPS)
     R: Mat3 = tuple(c[0] for c in steps)  # type: ignore[assignment]
     for k in range(1, n_sub):
