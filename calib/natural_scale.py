@@ -40,7 +40,7 @@ from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import FINE_DELTA_SIGMAS, FitOptions, _outlier_threshold, _rayleigh_sigma
 from calib.grid import GridEvaluator
-from calib.natural_sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES
+from calib.natural_sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES, gyro_scale_known
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import huber_weights, lm_driver, pseudo_huber
@@ -59,7 +59,7 @@ _SCALE_WARNING = "the gyro shows a scale/cross-axis error that is not fitted"
 
 def scale_is_known(res: CalibResult) -> bool:
     """Whether session.yaml gave the gyro scale matrix (anything but the identity)."""
-    return not np.allclose(res.initial.gyro_scale_matrix, np.eye(3), atol=0, rtol=0)
+    return gyro_scale_known(res.initial)
 
 
 def prior_sigma(name: str, sigma: float = GYRO_SCALE_SIGMA) -> float:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, relative_gyro
 from calib.fitcore import FitOptions
 from calib.params import LAYOUT, N_THETA, THETA_NAMES
@@ -42,6 +43,12 @@ GYRO_SCALE_SIGMA = 0.003
 #: Residuals beyond this many robust sigmas get no weight (as the fit's outlier rejection).
 OUTLIER_SIGMAS = 5.0
 SCALE_NAMES = tuple(THETA_NAMES[i] for i in range(*LAYOUT["scale"].indices(N_THETA)))
+
+
+def gyro_scale_known(calib: Calibration) -> bool:
+    """Whether a calibration's ``gyro_scale_matrix`` was given (anything but the identity): a
+    scale matrix from session.yaml counts as known, and is neither fitted nor considered."""
+    return not np.allclose(calib.gyro_scale_matrix, np.eye(3), atol=0, rtol=0)
 
 
 def _step(name: str) -> float:
@@ -100,7 +107,7 @@ def honest_sigma(
     Ainv = np.linalg.pinv(A)
     block = np.asarray(streaks.frame) // BLOCK_PAIRS
     var_block = np.diag(_block_sandwich(Jf, r, w, block, Ainv))
-    known = not np.allclose(base.gyro_scale_matrix, np.eye(3), atol=0, rtol=0)
+    known = gyro_scale_known(base)
     considered = () if known else tuple(n for n in SCALE_NAMES if n not in fitted)
     var_scale = np.zeros(len(fitted))
     sens: dict[str, dict[str, float]] = {}

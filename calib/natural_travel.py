@@ -34,6 +34,7 @@ from calib.natural_motion import (
     prefers_translation,
 )
 from calib.natural_motion_sigma import translation_sigma
+from calib.natural_sigma import gyro_scale_known
 from calib.params import THETA_NAMES, apply_theta, parse_fit, theta_from
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import ErrorStats, named
@@ -145,7 +146,7 @@ def refit_with_translation(
     info["epipoles"] = best.epipoles.tolist()
     pb = _Problem(model, fitted_on, centre, float(f), travel)
     w, _ = _weights(best.residual_px, pb.usable)
-    scale_known = not np.allclose(base.gyro_scale_matrix, np.eye(3), atol=0, rtol=0)
+    scale_known = gyro_scale_known(base)
     sigma, sigma_info = translation_sigma(pb, best.theta, best.epipoles, fit_idx, w, scale_known)
     r = np.abs(best.residual_px)
     fitted = tuple(THETA_NAMES[i] for i in fit_idx)
