@@ -13,6 +13,7 @@ from blurtrack.detect.segment import Components
 
 #: Width (px) of the ring around a template's support that must be dark where it is placed.
 HALO_PX = 3
+_HALO_DISK = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * HALO_PX + 1, 2 * HALO_PX + 1))
 
 
 @dataclass(frozen=True)
@@ -52,8 +53,7 @@ def finish(
         return out
 
     sm, raw, sup = pad(sm), pad(raw), pad(sup)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
-    halo = cv2.dilate(sup, k) - sup
+    halo = cv2.dilate(sup, _HALO_DISK) - sup
     return Template(
         (x - m, y - m, w + 2 * m, h + 2 * m),
         sm,
