@@ -22,12 +22,12 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    matching the prediction.
 2. **Shape search**: calibration is nominal (intrinsics, ``R_cam_imu``, gyro bias and scale
    are guesses, the time shift is the scan's), so the predicted curve is off by a px or
-   two: per candidate the curve is rotated (:data:`ROTATIONS_RAD`, then
-   :data:`FINE_ROTATIONS_RAD`) and scaled (:data:`SCALES`) about its centroid, a coordinate
-   search ranked by the correlation normalised over the template's support and halo; shifts
-   are searched by the matched filter over the component's box and by the joint fit (up to
-   8 px). (One rotation and scale for the whole frame, the median of a sample's, measured
-   worse: hard seed 2 frames 0-3 recall 94.4 against 95.3 %.)
+   two: per candidate the curve is rotated and scaled about its centroid, a coordinate
+   search ranked by the correlation normalised over the template's support and halo
+   (:func:`blurtrack.detect.gyroshape.best_shape`); shifts are searched by the matched filter
+   over the component's box and by the joint fit (up to 8 px). (One rotation and scale for
+   the whole frame, the median of a sample's, measured worse: hard seed 2 frames 0-3 recall
+   94.4 against 95.3 %.)
 3. **Pursuit and joint fit** with that template, exactly as in separation
    (:func:`blurtrack.detect.separate._pursue`, :func:`blurtrack.detect.refit.refit`);
    components whose light the placements explain are candidates for replacement.
@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-import cv2
 import numpy as np
 
 from blurtrack.detect.frame import (
@@ -63,13 +62,9 @@ from blurtrack.detect.frame import (
     FrameStreaks,
     _near_border,
 )
-from blurtrack.detect.gyrocurve import (
-    Curves,
-    curve_template,
-    predict_curves,
-    similar_curve,
-)
+from blurtrack.detect.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyromeasure import measure_placements
+from blurtrack.detect.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.measure import Measured, combine
 from blurtrack.detect.orientation import FrameTiming
@@ -87,10 +82,6 @@ MIN_ARC_PX = 12.0
 #: Endpoint tolerance between a line and the prediction: ``TOL_PX + TOL_REL * arc``.
 TOL_PX = 2.5
 TOL_REL = 0.1
-#: Shape search (calibration error): rotations (rad) and scales of the predicted curve.
-ROTATIONS_RAD = (-0.06, -0.03, 0.0, 0.03, 0.06)
-SCALES = (0.92, 0.94, 0.96, 0.98, 1.0, 1.02, 1.04, 1.06, 1.08)
-FINE_ROTATIONS_RAD = (-0.015, 0.015)
 #: Lowest support-normalised correlation of the best shape (below it: refused).
 SHAPE_SCORE_MIN = 0.8
 #: A frame keeps its first pass unless this fraction of its placements is measured whole.
@@ -139,53 +130,6 @@ def _mismatch(a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.
     same = np.hypot(*(a - s).T) + np.hypot(*(b - e).T)
     swap = np.hypot(*(a - e).T) + np.hypot(*(b - s).T)
     return np.asarray(np.minimum(same, swap) / 2.0)
-
-
-def _best_shape(
-    light: np.ndarray, comps: Components, c: int, pts: np.ndarray, make: Any
-) -> tuple[Template | None, float]:
-    """The variant of curve ``pts`` (rotated, scaled) whose template explains the light in
-    component ``c``'s box best, and its support-normalised correlation there.
-
-    The variants are ranked by the correlation normalised over the support *and the halo*:
-    the support-normalised one alone (the pursuit's) is as high for a template too small,
-    lying inside the streak, as for the right one; light past the template's ends, in its
-    halo, tells them apart.
-    """
-    H, W = light.shape
-    x, y, w, h = (int(v) for v in comps.boxes[c])
-
-    def trial(z: complex) -> tuple[Template | None, float, float]:
-        tpl: Template = make(similar_curve(pts, z))
-        _, _, tw, th = tpl.box
-        x0, y0 = max(x - tw // 2 - 2, 0), max(y - th // 2 - 2, 0)
-        x1, y1 = min(x + w + tw // 2 + 2, W), min(y + h + th // 2 + 2, H)
-        if x1 - x0 < tw or y1 - y0 < th:
-            return None, -1.0, -1.0
-        region = light[y0:y1, x0:x1]
-        num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-        sq = region * region
-        den_h = cv2.matchTemplate(sq, tpl.support + tpl.halo, cv2.TM_CCORR)
-        norm = np.sqrt(tpl.norm2)
-        rank = num / (np.sqrt(np.maximum(den_h, 1e-20)) * norm)
-        ky, kx = (int(v) for v in np.unravel_index(int(np.argmax(rank)), rank.shape))
-        den_s = float(np.sum(sq[ky : ky + th, kx : kx + tw] * tpl.support))
-        score = float(num[ky, kx]) / (np.sqrt(max(den_s, 1e-20)) * norm)
-        return tpl, score, float(rank[ky, kx])
-
-    # Coordinate search: the rotation at the nominal scale, the scale at that rotation, then
-    # the rotation once more on a finer grid.
-    best: tuple[Template | None, float, float] = (None, -1.0, -1.0)
-    rot, scale = 0.0, 1.0
-    for grid, which in ((ROTATIONS_RAD, "r"), (SCALES, "s"), (FINE_ROTATIONS_RAD, "f")):
-        pick = (rot, scale)
-        for v in grid:
-            r, sc = (v, scale) if which == "r" else (rot, v) if which == "s" else (rot + v, scale)
-            got = trial(sc * np.exp(1j * r))
-            if got[2] > best[2]:
-                best, pick = got, (r, sc)
-        rot, scale = pick
-    return best[0], best[1]
 
 
 def _as_streaks(
@@ -352,7 +296,7 @@ def refine_frame(
     order = np.flatnonzero(cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     for c in order.tolist():
-        tpl, score = _best_shape(light, comps, c, pts[c], make)
+        tpl, score = best_shape(light, comps, c, pts[c], make)
         if tpl is None or score < SHAPE_SCORE_MIN:
             continue
         tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
