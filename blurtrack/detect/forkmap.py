@@ -9,7 +9,9 @@ the items are processed in this process: the results do not depend on the worker
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing as mp
+import platform
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
@@ -22,9 +24,28 @@ R = TypeVar("R")
 #: What a forked worker runs (set before the pool forks; never pickled).
 _WORKER_STATE: dict[str, Any] = {}
 
+#: glibc's ``mallopt`` parameter for the slack kept at the top of the heap, and the slack a
+#: worker keeps (bytes).
+_M_TOP_PAD = -2
+WORKER_TOP_PAD = 64 << 20
+
 
 def _call(item: Any) -> Any:
     return _WORKER_STATE["fn"](item)
+
+
+def _worker_start() -> None:
+    """A worker's heap keeps :data:`WORKER_TOP_PAD` of slack (glibc only; elsewhere nothing).
+
+    A worker forked from a process that has loaded a session allocates its temporaries (frame
+    images, templates) above the inherited heap; glibc returns the heap's freed top to the
+    system at every free and faults it in again at the next frame (the template pass on 100
+    dense frames: 750 000 page faults, 1.2 s of system time in the workers, its CPU 1.5x that
+    of one process). Only speed depends on this, never a result.
+    """
+    if platform.libc_ver()[0] != "glibc":
+        return
+    ctypes.CDLL(None).mallopt(_M_TOP_PAD, WORKER_TOP_PAD)
 
 
 def can_fork() -> bool:
@@ -58,7 +79,8 @@ def fork_map(
         raise DetectionError("fork_map: another map is already running in this process")
     _WORKER_STATE["fn"] = fn
     try:
-        with ProcessPoolExecutor(n, mp_context=mp.get_context("fork")) as pool:
+        ctx = mp.get_context("fork")
+        with ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_start) as pool:
             results = pool.map(_call, items, chunksize=chunk)  # submits every item (forks)
             if meanwhile is not None:
                 meanwhile()
