@@ -47,9 +47,8 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -357,30 +356,3 @@ def refine_frame(
     keep_old &= ~(long_pred & (fs.length_px > CHAIN_FACTOR * pred_arc))
     out = _as_streaks(fs, keep_old, m, comps, prep, p)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))
-
-
-def refine_frames(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: Sequence[FrameTiming],
-    idx: Sequence[int],
-    covered: Sequence[int],
-    model: Any,
-    params: DetectParams,
-) -> dict[str, int]:
-    """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
-    is updated in place; ``idx`` their frame indices, the images re-read from ``session``
-    only for the frames the gate lets through; in this process, one frame after another).
-    Returns the count of frames per outcome status."""
-    counts: dict[str, int] = {}
-    # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
-    # (measured on lines down the middle of both arms) is too wide. The session's median.
-    sig = [fs.sigma_c_px for fs in found if len(fs)]
-    sigma_c = float(np.median(sig)) if sig else None
-    for k in covered:
-        out, what = refine_frame(
-            partial(session.read_image, idx[k]), found[k], timings[k], model, params, sigma_c
-        )
-        found[k] = out
-        counts[what.status] = counts.get(what.status, 0) + 1
-    return counts

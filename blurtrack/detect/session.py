@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
@@ -34,9 +33,6 @@ GYRO_MODES = ("auto", "on", "off")
 #: A frame with more than this fraction of its pixels saturated is reported as over-exposed.
 OVEREXPOSED_FRACTION = 0.25
 
-#: What a forked worker process detects from (set before the pool forks; never pickled).
-_WORKER_STATE: dict[str, Any] = {}
-
 
 def default_workers() -> int:
     """The CPU cores this process may run on."""
@@ -44,10 +40,6 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not Linux
         return max(1, os.cpu_count() or 1)
-
-
-def _worker_detect(i: int) -> FrameStreaks:
-    return detect_frame(_WORKER_STATE["session"].read_image(i), _WORKER_STATE["params"])
 
 
 def detect_frames(
@@ -60,31 +52,19 @@ def detect_frames(
     """Decode and detect the frames ``idx`` of a session, in order, in ``workers`` processes.
 
     Frames are independent, so the workers' results are exactly those of one process. Workers
-    are forked (they inherit the loaded session, nothing is pickled but the results); where
-    the platform cannot fork, or for a single worker or frame, the frames are detected here.
-    ``meanwhile``: work of this process that does not need the frames (imports, gyro
-    resampling), run while the workers detect (before the first frame without workers).
+    are forked (:func:`blurtrack.detect.forkmap.fork_map`: they inherit the loaded session,
+    nothing is pickled but the results); where the platform cannot fork, or for a single
+    worker or frame, the frames are detected here. ``meanwhile``: work of this process that
+    does not need the frames (imports, gyro resampling), run while the workers detect (before
+    the first frame without workers).
     """
-    if workers < 1:
-        raise DetectionError(f"workers must be >= 1, got {workers}")
-    n = min(workers, len(idx))
-    if n <= 1 or "fork" not in mp.get_all_start_methods():
-        if meanwhile is not None:
-            meanwhile()
-        for i in idx:
-            yield detect_frame(session.read_image(i), params)
-        return
-    _WORKER_STATE.update(session=session, params=params)
-    try:
-        with ProcessPoolExecutor(n, mp_context=mp.get_context("fork")) as pool:
-            # Small chunks: the results come back in order, the first ones early.
-            chunk = max(1, min(4, len(idx) // (8 * n)))
-            results = pool.map(_worker_detect, idx, chunksize=chunk)  # submits every frame
-            if meanwhile is not None:
-                meanwhile()
-            yield from results
-    finally:
-        _WORKER_STATE.clear()
+
+    def one(i: int) -> FrameStreaks:
+        return detect_frame(session.read_image(i), params)
+
+    # Small chunks: the results come back in order, the first ones early.
+    chunk = max(1, min(4, len(idx) // (8 * max(1, min(workers, len(idx))))))
+    return fork_map(one, idx, workers, chunk, meanwhile)
 
 
 @dataclass
@@ -248,9 +228,9 @@ def detect_session(
                 uncovered.append(idx[k])
         if p.gyro_template and covered:
             # Second pass: the gyro's predicted shape as the template (hairpin frames).
-            from blurtrack.detect.gyropass import refine_frames
+            from blurtrack.detect.refinepass import refine_frames
 
-            template_pass = refine_frames(session, found, timings, idx, covered, model, p)
+            template_pass = refine_frames(session, found, timings, idx, covered, model, p, workers)
             llrs = [np.zeros((len(fs), 3)) for fs in found]
         for k, llr in zip(
             covered, _gyro_llrs(found, timings, covered, model, sigma_rel), strict=True

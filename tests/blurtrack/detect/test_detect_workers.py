@@ -176,3 +176,73 @@ def test_frames_pickle_back_unchanged(session_folder: Path) -> None:
     assert isinstance(_pack(mixed), list)
     assert [x.dtype for x in _unpack(_pack(mixed))] == [np.float64, np.float32]
     assert isinstance(_pack([np.zeros(3), np.ones(4)]), tuple)
+
+
+def _hairpin_shake(fps: float, reach_px: float, drift_px: float, f_px: float):
+    """A ``shake`` stand-in that draws hairpins (as in test_detect_gyropass): about y, one
+    period per frame, out and back within an exposure of half a period; about x, a drift."""
+    period = 1.0 / fps
+
+    def omega(t_s: np.ndarray, seed: int, amplitude_radps: float) -> np.ndarray:
+        wy = reach_px / f_px * 2 * np.pi / period * np.cos(2 * np.pi * t_s / period)
+        wx = np.full_like(t_s, drift_px / f_px / (period / 2))
+        return np.stack([wx, wy, 0.0 * t_s], axis=1)
+
+    return omega
+
+
+@pytest.fixture(scope="module")
+def hairpin_session(tmp_path_factory: pytest.TempPathFactory):
+    from blurtrack.testing import mini_session
+
+    fps, w = 25.0, 320
+    folder = tmp_path_factory.mktemp("hairpins") / "s"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mini_session, "shake", _hairpin_shake(fps, 14.0, 3.0, 0.9 * w))
+        mini_session.write_synthetic_session(
+            folder, n_frames=4, seed=5, fps=fps, exposure_s=0.5 / fps, sigma_px=1.3
+        )
+    return load_session(folder)
+
+
+def test_the_gyro_template_pass_in_workers_gives_the_same_table(hairpin_session) -> None:
+    from blurtrack.detect import DetectParams
+
+    kw = dict(gyro="on", refine_timeshift=False)
+    one = detect_session(hairpin_session, workers=1, **kw)
+    assert one.summary["gyro_template_frames"] == {"refined": 4}  # the pass changes frames
+    for workers in (2, 3):
+        other = detect_session(hairpin_session, workers=workers, **kw)
+        pd.testing.assert_frame_equal(one.table, other.table, check_exact=True)
+        assert one.summary == other.summary
+    part = detect_session(hairpin_session, workers=2, frames=range(1, 3), **kw)
+    pd.testing.assert_frame_equal(
+        part.table,
+        detect_session(hairpin_session, workers=1, frames=range(1, 3), **kw).table,
+        check_exact=True,
+    )
+    # Negative control: the comparison sees the pass (the table without it differs).
+    without = detect_session(hairpin_session, DetectParams(gyro_template=False), workers=2, **kw)
+    assert without.summary["gyro_template_frames"] == {}
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(one.table, without.table, check_exact=True)
+
+
+def test_fork_map_keeps_order_and_runs_closures() -> None:
+    from blurtrack.detect import forkmap
+
+    offset = 10  # a closure: inherited by the forked workers, never pickled
+    items = list(range(7))
+    for workers in (1, 2, 3):
+        for chunk in (1, 3):
+            got = list(forkmap.fork_map(lambda i: (i + offset, i * i), items, workers, chunk))
+            assert got == [(i + offset, i * i) for i in items]
+    assert list(forkmap.fork_map(lambda i: i, [], 2)) == []
+    with pytest.raises(DetectionError, match="workers"):
+        next(forkmap.fork_map(lambda i: i, items, 0))
+    outer = forkmap.fork_map(lambda i: i, items, 2)
+    assert next(outer) == 0
+    with pytest.raises(DetectionError, match="already running"):
+        next(forkmap.fork_map(lambda i: i, items, 2))
+    assert list(outer) == items[1:]
+    assert not forkmap._WORKER_STATE

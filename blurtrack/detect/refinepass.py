@@ -1,0 +1,55 @@
+"""The gyro-template second pass over a session's covered frames, in worker processes.
+
+:func:`blurtrack.detect.gyropass.refine_frame` frame by frame: each frame's refinement needs
+only its own first-pass streaks, its image and the session's blur model (with the time shift
+the scan found), so the frames are refined in forked workers after the scan, in order, with
+exactly the result of one process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyropass import refine_frame
+from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.params import DetectParams
+
+
+def refine_frames(
+    session: Any,
+    found: list[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    idx: Sequence[int],
+    covered: Sequence[int],
+    model: Any,
+    params: DetectParams,
+    workers: int = 1,
+) -> dict[str, int]:
+    """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
+    is updated in place; ``idx`` their frame indices, the images re-read from ``session``
+    only for the frames the gate lets through), in ``workers`` forked processes (the same
+    result as in one). Returns the count of frames per outcome status."""
+    counts: dict[str, int] = {}
+    # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
+    # (measured on lines down the middle of both arms) is too wide. The session's median.
+    sig = [fs.sigma_c_px for fs in found if len(fs)]
+    sigma_c = float(np.median(sig)) if sig else None
+
+    def one(k: int) -> tuple[FrameStreaks | None, str]:  # None: the frame as it was
+        fs = found[k]
+        out, what = refine_frame(
+            partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c
+        )
+        return (None if out is fs else out), what.status
+
+    for k, (out, status) in zip(covered, fork_map(one, covered, workers), strict=True):
+        if out is not None:
+            found[k] = out
+        counts[status] = counts.get(status, 0) + 1
+    return counts
