@@ -20,9 +20,11 @@ matrix entries). A scale matrix given in session.yaml counts as known and is not
 (:func:`scale_is_known`); ``--fit ...,scale`` fits it freely (no prior).
 
 Sigma: the posterior covariance ``s² H⁻¹`` (``H = A + s² Λ``, ``A = JᵀWJ`` of the data, ``Λ``
-the prior precision) and the two sandwiches of :mod:`calib.natural_sigma` (clustered by frame
-pair and by blocks of :data:`calib.natural_sigma.BLOCK_PAIRS` pairs) with the prior's own
-``s² Λ`` in the meat, the largest per parameter. This replaces the consider term (the
+the prior precision) and three sandwiches with the prior's own ``s² Λ`` in the meat, the
+largest per parameter: clustered by frame pair and by blocks of
+:data:`calib.natural_sigma.BLOCK_PAIRS` pairs (:mod:`calib.natural_sigma`), and by scene cell
+(:mod:`calib.natural_scene`: the tracks of one part of the scene over the whole session, whose
+shared tracking error the other two cannot see). This replaces the consider term (the
 unfitted scale's spread carried into the other parameters): the prior now enters the estimate
 itself. The prior rows enter no residual statistic: train / hold-out errors and the residual
 sigma are of the data alone, and the hold-out is that of a MAP fit on the training frames.
@@ -40,6 +42,7 @@ from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import FINE_DELTA_SIGMAS, FitOptions, _outlier_threshold, _rayleigh_sigma
 from calib.grid import GridEvaluator
+from calib.natural_scene import SCENE_CELL_PX, SCENE_MIN_CELLS, cluster_meat, scene_cells
 from calib.natural_sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES, gyro_scale_known
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
@@ -79,7 +82,7 @@ class MapFit:
     names: tuple[str, ...]
     sigma: np.ndarray
     correlation: np.ndarray
-    #: Per parameter: the posterior ``s² H⁻¹``, the frame and block sandwiches.
+    #: Per parameter: the posterior ``s² H⁻¹``, the frame, block (and scene) sandwiches.
     parts: dict[str, dict[str, float]]
     iterations: int
     converged: bool
@@ -90,15 +93,6 @@ class MapFit:
     prior_chi2: float
 
 
-def _cluster_meat(J: np.ndarray, r: np.ndarray, w: np.ndarray, cluster: np.ndarray) -> np.ndarray:
-    g = np.einsum("n,nki,nk->ni", w, J, r)
-    uniq, inv = np.unique(cluster, return_inverse=True)
-    G = np.zeros((uniq.size, J.shape[2]))
-    np.add.at(G, inv, g)
-    nc = uniq.size
-    return G.T @ G * (nc / max(nc - 1, 1))
-
-
 def map_fit(
     ev: GridEvaluator,
     streaks: StreakSet,
@@ -106,9 +100,12 @@ def map_fit(
     names: tuple[str, ...],
     sigma_prior: float = GYRO_SCALE_SIGMA,
     max_iter: int = MAP_MAX_ITER,
+    scene: np.ndarray | None = None,
 ) -> MapFit:
     """The MAP fit of the module docstring over ``names`` (the scale entries among them get
-    the prior, centred on their ``theta0`` values), from ``theta0``.
+    the prior, centred on their ``theta0`` values), from ``theta0``. ``scene``: ``(N,)``
+    scene-cell cluster of each streak (:mod:`calib.natural_scene`), a third sandwich where
+    the inliers span at least :data:`calib.natural_scene.SCENE_MIN_CELLS` cells.
 
     The inliers are those within the fit's outlier threshold (:func:`_outlier_threshold`,
     from the errors at ``theta0``); the robust loss is the final stage's pseudo-Huber."""
@@ -162,13 +159,14 @@ def map_fit(
     frames = np.asarray(fitset.frame)
     var = {
         "posterior": np.diag(post),
-        "frame": np.diag(Hinv @ (_cluster_meat(J, r, w, frames) + prior_meat) @ Hinv),
-        "block": np.diag(
-            Hinv @ (_cluster_meat(J, r, w, frames // BLOCK_PAIRS) + prior_meat) @ Hinv
-        ),
+        "frame": np.diag(Hinv @ (cluster_meat(J, r, w, frames) + prior_meat) @ Hinv),
+        "block": np.diag(Hinv @ (cluster_meat(J, r, w, frames // BLOCK_PAIRS) + prior_meat) @ Hinv),
     }
+    cells = None if scene is None else np.asarray(scene)[inl]
+    if cells is not None and np.unique(cells).size >= SCENE_MIN_CELLS:
+        var["scene"] = np.diag(Hinv @ (cluster_meat(J, r, w, cells) + prior_meat) @ Hinv)
     sd = {k: np.sqrt(np.maximum(v, 0.0)) for k, v in var.items()}
-    sigma = np.maximum(np.maximum(sd["posterior"], sd["frame"]), sd["block"])
+    sigma = np.max(np.stack(list(sd.values())), axis=0)
     sp = np.sqrt(np.maximum(np.diag(post), 1e-300))
     corr = post / np.outer(sp, sp)
     parts = {n: {k: float(v[i]) for k, v in sd.items()} for i, n in enumerate(names)}
@@ -203,16 +201,17 @@ def with_scale_prior(
     held = holdout_mask(np.asarray(streaks.frame), options.holdout_fraction)
     train_set, test = streaks.subset(~held), streaks.subset(held)
     theta0 = np.array([res.values[n] for n in THETA_NAMES], float)
+    cells = scene_cells(streaks, relative_gyro(gyro, streaks.t0_s), apply_theta(base, theta0))
     train_fit = None
     if res.holdout_fit_values is not None and len(test):
         # calibrate's order: a fit on the training frames for the hold-out, then all frames
         th_train = np.array([res.holdout_fit_values[n] for n in THETA_NAMES], float)
-        train_fit = map_fit(ev, train_set, th_train, names, sigma_prior)
+        train_fit = map_fit(ev, train_set, th_train, names, sigma_prior, scene=cells[~held])
         holdout, holdout_all, _ = _stats(ev, train_fit.theta, test, train_fit.threshold_px)
-        fitted_on = streaks
+        fitted_on, on = streaks, np.ones(len(streaks), bool)
     else:
-        fitted_on = train_set
-    fit = map_fit(ev, fitted_on, theta0, names, sigma_prior)
+        fitted_on, on = train_set, ~held
+    fit = map_fit(ev, fitted_on, theta0, names, sigma_prior, scene=cells[on])
     if train_fit is None and len(test):
         holdout, holdout_all, _ = _stats(ev, fit.theta, test, fit.threshold_px)
     train, train_all, n_out = _stats(ev, fit.theta, fitted_on, fit.threshold_px)
@@ -249,6 +248,9 @@ def with_scale_prior(
         "gyro_scale_sigma": sigma_prior,
         "gyro_scale_prior_chi2": fit.prior_chi2,
         "block_pairs": BLOCK_PAIRS,
+        "scene_cell_px": SCENE_CELL_PX,
+        "scene_cells": int(np.unique(cells).size),
+        "scene_min_cells": SCENE_MIN_CELLS,
         "parts": fit.parts,
         "moved": {n: out.values[n] - res.values[n] for n in sigma},
     }

@@ -24,6 +24,7 @@ from calib.natural_scale import (
     scale_is_known,
     with_scale_prior,
 )
+from calib.natural_scene import SCENE_MIN_CELLS
 from calib.natural_sigma import GYRO_SCALE_SIGMA, SCALE_NAMES
 from calib.params import rotation_error_rad, scale_entries
 from rigs.sim.natural import NaturalRig
@@ -93,6 +94,9 @@ def test_posterior_covers_the_true_scale_and_the_prior_holds_it(case) -> None:
     assert np.max(np.abs(scale_entries(case["M"]))) > 1e-3  # a scale error to find
     m, info = natural_sigma_fit(nat.result, nat.streaks, s.gyro(), FIT_OPTS, "map")
     assert info["gyro_scale"] == "map" and info["gyro_scale_sigma"] == GYRO_SCALE_SIGMA
+    # 320×180 spans ~22 scene cells of 64 px: too few for the scene sandwich (natural_scene)
+    assert 1 < info["scene_cells"] < SCENE_MIN_CELLS
+    assert all("scene" not in p for p in info["parts"].values())
     assert set(SCALE_NAMES) <= set(m.fitted)
     err = _errors(m.calibration, case)
     # issue 13's criterion: the truth inside 3 sigma in at least 90 % of the estimates
