@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame
+from blurtrack.detect import detect_frame, gyropass
 from blurtrack.detect.gyrocurve import predict_curves
 from blurtrack.detect.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -186,3 +186,52 @@ def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
                 )  # oriented: start and end as the session resolved them
                 hit += int(err.min() < 1.0)
         assert least * n <= hit <= most * n
+
+
+def test_a_measured_line_of_the_placed_shape_is_confirmed_a_little_along_the_chain() -> None:
+    # A straight placed curve of 100 px; tolerance 12.5 px (TOL_PX + TOL_REL * arc).
+    s, e = np.array([[100.0, 50.0]]), np.array([[200.0, 50.0]])
+    tol = np.array([gyropass.TOL_PX + gyropass.TOL_REL * 100.0])
+    along = np.array([1.5 * tol[0], 0.0])
+    # The same line: confirmed, in either orientation.
+    assert gyropass._confirmed(s, e, s, e, tol)[0]
+    assert gyropass._confirmed(e, s, s, e, tol)[0]
+    # The dot's line 1.5 tolerances along the chain from its placement: the position alone
+    # (negative control) refuses it, the shape confirms it.
+    assert gyropass._mismatch(s + along, e + along, s, e)[0] > tol[0]
+    assert gyropass._confirmed(s + along, e + along, s, e, tol)[0]
+    # Too far along (over SHAPE_SHIFT_FACTOR tolerances), or of another shape (a fragment of
+    # 60 px, a line turned by 20 degrees) that far off: refused.
+    far = np.array([(gyropass.SHAPE_SHIFT_FACTOR + 0.1) * tol[0], 0.0])
+    assert not gyropass._confirmed(s + far, e + far, s, e, tol)[0]
+    assert not gyropass._confirmed(s + along, s + along + [60.0, 0.0], s, e, tol)[0]
+    turned = s + along + 100.0 * np.array([np.cos(0.35), np.sin(0.35)])
+    assert not gyropass._confirmed(s + along, turned, s, e, tol)[0]
+
+
+def test_components_at_the_border_are_candidates(monkeypatch) -> None:
+    # Three hairpins whose turn a short streak entering from the left border joins (their
+    # components touch the border) and three inside.
+    model = _model()
+    dots = np.array([[12.0, 70.0], [12.0, 180.0], [12.0, 290.0], [180.0, 70.0], [180.0, 180.0]])
+    dots = np.concatenate([dots, [[290.0, 290.0]]])
+    times = T0 + EXP * np.linspace(0.0, 1.0, 800)
+    tracks = model.point_track(dots, np.full(len(dots), T0 + EXP / 2), times)
+    curves = [tracks[i] for i in range(len(dots))]
+    stubs = [
+        np.stack([np.linspace(-6.0, 6.0, 50), np.full(50, y + 1.5)], 1)
+        for y in (70.0, 180.0, 290.0)
+    ]
+    image = quantise(
+        render_streaks((H, W), curves + stubs, flux_per_px=0.6, sigma_px=1.3, noise=0.004, seed=4)
+    )
+    first = detect_frame(image)
+    out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    assert what.status == "refined" and what.candidates == 6
+    assert _matched(out, curves[3:], 1.0) == 3
+    assert len(out) == len(first)  # the border components keep their lines, none is lost
+    # Negative control: without border candidates only the three inside are.
+    monkeypatch.setattr(gyropass, "BORDER_CANDIDATES", False)
+    out2, what2 = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    assert what2.candidates == 3
+    assert _matched(out2, curves[3:], 1.0) == 3
