@@ -8,7 +8,7 @@ exactly the result of one process.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
@@ -30,11 +30,14 @@ def refine_frames(
     model: Any,
     params: DetectParams,
     workers: int = 1,
+    meanwhile: Callable[[], None] | None = None,
 ) -> dict[str, int]:
     """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
     is updated in place; ``idx`` their frame indices, the images re-read from ``session``
     only for the frames the gate lets through), in ``workers`` forked processes (the same
-    result as in one). Returns the count of frames per outcome status."""
+    result as in one). ``meanwhile``: work of this process run while the workers refine,
+    before ``found`` changes (before the first frame without workers). Returns the count of
+    frames per outcome status."""
     counts: dict[str, int] = {}
     # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
     # (measured on lines down the middle of both arms) is too wide. The session's median.
@@ -48,7 +51,8 @@ def refine_frames(
         )
         return (None if out is fs else out), what.status
 
-    for k, (out, status) in zip(covered, fork_map(one, covered, workers), strict=True):
+    results = fork_map(one, covered, workers, 1, meanwhile)
+    for k, (out, status) in zip(covered, results, strict=True):
         if out is not None:
             found[k] = out
         counts[status] = counts.get(status, 0) + 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -10,8 +11,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.forkmap import can_fork, fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
     GYRO_SIGMA_REL,
@@ -25,7 +27,7 @@ from blurtrack.detect.orientation import (
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
-from blurtrack.errors import CoverageError, DetectionError
+from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
 GYRO_MODES = ("auto", "on", "off")
@@ -114,6 +116,12 @@ def _covers(model: Any, tm: FrameTiming) -> bool:
     return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
 
 
+def unchanged(before: list[FrameStreaks], after: list[FrameStreaks]) -> bool:
+    """Whether ``after`` holds the very frame objects of ``before`` (a pass that changed no
+    frame: anything computed from ``before`` holds for ``after``)."""
+    return len(before) == len(after) and all(a is b for a, b in zip(before, after, strict=True))
+
+
 def _gyro_llrs(
     found: list[FrameStreaks],
     timings: list[FrameTiming],
@@ -172,6 +180,10 @@ def detect_session(
     if gyro not in GYRO_MODES:
         raise DetectionError(f"gyro mode must be one of {GYRO_MODES}, got {gyro!r}")
     p = params or DetectParams()
+    # Here too, not only where frames are detected: with workers this process still runs the
+    # scan, the gyro cues and continuity over ~20 000-streak arrays, whose freed blocks
+    # glibc would otherwise unmap and fault in again (the cues: ~3x the arithmetic's time).
+    keep_frame_buffers()
     n_frames = len(session.frames)
     idx = list(frames if frames is not None else range(n_frames))
     if not idx:
@@ -226,15 +238,39 @@ def detect_session(
                 raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
             else:
                 uncovered.append(idx[k])
+        cues: list[np.ndarray | None] | None = None
         if p.gyro_template and covered:
             # Second pass: the gyro's predicted shape as the template (hairpin frames).
             from blurtrack.detect.refinepass import refine_frames
 
-            template_pass = refine_frames(session, found, timings, idx, covered, model, p, workers)
+            first = list(found)
+            early: list[list[np.ndarray | None]] = []
+
+            def cues_meanwhile() -> None:
+                # The gyro cues of the first-pass frames, while the workers refine: the
+                # same call on the same frames as after the pass wherever it changed none.
+                # (A failure here leaves them to be computed below, after the pass.)
+                with contextlib.suppress(BlurTrackError):
+                    early.append(_gyro_llrs(first, timings, covered, model, sigma_rel))
+
+            speculate = workers > 1 and len(covered) > 1 and can_fork()
+            template_pass = refine_frames(
+                session,
+                found,
+                timings,
+                idx,
+                covered,
+                model,
+                p,
+                workers,
+                cues_meanwhile if speculate else None,
+            )
             llrs = [np.zeros((len(fs), 3)) for fs in found]
-        for k, llr in zip(
-            covered, _gyro_llrs(found, timings, covered, model, sigma_rel), strict=True
-        ):
+            if early and unchanged(first, found):
+                cues = early[0]
+        if cues is None:
+            cues = _gyro_llrs(found, timings, covered, model, sigma_rel)
+        for k, llr in zip(covered, cues, strict=True):
             if llr is None:
                 if gyro == "on":
                     raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")

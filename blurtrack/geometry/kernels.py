@@ -83,21 +83,28 @@ def so3_exp_c(wx: Any, wy: Any, wz: Any, ops: Backend = NUMPY_OPS) -> Mat3:
     >>> np.round([float(r[0]) for r in R], 12).reshape(3, 3)[:2, :2].tolist()
     [[0.0, -1.0], [1.0, 0.0]]
     """
-    th2 = wx * wx + wy * wy + wz * wz
+    # Each product and sum evaluated once (the very operations, in the same order, of the
+    # formula written out entry by entry: the same values, a third fewer array operations).
+    xx, yy, zz = wx * wx, wy * wy, wz * wz
+    xy = xx + yy
+    th2 = xy + zz
     th = ops.sqrt(th2 + _ANGLE_EPS2)
     a = ops.sin(th) / th
     s = ops.sin(th / 2) / th
     b = 2 * s * s  # (1 - cos th) / th^2 without cancellation
+    bx = b * wx
+    bxy, bxz, byz = bx * wy, bx * wz, b * wy * wz
+    ax, ay, az = a * wx, a * wy, a * wz
     return (
-        1 - b * (wy * wy + wz * wz),
-        b * wx * wy - a * wz,
-        b * wx * wz + a * wy,
-        b * wx * wy + a * wz,
-        1 - b * (wx * wx + wz * wz),
-        b * wy * wz - a * wx,
-        b * wx * wz - a * wy,
-        b * wy * wz + a * wx,
-        1 - b * (wx * wx + wy * wy),
+        1 - b * (yy + zz),
+        bxy - az,
+        bxz + ay,
+        bxy + az,
+        1 - b * (xx + zz),
+        byz - ax,
+        bxz - ay,
+        byz + ax,
+        1 - b * xy,
     )
 
 

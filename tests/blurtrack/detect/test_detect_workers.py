@@ -246,3 +246,59 @@ def test_fork_map_keeps_order_and_runs_closures() -> None:
         next(forkmap.fork_map(lambda i: i, items, 2))
     assert list(outer) == items[1:]
     assert not forkmap._WORKER_STATE
+
+
+def _count_cue_calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[int], list]]:
+    """Record the frame-object ids and the result of every gyro-cue call in this process."""
+    from blurtrack.detect import session as detect_session_module
+
+    calls: list[tuple[list[int], list]] = []
+    real = detect_session_module._gyro_llrs
+
+    def spy(found, *a, **k):
+        out = real(found, *a, **k)
+        calls.append(([id(fs) for fs in found], out))
+        return out
+
+    monkeypatch.setattr(detect_session_module, "_gyro_llrs", spy)
+    return calls
+
+
+def test_gyro_cues_computed_while_the_template_pass_runs(
+    session_folder: Path, hairpin_session, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With workers the parent computes the gyro cues of the first pass while the workers run
+    the template pass, and keeps them only where the pass changed no frame: the same table as
+    one process both where it keeps them and where it computes them again."""
+    session = load_session(session_folder)
+    one = detect_session(session, workers=1)
+    calls = _count_cue_calls(monkeypatch)
+    two = detect_session(session, workers=2)
+    assert two.summary["gyro_template_frames"] == {"skipped": 5}
+    assert len(calls) == 1  # computed once, during the pass, and kept
+    pd.testing.assert_frame_equal(one.table, two.table, check_exact=True)
+    # Frames the pass changes: computed again on the refined frames, as in one process.
+    kw = dict(gyro="on", refine_timeshift=False)
+    calls.clear()
+    two = detect_session(hairpin_session, workers=2, **kw)
+    assert len(calls) == 2 and calls[0][0] != calls[1][0]
+    # Negative control: the first pass's cues are not those of the refined frames.
+    assert any(
+        a is None or b is None or a.shape != b.shape or not np.array_equal(a, b)
+        for a, b in zip(calls[0][1], calls[1][1], strict=True)
+    )
+    monkeypatch.undo()
+    ref = detect_session(hairpin_session, workers=1, **kw)
+    pd.testing.assert_frame_equal(ref.table, two.table, check_exact=True)
+
+
+def test_unchanged_means_the_very_frame_objects() -> None:
+    from typing import Any
+
+    from blurtrack.detect.session import unchanged
+
+    a, b = [1.0], [2.0]
+    first: list[Any] = [a, b]
+    assert unchanged(first, [a, b])
+    assert not unchanged(first, [a, [2.0]])  # an equal replacement is a change
+    assert not unchanged(first, [a])
