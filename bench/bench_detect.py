@@ -80,6 +80,25 @@ def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.nda
     return S, E, inside, length
 
 
+def match(
+    s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Detections ``s, e`` ``(n, 2)`` matched to true streaks ``S, E`` ``(m, 2)``: the
+    ``(n, m)`` orientation-free mean endpoint distance, the Hungarian assignment's rows and
+    columns within :data:`MATCH_GATE_PX`, and ``(n, m)`` whether start and end are the
+    right way round."""
+    same = (
+        np.linalg.norm(s[:, None] - S[None], axis=2) + np.linalg.norm(e[:, None] - E[None], axis=2)
+    ) / 2
+    swap = (
+        np.linalg.norm(s[:, None] - E[None], axis=2) + np.linalg.norm(e[:, None] - S[None], axis=2)
+    ) / 2
+    cost = np.minimum(same, swap)
+    rows, cols = linear_sum_assignment(np.where(cost < MATCH_GATE_PX, cost, 1e6))
+    ok = cost[rows, cols] < MATCH_GATE_PX
+    return cost, rows[ok], cols[ok], same <= swap
+
+
 def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
     errors: list[float] = []
     mid_errors: list[float] = []
@@ -101,18 +120,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
         n_det_unclipped += int((~clipped).sum())
         if len(d) == 0 or len(S) == 0:
             continue
-        same = (
-            np.linalg.norm(s[:, None] - S[None], axis=2)
-            + np.linalg.norm(e[:, None] - E[None], axis=2)
-        ) / 2
-        swap = (
-            np.linalg.norm(s[:, None] - E[None], axis=2)
-            + np.linalg.norm(e[:, None] - S[None], axis=2)
-        ) / 2
-        cost = np.minimum(same, swap)
-        rows, cols = linear_sum_assignment(np.where(cost < MATCH_GATE_PX, cost, 1e6))
-        ok = cost[rows, cols] < MATCH_GATE_PX
-        rows, cols = rows[ok], cols[ok]
+        _, rows, cols, oriented = match(s, e, S, E)
         n_found += int(inside[cols].sum())
         n_det_real += int((~clipped[rows]).sum())
         for r, c in zip(rows, cols, strict=True):
@@ -123,7 +131,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
                 mid_errors.append(float(np.linalg.norm(m[r] - M[c])))
             if length[c] > 5.0:
                 n_long += 1
-                n_oriented += int(same[r, c] <= swap[r, c])
+                n_oriented += int(oriented[r, c])
     err = np.array(errors) if errors else np.array([np.nan])
     mid = np.array(mid_errors) if mid_errors else np.array([np.nan])
     return {

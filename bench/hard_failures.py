@@ -28,17 +28,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_detect import _truth_arrays, match  # noqa: E402
 
 import blurtrack.detect.refinepass as refinepass  # noqa: E402
 from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.session import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
-GATE_PX = 4.0
 NEAR_PX = 10.0
 ON_LINE_PX = 3.0
 FRAGMENT = 0.75
@@ -75,10 +76,7 @@ def classify(folder: Path, params: DetectParams | None = None) -> dict[str, Any]
     for k, fr in enumerate(truth["frames"]):
         st = fr.get("streaks") or []
         fstat = status[k] if k < len(status) else "uncovered"
-        S = np.array([s["start"] for s in st], float).reshape(-1, 2)
-        E = np.array([s["end"] for s in st], float).reshape(-1, 2)
-        L = np.array([float(s["length_px"]) for s in st])
-        inside = np.array([bool(s.get("inside", True)) for s in st], bool)
+        S, E, inside, L = _truth_arrays(fr)
         lines = [np.asarray(s["centerline"], float).reshape(-1, 2) for s in st]
         d = table[table["frame"] == fr["index"]]
         s = d[["start_x", "start_y"]].to_numpy(float)
@@ -86,16 +84,7 @@ def classify(folder: Path, params: DetectParams | None = None) -> dict[str, Any]
         clipped = d["clipped"].to_numpy(bool)
         dl = np.hypot(*(e - s).T) if len(d) else np.zeros(0)
         if len(d) and len(S):
-            same = (
-                np.hypot(*(s[:, None] - S[None]).T).T + np.hypot(*(e[:, None] - E[None]).T).T
-            ) / 2
-            swap = (
-                np.hypot(*(s[:, None] - E[None]).T).T + np.hypot(*(e[:, None] - S[None]).T).T
-            ) / 2
-            cost = np.minimum(same, swap)
-            r, c = linear_sum_assignment(np.where(cost < GATE_PX, cost, 1e6))
-            ok = cost[r, c] < GATE_PX
-            r, c = r[ok], c[ok]
+            cost, r, c, _ = match(s, e, S, E)
         else:
             cost = np.full((len(d), len(S)), np.inf)
             r = c = np.zeros(0, int)
