@@ -9,7 +9,7 @@ centre lines and profiles), :mod:`~blurtrack.detect.gaps` (streaks touching end 
 :mod:`~blurtrack.detect.measure` (measuring a set of lines),
 :mod:`~blurtrack.detect.separate` and :mod:`~blurtrack.detect.templates` (template separation of
 touching streaks), :mod:`~blurtrack.detect.quality` (shape consistency, quality flag),
-:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.detect.memory` (allocator
+:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.allocator` (allocator
 tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
 (a whole session), :mod:`~blurtrack.detect.table` (the streak table),

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.allocator import keep_frame_buffers
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.measure import LineSet, measure_lines
 from blurtrack.detect.measure import combine as _combine
-from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.ragged import Ragged, split_at
 from blurtrack.detect.segment import (

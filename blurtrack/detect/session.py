@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from blurtrack.allocator import keep_frame_buffers
 from blurtrack.detect.forkmap import can_fork, fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
-from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
     GYRO_SIGMA_REL,

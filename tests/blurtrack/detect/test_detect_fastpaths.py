@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
+from blurtrack.allocator import keep_frame_buffers
 from blurtrack.detect import ragged
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import background_and_noise, remove_hot_pixels, sparse_points
-from blurtrack.detect.memory import keep_frame_buffers
 from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.segment import find_components
 from blurtrack.detect.shortfit import _basis, fit_short
