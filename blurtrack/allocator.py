@@ -1,47 +1,67 @@
-"""Allocator tuning for frame-rate detection (glibc only; elsewhere a no-op).
+"""The C allocator's settings for a ``blurtrack`` process (glibc only; elsewhere a no-op).
 
-Detection allocates several full-frame arrays per frame (a 1280x720 float32 array is 3.6 MB).
-glibc serves such blocks from the heap once one has been freed, but returns the heap's free
-top to the kernel whenever it exceeds a threshold that is derived from the block size; the
-next frame then page-faults all of that memory back in (measured: ~2300 faults, several ms per
-1280x720 frame, a large part of the frame budget). Fixing both thresholds keeps freed frame
-buffers in the process for reuse. The cost is that up to ``trim_bytes`` of freed memory may
-stay mapped. This changes process-wide allocator settings, hence one explicit function that
-detection calls once.
+The commands work on arrays of a few to a few tens of megabytes that live for one step: a
+1280x720 float32 frame is 3.6 MB, a natural calibration's patch stacks and Jacobians tens of
+megabytes. glibc serves blocks above its dynamic mmap threshold with fresh ``mmap`` pages and
+returns the heap's free top to the kernel beyond a threshold derived from the block sizes, so
+the next such array faults all its pages in again: detection measured ~2300 faults, several ms
+per 1280x720 frame; ``blurtrack calibrate`` on 10 s of 720p ~1 million faults and 5-9 s of
+system CPU (docs/natural.md, "Allocator settings"). :func:`keep_heap` fixes the mmap
+threshold at glibc's 32 MiB maximum, keeps up to 1 GiB of free heap top mapped and grows the
+heap 256 MiB at a time (address space only, until touched), so freed blocks are reused
+(calibrate: ~0.2 million faults, 2-3.6 s). The price: a process keeps its peak heap until it
+exits (calibrate's peak RSS 1.2 -> 1.4 GB). Results do not change, only where memory comes
+from.
+
+These are process-wide settings, hence one explicit, idempotent function: the ``blurtrack``
+program calls it at start (:func:`blurtrack.cli.main`), detection in each worker process. The
+user's own tuning (``MALLOC_*`` variables, ``glibc.malloc`` tunables) takes precedence. No
+library exposes ``mallopt``, hence :mod:`ctypes`.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 import sys
 
-#: glibc ``mallopt`` parameter numbers (malloc.h).
-_M_TRIM_THRESHOLD = -1
-_M_MMAP_THRESHOLD = -3
-#: Largest mmap threshold glibc accepts on 64-bit systems.
-_MMAP_MAX_BYTES = 32 * 1024 * 1024
+#: glibc ``mallopt`` parameter numbers (malloc.h) and the values :func:`keep_heap` sets.
+M_TRIM_THRESHOLD = -1
+M_TOP_PAD = -2
+M_MMAP_THRESHOLD = -3
+SETTINGS: tuple[tuple[int, int], ...] = (
+    (M_MMAP_THRESHOLD, 32 << 20),  # the largest glibc accepts on 64-bit systems
+    (M_TRIM_THRESHOLD, 1 << 30),
+    (M_TOP_PAD, 256 << 20),
+)
 
 _state: dict[str, bool] = {}
 
 
-def keep_frame_buffers(trim_bytes: int = 256 * 1024 * 1024) -> bool:
-    """Make glibc keep freed full-frame buffers (blocks below 32 MB come from the heap, and
-    at most ``trim_bytes`` of free heap top stays mapped). Idempotent; returns whether the
-    settings are in effect (False where the C library has no ``mallopt``, e.g. not Linux)."""
-    if "done" in _state:
-        return _state["done"]
-    ok = False
-    if sys.platform.startswith("linux"):
-        try:
-            mallopt = ctypes.CDLL(None).mallopt
-        except (OSError, AttributeError):
-            mallopt = None
-        if mallopt is not None:
-            mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-            mallopt.restype = ctypes.c_int
-            ok = (
-                mallopt(_M_MMAP_THRESHOLD, _MMAP_MAX_BYTES) == 1
-                and mallopt(_M_TRIM_THRESHOLD, int(trim_bytes)) == 1
-            )
-    _state["done"] = ok
-    return ok
+def user_tuned() -> bool:
+    """Whether the environment sets glibc's allocator itself."""
+    return any(k.startswith("MALLOC_") for k in os.environ) or (
+        "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", "")
+    )
+
+
+def keep_heap() -> bool:
+    """Apply :data:`SETTINGS` to this process's glibc ``malloc`` (once; later calls return
+    the first's answer): whether they are in effect. ``False``, nothing changed, on other C
+    libraries (musl has no ``gnu_get_libc_version``) or where :func:`user_tuned`."""
+    if "done" not in _state:
+        _state["done"] = _apply()
+    return _state["done"]
+
+
+def _apply() -> bool:
+    if not sys.platform.startswith("linux") or user_tuned():
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        libc.gnu_get_libc_version  # noqa: B018  # glibc only
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    return all(mallopt(param, value) == 1 for param, value in SETTINGS)

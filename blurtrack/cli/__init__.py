@@ -216,11 +216,11 @@ def run_command(program: str, args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``blurtrack`` program; ``argv`` ``None``: this process's own command line, and the
-    process's allocator is tuned for its command (:mod:`blurtrack.cli.allocator`)."""
+    process's allocator is set for its command (:func:`blurtrack.allocator.keep_heap`)."""
     if argv is None:
-        from blurtrack.cli.allocator import tune_allocator
+        from blurtrack.allocator import keep_heap
 
-        tune_allocator()
+        keep_heap()
     args = sys.argv[1:] if argv is None else list(argv)
     return run_command("blurtrack", build_parser(command_of(args)).parse_args(args))
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.allocator import keep_frame_buffers
+from blurtrack.allocator import keep_heap
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.measure import LineSet, measure_lines
 from blurtrack.detect.measure import combine as _combine
@@ -208,7 +208,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         session level decides whether that is an error).
     """
     p = params or DetectParams()
-    keep_frame_buffers()  # once per process: no page faults for per-frame buffers
+    keep_heap()  # once per process: no page faults for per-frame buffers
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     H, W = prep.signal.shape
     sat_frac = float(np.count_nonzero(prep.saturated)) / (H * W)

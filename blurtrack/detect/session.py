@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from blurtrack.allocator import keep_frame_buffers
+from blurtrack.allocator import keep_heap
 from blurtrack.detect.forkmap import can_fork, fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
@@ -183,7 +183,7 @@ def detect_session(
     # Here too, not only where frames are detected: with workers this process still runs the
     # scan, the gyro cues and continuity over ~20 000-streak arrays, whose freed blocks
     # glibc would otherwise unmap and fault in again (the cues: ~3x the arithmetic's time).
-    keep_frame_buffers()
+    keep_heap()
     n_frames = len(session.frames)
     idx = list(frames if frames is not None else range(n_frames))
     if not idx:

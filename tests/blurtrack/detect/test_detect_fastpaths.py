@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import platform
-import sys
 import warnings
 
 import cv2
@@ -11,7 +9,6 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from blurtrack.allocator import keep_frame_buffers
 from blurtrack.detect import ragged
 from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import background_and_noise, remove_hot_pixels, sparse_points
@@ -192,13 +189,6 @@ def test_too_many_blobs_is_an_error_not_a_label_overflow() -> None:
         find_components(smooth, 0.5, 1, 5000)
     comps = find_components(smooth[:40, :40], 0.5, 1, 5000)
     assert comps.ids.size == 400 and np.all(comps.areas == 1)
-
-
-def test_keep_frame_buffers_is_idempotent() -> None:
-    first = keep_frame_buffers()
-    assert keep_frame_buffers() is first
-    if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
-        assert first  # glibc has mallopt and accepts both settings
 
 
 def test_tangents_are_clamped_central_differences() -> None:

@@ -1,15 +1,16 @@
-"""The allocator settings of a ``blurtrack`` process (:mod:`blurtrack.cli.allocator`)."""
+"""The allocator settings of a ``blurtrack`` process (:mod:`blurtrack.allocator`)."""
 
 from __future__ import annotations
 
 import os
+import platform
 import subprocess
 import sys
 import textwrap
 
 import pytest
 
-from blurtrack.cli.allocator import tune_allocator
+from blurtrack import allocator
 
 #: 50 arrays of 40 MiB (above glibc's largest mmap threshold) and of 3 MiB made and freed in
 #: turn, a small array kept each time, as a command's steps do; prints the minor page faults.
@@ -17,8 +18,8 @@ WORKLOAD = textwrap.dedent(
     """
     import resource, sys
     import numpy as np
-    from blurtrack.cli.allocator import tune_allocator
-    tuned = tune_allocator() if sys.argv[1] == "tuned" else False
+    from blurtrack.allocator import keep_heap
+    tuned = keep_heap() if sys.argv[1] == "tuned" else False
     keep = []
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(50):
@@ -66,15 +67,22 @@ def test_users_malloc_settings_take_precedence(
     monkeypatch: pytest.MonkeyPatch, name: str, value: str
 ) -> None:
     monkeypatch.setenv(name, value)
-    assert tune_allocator() is False
+    assert allocator.user_tuned()
+    assert allocator._apply() is False
+
+
+def test_keep_heap_is_idempotent() -> None:
+    first = allocator.keep_heap()
+    assert allocator.keep_heap() is first
+    if platform.libc_ver()[0] == "glibc" and not allocator.user_tuned():
+        assert first  # glibc has mallopt and accepts every setting
 
 
 def test_main_tunes_only_its_own_process(monkeypatch: pytest.MonkeyPatch) -> None:
     import blurtrack.cli as cli
-    import blurtrack.cli.allocator as allocator
 
     calls: list[int] = []
-    monkeypatch.setattr(allocator, "tune_allocator", lambda: calls.append(1) or True)
+    monkeypatch.setattr(allocator, "keep_heap", lambda: calls.append(1) or True)
     with pytest.raises(SystemExit):
         cli.main(["--help"])
     assert calls == []
