@@ -48,6 +48,11 @@ MIN_FRAMES = 4
 #: in 10/10 seeds against 8-9/10, the rotation within 0.1 deg in 9 and 8/10 against 6 and 7/10,
 #: truth in 3 sigma 97.8 % (docs/natural.md, "MAX_FIT_TRACKS 12000 adopted").
 MAX_FIT_TRACKS = 12000
+#: Most tracks the translation decision and fits use (thinned from the rotation-only fit's):
+#: their per-pair and per-block jackknives refit the travel for every cluster, so their cost
+#: grows with the tracks; 1 s of driving 720p (9000 tracks) took 23-38 CPU-s with all of them
+#: against 16-20 s with 4000, for the same offsets (docs/natural.md, "MAX_FIT_TRACKS 12000").
+MAX_TRANSLATION_TRACKS = 4000
 #: Cells (columns, rows) over which :func:`thinned` spreads each pair's tracks.
 THIN_GRID = (4, 3)
 #: Time samples of the blur-centroid correction.
@@ -257,6 +262,13 @@ def thinned(tracks: FeatureTracks, n_max: int, grid: tuple[int, int] = THIN_GRID
     video, bunched where the texture is strongest, and left cy 15 px off."""
     if len(tracks) <= n_max:
         return tracks
+    return _subset(tracks, thin_mask(tracks, n_max, grid))
+
+
+def thin_mask(tracks: FeatureTracks, n_max: int, grid: tuple[int, int] = THIN_GRID) -> np.ndarray:
+    """Which tracks :func:`thinned` keeps ``(N,)`` (all where there are at most ``n_max``)."""
+    if len(tracks) <= n_max:
+        return np.ones(len(tracks), bool)
     per = max(1, n_max // max(1, int(np.count_nonzero(tracks.per_pair))))
     gx, gy = grid
     p = tracks.pts_a
@@ -274,15 +286,16 @@ def thinned(tracks: FeatureTracks, n_max: int, grid: tuple[int, int] = THIN_GRID
             rank[m] = np.arange(np.count_nonzero(m))
         order = np.lexsort((cell[sel], rank))  # rank-major: one per cell, then the next
         keep[sel[order[:per]]] = True
-    return replace(
-        tracks,
-        frame_a=tracks.frame_a[keep],
-        frame_b=tracks.frame_b[keep],
-        pts_a=tracks.pts_a[keep],
-        pts_b=tracks.pts_b[keep],
-        fb_error_px=tracks.fb_error_px[keep],
-        per_pair=np.minimum(tracks.per_pair, per),
-    )
+    return keep
+
+
+def thinned_result(nat: NaturalResult, n_max: int) -> NaturalResult:
+    """``nat`` with its tracks and their pseudo-streaks (one per track, in order) thinned to
+    about ``n_max`` by :func:`thin_mask`; the fit result itself is kept."""
+    keep = thin_mask(nat.tracks, n_max)
+    if keep.all():
+        return nat
+    return replace(nat, tracks=_subset(nat.tracks, keep), streaks=nat.streaks.subset(keep))
 
 
 def check_tracks(tracks: FeatureTracks) -> None:
@@ -433,9 +446,12 @@ def calibrate_natural(
     if translation != "none":
         from calib.natural_motion import with_translation
 
-        nat = with_translation(nat, gyro, opts, translation)
-        if nat.rotation_only is not None:  # translation modelled: first-pass tracks
-            return nat
+        moved = with_translation(
+            thinned_result(nat, MAX_TRANSLATION_TRACKS), gyro, opts, translation
+        )
+        if moved.rotation_only is not None:  # translation modelled: first-pass tracks
+            return moved
+        nat = replace(nat, translation=moved.translation)
     # Rotation only: the later passes take their kernels from the previous fit.
     for _ in range(passes - 1):
         if blur != "equal-blur" or res.status == "failed":

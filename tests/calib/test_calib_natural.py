@@ -131,3 +131,30 @@ def test_thinning_spreads_each_pairs_tracks_over_the_image() -> None:
         # negative control: the strongest-first share would all sit in the corner
         first = tr.pts_a[tr.frame_a == f][:n_cells]
         assert np.all(first[:, 0] < 80) and np.all(first[:, 1] < 60)
+
+
+def test_thinned_result_keeps_each_track_with_its_pseudo_streak() -> None:
+    from typing import Any, cast
+
+    from blurtrack.features.tracks import FeatureTracks
+    from calib.natural import NaturalResult, thinned, thinned_result, tracks_to_streaks
+
+    rng = np.random.default_rng(1)
+    n_pairs, per_pair = 6, 50
+    p = rng.uniform([0, 0], [640, 360], (n_pairs * per_pair, 2))
+    fa = np.repeat(np.arange(n_pairs), per_pair)
+    tr = FeatureTracks(
+        fa, fa + 1, p, p + 2, np.zeros(len(p)), n_pairs + 1, np.full(n_pairs, per_pair)
+    )
+    ts = np.arange(n_pairs + 1, dtype=np.int64) * 33_333_333
+    streaks = tracks_to_streaks(tr, ts, np.full(n_pairs + 1, 10_000_000))
+    none = cast(Any, None)
+    nat = NaturalResult(none, none, tr, streaks, {"mode": "none"})
+    out = thinned_result(nat, 60)
+    assert len(out.tracks) == len(out.streaks) == 60
+    np.testing.assert_array_equal(out.tracks.pts_a, thinned(tr, 60).pts_a)
+    np.testing.assert_array_equal(out.streaks.start, out.tracks.pts_a)  # still paired
+    np.testing.assert_array_equal(out.streaks.end, out.tracks.pts_b)
+    np.testing.assert_array_equal(out.streaks.frame, out.tracks.frame_a)
+    assert out.tracks.per_pair.tolist() == [10] * n_pairs
+    assert thinned_result(nat, len(tr)) is nat  # nothing to thin
