@@ -1,10 +1,11 @@
 """Feature tracks between consecutive frames of an ordinary (natural-scene) video.
 
 For each frame pair ``(i, i + 1)``: Shi–Tomasi corners in frame ``i`` (OpenCV
-``goodFeaturesToTrack``), tracked into frame ``i + 1`` by pyramidal Lucas–Kanade
-(``calcOpticalFlowPyrLK``) and back again; a point is kept when the backward track returns
-within ``fb_max_px`` of where it started (the forward–backward check rejects occlusions,
-repeated texture and blur-smeared corners) and both ends lie inside the image by ``border_px``.
+``goodFeaturesToTrack``; optionally on the frame downscaled, ``TrackParams.corner_downscale``),
+tracked into frame ``i + 1`` by pyramidal Lucas–Kanade (``calcOpticalFlowPyrLK``) and back
+again; a point is kept when the backward track returns within ``fb_max_px`` of where it
+started (the forward–backward check rejects occlusions, repeated texture and blur-smeared
+corners) and both ends lie inside the image by ``border_px``.
 
 In a motion-blurred frame a tracked point sits where the blurred patch's light is centred: to
 first order the scene point's position at the middle of its row's exposure. A point at pixel
@@ -15,6 +16,7 @@ that. Pixels follow DESIGN (``(0, 0)`` is the centre of the top-left pixel), as 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -45,6 +47,13 @@ class TrackParams:
     #: reaches inter-frame motions of a few hundred pixels (DeepGyro's 1080p frames move
     #: ~220 px between frames).
     max_side_px: int = 1280
+    #: Corners are looked for on the frame area-averaged by this integer factor (1: at full
+    #: resolution), ``min_distance_px`` and ``block_size`` scaled with it, and tracked at full
+    #: resolution. At 720p ``goodFeaturesToTrack`` takes 17 ms per frame at full resolution,
+    #: 1.8 ms at half (2), and a natural calibration ~20 % less CPU, but on 10 seeds the half
+    #: resolution's corners lost one cy and one rotation target (docs/natural.md, "Corners at
+    #: half resolution"), so full resolution stays the default.
+    corner_downscale: int = 1
 
     def __post_init__(self) -> None:
         if not 8 <= self.max_corners <= 20000:
@@ -55,6 +64,10 @@ class TrackParams:
             raise FeatureTrackError(f"window_px must be odd and >= 5, got {self.window_px}")
         if not 0 <= self.levels <= 6:
             raise FeatureTrackError(f"levels must be in [0, 6], got {self.levels}")
+        if not 1 <= self.corner_downscale <= 8:
+            raise FeatureTrackError(
+                f"corner_downscale must be in [1, 8], got {self.corner_downscale}"
+            )
         if self.max_side_px < 64:
             raise FeatureTrackError(f"max_side_px must be >= 64, got {self.max_side_px}")
         if not self.fb_max_px > 0 or self.min_distance_px < 1 or self.border_px < 0:
@@ -143,15 +156,9 @@ def _track(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`track_pair` at the images' own resolution."""
     H, W = img_a.shape
-    c = cv2.goodFeaturesToTrack(
-        img_a,
-        maxCorners=params.max_corners,
-        qualityLevel=params.quality,
-        minDistance=params.min_distance_px,
-        blockSize=params.block_size,
-    )
+    c = corners(img_a, params)
     empty = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
-    if c is None or len(c) == 0:
+    if len(c) == 0:
         return empty
     p0 = c.astype(np.float32).reshape(-1, 1, 2)
     lk = dict(
@@ -168,6 +175,32 @@ def _track(
     ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < params.fb_max_px) & inside
     ok &= np.all(np.isfinite(b), axis=1)
     return a[ok], b[ok], fb[ok]
+
+
+def corners(img: np.ndarray, params: TrackParams = TrackParams()) -> np.ndarray:
+    """Shi–Tomasi corners ``(M, 2)`` of an 8-bit gray frame, strongest first, in its pixels,
+    found on the frame area-averaged by ``params.corner_downscale`` (see there)."""
+    k = params.corner_downscale
+    small = img
+    if k > 1 and min(img.shape) >= 8 * k:
+        size = (img.shape[1] // k, img.shape[0] // k)
+        small = cv2.resize(img[: size[1] * k, : size[0] * k], size, interpolation=cv2.INTER_AREA)
+    else:
+        k = 1
+    block = max(3, 2 * math.ceil((params.block_size / k - 1) / 2) + 1)
+    c = cv2.goodFeaturesToTrack(
+        small,
+        maxCorners=params.max_corners,
+        qualityLevel=params.quality,
+        minDistance=max(1.0, params.min_distance_px / k),
+        blockSize=block,
+    )
+    if c is None or len(c) == 0:
+        return np.zeros((0, 2))
+    if k == 1:
+        return c.reshape(-1, 2).astype(float)
+    # pixel centres: (x_full + 0.5) = k (x_small + 0.5)
+    return (c.reshape(-1, 2).astype(float) + 0.5) * k - 0.5
 
 
 def track_frames(

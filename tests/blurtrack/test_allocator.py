@@ -32,7 +32,7 @@ WORKLOAD = textwrap.dedent(
 )
 
 
-def _faults(mode: str, env: dict[str, str] | None = None) -> tuple[str, int]:
+def _faults(mode: str, env: dict[str, str]) -> tuple[str, int]:
     out = subprocess.run(
         [sys.executable, "-c", WORKLOAD, mode],
         capture_output=True,
@@ -46,13 +46,16 @@ def _faults(mode: str, env: dict[str, str] | None = None) -> tuple[str, int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_tuned_process_reuses_its_heap_instead_of_faulting_pages_in() -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    # 4 KiB pages: numpy's transparent-huge-page advice would make the default's faults
+    # depend on the kernel's THP setting and fragmentation (2578 against 28098 faults seen)
+    env["NUMPY_MADVISE_HUGEPAGE"] = "0"
     tuned, n_tuned = _faults("tuned", env)
     assert tuned == "True"
     plain, n_plain = _faults("plain", env)  # negative control: glibc's defaults
     assert plain == "False"
-    # 50 x 40 MiB is 2.5 GiB of pages: faulted in every time by default (fewer with
-    # transparent huge pages), once when the heap is kept
-    assert n_tuned < 0.5 * n_plain
+    # 50 x 40 MiB is 2.5 GiB of pages, faulted in every time by default (~510 k faults
+    # here); with the heap kept, the first few times only (~21 k)
+    assert n_tuned < 0.2 * n_plain
 
 
 @pytest.mark.parametrize(

@@ -10,6 +10,7 @@ import pytest
 from blurtrack.features.tracks import (
     FeatureTrackError,
     TrackParams,
+    corners,
     to_gray8,
     track_frames,
     track_pair,
@@ -39,6 +40,24 @@ def test_track_pair_recovers_a_subpixel_shift() -> None:
     # LK interpolates bilinearly, the shift here is cubic: a few hundredths of pixel-locking.
     assert np.allclose(d, [3.3, -1.7], atol=0.06)
     assert np.all(fb < TrackParams().fb_max_px)
+
+
+def test_corners_at_half_resolution_are_the_half_frames_corners_in_full_pixels() -> None:
+    small = _texture(3, (120, 160))
+    big = cv2.resize(small, (320, 240), interpolation=cv2.INTER_NEAREST)  # 2x2 blocks
+    got = corners(big, TrackParams(min_distance_px=10, block_size=7, corner_downscale=2))
+    # area averaging gives ``small`` back; its corners under the halved settings, mapped by
+    # pixel centres: x_full + 0.5 = 2 (x_small + 0.5)
+    ref = corners(small, TrackParams(corner_downscale=1, min_distance_px=5, block_size=5))
+    assert len(got) > 50
+    np.testing.assert_allclose(got, (ref + 0.5) * 2 - 0.5, atol=1e-5)
+    # negative control: scaling the coordinates alone is half a pixel off
+    assert np.abs(got - ref * 2).max() > 0.4
+    # full resolution is another detector's answer, not a rescaled one
+    full = corners(big, TrackParams(corner_downscale=1))
+    assert full.shape != got.shape or not np.allclose(full, got)
+    with pytest.raises(FeatureTrackError, match="corner_downscale"):
+        TrackParams(corner_downscale=0)
 
 
 def test_forward_backward_check_rejects_unrelated_frames() -> None:
