@@ -11,6 +11,9 @@ import numpy as np
 
 from blurtrack.detect.segment import Components
 
+#: A placement reaching past the frame's border needs this fraction of its template (in
+#: squares) inside the frame (:func:`inside_norm2`).
+INSIDE_MIN = 0.3
 #: Width (px) of the ring around a template's support that must be dark where it is placed.
 HALO_PX = 3
 _HALO_DISK = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * HALO_PX + 1, 2 * HALO_PX + 1))
@@ -98,3 +101,20 @@ def similar(t: Template, z: complex, pivot: np.ndarray) -> Template:
 def warp(t: np.ndarray, dx: float, dy: float, w: int, h: int) -> np.ndarray:
     m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
     return cv2.warpAffine(t, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def inside_norm2(
+    inside: np.ndarray | None, region: tuple[int, int, int, int], tpl: Template
+) -> np.ndarray | None:
+    """Per placement of ``tpl`` over ``region = (x0, y0, x1, y1)`` of an image padded beyond the
+    frame (``inside``: 1 in the frame, 0 in the padding), the squared norm of the template's
+    part inside the frame, the shape of ``cv2.matchTemplate`` over the region; None where
+    every placement lies wholly inside (or ``inside`` is None): the norm is ``tpl.norm2``."""
+    if inside is None:
+        return None
+    x0, y0, x1, y1 = region
+    win = inside[y0:y1, x0:x1]
+    if bool(win.all()):
+        return None
+    sq = (tpl.smooth * tpl.smooth).astype(np.float32)
+    return np.asarray(cv2.matchTemplate(win, sq, cv2.TM_CCORR))
