@@ -298,3 +298,17 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
     monkeypatch.setattr(gyropass, "CLIP_AT_BORDER", False)
     out2, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
     assert _matched(out2, chained, 3.0) <= 1
+
+
+def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins, monkeypatch) -> None:
+    # The measured margins (hard seed 3 frame 6: 66 of 160 placements confirmed in
+    # components replaced whole; the rendered hairpins under the reversed gyro: 3 of 11).
+    assert gyropass._accepted(66, 160)
+    assert not gyropass._accepted(3, 11)
+    with monkeypatch.context() as mp:  # negative control: the former threshold
+        mp.setattr(gyropass, "ACCEPT_MIN", 0.5)
+        assert not gyropass._accepted(66, 160)
+    image, _, first = hairpins
+    assert refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))[1].status == (
+        "refused"
+    )
