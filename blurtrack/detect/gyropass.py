@@ -370,7 +370,8 @@ def refine_frame(
     # Border candidates: the images padded with zeros beyond the frame, so that a placement
     # may reach past the border (a streak leaving the frame: its curve cut at the border).
     P = _pad_px(pts[cand], max(sig_s, sig_r)) if CLIP_AT_BORDER and (cand & border).any() else 0
-    comps_p, in_frame = comps, None
+    comps_p = comps
+    in_frame: tuple[int, int, int, int] | None = None  # the frame in the padded images
     if P:
         comps_p = replace(
             comps,
@@ -379,7 +380,7 @@ def refine_frame(
             xs=comps.xs + P,
             boxes=comps.boxes + np.array([P, P, 0, 0], comps.boxes.dtype),
         )
-        in_frame = np.pad(np.ones((H, W), np.float32), P)
+        in_frame = (P, P, P + W, P + H)
     pix_cand = cand[pix]
     light = np.zeros((H + 2 * P, W + 2 * P), np.float32)
     light[comps_p.ys[pix_cand], comps_p.xs[pix_cand]] = comps.values[pix_cand]

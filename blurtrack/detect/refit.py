@@ -98,11 +98,11 @@ def _peak(num: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 
 def refit(
-    light: np.ndarray, pl: list[Placement], inside: np.ndarray | None = None
+    light: np.ndarray, pl: list[Placement], frame: tuple[int, int, int, int] | None = None
 ) -> tuple[list[Placement], np.ndarray | None]:
     """Coordinate descent of the placements whose templates meet another's on ``light``
-    (the candidates' light, float32, frame coordinates; ``inside``: for a ``light`` padded
-    with zeros beyond the frame, the frame's mask, and a placement reaching past the border
+    (the candidates' light, float32, frame coordinates; ``frame``: for a ``light`` padded
+    with zeros beyond the frame, the frame's pixels in it, and a placement reaching past the border
     is scaled by its template's part inside, see
     :func:`blurtrack.detect.templates.inside_norm2`).
 
@@ -136,7 +136,7 @@ def refit(
             _paint(model, tiles[k], -1.0)
             rest = light[y0:y1, x0:x1] - model[y0:y1, x0:x1]
             num = cv2.matchTemplate(rest, p.tpl.smooth, cv2.TM_CCORR)
-            n2 = inside_norm2(inside, (x0, y0, x1, y1), p.tpl)
+            n2 = inside_norm2(frame, (x0, y0, x1, y1), p.tpl.smooth)
             pick = num if n2 is None else np.where(n2 >= INSIDE_MIN * p.tpl.norm2, num, -np.inf)
             iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(pick)), pick.shape))
             amp = float(num[iy, ix]) / (p.tpl.norm2 if n2 is None else float(n2[iy, ix]))

@@ -118,14 +118,14 @@ def _pursue(
     tpl: Template,
     comp_of_label: np.ndarray,
     halo_max: float = HALO_MAX,
-    inside: np.ndarray | None = None,
+    frame: tuple[int, int, int, int] | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
     light it explains.
 
-    ``inside``: for a ``residual`` padded with zeros beyond the frame, the frame's mask (1
-    inside, 0 in the padding; :func:`blurtrack.detect.templates.inside_norm2`): a placement
+    ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
+    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.templates.inside_norm2`): a placement
     reaching past the border is scored and scaled by its template's part inside the frame
     (a streak leaving the frame), and needs at least
     :data:`~blurtrack.detect.templates.INSIDE_MIN` of its template inside."""
@@ -142,11 +142,11 @@ def _pursue(
     out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))
     sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
+    n2 = inside_norm2(frame, (x0, y0, x1, y1), tpl.smooth)  # the same region every round
     for _ in range(MAX_ROUNDS):
         # The matched filter's peaks are the candidates; the normalised score and the halo
         # are evaluated at those few positions only.
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-        n2 = inside_norm2(inside, (x0, y0, x1, y1), tpl)
         if n2 is None:
             open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
         else:

@@ -4,6 +4,7 @@ its own trail, which the image-only first pass measures as one line down the mid
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -312,3 +313,23 @@ def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins, monkeypatc
     assert refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))[1].status == (
         "refused"
     )
+
+
+def test_the_norm_inside_the_frame_is_the_mask_correlation() -> None:
+    # A padded image of 40 x 30 px around a 20 x 12 px frame: the template's squared norm
+    # inside the frame per placement equals the correlation of the frame's mask with the
+    # template's square; None where every placement lies inside.
+    from blurtrack.detect.templates import inside_norm2
+
+    rng = np.random.default_rng(3)
+    sm = rng.random((7, 9)).astype(np.float32)
+    frame = (10, 8, 30, 20)
+    mask = np.zeros((30, 40), np.float32)
+    mask[8:20, 10:30] = 1.0
+    region = (2, 3, 36, 27)
+    got = inside_norm2(frame, region, sm)
+    want = cv2.matchTemplate(mask[3:27, 2:36], sm * sm, cv2.TM_CCORR)
+    assert got is not None and got.shape == want.shape
+    assert np.allclose(got, want, rtol=1e-5, atol=1e-5)
+    assert inside_norm2(frame, (10, 8, 30, 20), sm) is None
+    assert inside_norm2(None, region, sm) is None
