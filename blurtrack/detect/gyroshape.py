@@ -25,7 +25,7 @@ import numpy as np
 
 from blurtrack.detect.gyrocurve import similar_curve
 from blurtrack.detect.segment import Components
-from blurtrack.detect.templates import Template
+from blurtrack.detect.templates import INSIDE_MIN, Template, inside_norm2
 
 #: Shape search (calibration error): rotations (rad) and scales of the predicted curve.
 ROTATIONS_RAD = (-0.06, -0.03, 0.0, 0.03, 0.06)
@@ -39,7 +39,12 @@ SHIFT_WINDOW_PX = 3
 
 
 def best_shape(
-    light: np.ndarray, comps: Components, c: int, pts: np.ndarray, make: Any
+    light: np.ndarray,
+    comps: Components,
+    c: int,
+    pts: np.ndarray,
+    make: Any,
+    frame: tuple[int, int, int, int] | None = None,
 ) -> tuple[Template | None, float]:
     """The variant of curve ``pts`` (rotated, scaled) whose template explains the light in
     component ``c``'s box best, and its support-normalised correlation there.
@@ -48,6 +53,12 @@ def best_shape(
     the support-normalised one alone (the pursuit's) is as high for a template too small,
     lying inside the streak, as for the right one; light past the template's ends, in its
     halo, tells them apart.
+
+    ``frame``: for a ``light`` padded with zeros beyond the frame, the frame's pixels in it
+    ``(x0, y0, x1, y1)``; a
+    placement reaching past the border is normalised by its template's part inside the frame
+    (at least :data:`~blurtrack.detect.templates.INSIDE_MIN` of it), so a streak leaving the
+    frame is matched by its predicted curve cut at the border.
     """
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tried: dict[tuple[float, float], _Trial] = {}
@@ -57,7 +68,7 @@ def best_shape(
         key = (round(r, 9), round(sc, 9))
         if key not in tried:  # the search comes back to its pick: the same trial
             tpl = make(similar_curve(pts, sc * np.exp(1j * r)))
-            tried[key] = _trial(light, (x, y, w, h), tpl, near)
+            tried[key] = _trial(light, (x, y, w, h), tpl, near, frame)
         return tried[key]
 
     # The nominal shape over the whole box; the variants (a px or two from it) about its
@@ -92,6 +103,7 @@ def _trial(
     box: tuple[int, int, int, int],
     tpl: Template,
     near: tuple[int, int, float] | None = None,
+    frame: tuple[int, int, int, int] | None = None,
 ) -> _Trial:
     """Template ``tpl`` matched over the component box ``box`` of ``light`` (every placement
     whose top-left lies within half the template of the box, 2 px more; with ``near = (sx,
@@ -125,8 +137,14 @@ def _trial(
         return none
     # Placements over (next to) no light: both sums are the DFT's rounding there (~1e-7 of
     # their largest, of either sign), and so is their ratio: no rank.
-    norm = np.sqrt(tpl.norm2)
     lit = den_h > DEN_FLOOR * top
+    # Placements past the frame's border: the template's part inside the frame.
+    n2 = inside_norm2(frame, (px0 + cl, py0 + a, px1 + cr, py1 + b), sm)
+    if n2 is None:
+        norm: Any = np.sqrt(tpl.norm2)
+    else:
+        lit &= n2 >= INSIDE_MIN * tpl.norm2
+        norm = np.sqrt(np.maximum(n2, 1e-30))
     if not lit.any():
         return none
     rank = np.where(lit, num / (np.sqrt(np.where(lit, den_h, 1.0)) * norm), -1.0)
@@ -135,5 +153,5 @@ def _trial(
     den_s = float(np.sum(sq[ky : ky + b - a, kx : kx + cr - cl] * sup))
     if not den_s > DEN_FLOOR * float(den_h[ky, kx]):
         return tpl, -1.0, float(rank[ky, kx]), shift, top
-    score = float(num[ky, kx]) / (np.sqrt(den_s) * norm)
+    score = float(num[ky, kx]) / (np.sqrt(den_s) * float(np.broadcast_to(norm, num.shape)[ky, kx]))
     return tpl, score, float(rank[ky, kx]), shift, top

@@ -43,7 +43,16 @@ from blurtrack.detect.quality import (
 )
 from blurtrack.detect.refit import refit
 from blurtrack.detect.segment import Components
-from blurtrack.detect.templates import HALO_PX, Placement, Template, similar, template, warp
+from blurtrack.detect.templates import (
+    HALO_PX,
+    INSIDE_MIN,
+    Placement,
+    Template,
+    inside_norm2,
+    similar,
+    template,
+    warp,
+)
 
 #: Lowest support-normalised correlation of an accepted placement.
 SCORE_MIN = 0.8
@@ -109,10 +118,17 @@ def _pursue(
     tpl: Template,
     comp_of_label: np.ndarray,
     halo_max: float = HALO_MAX,
+    frame: tuple[int, int, int, int] | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
-    light it explains."""
+    light it explains.
+
+    ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
+    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.templates.inside_norm2`): a placement
+    reaching past the border is scored and scaled by its template's part inside the frame
+    (a streak leaving the frame), and needs at least
+    :data:`~blurtrack.detect.templates.INSIDE_MIN` of its template inside."""
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box
@@ -126,11 +142,15 @@ def _pursue(
     out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))
     sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
+    n2 = inside_norm2(frame, (x0, y0, x1, y1), tpl.smooth)  # the same region every round
     for _ in range(MAX_ROUNDS):
         # The matched filter's peaks are the candidates; the normalised score and the halo
         # are evaluated at those few positions only.
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
-        open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
+        if n2 is None:
+            open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
+        else:
+            open_ = np.where((num >= AMP_MIN * n2) & (n2 >= INSIDE_MIN * tpl.norm2), num, 0.0)
         picked: list[tuple[int, int, float]] = []
         for _try in range(MAX_TRIES):
             jy, jx = np.unravel_index(int(np.argmax(open_)), open_.shape)
@@ -141,10 +161,12 @@ def _pursue(
             w2 = win * win
             den = float(np.sum(w2 * tpl.support))
             halo = float(np.sum(w2 * tpl.halo))
-            score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * norm + 1e-12)
+            t2 = tpl.norm2 if n2 is None else float(n2[iy, ix])
+            t1 = norm if n2 is None else float(np.sqrt(t2))
+            score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * t1 + 1e-12)
             # A streak's template lies in the dark: no blob or wider streak fits it.
             if score >= SCORE_MIN and halo <= halo_max * den:
-                picked.append((iy, ix, float(num[iy, ix]) / tpl.norm2))
+                picked.append((iy, ix, float(num[iy, ix]) / t2))
                 ry, rx = sy, sx
             else:
                 ry, rx = FAIL_SUPPRESS_PX, FAIL_SUPPRESS_PX

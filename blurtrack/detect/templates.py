@@ -11,6 +11,9 @@ import numpy as np
 
 from blurtrack.detect.segment import Components
 
+#: A placement reaching past the frame's border needs this fraction of its template (in
+#: squares) inside the frame (:func:`inside_norm2`).
+INSIDE_MIN = 0.3
 #: Width (px) of the ring around a template's support that must be dark where it is placed.
 HALO_PX = 3
 _HALO_DISK = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * HALO_PX + 1, 2 * HALO_PX + 1))
@@ -98,3 +101,32 @@ def similar(t: Template, z: complex, pivot: np.ndarray) -> Template:
 def warp(t: np.ndarray, dx: float, dy: float, w: int, h: int) -> np.ndarray:
     m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
     return cv2.warpAffine(t, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def inside_norm2(
+    frame: tuple[int, int, int, int] | None,
+    region: tuple[int, int, int, int],
+    sm: np.ndarray,
+) -> np.ndarray | None:
+    """Per placement of the template image ``sm`` over ``region = (x0, y0, x1, y1)`` of an
+    image padded beyond the frame (``frame = (fx0, fy0, fx1, fy1)``, the frame's pixels in the
+    padded image), the squared norm of the template's part inside the frame, the shape of
+    ``cv2.matchTemplate`` over the region (a rectangle of the template per placement: four
+    look-ups of its integral image); None where every placement lies wholly inside (or
+    ``frame`` is None): the norm is the whole template's."""
+    if frame is None:
+        return None
+    fx0, fy0, fx1, fy1 = frame
+    x0, y0, x1, y1 = region
+    th, tw = sm.shape
+    if x0 >= fx0 and y0 >= fy0 and x1 <= fx1 and y1 <= fy1:
+        return None
+    px = np.arange(x0, x1 - tw + 1)
+    py = np.arange(y0, y1 - th + 1)
+    c0, c1 = np.clip(fx0 - px, 0, tw), np.clip(fx1 - px, 0, tw)
+    r0, r1 = np.clip(fy0 - py, 0, th), np.clip(fy1 - py, 0, th)
+    sq = sm.astype(np.float64) ** 2
+    S = np.zeros((th + 1, tw + 1))
+    S[1:, 1:] = sq.cumsum(axis=0).cumsum(axis=1)
+    n2 = S[np.ix_(r1, c1)] - S[np.ix_(r0, c1)] - S[np.ix_(r1, c0)] + S[np.ix_(r0, c0)]
+    return np.asarray(np.maximum(n2, 0.0), np.float32)

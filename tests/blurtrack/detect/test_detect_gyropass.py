@@ -4,6 +4,7 @@ its own trail, which the image-only first pass measures as one line down the mid
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -235,3 +236,100 @@ def test_components_at_the_border_are_candidates(monkeypatch) -> None:
     out2, what2 = refine_frame(image, first, FrameTiming(T0, EXP), model)
     assert what2.candidates == 3
     assert _matched(out2, curves[3:], 1.0) == 3
+
+
+def test_a_placed_curve_is_cut_at_the_frame_border() -> None:
+    # A straight curve from x = -25 to x = 75 on row 50 (samples 10 px apart): its part inside
+    # the frame starts where it crosses x = 0, not at its first sample inside (x = 5).
+    curve = np.stack([np.linspace(-25.0, 75.0, 11), np.full(11, 50.0)], 1)
+    s, e = gyropass._cut_at_border(curve, W, H)
+    assert s == pytest.approx([0.0, 50.0]) and e == pytest.approx([75.0, 50.0])
+    # Diagonally out through the bottom-right corner's bottom edge (y = H - 1).
+    diag = np.stack([np.linspace(400.0, 500.0, 11), np.linspace(300.0, 400.0, 11)], 1)
+    s, e = gyropass._cut_at_border(diag, W, H)
+    assert s == pytest.approx([400.0, 300.0]) and e == pytest.approx([459.0, H - 1.0])
+    # Wholly inside: its own ends.
+    inner = curve + np.array([40.0, 0.0])
+    s, e = gyropass._cut_at_border(inner, W, H)
+    assert s == pytest.approx(inner[0]) and e == pytest.approx(inner[-1])
+
+
+def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatch) -> None:
+    # Straight streaks (~85 px) on a 55 px grid along the motion: three rows of three dots
+    # form chains whose first streak leaves the frame at the left border; one chain of two
+    # and three isolated streaks lie inside. No template wholly inside the frame explains a
+    # border chain's light, so without placements past the border (negative control) the
+    # chains stay; with them every inside streak is found.
+    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
+    t = np.arange(0.0, 0.2, 1e-3)
+    omega = np.stack([0.0 * t, np.full_like(t, 70.0 / (F * EXP)), 0.0 * t], axis=1)
+    model = BlurModel(
+        Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
+        GyroTrace(t, omega),
+        gyro_upsample=1,
+    )
+    sp = 55.0
+    dots = [[x, y] for y in (60.0, 150.0, 240.0) for x in (10.0, 10.0 + sp, 10.0 + 2 * sp)]
+    dots += [[420.0, 60.0], [420.0, 150.0], [420.0, 240.0], [250.0, 320.0], [250.0 + sp, 320.0]]
+    times = T0 + EXP * np.linspace(0.0, 1.0, 800)
+    tracks = model.point_track(np.array(dots), np.full(len(dots), T0 + EXP / 2), times)
+    curves = list(tracks)
+    image = quantise(
+        render_streaks((H, W), curves, flux_per_px=0.6, sigma_px=1.3, noise=0.004, seed=4)
+    )
+    inside = [c for c in curves if c[:, 0].min() > 3.0]
+    chained = [inside[i] for i in range(6)]  # the border chains' inside streaks
+    assert len(inside) == 11
+    first = detect_frame(image)
+    out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    assert what.status == "refined"
+    assert _matched(out, inside, 3.0) == len(inside)
+    # The streaks leaving the frame are there too, flagged clipped, ending at the border.
+    clipped = out.flags["clipped"]
+    assert int(clipped.sum()) == 3
+    assert np.all(np.minimum(out.end_a[clipped, 0], out.end_b[clipped, 0]) < 1.0)
+    assert len(out) == len(curves)
+    # Negative controls: placed curves not cut at the border (their ends outside the frame,
+    # 20-30 px from the measured ones) refuse the border chains' placements; no placements
+    # past the border leave the chains.
+    with monkeypatch.context() as mp:
+        mp.setattr(gyropass, "_cut_at_border", lambda c, w, h: (c[0], c[-1]))
+        out1, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
+        assert _matched(out1, chained, 3.0) <= 1
+    monkeypatch.setattr(gyropass, "CLIP_AT_BORDER", False)
+    out2, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    assert _matched(out2, chained, 3.0) <= 1
+
+
+def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins, monkeypatch) -> None:
+    # The measured margins (hard seed 3 frame 6: 66 of 160 placements confirmed in
+    # components replaced whole; the rendered hairpins under the reversed gyro: 3 of 11).
+    assert gyropass._accepted(66, 160)
+    assert not gyropass._accepted(3, 11)
+    with monkeypatch.context() as mp:  # negative control: the former threshold
+        mp.setattr(gyropass, "ACCEPT_MIN", 0.5)
+        assert not gyropass._accepted(66, 160)
+    image, _, first = hairpins
+    assert refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))[1].status == (
+        "refused"
+    )
+
+
+def test_the_norm_inside_the_frame_is_the_mask_correlation() -> None:
+    # A padded image of 40 x 30 px around a 20 x 12 px frame: the template's squared norm
+    # inside the frame per placement equals the correlation of the frame's mask with the
+    # template's square; None where every placement lies inside.
+    from blurtrack.detect.templates import inside_norm2
+
+    rng = np.random.default_rng(3)
+    sm = rng.random((7, 9)).astype(np.float32)
+    frame = (10, 8, 30, 20)
+    mask = np.zeros((30, 40), np.float32)
+    mask[8:20, 10:30] = 1.0
+    region = (2, 3, 36, 27)
+    got = inside_norm2(frame, region, sm)
+    want = cv2.matchTemplate(mask[3:27, 2:36], sm * sm, cv2.TM_CCORR)
+    assert got is not None and got.shape == want.shape
+    assert np.allclose(got, want, rtol=1e-5, atol=1e-5)
+    assert inside_norm2(frame, (10, 8, 30, 20), sm) is None
+    assert inside_norm2(None, region, sm) is None
