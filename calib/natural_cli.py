@@ -104,6 +104,27 @@ def laser_axes(
     return search.to_dict(), start
 
 
+def check_determined(res: Any, n_frames: int) -> None:
+    """Refuse (:class:`CalibError`, exit 2, nothing written) a fit that leaves a fitted
+    parameter undetermined (:func:`calib.uncertainty.undetermined`): its values would be a
+    guess. The DeepGyro recording's 4 gyro-covered frame pairs gave sigma 543 s for the time
+    offset and 5e5 px for fx, with status "ok"."""
+    from calib.errors import CalibError
+    from calib.uncertainty import undetermined
+
+    if res.status == "failed":
+        return
+    bad = undetermined({k: res.sigma[k] for k in res.fitted if k in res.sigma})
+    if bad:
+        shown = ", ".join(f"{k} (sigma {res.sigma[k]:.3g})" for k in bad[:3])
+        shown += f" and {len(bad) - 3} more" if len(bad) > 3 else ""
+        raise CalibError(
+            f"the recording does not determine {shown} from {n_frames} frames; no calibration "
+            "written (record longer, with rotation about all three axes, or --fit fewer "
+            "parameters)"
+        )
+
+
 def run_natural(
     args: argparse.Namespace,
     print_table: Callable[[Any, dict, dict | None], None],
@@ -134,6 +155,7 @@ def run_natural(
         session, options, translation=args.translation, scale_prior=args.gyro_scale_prior
     )
     res = nat.result
+    check_determined(res, nat.tracks.n_frames)
     summary = res.to_dict()
     summary.update(nat.summary())
     summary["target"] = "natural"

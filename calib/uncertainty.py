@@ -45,6 +45,26 @@ WEAK_SIGMA = {
 }
 
 
+#: A fitted parameter whose sigma exceeds this many times its :data:`WEAK_SIGMA` is not
+#: determined by the data at all (a time offset known to no better than 0.1 s, a focal
+#: length to 500 px): no calibration is written from such a fit.
+UNDETERMINED_FACTOR = 100.0
+
+
+def undetermined(sigma: dict[str, float]) -> list[str]:
+    """Names of the parameters in ``sigma`` (theta units) that are not finite or exceed
+    :data:`UNDETERMINED_FACTOR` times their :data:`WEAK_SIGMA`.
+
+    >>> undetermined({"timeshift_s": 2e-4, "fx": 519026.7, "readout_s": float("nan")})
+    ['fx', 'readout_s']
+    """
+    return [
+        k
+        for k, v in sigma.items()
+        if k in WEAK_SIGMA and not (np.isfinite(v) and v <= UNDETERMINED_FACTOR * WEAK_SIGMA[k])
+    ]
+
+
 @dataclass(frozen=True)
 class Uncertainty:
     free: tuple[int, ...]
