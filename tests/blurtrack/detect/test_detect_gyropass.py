@@ -104,16 +104,21 @@ def test_a_wrong_sign_gyro_is_refused(hairpins) -> None:
     assert out is first
 
 
-def test_straight_streaks_are_left_to_the_first_pass() -> None:
-    # A motion that does not reverse: no hairpin frame, the first pass stands untouched.
+def _pan_model(blur_px: float) -> BlurModel:
+    """A steady pan about camera y that draws ``blur_px`` long streaks in one exposure."""
     cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
     t = np.arange(0.0, 0.2, 1e-3)
-    omega = np.stack([0.0 * t, np.full_like(t, 30.0 / (F * EXP)), 0.0 * t], axis=1)
-    model = BlurModel(
+    omega = np.stack([0.0 * t, np.full_like(t, blur_px / (F * EXP)), 0.0 * t], axis=1)
+    return BlurModel(
         Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
         GyroTrace(t, omega),
         gyro_upsample=1,
     )
+
+
+def test_straight_streaks_are_left_to_the_first_pass() -> None:
+    # A motion that does not reverse: no hairpin frame, the first pass stands untouched.
+    model = _pan_model(30.0)
     dots = np.array([[100.0, 100.0], [300.0, 200.0]])
     tracks = model.point_track(dots, np.full(2, T0 + EXP / 2), T0 + EXP * np.linspace(0, 1, 400))
     image = quantise(render_streaks((H, W), list(tracks), flux_per_px=0.6, sigma_px=1.3))
@@ -260,14 +265,7 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
     # and three isolated streaks lie inside. No template wholly inside the frame explains a
     # border chain's light, so without placements past the border (negative control) the
     # chains stay; with them every inside streak is found.
-    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
-    t = np.arange(0.0, 0.2, 1e-3)
-    omega = np.stack([0.0 * t, np.full_like(t, 70.0 / (F * EXP)), 0.0 * t], axis=1)
-    model = BlurModel(
-        Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
-        GyroTrace(t, omega),
-        gyro_upsample=1,
-    )
+    model = _pan_model(70.0)
     sp = 55.0
     dots = [[x, y] for y in (60.0, 150.0, 240.0) for x in (10.0, 10.0 + sp, 10.0 + 2 * sp)]
     dots += [[420.0, 60.0], [420.0, 150.0], [420.0, 240.0], [250.0, 320.0], [250.0 + sp, 320.0]]
