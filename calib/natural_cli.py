@@ -155,7 +155,6 @@ def run_natural(
         session, options, translation=args.translation, scale_prior=args.gyro_scale_prior
     )
     res = nat.result
-    check_determined(res, nat.tracks.n_frames)
     summary = res.to_dict()
     summary.update(nat.summary())
     summary["target"] = "natural"
@@ -165,21 +164,22 @@ def run_natural(
     if truth is not None:
         summary["truth"] = truth
         summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
-    out = Path(args.out)
-    # a failed fit never replaces the summary of the calibration it leaves in place
-    details = write_summary(res, summary, out)
     f = summary["features"]
     print(
         f"feature tracks: {f['tracks']} in {f['frames'] - 1} frame pairs (median "
         f"{f['per_pair_median']:.0f} per pair, {f['displacement_px_median']:.1f} px motion)"
     )
-    print_axes(nat.axes)
+    print_axes(nat.axes)  # what the images decided, shown also when the fit is refused
     tr = nat.translation or {}
     if "ratio" in tr:
         print(
             f"translation: {tr['mode']} (chosen by {tr['chosen_by']}; rotation-only / "
             f"epipolar mean squared track error {tr['ratio']:.2f}, auto above {tr['auto_ratio']})"
         )
+    check_determined(res, nat.tracks.n_frames)
+    out = Path(args.out)
+    # a failed fit never replaces the summary of the calibration it leaves in place
+    details = write_summary(res, summary, out)
     print("(the endpoint errors below are feature-track errors)")
     print_table(res, summary["initial"], truth)
     return write_results(res, out, details)
