@@ -107,8 +107,8 @@ def laser_axes(
 def check_determined(res: Any, n_frames: int) -> None:
     """Refuse (:class:`CalibError`, exit 2, nothing written) a fit that leaves a fitted
     parameter undetermined (:func:`calib.uncertainty.undetermined`): its values would be a
-    guess. The DeepGyro recording's 4 gyro-covered frame pairs gave sigma 543 s for the time
-    offset and 5e5 px for fx, with status "ok"."""
+    guess. The DeepGyro recording's 4 gyro-covered frame pairs gave sigma 3e6 s for the time
+    offset and 6e8 px for fx, with status "ok"."""
     from calib.errors import CalibError
     from calib.uncertainty import undetermined
 
