@@ -331,3 +331,20 @@ def test_the_norm_inside_the_frame_is_the_mask_correlation() -> None:
     assert np.allclose(got, want, rtol=1e-5, atol=1e-5)
     assert inside_norm2(frame, (10, 8, 30, 20), sm) is None
     assert inside_norm2(None, region, sm) is None
+
+
+def test_the_gates_coarse_curves_have_the_full_curves_ends_and_middle() -> None:
+    # With a rolling shutter, so that each sample's row time is iterated: the gate decides on
+    # the ends, the midpoint and the arc of GATE_SAMPLES-point curves.
+    model = _model(readout_s=0.02)
+    dots = np.array([[40.0, 30.0], [200.0, 150.0], [390.0, 270.0]])
+    full = predict_curves(model, dots, T0, EXP)
+    gate = predict_curves(model, dots, T0, EXP, gyropass.GATE_SAMPLES)
+    S, G = full.pts.shape[1], gate.pts.shape[1]
+    assert G == gyropass.GATE_SAMPLES < S and G % 2 == 1
+    np.testing.assert_array_equal(gate.pts[:, [0, G // 2, -1]], full.pts[:, [0, S // 2, -1]])
+    # the arc of fewer points is shorter, by far less than the gate's tolerance (0.1 of it)
+    assert np.all(gate.arc <= full.arc) and np.all(full.arc - gate.arc < 0.01 * full.arc)
+    # negative control: an even count has no mid-exposure sample
+    even = predict_curves(model, dots, T0, EXP, 16)
+    assert not np.allclose(even.pts[:, 8], full.pts[:, S // 2])
