@@ -34,8 +34,9 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    components whose light the placements explain are candidates for replacement. Where a
    candidate touches the border the images are padded with zeros beyond the frame and a
    placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its template's
-   part inside the frame, its placed curve cut at the border, :func:`_cut_at_border`): chains
-   into the border hold streaks leaving the frame, which no template wholly inside explains.
+   part inside the frame, its placed curve cut at the border,
+   :func:`~blurtrack.detect.gyroconfirm.cut_at_border`): chains into the border hold streaks
+   leaving the frame, which no template wholly inside explains.
 4. **Measurement** on each placement's own image (the mosaic of separation), with the placed
    curve as the coarse centre line, by :func:`blurtrack.detect.measure.measure_lines`
    (:mod:`blurtrack.detect.gyromeasure`; hairpins as two arms): the ends, midpoints and
@@ -47,8 +48,9 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    is dropped (its component keeps its first-pass lines), and a component
    keeps its first-pass lines unless the new streaks fit the placed curves better (per
    placement, the nearest old line against the new one); a frame where fewer than
-   :data:`ACCEPT_MIN` of the measured placements survive keeps its first pass entirely (a wrong
-   prior, e.g. a gyro of the wrong sign, draws shapes the image does not hold).
+   :data:`~blurtrack.detect.gyroconfirm.ACCEPT_MIN` of the measured placements survive keeps
+   its first pass entirely (a wrong prior, e.g. a gyro of the wrong sign, draws shapes the
+   image does not hold; :mod:`blurtrack.detect.gyroconfirm` holds these checks).
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ from blurtrack.detect.frame import (
     FrameStreaks,
     _near_border,
 )
+from blurtrack.detect.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyromeasure import measure_placements
 from blurtrack.detect.gyroshape import best_shape
@@ -93,9 +96,6 @@ TOL_PX = 2.5
 TOL_REL = 0.1
 #: Lowest support-normalised correlation of the best shape (below it: refused).
 SHAPE_SCORE_MIN = 0.8
-#: A frame keeps its first pass unless this fraction of its measured placements is
-#: confirmed in components replaced whole (see :func:`_accepted`; 0.5 until 2026-12-03).
-ACCEPT_MIN = 0.35
 #: Other frames are refined where more than this fraction of the long first-pass streaks
 #: miss the prediction.
 BAD_FRACTION = 0.0
@@ -113,9 +113,6 @@ BORDER_CANDIDATES = True
 CLIP_AT_BORDER = True
 #: A component is replaced where at least this fraction of its placements was measured.
 MEASURED_MIN = 0.5
-#: A measured line whose shape (its ends about their centre) matches its placed curve's is
-#: confirmed if its position lies within this times the tolerance (see :func:`_confirmed`).
-SHAPE_SHIFT_FACTOR = 2.0
 #: The typical dot's light: this quantile of the components' light (chains are brighter).
 LIGHT_QUANTILE = 0.4
 
@@ -149,68 +146,12 @@ def _line_owner(fs: FrameStreaks, comps: Components) -> np.ndarray:
     return out
 
 
-def _accepted(confirmed: int, measured: int) -> bool:
-    """Whether a frame's placements fit the prior: at least :data:`ACCEPT_MIN` of the
-    ``measured`` placements ``confirmed`` in components replaced whole. A wrong prior (the
-    rendered hairpins with the gyro's sign reversed) confirms 3 of 11; frames of long
-    collinear chains confirm fewer than plain ones (hard seed 3 frame 6: 66 of 160, every
-    other frame of seeds 1-3 0.80 or more), their other placements' lines running along the
-    chain and dropped one by one (their components keep their first-pass lines)."""
-    return confirmed >= ACCEPT_MIN * measured
-
-
 def _pad_px(curves: np.ndarray, sigma: float) -> int:
     """Padding (px) beyond the frame that holds any template of ``curves (N, S, 2)`` placed
     with a part inside the frame (its extent, the blur's margin and the halo, some slack for
     the shape search's scaling)."""
     ext = float(np.max(curves.max(axis=1) - curves.min(axis=1))) if curves.size else 0.0
     return int(np.ceil(1.1 * ext + 3.0 * sigma)) + HALO_PX + 8
-
-
-def _cut_at_border(curve: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
-    """The ends of the part of ``curve (S, 2)`` inside the frame ``[0, W-1] x [0, H-1]`` (its
-    longest run of samples inside, extended to where it crosses the border); the curve's
-    own ends where it lies wholly inside (or wholly outside)."""
-    ins = (curve[:, 0] >= 0) & (curve[:, 0] <= W - 1) & (curve[:, 1] >= 0) & (curve[:, 1] <= H - 1)
-    if ins.all() or not ins.any():
-        return curve[0], curve[-1]
-    idx = np.flatnonzero(ins)
-    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-    run = max(runs, key=len)
-    i0, i1 = int(run[0]), int(run[-1])
-    lo, hi = np.zeros(2), np.array([W - 1.0, H - 1.0])
-
-    def cross(p_in: np.ndarray, p_out: np.ndarray) -> np.ndarray:
-        d = p_out - p_in
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d < 0, (lo - p_in) / d, np.where(d > 0, (hi - p_in) / d, np.inf))
-        return np.asarray(p_in + float(np.clip(np.min(t), 0.0, 1.0)) * d)
-
-    s = cross(curve[i0], curve[i0 - 1]) if i0 > 0 else curve[i0]
-    e = cross(curve[i1], curve[i1 + 1]) if i1 < len(curve) - 1 else curve[i1]
-    return s, e
-
-
-def _mismatch(a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """Orientation-free mean distance of ends ``a, b`` from ``s, e`` (all ``(N, 2)``)."""
-    same = np.hypot(*(a - s).T) + np.hypot(*(b - e).T)
-    swap = np.hypot(*(a - e).T) + np.hypot(*(b - s).T)
-    return np.asarray(np.minimum(same, swap) / 2.0)
-
-
-def _confirmed(
-    a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray, tol: np.ndarray
-) -> np.ndarray:
-    """Measured lines ``a, b`` that the placed curves' ends ``s, e`` confirm: within ``tol``
-    (either orientation), or of the same shape (the ends about their centre within ``tol``)
-    within :data:`SHAPE_SHIFT_FACTOR` times ``tol``. Along a collinear chain a placement may
-    sit some px along the line from its dot (the neighbours' light fits it as well), while
-    the line measured on its own image is the dot's (hard seed 3 frame 7: measured ends a
-    median 1.0 px from the truth, the placed ones 7.9 px)."""
-    mis = _mismatch(a, b, s, e)
-    cm, cp = 0.5 * (a + b), 0.5 * (s + e)
-    shape = _mismatch(a - cm, b - cm, s - cp, e - cp)
-    return np.asarray((mis <= tol) | ((shape <= tol) & (mis <= SHAPE_SHIFT_FACTOR * tol)))
 
 
 def _as_streaks(
@@ -311,7 +252,7 @@ def refine_frame(
         # midpoints): chains and fragments of long streaks.
         g_pts = gate.pts - gate.pts[:, gate.pts.shape[1] // 2, None] + fs.time_mid[inside, None]
         a, b = fs.end_a[inside], fs.end_b[inside]
-        bad = _mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
+        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
         if not float(np.mean(bad[g_long])) > BAD_FRACTION:
             return fs, FrameOutcome("skipped")
     if callable(image):
@@ -361,7 +302,7 @@ def refine_frame(
         ok1 = np.zeros(C, bool)
         one = own >= 0
         o = own[one]
-        mis1 = _mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])
+        mis1 = mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])
         ok1[o[mis1 <= tol[o]]] = True
         cand &= ~((n_lines == 1) & ok1)
     if not cand.any():
@@ -428,11 +369,11 @@ def refine_frame(
     # Each measured line against its placement's curve: the image must confirm the shape.
     # A placed curve reaching past the border is cut there (its line ends at the border).
     placed = [placements[s] for s in m.src.tolist()]
-    cut = [_cut_at_border(q.tpl.points + q.shift, W, H) for q in placed]
+    cut = [cut_at_border(q.tpl.points + q.shift, W, H) for q in placed]
     ps = np.array([c[0] for c in cut]).reshape(-1, 2)
     pe = np.array([c[1] for c in cut]).reshape(-1, 2)
-    mis_new = _mismatch(m.end_a, m.end_b, ps, pe)
-    good = _confirmed(m.end_a, m.end_b, ps, pe, tol[m.own])
+    mis_new = mismatch(m.end_a, m.end_b, ps, pe)
+    good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own])
     # Components replaced only where every placement of theirs was measured and confirmed.
     n_place = np.bincount([q.comp for q in placements], minlength=C)
     n_good = np.bincount(m.own[good], minlength=C)
@@ -440,7 +381,7 @@ def refine_frame(
     # not its component's other dots: chains into the border leave some such.
     n_meas = np.bincount(m.own, minlength=C)
     whole = replaced & (n_good == n_meas) & (n_meas > 0) & (n_meas >= MEASURED_MIN * n_place)
-    if not _accepted(int(n_good[whole].sum()), len(m)):
+    if not accepted(int(n_good[whole].sum()), len(m)):
         return fs, FrameOutcome("refused", int(cand.sum()))
     # A component's first-pass lines stay unless the new streaks fit their placed curves
     # better: per placement, the nearest of the component's old lines against its new line.
@@ -451,7 +392,7 @@ def refine_frame(
         for j, r in enumerate(has_old.tolist()):
             li = lines[own[lines] == m.own[r]]
             k = np.full(li.size, r)
-            old_best[j] = float(np.min(_mismatch(fs.end_a[li], fs.end_b[li], ps[k], pe[k])))
+            old_best[j] = float(np.min(mismatch(fs.end_a[li], fs.end_b[li], ps[k], pe[k])))
         comp = m.own[has_old]
         cost_old = np.bincount(comp, old_best, C)
         cost_new = np.bincount(comp, mis_new[has_old], C)

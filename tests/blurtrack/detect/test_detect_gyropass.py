@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame, gyropass
+from blurtrack.detect import detect_frame, gyroconfirm, gyropass
 from blurtrack.detect.gyrocurve import predict_curves
 from blurtrack.detect.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -200,19 +200,19 @@ def test_a_measured_line_of_the_placed_shape_is_confirmed_a_little_along_the_cha
     tol = np.array([gyropass.TOL_PX + gyropass.TOL_REL * 100.0])
     along = np.array([1.5 * tol[0], 0.0])
     # The same line: confirmed, in either orientation.
-    assert gyropass._confirmed(s, e, s, e, tol)[0]
-    assert gyropass._confirmed(e, s, s, e, tol)[0]
+    assert gyroconfirm.confirmed(s, e, s, e, tol)[0]
+    assert gyroconfirm.confirmed(e, s, s, e, tol)[0]
     # The dot's line 1.5 tolerances along the chain from its placement: the position alone
     # (negative control) refuses it, the shape confirms it.
-    assert gyropass._mismatch(s + along, e + along, s, e)[0] > tol[0]
-    assert gyropass._confirmed(s + along, e + along, s, e, tol)[0]
+    assert gyroconfirm.mismatch(s + along, e + along, s, e)[0] > tol[0]
+    assert gyroconfirm.confirmed(s + along, e + along, s, e, tol)[0]
     # Too far along (over SHAPE_SHIFT_FACTOR tolerances), or of another shape (a fragment of
     # 60 px, a line turned by 20 degrees) that far off: refused.
-    far = np.array([(gyropass.SHAPE_SHIFT_FACTOR + 0.1) * tol[0], 0.0])
-    assert not gyropass._confirmed(s + far, e + far, s, e, tol)[0]
-    assert not gyropass._confirmed(s + along, s + along + [60.0, 0.0], s, e, tol)[0]
+    far = np.array([(gyroconfirm.SHAPE_SHIFT_FACTOR + 0.1) * tol[0], 0.0])
+    assert not gyroconfirm.confirmed(s + far, e + far, s, e, tol)[0]
+    assert not gyroconfirm.confirmed(s + along, s + along + [60.0, 0.0], s, e, tol)[0]
     turned = s + along + 100.0 * np.array([np.cos(0.35), np.sin(0.35)])
-    assert not gyropass._confirmed(s + along, turned, s, e, tol)[0]
+    assert not gyroconfirm.confirmed(s + along, turned, s, e, tol)[0]
 
 
 def test_components_at_the_border_are_candidates(monkeypatch) -> None:
@@ -247,15 +247,15 @@ def test_a_placed_curve_is_cut_at_the_frame_border() -> None:
     # A straight curve from x = -25 to x = 75 on row 50 (samples 10 px apart): its part inside
     # the frame starts where it crosses x = 0, not at its first sample inside (x = 5).
     curve = np.stack([np.linspace(-25.0, 75.0, 11), np.full(11, 50.0)], 1)
-    s, e = gyropass._cut_at_border(curve, W, H)
+    s, e = gyroconfirm.cut_at_border(curve, W, H)
     assert s == pytest.approx([0.0, 50.0]) and e == pytest.approx([75.0, 50.0])
     # Diagonally out through the bottom-right corner's bottom edge (y = H - 1).
     diag = np.stack([np.linspace(400.0, 500.0, 11), np.linspace(300.0, 400.0, 11)], 1)
-    s, e = gyropass._cut_at_border(diag, W, H)
+    s, e = gyroconfirm.cut_at_border(diag, W, H)
     assert s == pytest.approx([400.0, 300.0]) and e == pytest.approx([459.0, H - 1.0])
     # Wholly inside: its own ends.
     inner = curve + np.array([40.0, 0.0])
-    s, e = gyropass._cut_at_border(inner, W, H)
+    s, e = gyroconfirm.cut_at_border(inner, W, H)
     assert s == pytest.approx(inner[0]) and e == pytest.approx(inner[-1])
 
 
@@ -291,7 +291,7 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
     # 20-30 px from the measured ones) refuse the border chains' placements; no placements
     # past the border leave the chains.
     with monkeypatch.context() as mp:
-        mp.setattr(gyropass, "_cut_at_border", lambda c, w, h: (c[0], c[-1]))
+        mp.setattr(gyropass, "cut_at_border", lambda c, w, h: (c[0], c[-1]))
         out1, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
         assert _matched(out1, chained, 3.0) <= 1
     monkeypatch.setattr(gyropass, "CLIP_AT_BORDER", False)
@@ -302,11 +302,11 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
 def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins, monkeypatch) -> None:
     # The measured margins (hard seed 3 frame 6: 66 of 160 placements confirmed in
     # components replaced whole; the rendered hairpins under the reversed gyro: 3 of 11).
-    assert gyropass._accepted(66, 160)
-    assert not gyropass._accepted(3, 11)
+    assert gyroconfirm.accepted(66, 160)
+    assert not gyroconfirm.accepted(3, 11)
     with monkeypatch.context() as mp:  # negative control: the former threshold
-        mp.setattr(gyropass, "ACCEPT_MIN", 0.5)
-        assert not gyropass._accepted(66, 160)
+        mp.setattr(gyroconfirm, "ACCEPT_MIN", 0.5)
+        assert not gyroconfirm.accepted(66, 160)
     image, _, first = hairpins
     assert refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))[1].status == (
         "refused"
