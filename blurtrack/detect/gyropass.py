@@ -30,7 +30,7 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    the whole frame, the median of a sample's, measured worse: hard seed 2 frames 0-3 recall
    94.4 against 95.3 %.)
 3. **Pursuit and joint fit** with that template, exactly as in separation
-   (:func:`blurtrack.detect.separate._pursue`, :func:`blurtrack.detect.refit.refit`);
+   (:func:`blurtrack.detect.pursuit.pursue`, :func:`blurtrack.detect.refit.refit`);
    components whose light the placements explain are candidates for replacement. Where a
    candidate touches the border the images are padded with zeros beyond the frame and a
    placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its template's
@@ -77,9 +77,10 @@ from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.measure import Measured, combine
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.pursuit import pursue
 from blurtrack.detect.refit import refit
 from blurtrack.detect.segment import Components, drop_artefacts, find_components
-from blurtrack.detect.separate import HALO_MAX, RESIDUAL_MAX, _pursue
+from blurtrack.detect.separate import HALO_MAX, RESIDUAL_MAX
 from blurtrack.detect.templates import HALO_PX, Placement, Template
 from blurtrack.errors import CoverageError
 
@@ -344,7 +345,7 @@ def refine_frame(
         if tpl is None or score < SHAPE_SCORE_MIN:
             continue
         tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
-        placements += _pursue(residual, comps_p, c, tpl, comp_of_label, HALO_MAX, in_frame)
+        placements += pursue(residual, comps_p, c, tpl, comp_of_label, HALO_MAX, in_frame)
     n_cand = int(cand.sum())
     if not placements:
         return fs, FrameOutcome("refused", n_cand)
