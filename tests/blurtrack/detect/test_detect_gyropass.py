@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame, gyroconfirm, gyropass
+from blurtrack.detect import detect_frame, gyroconfirm, gyropass, pursuit
 from blurtrack.detect.gyrocurve import predict_curves
 from blurtrack.detect.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -348,3 +348,25 @@ def test_the_gates_coarse_curves_have_the_full_curves_ends_and_middle() -> None:
     # negative control: an even count has no mid-exposure sample
     even = predict_curves(model, dots, T0, EXP, 16)
     assert not np.allclose(even.pts[:, 8], full.pts[:, S // 2])
+
+
+def test_one_dots_light_is_a_components_light_per_line_not_a_chains() -> None:
+    # Hard seed 2 frame 8's make-up: most components inside the frame are chains of two to
+    # six long streaks that the first pass split into as many lines, a few hold one dot
+    # (155 units each); components at the border do not count.
+    rng = np.random.default_rng(3)
+    n_lines = np.array([1] * 6 + [2] * 8 + [3] * 5 + [6] * 3 + [1, 1])
+    light = 155.0 * n_lines * rng.uniform(0.97, 1.03, n_lines.size)
+    border = np.zeros(n_lines.size, bool)
+    border[-2:] = True
+    light[-2:] = 40.0  # streaks leaving the frame: part of a dot
+    est = gyropass._dot_light(light, border, n_lines)
+    assert abs(est - 155.0) < 5.0
+    # Negative control: the former estimate (the 0.4 quantile of the components' light) is
+    # two dots', at which the pursuit sees every dot at amplitude 0.5, under AMP_MIN.
+    former = float(np.quantile(light[~border], gyropass.LIGHT_QUANTILE))
+    assert former > 1.8 * 155.0
+    assert 155.0 / former < pursuit.AMP_MIN
+    # Without any first-pass line inside the frame the quantile stands.
+    none = np.zeros_like(n_lines)
+    assert gyropass._dot_light(light, border, none) == former
