@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from blurtrack.allocator import keep_heap
+from blurtrack.detect.anchored import anchored
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.measure import LineSet, measure_lines
 from blurtrack.detect.measure import combine as _combine
@@ -261,6 +262,20 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             c = np.hypot(*sep.field.at(m.time_mid).T)
             inside = ~_near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
             m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
+            if sep.refs is not None and sep.good is not None and len(m):
+                m, _ = anchored(
+                    prep.smooth,
+                    prep.signal,
+                    prep.saturation,
+                    sat_comp,
+                    comps,
+                    m,
+                    _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+                    sep.refs,
+                    sep.good,
+                    sep.field,
+                    p.smooth_sigma_px,
+                )
     if len(m) == 0:
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     width = m.width_px

@@ -81,6 +81,10 @@ class Separation:
     streaks: Measured | None
     replaced: np.ndarray | None
     field: Consensus | None
+    #: The whole-component references (:mod:`blurtrack.detect.modal`) and those that agree
+    #: with the field, where the frame took them (else None).
+    refs: Measured | None = None
+    good: np.ndarray | None = None
 
 
 def _overlaps(pl: list[Placement]) -> np.ndarray:
@@ -240,7 +244,7 @@ def separate(
         bad[first.own[fine & (n_lines[first.own] == 1)]] = True
         rows = ~bad[refs.own] & ~rep[refs.own]
         rep[refs.own[rows]] = True
-        return Separation(combine(refs, rows, m), rep, field)
+        return Separation(combine(refs, rows, m), rep, field, refs, good)
 
     cand = np.zeros(C, bool)
     cand[first.own[bad_line]] = True
