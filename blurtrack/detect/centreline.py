@@ -117,29 +117,28 @@ def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)
 
 
-#: A line's lit level, for cutting its ends: its peak profile, but at most this times its
-#: median profile (a hook where the dot lingered can be several times its streak's tail;
-#: 2 and 4 measured worse, docs/detection.md), the median over its points above
-#: ``MEDIAN_FLOOR`` of its peak (not the unlit extensions past the ends).
-LIT_MEDIAN_FACTOR = 3.0
+#: With a ``lit_median_factor``, a line's median profile is taken over its points above this
+#: fraction of its peak (not the unlit extensions past the ends).
 MEDIAN_FLOOR = 0.05
 
 
-def _lit_level(values: np.ndarray, r: Ragged) -> np.ndarray:
+def _lit_level(values: np.ndarray, r: Ragged, factor: float | None = None) -> np.ndarray:
     """Per-point lit level of the point's line, ``(M,)``: the line's peak of ``values``, at
-    most :data:`LIT_MEDIAN_FACTOR` times its median. On a line of one level (the peak about
-    the median) it is the peak; where a bright hook is several times the rest of the streak
-    (``hard`` seed 3 frame 6: hooks 3-5x the tail), a quarter of the peak lies above the
-    tail, and cutting there kept only the hook.
+    most ``factor`` times its median (None: the peak). On a line of one level (the peak
+    about the median) it is the peak; where a bright hook is several times the rest of the
+    streak (``hard`` seed 3 frame 6: hooks 3-5x the tail), a quarter of the peak lies above
+    the tail, and cutting there keeps only the hook.
 
     >>> r = Ragged(np.zeros((6, 2)), np.array([6]))
-    >>> _lit_level(np.array([0.0, 8.0, 2.0, 2.0, 2.0, 2.0]), r).tolist()[0]
+    >>> _lit_level(np.array([0.0, 8.0, 2.0, 2.0, 2.0, 2.0]), r, 3.0).tolist()[0]
     6.0
     """
     peak = _line_max(values, r)
+    if factor is None:
+        return peak
     on = np.where(values > MEDIAN_FLOOR * peak, values, np.nan)
     med = ragged.row_nanmedian(ragged.to_matrix(on, r.sizes, np.nan))
-    return np.minimum(peak, np.repeat(LIT_MEDIAN_FACTOR * med, r.sizes))
+    return np.minimum(peak, np.repeat(factor * med, r.sizes))
 
 
 def refine_lines(
@@ -147,13 +146,14 @@ def refine_lines(
     polylines: list[np.ndarray] | Ragged,
     sigma_c: float,
     ceiling: float | None = None,
+    lit_median_factor: float | None = None,
 ) -> RefinedLines:
     """Refine coarse ordered polylines (each ``(n >= 2, 2)``) against the smoothed image.
 
     ``ceiling``: the saturation level (signal units); cross-sections reaching half of it
     get their width from the tails (:func:`tail_sigma`), their top being clipped. The
     moving passes keep each line from its first to its last point above a quarter of its
-    lit level (:func:`_lit_level`)."""
+    lit level (:func:`_lit_level` with ``lit_median_factor``; None: its peak)."""
     half = int(np.ceil(3.0 * sigma_c)) + 1  # final pass: the whole cross-section integral
     half_move = int(np.ceil(2.0 * sigma_c)) + 1  # earlier passes only need the centroid
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3  # final pass: edges, tails and their baseline
@@ -173,7 +173,7 @@ def refine_lines(
         prof = _row_sums(v)
         # Only points that carry signal (a quarter of their line's peak profile) are moved
         # (and kept, on all but the final pass: the unlit rest of the extensions is rebuilt).
-        lit = prof > 0.25 * _lit_level(prof, r)
+        lit = prof > 0.25 * _lit_level(prof, r, lit_median_factor)
         # The final pass moves by the centroid of the same central window, without
         # resampling: its profile stays valid to first order under so small a shift.
         shift = _centre_shift(v, half_move, 1.0 if final else h)

@@ -70,15 +70,17 @@ def measure_lines(
     measure_sigma: bool,
     smooth_sigma: float,
     sigma_raw: float | None = None,
+    lit_median_factor: float | None = None,
 ) -> Measured:
     """Refine, split, fit and trim the lines of ``ls`` on ``smooth`` (and, for lines of
     saturated components, ``sat_comp[owner]``, the unsmoothed ``signal``).
 
     ``sigma_c``: guess of the smoothed cross-section sigma, replaced by the lines' median width
     when ``measure_sigma``; ``smooth_sigma``: the pre-smoothing sigma; ``sigma_raw``: the
-    unsmoothed sigma of saturated streaks (None: from the unsaturated widths)."""
+    unsmoothed sigma of saturated streaks (None: from the unsaturated widths);
+    ``lit_median_factor``: see :func:`blurtrack.detect.centreline.refine_lines`."""
     ceiling = saturation if sat_comp is not None and sat_comp.any() else None
-    ref = refine_lines(smooth, ls.lines, sigma_c, ceiling)
+    ref = refine_lines(smooth, ls.lines, sigma_c, ceiling, lit_median_factor)
     ref, parent = split_at_gaps(ref)
     owner = np.asarray(ls.owner, np.int64)[parent]
     crossing = np.asarray(ls.crossing, bool)[parent]
