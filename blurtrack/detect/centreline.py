@@ -171,7 +171,7 @@ def refine_lines(
         # (bicubic sampling measured no better and costs three times as much).
         nrm, v = _cross_samples(smooth, r, h)
         prof = _row_sums(v)
-        # Only points that carry signal (a quarter of their line's peak profile) are moved
+        # Only points that carry signal (a quarter of their line's lit level) are moved
         # (and kept, on all but the final pass: the unlit rest of the extensions is rebuilt).
         lit = prof > 0.25 * _lit_level(prof, r, lit_median_factor)
         # The final pass moves by the centroid of the same central window, without
