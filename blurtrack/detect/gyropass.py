@@ -231,6 +231,38 @@ def _as_streaks(
     )
 
 
+def gate(fs: FrameStreaks, timing: FrameTiming, model: Any) -> bool | None:
+    """Whether the pass has work on a frame, from its first-pass streaks alone (one model
+    call, no image work): None where it has none (no streak inside the frame, none long, the
+    gyro not covering it, or every long streak matching its prediction in a frame that is not
+    a hairpin frame), else whether it is a hairpin frame."""
+    inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
+    if not inside.any():
+        return None
+    # On the first pass's midpoints, with curves of GATE_SAMPLES: the ends and the midpoint
+    # are the same samples as at full sampling, the arc a polyline of fewer points.
+    try:
+        curves = predict_curves(
+            model, fs.time_mid[inside], timing.t_s, timing.exposure_s, GATE_SAMPLES
+        )
+    except CoverageError:
+        return None
+    g_long = curves.arc >= MIN_ARC_PX
+    if not g_long.any():
+        return None
+    hairpin = float(np.median(curves.chord[g_long] / curves.arc[g_long])) < HAIRPIN_CHORD
+    if not hairpin:
+        # Streaks the first pass measured far from the prediction (placed at their time
+        # midpoints): chains and fragments of long streaks.
+        mid = curves.pts.shape[1] // 2
+        g_pts = curves.pts - curves.pts[:, mid, None] + fs.time_mid[inside, None]
+        a, b = fs.end_a[inside], fs.end_b[inside]
+        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * curves.arc
+        if not float(np.mean(bad[g_long])) > BAD_FRACTION:
+            return None
+    return hairpin
+
+
 def refine_frame(
     image: np.ndarray | Callable[[], np.ndarray],
     fs: FrameStreaks,
@@ -247,29 +279,9 @@ def refine_frame(
     the templates and the measurement (None: the frame's, ``fs.sigma_c_px``)."""
     p = params or DetectParams()
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
-    if not inside.any():
+    hairpin = gate(fs, timing, model)
+    if hairpin is None:
         return fs, FrameOutcome("skipped")
-    # The gate first, on the first pass's midpoints (one model call, no image work), with
-    # curves of GATE_SAMPLES: the ends and the midpoint are the same samples as at full
-    # sampling, the arc a polyline of fewer points.
-    try:
-        gate = predict_curves(
-            model, fs.time_mid[inside], timing.t_s, timing.exposure_s, GATE_SAMPLES
-        )
-    except CoverageError:
-        return fs, FrameOutcome("skipped")
-    g_long = gate.arc >= MIN_ARC_PX
-    if not g_long.any():
-        return fs, FrameOutcome("skipped")
-    hairpin = float(np.median(gate.chord[g_long] / gate.arc[g_long])) < HAIRPIN_CHORD
-    if not hairpin:
-        # Streaks the first pass measured far from the prediction (placed at their time
-        # midpoints): chains and fragments of long streaks.
-        g_pts = gate.pts - gate.pts[:, gate.pts.shape[1] // 2, None] + fs.time_mid[inside, None]
-        a, b = fs.end_a[inside], fs.end_b[inside]
-        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * gate.arc
-        if not float(np.mean(bad[g_long])) > BAD_FRACTION:
-            return fs, FrameOutcome("skipped")
     if callable(image):
         image = image()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
