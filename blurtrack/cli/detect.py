@@ -157,7 +157,12 @@ def run(args: argparse.Namespace) -> int:
     )
     print(f"  flags: {s['flags']}")
     if s["gyro_timeshift_status"] == "found":
-        print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms (coarse scan)")
+        how = (
+            f"templates, scan {1e3 * s['gyro_timeshift_scan_s']:+.2f} ms"
+            if s["gyro_timeshift_refinement"] == "refined"
+            else "coarse scan"
+        )
+        print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms ({how})")
     elif s["gyro_timeshift_status"] != "no gyro":
         print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
     if s["frames_without_streaks"]:

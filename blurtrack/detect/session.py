@@ -109,6 +109,15 @@ def _shift_status(model: Any, shift: Any, searched: bool) -> str:
     return "too few streaks" if shift is None else str(shift.status)
 
 
+def _covered(found: list[FrameStreaks], timings: list[FrameTiming], model: Any) -> list[int]:
+    """Positions of the frames with streaks whose exposure ``model``'s gyro covers."""
+    return [
+        k
+        for k, (fs, tm) in enumerate(zip(found, timings, strict=True))
+        if len(fs) and _covers(model, tm)
+    ]
+
+
 def _covers(model: Any, tm: FrameTiming) -> bool:
     """Whether the model's gyro covers a frame's exposure (all rows, camera clock)."""
     shift = float(model.calib.timeshift_cam_imu_s)
@@ -210,7 +219,7 @@ def detect_session(
             on_frame(i, fs)
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
-    model = shift = None
+    model = shift = refined = None
     template_pass: dict[str, int] = {}
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
@@ -228,16 +237,26 @@ def detect_session(
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL
-        covered = []
-        for k, (fs, tm) in enumerate(zip(found, timings, strict=True)):
-            if len(fs) == 0:
+        covered = _covered(found, timings, model)
+        if found_shift and p.gyro_template and covered:
+            # The template pass's frames: the shift their predicted curves explain best.
+            from blurtrack.detect.shiftfit import refine_timeshift as refine_by_templates
+
+            refined = refine_by_templates(
+                lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers
+            )
+            if refined.status == "refined":
+                calib = calib.with_(
+                    timeshift_cam_imu_s=refined.timeshift_s, readout_s=refined.readout_s
+                )
+                model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
+                covered = _covered(found, timings, model)
+        for k in sorted(set(range(len(found))) - set(covered)):
+            if len(found[k]) == 0:
                 continue
-            if _covers(model, tm):
-                covered.append(k)
-            elif gyro == "on":
+            if gyro == "on":
                 raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
-            else:
-                uncovered.append(idx[k])
+            uncovered.append(idx[k])
         cues: list[np.ndarray | None] | None = None
         if p.gyro_template and covered:
             # Second pass: the gyro's predicted shape as the template (hairpin frames).
@@ -316,7 +335,12 @@ def detect_session(
         "gyro_timeshift_initial_s": None
         if inputs is None
         else float(inputs[0].timeshift_cam_imu_s),
-        "gyro_timeshift_s": None if shift is None else shift.timeshift_s,
+        "gyro_timeshift_s": None
+        if shift is None or shift.status != "found" or model is None
+        else float(model.calib.timeshift_cam_imu_s),
+        "gyro_timeshift_scan_s": None if shift is None else shift.timeshift_s,
+        "gyro_timeshift_refinement": "not run" if refined is None else refined.status,
+        "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
         "gyro_template_frames": template_pass,
         "orientation_sources": sources,
