@@ -158,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  flags: {s['flags']}")
     if s["gyro_timeshift_status"] == "found":
         how = (
-            f"templates, scan {1e3 * s['gyro_timeshift_scan_s']:+.2f} ms"
+            f"templates, scan {1e3 * s['gyro_timeshift_scan_s']:+.2f} ms; "
+            f"readout {1e3 * s['gyro_readout_s']:.2f} ms"
             if s["gyro_timeshift_refinement"] == "refined"
             else "coarse scan"
         )

@@ -219,3 +219,8 @@ def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
     assert est.timeshift_s == pytest.approx(0.018, abs=0.0015)
     res = detect_session(session, gyro="auto")
     assert res.summary["gyro_timeshift_s"] == pytest.approx(0.018, abs=0.0015)
+    # Straight streaks that match their predictions: the template pass's gate lets no frame
+    # through, so the templates do not refine the scan's shift or the session's readout.
+    assert res.summary["gyro_timeshift_refinement"] == "not needed"
+    assert res.summary["gyro_timeshift_s"] == res.summary["gyro_timeshift_scan_s"]
+    assert res.summary["gyro_readout_s"] == session.initial_calibration().camera.readout_s
