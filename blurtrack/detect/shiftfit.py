@@ -25,10 +25,11 @@ scan's in steps of :data:`GRID_STEP_MS` (the curves rendered once per trial); a 
 row fraction ``u = y / H`` sees the shift ``m + dr * (u - 1/2)`` (``m`` the shift at the
 frame's middle row), and ``(m, dr)`` is the best pair of a fine grid (:data:`FIT_STEP_MS`,
 ``dr`` within :data:`READOUT_REL` of the session's readout, :data:`READOUT_STEP_MS`) of the
-streaks' scores interpolated linearly between the trials. The readout is fitted only for a
-rolling shutter (readout > 0) and streaks spread over the rows (:data:`MIN_ROW_SPREAD`). It
-runs only where the template pass will use the shift:
-on sessions where the pass's gate lets one of the sampled frames through.
+streaks' scores interpolated between the trials by a Catmull-Rom spline. The readout is fitted
+only for a rolling shutter (readout > 0) and streaks spread over the rows
+(:data:`MIN_ROW_SPREAD`). It runs only where the template pass will use the shift: on sessions
+where the pass's gate lets one of the sampled frames through (those frames are decoded here
+and again by the pass: ~10 ms each).
 """
 
 from __future__ import annotations
