@@ -32,27 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.detect.normal import normal_cdf_given_exp as _phi
+
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
-#: Abramowitz & Stegun 7.1.26 (|error of erf| <= 1.5e-7): ``erfc(x) = t P(t) exp(-x**2)``.
-_AS_P = 0.3275911 / np.sqrt(2.0)
-_AS_A = (
-    0.254829592,
-    -0.284496736,
-    1.421413741,
-    -1.453152027,
-    1.0 - (0.254829592 - 0.284496736 + 1.421413741 - 1.453152027),
-)  # erfc(0) = 1 exactly
-
-
-def _phi(u: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """The normal CDF at ``u`` given ``e = exp(-u**2 / 2)``, which the basis needs anyway:
-    written out (A&S 7.1.26, |error| < 1e-7) because ``scipy.special.ndtr`` costs twice as much
-    here and the short-streak fit is on the detector's hot path."""
-    t = 1.0 / (1.0 + _AS_P * np.abs(u))
-    a0, a1, a2, a3, a4 = _AS_A
-    half_tail = (0.5 * e) * t * (a0 + t * (a1 + t * (a2 + t * (a3 + t * a4))))
-    return np.where(u >= 0, 1.0 - half_tail, half_tail)
-
 
 #: Shortest segment (in blur sigmas) whose density curvature is fitted.
 QUADRATIC_MIN_SIGMAS = 5.0
