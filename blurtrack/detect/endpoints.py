@@ -24,8 +24,8 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr
 
+from blurtrack.detect.normal import normal_cdf
 from blurtrack.detect.ragged import row_nanmedian
 from blurtrack.detect.shortfit import fit_short
 
@@ -151,7 +151,7 @@ def rising_edges(
     for _ in range(2):
         s_in = s_half + PLATEAU_INSET_SIGMAS * sigma
         x = s_in[:, None] + j[None, :]
-        rise = np.maximum(ndtr((x - s_half[:, None]) / sigma[:, None]), 0.5)
+        rise = np.maximum(normal_cdf((x - s_half[:, None]) / sigma[:, None]), 0.5)
         value, slope, fits, v = _plateau(A, lens, s_in, rise)
         ok &= fits & (value > 0)
         s_half, has = _first_crossing(A, lens, 0.5 * np.where(value > 0, value, guess))
@@ -169,7 +169,7 @@ def rising_edges(
     d = M / P
     for _ in range(3):
         z = d / sigma
-        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * ndtr(-z)
+        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * normal_cdf(-z)
         d = (M + 0.5 * slope * (d * d - sigma * sigma)) / P - sigma * psi
     # Refined under the constant-acceleration density: the bulk of the edge's mass,
     # ∫_{-d}^{0} (alpha + beta x)**-1/2 dx = 2 d / (sqrt(alpha) + sqrt(alpha - beta d)), in place
@@ -181,10 +181,10 @@ def rising_edges(
     d_lin = d
     for _ in range(2):
         z = d / sigma
-        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * ndtr(-z)
+        psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * normal_cdf(-z)
         se = np.sqrt(np.maximum(alpha - beta * d, alpha / 16.0))  # at most 4x the plateau
         f = 2.0 * d / (sa + se) + sigma * psi / se + 0.5 * g_in * sigma * sigma - M
-        df = ndtr(z) / se
+        df = normal_cdf(z) / se
         step = np.where(np.isfinite(f) & (df > 1e-12), f / np.where(df > 1e-12, df, 1.0), 0.0)
         d = d - np.clip(step, -sigma, sigma)
     # A refinement is a correction of a few tenths of a pixel; a larger one means the window
@@ -330,12 +330,10 @@ def clipped_integral(a: np.ndarray, saturation: float, sigma: float) -> np.ndarr
     """Cross-section integral of a Gaussian line ``a g(o)`` (``g`` of sigma ``sigma``, unit
     integral) clipped at ``saturation``: ``J(a) = 2 o* S + 2 a Phi(-o* / sigma)`` where the
     line is clipped (``|o| < o*``), else ``a``."""
-    from scipy.special import ndtr
-
     g0 = 1.0 / (sigma * np.sqrt(2 * np.pi))
     ratio = np.maximum(a * g0 / saturation, 1.0)
     o_star = sigma * np.sqrt(2.0 * np.log(ratio))
-    return np.where(ratio > 1.0, 2 * o_star * saturation + 2 * a * ndtr(-o_star / sigma), a)
+    return np.where(ratio > 1.0, 2 * o_star * saturation + 2 * a * normal_cdf(-o_star / sigma), a)
 
 
 def unclip_profiles(A: np.ndarray, saturation: float, sigma: float) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.forkmap import can_fork, fork_map
+from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
@@ -125,10 +125,25 @@ def _covers(model: Any, tm: FrameTiming) -> bool:
     return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
 
 
-def unchanged(before: list[FrameStreaks], after: list[FrameStreaks]) -> bool:
-    """Whether ``after`` holds the very frame objects of ``before`` (a pass that changed no
-    frame: anything computed from ``before`` holds for ``after``)."""
-    return len(before) == len(after) and all(a is b for a, b in zip(before, after, strict=True))
+def _recomputed_where_changed(
+    cues: list[np.ndarray | None],
+    before: list[FrameStreaks],
+    after: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    sigma_rel: float,
+) -> list[np.ndarray | None]:
+    """``cues`` (those of the covered frames of ``before``) with the frames that ``after``
+    replaced computed again (each frame's cues depend on that frame alone)."""
+    changed = [j for j, k in enumerate(covered) if after[k] is not before[k]]
+    if not changed:
+        return cues
+    out = list(cues)
+    redo = _gyro_llrs(after, timings, [covered[j] for j in changed], model, sigma_rel)
+    for j, c in zip(changed, redo, strict=True):
+        out[j] = c
+    return out
 
 
 def _gyro_llrs(
@@ -266,27 +281,21 @@ def detect_session(
             early: list[list[np.ndarray | None]] = []
 
             def cues_meanwhile() -> None:
-                # The gyro cues of the first-pass frames, while the workers refine: the
-                # same call on the same frames as after the pass wherever it changed none.
-                # (A failure here leaves them to be computed below, after the pass.)
+                # The gyro cues of the first-pass frames, while the workers refine (with one
+                # worker: before the pass, so that the table does not depend on the count);
+                # after the pass only the frames it changed are computed again. (A failure
+                # here leaves them all to be computed below, after the pass.)
                 with contextlib.suppress(BlurTrackError):
                     early.append(_gyro_llrs(first, timings, covered, model, sigma_rel))
 
-            speculate = workers > 1 and len(covered) > 1 and can_fork()
             template_pass = refine_frames(
-                session,
-                found,
-                timings,
-                idx,
-                covered,
-                model,
-                p,
-                workers,
-                cues_meanwhile if speculate else None,
+                session, found, timings, idx, covered, model, p, workers, cues_meanwhile
             )
             llrs = [np.zeros((len(fs), 3)) for fs in found]
-            if early and unchanged(first, found):
-                cues = early[0]
+            if early:
+                cues = _recomputed_where_changed(
+                    early[0], first, found, timings, covered, model, sigma_rel
+                )
         if cues is None:
             cues = _gyro_llrs(found, timings, covered, model, sigma_rel)
         for k, llr in zip(covered, cues, strict=True):

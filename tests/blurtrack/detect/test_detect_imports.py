@@ -1,6 +1,7 @@
 """What detection imports, and when (the start-up cost of ``blurtrack detect``, issue 14).
 
-Detecting a frame needs numpy, OpenCV and ``scipy.special`` only: the table packages (pandas,
+Detecting a frame needs numpy and OpenCV only (no scipy at all: ``scipy.special`` alone costs
+~0.25 s of serial start-up, before the workers fork): the table packages (pandas,
 pyarrow) are imported where a session is loaded and the table is built and written, the gyro
 spline (``scipy.interpolate``) where the gyro is resampled, scikit-image where a folded streak
 is thinned, and torch never. Each check runs in a fresh interpreter and has a negative control
@@ -69,6 +70,15 @@ def test_the_detect_command_never_imports_torch(tmp_path: Path) -> None:
     assert _present(mods, ("torch", "matplotlib", "gamd")) == []
     # negative control: the check sees torch where it is imported
     assert "torch" in _modules_after("import torch")
+
+
+def test_what_the_command_imports_before_forking_holds_no_scipy() -> None:
+    code = "import blurtrack.cli.detect, blurtrack.io.session, blurtrack.detect.session"
+    mods = _modules_after(code)
+    assert "blurtrack.detect.endpoints" in mods  # the detector was imported
+    assert sorted(m for m in mods if m == "scipy" or m.startswith("scipy.")) == []
+    # negative control: the test renderer does import scipy.special
+    assert "scipy.special" in _modules_after("import blurtrack.testing.streak_frames")
 
 
 @pytest.mark.parametrize("n", [0, 1, 7])

@@ -248,16 +248,17 @@ def test_fork_map_keeps_order_and_runs_closures() -> None:
     assert not forkmap._WORKER_STATE
 
 
-def _count_cue_calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[int], list]]:
-    """Record the frame-object ids and the result of every gyro-cue call in this process."""
+def _count_cue_calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[int], list, tuple]]:
+    """Record the ids of the frame objects computed, the result and the arguments of every
+    gyro-cue call in this process."""
     from blurtrack.detect import session as detect_session_module
 
-    calls: list[tuple[list[int], list]] = []
+    calls: list[tuple[list[int], list, tuple]] = []
     real = detect_session_module._gyro_llrs
 
-    def spy(found, *a, **k):
-        out = real(found, *a, **k)
-        calls.append(([id(fs) for fs in found], out))
+    def spy(found, timings, covered, *a, **k):
+        out = real(found, timings, covered, *a, **k)
+        calls.append(([id(found[j]) for j in covered], out, (found, timings, covered, *a)))
         return out
 
     monkeypatch.setattr(detect_session_module, "_gyro_llrs", spy)
@@ -267,9 +268,11 @@ def _count_cue_calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[int], l
 def test_gyro_cues_computed_while_the_template_pass_runs(
     session_folder: Path, hairpin_session, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With workers the parent computes the gyro cues of the first pass while the workers run
-    the template pass, and keeps them only where the pass changed no frame: the same table as
-    one process both where it keeps them and where it computes them again."""
+    """The gyro cues of the first pass are computed while the workers run the template pass
+    (with one worker: before it); afterwards only the frames the pass replaced are computed
+    again: the same table as one process both where nothing and where every frame changed."""
+    from blurtrack.detect.session import _gyro_llrs as real_llrs
+
     session = load_session(session_folder)
     one = detect_session(session, workers=1)
     calls = _count_cue_calls(monkeypatch)
@@ -277,28 +280,46 @@ def test_gyro_cues_computed_while_the_template_pass_runs(
     assert two.summary["gyro_template_frames"] == {"skipped": 5}
     assert len(calls) == 1  # computed once, during the pass, and kept
     pd.testing.assert_frame_equal(one.table, two.table, check_exact=True)
-    # Frames the pass changes: computed again on the refined frames, as in one process.
+    # A frame's cues depend on that frame alone: a subset's are the whole batch's rows.
+    found, timings, covered, *rest = calls[0][2]
+    part = real_llrs(found, timings, covered[1:3], *rest)
+    for got, want in zip(part, calls[0][1][1:3], strict=True):
+        np.testing.assert_array_equal(got, want)
+    # Frames the pass changes: those (and only those) computed again, as in one process.
     kw = dict(gyro="on", refine_timeshift=False)
     calls.clear()
     two = detect_session(hairpin_session, workers=2, **kw)
-    assert len(calls) == 2 and calls[0][0] != calls[1][0]
+    assert two.summary["gyro_template_frames"] == {"refined": 4}
+    assert len(calls) == 2 and not set(calls[0][0]) & set(calls[1][0])
+    assert len(calls[1][0]) == 4
     # Negative control: the first pass's cues are not those of the refined frames.
     assert any(
         a is None or b is None or a.shape != b.shape or not np.array_equal(a, b)
         for a, b in zip(calls[0][1], calls[1][1], strict=True)
     )
-    monkeypatch.undo()
+    calls.clear()
     ref = detect_session(hairpin_session, workers=1, **kw)
+    assert len(calls) == 2 and len(calls[1][0]) == 4  # one worker: the same two calls
     pd.testing.assert_frame_equal(ref.table, two.table, check_exact=True)
 
 
-def test_unchanged_means_the_very_frame_objects() -> None:
+def test_recomputed_where_changed_keeps_the_rest() -> None:
     from typing import Any
 
-    from blurtrack.detect.session import unchanged
+    from blurtrack.detect import session as m
 
-    a, b = [1.0], [2.0]
-    first: list[Any] = [a, b]
-    assert unchanged(first, [a, b])
-    assert not unchanged(first, [a, [2.0]])  # an equal replacement is a change
-    assert not unchanged(first, [a])
+    a, b, c = [1.0], [2.0], [3.0]
+    first: list[Any] = [a, b, c]
+    cues: list[Any] = [np.zeros((1, 2)), np.ones((1, 2))]  # covered: positions 0 and 2
+    assert m._recomputed_where_changed(cues, first, [a, b, c], [], [0, 2], None, 0.1) is cues
+    seen: list[list[int]] = []
+
+    def fake(found, timings, covered, model, sigma_rel):
+        seen.append(list(covered))
+        return [np.full((1, 2), 7.0) for _ in covered]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(m, "_gyro_llrs", fake)
+        out = m._recomputed_where_changed(cues, first, [a, b, [3.0]], [], [0, 2], None, 0.1)
+    assert seen == [[2]]  # an equal replacement is a change; only it is computed
+    assert out[0] is cues[0] and out[1].tolist() == [[7.0, 7.0]]
