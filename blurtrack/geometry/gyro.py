@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from blurtrack.errors import CoverageError, GeometryError
+from blurtrack.geometry.spline import MIN_KNOTS, resample_cubic
 
 #: How the blur model interpolates ω between gyro samples: a not-a-knot cubic spline through
 #: the samples, evaluated as linear interpolation of its ``GYRO_UPSAMPLE``-times denser
@@ -118,10 +119,11 @@ class GyroTrace:
         Linear interpolation of point samples under-reports fast motion: between samples it
         cuts the curvature of ω, so the integrated angle of a component at frequency ``F`` is
         low by about ``(2π F Δt)² / 12`` (1.9 % at 15 Hz for a 200 Hz gyro). A cubic spline
-        through the samples (scipy's not-a-knot ``CubicSpline``) is accurate to ``O(Δt⁴)``;
-        linear interpolation of its dense resampling then stays within ``(2π F Δt / factor)² / 12``.
-        The original samples are kept; gaps longer than ``max_gap_s`` are not bridged (each
-        covered segment is splined on its own, segments under 4 samples stay linear).
+        through the samples (not-a-knot, :mod:`blurtrack.geometry.spline`) is accurate to
+        ``O(Δt⁴)``; linear interpolation of its dense resampling then stays within
+        ``(2π F Δt / factor)² / 12``. The original samples are kept; gaps longer than
+        ``max_gap_s`` are not bridged (each covered segment is splined on its own, segments
+        under 4 samples stay linear).
 
         >>> tr = GyroTrace(np.arange(6.0), np.stack([np.arange(6.0) ** 2] * 3, axis=1))
         >>> round(float(tr.upsampled(2).omega_at(np.array([2.5]))[0, 0]), 9)
@@ -138,19 +140,15 @@ class GyroTrace:
 
     def _resampled(self, k: int) -> GyroTrace:
         """:meth:`upsampled` computed (``k >= 2``)."""
-        from scipy.interpolate import CubicSpline
-
         bounds = np.concatenate([[0], self._gap_starts + 1, [self.t_s.size]])
         ts, ws = [], []
         for a, b in itertools.pairwise(bounds):
             t, w = self.t_s[a:b], self.omega_radps[a:b]
-            if t.size < 4:
+            if t.size < MIN_KNOTS:
                 ts.append(t)
                 ws.append(w)
                 continue
-            frac = np.arange(k) / k
-            tt = (t[:-1, None] + np.diff(t)[:, None] * frac[None, :]).reshape(-1)
-            tt = np.append(tt, t[-1])
+            tt, ww = resample_cubic(t, w, k)
             ts.append(tt)
-            ws.append(CubicSpline(t, w, axis=0)(tt))
+            ws.append(ww)
         return GyroTrace(np.concatenate(ts), np.concatenate(ws), self.max_gap_s)
