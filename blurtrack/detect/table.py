@@ -189,12 +189,13 @@ def to_arrow(df: pd.DataFrame) -> Any:
 
 def write_table(df: pd.DataFrame, path: str | Path) -> None:
     """Write the table as Parquet, atomically: the file :func:`blurtrack.io.streaks.write`
-    writes (validated, snappy), through :func:`to_arrow`."""
+    writes (validated, the same options), through :func:`to_arrow`."""
     import pyarrow.parquet as pq
 
     table = to_arrow(streaks.validate(df))
+    opts = streaks.parquet_options(table.column_names)
     # a file handle, not a path: pyarrow cannot encode non-UTF-8 file names
-    atomic.write_atomic(path, lambda f: pq.write_table(table, f, compression="snappy"))
+    atomic.write_atomic(path, lambda f: pq.write_table(table, f, **opts))
 
 
 def read_table(path: str) -> pd.DataFrame:

@@ -27,6 +27,7 @@ quality_ok             bool        optional: fit for calibration (:func:`usable`
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -127,11 +128,26 @@ def check_matches_session(df: pd.DataFrame, frames: pd.DataFrame, resolution: An
         raise StreakTableError(f"streak table has endpoints far outside the {w}x{h} frames")
 
 
+#: Columns whose values repeat from row to row: Parquet dictionary-encodes only these. Tried
+#: on the float and list columns the encoding is abandoned, at twice the writing time (dense
+#: 720p session, 29 756 streaks: 0.10 -> 0.055 s, 13.4 -> 12.0 MB; the same values read back).
+DICTIONARY_COLUMNS = ("frame", "timestamp_ns", "orientation_source")
+
+
+def parquet_options(columns: Sequence[str]) -> dict[str, Any]:
+    """Writer options (pyarrow's ``write_table`` keywords) for a table with ``columns``."""
+    return {
+        "compression": "snappy",
+        "use_dictionary": [c for c in DICTIONARY_COLUMNS if c in columns],
+    }
+
+
 def write(df: pd.DataFrame, path: str | Path) -> None:
     """Write a validated table as Parquet (atomically)."""
     table = validate(df)
+    opts = parquet_options(list(table.columns))
     # a file handle, not a path: pyarrow cannot encode non-UTF-8 file names
-    atomic.write_atomic(path, lambda f: table.to_parquet(f, index=False))
+    atomic.write_atomic(path, lambda f: table.to_parquet(f, index=False, **opts))
 
 
 def read(path: str | Path) -> pd.DataFrame:

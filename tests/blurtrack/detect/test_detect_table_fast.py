@@ -59,6 +59,34 @@ def test_parquet_bytes_equal_the_pandas_writer(table: pd.DataFrame, tmp_path: Pa
     assert (tmp_path / "moved.parquet").read_bytes() != plain.read_bytes()
 
 
+def test_only_repeating_columns_are_dictionary_encoded(table: pd.DataFrame, tmp_path: Path) -> None:
+    import pyarrow.parquet as pq
+
+    write_table(table, tmp_path / "t.parquet")
+    meta = pq.ParquetFile(tmp_path / "t.parquet").metadata.row_group(0)
+    enc = {
+        meta.column(i).path_in_schema.split(".")[0]: set(meta.column(i).encodings)
+        for i in range(meta.num_columns)
+    }
+    dictionary = {c for c, e in enc.items() if {"PLAIN_DICTIONARY", "RLE_DICTIONARY"} & e}
+    assert dictionary == set(streaks.DICTIONARY_COLUMNS)
+    assert {"start_x", "centerline", "profile"} <= set(enc) - dictionary
+    # Negative control: pyarrow's default tries the float columns too.
+    pq.write_table(to_arrow(table), tmp_path / "d.parquet", compression="snappy")
+    meta = pq.ParquetFile(tmp_path / "d.parquet").metadata.row_group(0)
+    default = {
+        meta.column(i).path_in_schema.split(".")[0]
+        for i in range(meta.num_columns)
+        if {"PLAIN_DICTIONARY", "RLE_DICTIONARY"} & set(meta.column(i).encodings)
+    }
+    assert {"start_x", "centerline"} <= default
+    back = read_table(str(tmp_path / "t.parquet"))
+    pd.testing.assert_frame_equal(
+        back.drop(columns=["centerline", "profile"]),
+        table.drop(columns=["centerline", "profile"]),
+    )
+
+
 def test_list_cells_take_the_general_path(table: pd.DataFrame) -> None:
     lists = _as_lists(streaks.validate(table))
     assert to_arrow(lists).equals(to_arrow(streaks.validate(table)), check_metadata=True)
