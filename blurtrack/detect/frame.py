@@ -54,6 +54,10 @@ class FrameStreaks:
     hot_pixels: int
     short: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     saturated_fraction: float = 0.0
+    #: The streaks' ``(shape_deviation_px, thick_saturated, quality_ok)``
+    #: (:func:`blurtrack.detect.quality.frame_quality`; independent of which end is A), where
+    #: the frame's worker computed them; None: the table computes them.
+    quality: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])
@@ -74,11 +78,17 @@ class FrameStreaks:
 
     def reverse(self, which: np.ndarray) -> None:
         """Swap ends A and B (and reverse the lines) of the streaks where ``which`` is True."""
-        for i in np.flatnonzero(which):
-            self.end_a[i], self.end_b[i] = self.end_b[i].copy(), self.end_a[i].copy()
-            self.plateau[i] = self.plateau[i][::-1].copy()
-            self.points[i] = self.points[i][::-1].copy()
-            self.profile[i] = self.profile[i][::-1].copy()
+        flip = np.flatnonzero(which)
+        if flip.size == 0:
+            return
+        a = self.end_a[flip]
+        self.end_a[flip] = self.end_b[flip]
+        self.end_b[flip] = a
+        self.plateau[flip] = self.plateau[flip, ::-1]
+        # Reversed views: the cells are only read (the table rounds them into new arrays).
+        for i in flip.tolist():
+            self.points[i] = self.points[i][::-1]
+            self.profile[i] = self.profile[i][::-1]
 
 
 def _pack(arrays: list[np.ndarray]) -> Any:

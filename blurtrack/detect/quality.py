@@ -29,6 +29,8 @@ import numpy as np
 if TYPE_CHECKING:  # the table's type only: detection itself does not need pandas
     import pandas as pd
 
+    from blurtrack.detect.frame import FrameStreaks
+
 #: Fewest unflagged streaks in a frame for a shape consensus.
 MIN_REFERENCE = 5
 #: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
@@ -140,6 +142,19 @@ def _frame_quality(
         dev = field.dev
         ok = ok & (dev <= shape_tolerance(field.c))
     return dev, thick, ok
+
+
+def frame_quality(fs: FrameStreaks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`add_quality`'s three columns for one frame's streaks, from the frame itself
+    (the frame's worker computes them: frames are independent). They do not depend on which
+    end is A: the consensus takes each vector's sign from the dominant direction and the
+    deviation is the nearer of ``|v - c|`` and ``|v + c|``, so the table's values after
+    orientation are these."""
+    flags = fs.flags
+    flagged = flags["clipped"] | flags["merged"] | flags["crossing"] | flags["looped"]
+    return _frame_quality(
+        fs.end_b - fs.end_a, fs.time_mid, flagged, fs.width_px, flags["saturated"]
+    )
 
 
 def add_quality(table: pd.DataFrame) -> pd.DataFrame:

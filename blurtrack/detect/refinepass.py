@@ -19,6 +19,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.quality import frame_quality
 
 
 def refine_frames(
@@ -49,7 +50,10 @@ def refine_frames(
         out, what = refine_frame(
             partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c
         )
-        return (None if out is fs else out), what.status
+        if out is fs:
+            return None, what.status
+        out.quality = frame_quality(out)
+        return out, what.status
 
     results = fork_map(one, covered, workers, 1, meanwhile)
     for k, (out, status) in zip(covered, results, strict=True):

@@ -25,6 +25,7 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.quality import frame_quality
 from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
@@ -62,7 +63,9 @@ def detect_frames(
     """
 
     def one(i: int) -> FrameStreaks:
-        return detect_frame(session.read_image(i), params)
+        fs = detect_frame(session.read_image(i), params)
+        fs.quality = frame_quality(fs)  # a per-frame stage: here, in parallel
+        return fs
 
     # Small chunks: the results come back in order, the first ones early.
     chunk = max(1, min(4, len(idx) // (8 * max(1, min(workers, len(idx))))))

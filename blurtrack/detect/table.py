@@ -61,6 +61,10 @@ def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
     return out
 
 
+#: The columns of :func:`blurtrack.detect.quality.add_quality`, in its order.
+QUALITY_COLUMNS = ("shape_deviation_px", "thick_saturated", "quality_ok")
+
+
 def frame_columns(
     frame: int, timestamp_ns: int, fs: FrameStreaks, ori: Orientation
 ) -> dict[str, Any]:
@@ -96,6 +100,8 @@ def frame_columns(
     # Evidence for the recorded orientation (the LLRs were for the unswapped end A).
     signed = np.where(ori.swap[:, None], -ori.llr, ori.llr) if N else np.zeros((0, 3))
     data["llr_gyro"], data["llr_profile"], data["llr_continuity"] = signed.T
+    if fs.quality is not None:  # computed by the frame's worker (the same definition)
+        data.update(zip(QUALITY_COLUMNS, fs.quality, strict=True))
     return data
 
 
@@ -125,12 +131,23 @@ def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFra
         for c, dt in EXTRA_COLUMNS.items():
             df[c] = pd.Series(dtype=dt)
         return df
+    # The quality columns where every frame's worker computed them, else here for all.
+    have = all(isinstance(p, Mapping) and QUALITY_COLUMNS[0] in p for p in parts)
+    if not have:
+        parts = [
+            p
+            if isinstance(p, pd.DataFrame)
+            else {k: v for k, v in p.items() if k not in QUALITY_COLUMNS}
+            for p in parts
+        ]
     if all(isinstance(p, Mapping) for p in parts):
         joined = _join([p for p in parts if isinstance(p, Mapping)])
     else:
         frames = [p if isinstance(p, pd.DataFrame) else pd.DataFrame(p) for p in parts]
         joined = pd.concat(frames, ignore_index=True)
-    df = add_quality(joined)
+    if not have:
+        joined = add_quality(joined.drop(columns=list(QUALITY_COLUMNS), errors="ignore"))
+    df = joined
     return streaks.validate(df)
 
 

@@ -119,6 +119,27 @@ def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def test_workers_quality_is_the_tables_whatever_the_orientation(tmp_path: Path) -> None:
+    folder = tmp_path / "s"
+    write_synthetic_session(folder, n_frames=3, seed=11)
+    res = detect_session(load_session(folder))
+    assert all(fs.quality is not None for fs in res.frames)  # the workers' columns were used
+    cols = ["shape_deviation_px", "thick_saturated", "quality_ok"]
+    ref = quality.add_quality(res.table.drop(columns=cols))
+    assert np.isfinite(ref["shape_deviation_px"]).sum() > 10
+    for c in cols:
+        np.testing.assert_array_equal(res.table[c].to_numpy(), ref[c].to_numpy())
+    # The frame's columns do not depend on which end is A (half the streaks reversed) ...
+    fs = res.frames[0]
+    before = quality.frame_quality(fs)
+    fs.reverse(np.arange(len(fs)) % 2 == 0)
+    for a, b in zip(before, quality.frame_quality(fs), strict=True):
+        np.testing.assert_array_equal(a, b)
+    # ... but on its shapes (negative control: one streak's end moved).
+    fs.end_b[1] += [25.0, 0.0]
+    assert quality.frame_quality(fs)[0][1] > before[0][1] + 10
+
+
 def test_quality_columns_equal_the_per_frame_definition(table: pd.DataFrame) -> None:
     base = table.drop(columns=["shape_deviation_px", "thick_saturated", "quality_ok"])
     fast = quality.add_quality(base)
