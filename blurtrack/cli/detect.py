@@ -166,6 +166,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms ({how})")
     elif s["gyro_timeshift_status"] != "no gyro":
         print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
+    tp, comps = s["gyro_template_frames"], s["gyro_template_components"]
+    if tp.get("refined"):
+        print(
+            f"  template pass: {tp['refined']} of {sum(tp.values())} frames refined; "
+            f"{comps['replaced']} of {comps['candidates']} candidate components re-measured "
+            f"({comps['streaks']} streaks)"
+        )
     if s["frames_without_streaks"]:
         print(
             f"  warning: {len(s['frames_without_streaks'])} frame(s) without streaks: "

@@ -238,7 +238,7 @@ def detect_session(
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
-    template_pass: dict[str, int] = {}
+    template_pass = None
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
 
@@ -354,7 +354,12 @@ def detect_session(
         "gyro_timeshift_refinement": "not run" if refined is None else refined.status,
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
-        "gyro_template_frames": template_pass,
+        "gyro_template_frames": {} if template_pass is None else template_pass.frames,
+        "gyro_template_components": {
+            "candidates": 0 if template_pass is None else template_pass.candidates,
+            "replaced": 0 if template_pass is None else template_pass.replaced,
+            "streaks": 0 if template_pass is None else template_pass.streaks,
+        },
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),
         "orientation_confident_fraction": float(np.mean(allc >= 0.9)),

@@ -177,6 +177,10 @@ def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
     )
     assert on.summary["gyro_template_frames"] == {"refined": 3}
     assert off.summary["gyro_template_frames"] == {}
+    comps = on.summary["gyro_template_components"]
+    assert 0 < comps["replaced"] <= comps["candidates"]
+    assert comps["streaks"] >= comps["replaced"]  # each replaced component holds a streak
+    assert off.summary["gyro_template_components"] == {"candidates": 0, "replaced": 0, "streaks": 0}
     for res, least, most in ((on, 0.9, 1.0), (off, 0.0, 0.2)):
         hit = n = 0
         for fr in truth["frames"]:
