@@ -147,8 +147,7 @@ def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFra
         joined = pd.concat(frames, ignore_index=True)
     if not have:
         joined = add_quality(joined.drop(columns=list(QUALITY_COLUMNS), errors="ignore"))
-    df = joined
-    return streaks.validate(df)
+    return streaks.validate(joined)
 
 
 #: The list columns and their Arrow types (what pandas infers from lists of floats).

@@ -20,9 +20,10 @@ and the last two pieces are one cubic each) the two end rows
 and its mirror image. Subtracting each end row from its neighbour removes ``s_0`` and
 ``s_{n-1}`` and leaves a strictly diagonally dominant tridiagonal system in
 ``s_1 .. s_{n-2}``, solved by parallel cyclic reduction: each step couples every row to the
-rows twice as far away as before, and the coupling, at most 1/2 of the diagonal at the start,
-squares each step, so that after a handful of steps (whatever ``n``) it is below the
-rounding of the diagonal and each row is solved alone.
+rows twice as far away as before, and the coupling (1/2 of the diagonal in the inner rows,
+under 1 in the two rows next to the ends) about squares each step, so that after a handful
+of steps (6 for 60 000 knots spaced 0.5-1.5 ms) it is below the rounding of the diagonal and
+each row is solved alone.
 """
 
 from __future__ import annotations
