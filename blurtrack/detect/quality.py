@@ -31,6 +31,8 @@ if TYPE_CHECKING:  # the table's type only: detection itself does not need panda
 
     from blurtrack.detect.frame import FrameStreaks
 
+#: Flags that keep a streak out of the shape consensus (and out of ``quality_ok``).
+FLAGGED_BY = ("clipped", "merged", "crossing", "looped")
 #: Fewest unflagged streaks in a frame for a shape consensus.
 MIN_REFERENCE = 5
 #: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
@@ -150,10 +152,9 @@ def frame_quality(fs: FrameStreaks) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     end is A: the consensus takes each vector's sign from the dominant direction and the
     deviation is the nearer of ``|v - c|`` and ``|v + c|``, so the table's values after
     orientation are these."""
-    flags = fs.flags
-    flagged = flags["clipped"] | flags["merged"] | flags["crossing"] | flags["looped"]
+    flagged = np.logical_or.reduce([fs.flags[c] for c in FLAGGED_BY])
     return _frame_quality(
-        fs.end_b - fs.end_a, fs.time_mid, flagged, fs.width_px, flags["saturated"]
+        fs.end_b - fs.end_a, fs.time_mid, flagged, fs.width_px, fs.flags["saturated"]
     )
 
 
@@ -167,7 +168,7 @@ def add_quality(table: pd.DataFrame) -> pd.DataFrame:
         # DataFrame indexing, which cost more than the fits).
         v = out[["end_x", "end_y"]].to_numpy(float) - out[["start_x", "start_y"]].to_numpy(float)
         mid = out[["mid_x", "mid_y"]].to_numpy(float)
-        flagged = (out["clipped"] | out["merged"] | out["crossing"] | out["looped"]).to_numpy(bool)
+        flagged = np.logical_or.reduce([out[c].to_numpy(bool) for c in FLAGGED_BY])
         width = out["width_px"].to_numpy(float)
         sat = out["saturated"].to_numpy(bool)
         frames = out["frame"].to_numpy()

@@ -26,6 +26,7 @@ from blurtrack.detect.orientation import (
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.quality import frame_quality
+from blurtrack.detect.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
@@ -238,7 +239,7 @@ def detect_session(
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
-    template_pass = None
+    template_pass = TemplatePass()  # empty where the pass does not run
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
 
@@ -278,8 +279,6 @@ def detect_session(
         cues: list[np.ndarray | None] | None = None
         if p.gyro_template and covered:
             # Second pass: the gyro's predicted shape as the template (hairpin frames).
-            from blurtrack.detect.refinepass import refine_frames
-
             first = list(found)
             early: list[list[np.ndarray | None]] = []
 
@@ -354,11 +353,11 @@ def detect_session(
         "gyro_timeshift_refinement": "not run" if refined is None else refined.status,
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
-        "gyro_template_frames": {} if template_pass is None else template_pass.frames,
+        "gyro_template_frames": template_pass.frames,
         "gyro_template_components": {
-            "candidates": 0 if template_pass is None else template_pass.candidates,
-            "replaced": 0 if template_pass is None else template_pass.replaced,
-            "streaks": 0 if template_pass is None else template_pass.streaks,
+            "candidates": template_pass.candidates,
+            "replaced": template_pass.replaced,
+            "streaks": template_pass.streaks,
         },
         "orientation_sources": sources,
         "orientation_confidence_median": float(np.median(allc)),

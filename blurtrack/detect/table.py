@@ -135,7 +135,7 @@ def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFra
     have = all(isinstance(p, Mapping) and QUALITY_COLUMNS[0] in p for p in parts)
     if not have:
         parts = [
-            p
+            p.drop(columns=list(QUALITY_COLUMNS), errors="ignore")
             if isinstance(p, pd.DataFrame)
             else {k: v for k, v in p.items() if k not in QUALITY_COLUMNS}
             for p in parts
@@ -145,9 +145,7 @@ def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFra
     else:
         frames = [p if isinstance(p, pd.DataFrame) else pd.DataFrame(p) for p in parts]
         joined = pd.concat(frames, ignore_index=True)
-    if not have:
-        joined = add_quality(joined.drop(columns=list(QUALITY_COLUMNS), errors="ignore"))
-    return streaks.validate(joined)
+    return streaks.validate(joined if have else add_quality(joined))
 
 
 #: The list columns and their Arrow types (what pandas infers from lists of floats).
