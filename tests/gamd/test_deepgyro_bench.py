@@ -3,28 +3,17 @@ DeepGyro SHIELD")."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
+from blurtrack.testing.bench_script import load_bench_script
 from gamd.restorer import RestoreOptions
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    path = REPO / "bench" / "deepgyro_deblur.py"
-    if str(path.parent) not in sys.path:  # its sibling modules, as when run as a script
-        sys.path.insert(0, str(path.parent))
-    spec = importlib.util.spec_from_file_location("deepgyro_deblur", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench_script("deepgyro_deblur")
 
 
 def _scene(seed: int = 0, size: tuple[int, int] = (96, 160)) -> np.ndarray:

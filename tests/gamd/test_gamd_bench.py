@@ -2,25 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from blurtrack.testing.bench_script import load_bench_script
 from gamd.data import DeblurDataset
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_gamd", REPO / "bench" / "bench_gamd.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench_script("bench_gamd")
 
 
 def test_link_groups_builds_a_readable_dataset(bench, tiny_dataset, tmp_path) -> None:
@@ -100,11 +93,7 @@ def _fake_session(omega_radps: np.ndarray, readout_s: float):
 
 
 def test_heat_maps_are_not_forward_displacements() -> None:
-    if str(REPO / "bench") not in sys.path:  # its sibling modules, as when run as a script
-        sys.path.insert(0, str(REPO / "bench"))
-    spec = importlib.util.spec_from_file_location("hvf", REPO / "bench" / "heat_vs_forward.py")
-    hvf = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(hvf)
+    hvf = load_bench_script("heat_vs_forward")
     w = np.array([0.3, 1.5, 0.2])  # rad/s: ~9 px of blur in 20 ms at f = 300 px
     res = {k: hvf.compare(*_fake_session(k * w, 0.0), stride=8)["all"] for k in (1.0, 0.5)}
     blur = res[1.0]["d"]["median"]

@@ -212,15 +212,9 @@ def test_evaluate_scores_the_output_against_the_input(make_dataset, tmp_path) ->
 
 
 def _bench_module():
-    import importlib.util
-    from pathlib import Path
+    from blurtrack.testing.bench_script import load_bench_script
 
-    path = Path(__file__).resolve().parents[2] / "bench" / "gamd_shipped.py"
-    spec = importlib.util.spec_from_file_location("gamd_shipped", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("gamd_shipped")
 
 
 def test_near_still_stats_judge_output_against_input() -> None:

@@ -45,8 +45,9 @@ def test_shipped_finetune_continues_the_shipped_run_with_its_data_and_restore_op
     it starts from (inference reads the restore options from the checkpoint; the third stage
     adds triplets to its split, nothing else), start from that run's last checkpoint, and
     start no faster; ``bench/train_shipped.py export`` ships the last stage as gamd.pt."""
-    import importlib.util
     from dataclasses import replace
+
+    from blurtrack.testing.bench_script import load_bench_script
 
     folder = CONFIGS[0].parent
     chain = [
@@ -61,10 +62,6 @@ def test_shipped_finetune_continues_the_shipped_run_with_its_data_and_restore_op
         assert fine.train.init_from == str(Path(base.train.out_dir) / "checkpoints" / "last.pt")
         assert fine.train.out_dir != base.train.out_dir and fine.train.lr <= base.train.lr
         assert fine.train.seed != base.train.seed
-    bench = folder.parents[1] / "bench" / "train_shipped.py"
-    spec = importlib.util.spec_from_file_location("train_shipped", bench)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_bench_script("train_shipped")
     assert mod.EXPORT_RUNS == {"gamd": "gamd_finetune2", "gamd_only": "gamd_only"}
     assert set(mod.RUNS) == {p.stem.removeprefix("shipped_") for p in folder.glob("shipped_*")}

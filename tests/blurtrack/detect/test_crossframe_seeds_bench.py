@@ -4,25 +4,15 @@ displacement most of them agree with, then affine fits to nearest-neighbour pair
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[3]
+from blurtrack.testing.bench_script import load_bench_script
 
 
 @pytest.fixture(scope="module")
 def bench():
-    path = REPO / "bench" / "crossframe_seeds.py"
-    if str(path.parent) not in sys.path:  # its sibling modules, as when run as a script
-        sys.path.insert(0, str(path.parent))
-    spec = importlib.util.spec_from_file_location("crossframe_seeds", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench_script("crossframe_seeds")
 
 
 def _grid(rng: np.random.Generator) -> np.ndarray:
