@@ -96,6 +96,10 @@ def correct(pred: np.ndarray, own: np.ndarray) -> np.ndarray | None:
     return q
 
 
+def _median(v: list[float]) -> float | None:
+    return float(np.median(v)) if v else None
+
+
 def _stats(err: np.ndarray) -> dict[str, float | int]:
     if err.size == 0:
         return {"n": 0}
@@ -193,16 +197,19 @@ def main() -> int:
                     pairs.append(pair(model, session.truth, tab, times, j, k))
     by_offset = {}
     for off in args.offsets:
-        sel = [p for p in pairs if abs(p["source"] - p["target"]) == off and "missed" in p]
-        med = [p["corrected"].get("median_px") for p in sel if p["corrected"].get("n")]
-        raw = [p["raw"].get("median_px") for p in pairs if abs(p["source"] - p["target"]) == off]
+        # The pairs this far apart whose correction could be fitted: raw and corrected over
+        # the same pairs; the missed dots' share over those of them with missed dots.
+        sel = [
+            p
+            for p in pairs
+            if abs(p["source"] - p["target"]) == off and p.get("corrected", {}).get("n")
+        ]
+        missed = [p["missed_seeded"] for p in sel if "missed_seeded" in p]
         by_offset[str(off)] = {
             "pairs": len(sel),
-            "raw_median_of_medians_px": float(np.median([r for r in raw if r is not None])),
-            "corrected_median_of_medians_px": float(np.median(med)) if med else None,
-            "missed_seeded_median": float(np.median([p["missed_seeded"] for p in sel]))
-            if sel
-            else None,
+            "raw_median_of_medians_px": _median([p["raw"]["median_px"] for p in sel]),
+            "corrected_median_of_medians_px": _median([p["corrected"]["median_px"] for p in sel]),
+            "missed_seeded_median": _median(missed),
         }
     return emit({"session": str(args.session), "by_offset": by_offset, "pairs": pairs}, args.out)
 
