@@ -128,7 +128,7 @@ def pair(
     mid_k = np.array([s["mid"] for s in frames[k]["streaks"]], float).reshape(-1, 2)
     dot_k = {int(d): i for i, d in enumerate(s["dot"] for s in frames[k]["streaks"])}
     if src.size == 0 or mid_j.size == 0:
-        return {"source": j, "target": k, "sources": 0}
+        return {"source": j, "target": k, "sources": len(src)}
     pred = carry(model, src, times[j], times[k])
     q = correct(pred, own)
     # Source streaks that are one true dot: their dot's true midpoint in frame k.
