@@ -50,6 +50,15 @@ def _paint(model: np.ndarray, tile: tuple[int, int, np.ndarray], sign: float) ->
         model[y0:y1, x0:x1] += sign * t[y0 - by : y1 - by, x0 - bx : x1 - bx]
 
 
+def model_image(like: np.ndarray, pl: list[Placement]) -> np.ndarray:
+    """``sum amp * template`` of the placements ``pl`` at their sub-pixel places, on an image
+    of ``like``'s shape and type (as :func:`refit` paints them)."""
+    out = np.zeros_like(like)
+    for p in pl:
+        _paint(out, _tile(p), 1.0)
+    return out
+
+
 def _neighbours(pl: list[Placement]) -> list[list[int]]:
     """Per placement, the others whose support meets its support or halo (the light they
     model is shared)."""
