@@ -31,6 +31,8 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    94.4 against 95.3 %.)
 3. **Pursuit and joint fit** with that template, exactly as in separation
    (:func:`blurtrack.detect.pursuit.pursue`, :func:`blurtrack.detect.refit.refit`);
+   then up to :data:`SWEEPS` more pursuits of every candidate's template over what the
+   refitted placements leave, each followed by the joint refit of all (:func:`_sweep`);
    components whose light the placements explain are candidates for replacement. Where a
    candidate touches the border the images are padded with zeros beyond the frame and a
    placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its template's
@@ -42,7 +44,10 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    (:mod:`blurtrack.detect.gyromeasure`; hairpins as two arms): the ends, midpoints and
    profiles are the image's, not the prediction's. The prior decides *segmentation* (which
    light is which dot's, which way its line runs), not the endpoints, so calibration from
-   these streaks is not circular.
+   these streaks is not circular. (Each placement is measured on two own images, the
+   neighbours' templates subtracted as they are and clipped at zero, and keeps the line
+   nearer its placed curve, :data:`~blurtrack.detect.gyromeasure.CLIP_CHOICE`: a choice
+   between two segmentations, both lines the image's.)
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
    placed curve's (and whose shape does not match it within twice that, :func:`_confirmed`)
    is dropped (its component keeps its first-pass lines), and a component
@@ -439,13 +444,11 @@ def refine_frame(
     sat_comp = None
     if prep.saturated.any():
         sat_comp = np.maximum.reduceat(prep.saturated[comps.ys, comps.xs], comps.starts)
-    m = measure_placements(prep, placements, sig_s, sig_r, p.smooth_sigma_px, sat_comp)
     # Each measured line against its placement's curve: the image must confirm the shape.
     # A placed curve reaching past the border is cut there (its line ends at the border).
-    placed = [placements[s] for s in m.src.tolist()]
-    cut = [cut_at_border(q.tpl.points + q.shift, W, H) for q in placed]
-    ps = np.array([c[0] for c in cut]).reshape(-1, 2)
-    pe = np.array([c[1] for c in cut]).reshape(-1, 2)
+    placed_ends = np.array([cut_at_border(q.tpl.points + q.shift, W, H) for q in placements])
+    m = measure_placements(prep, placements, placed_ends, sig_s, sig_r, p.smooth_sigma_px, sat_comp)
+    ps, pe = placed_ends[m.src, 0].reshape(-1, 2), placed_ends[m.src, 1].reshape(-1, 2)
     mis_new = mismatch(m.end_a, m.end_b, ps, pe)
     good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own])
     # Components replaced only where every placement of theirs was measured and confirmed.

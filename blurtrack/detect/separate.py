@@ -112,11 +112,12 @@ def _overlaps(pl: list[Placement]) -> np.ndarray:
 
 
 def _mosaic(
-    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int
+    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int, clip: bool = False
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
-    """Each placement's own image (frame minus the other placements' templates) tiled into
-    one mosaic; returns the smoothed and raw mosaics, the placed lines in mosaic coordinates
-    and per placement the offset from mosaic back to frame coordinates."""
+    """Each placement's own image (frame minus the other placements' templates; with
+    ``clip`` no pixel below zero, where the neighbours' templates cover more than the light)
+    tiled into one mosaic; returns the smoothed and raw mosaics, the placed lines in mosaic
+    coordinates and per placement the offset from mosaic back to frame coordinates."""
     H, W = smooth.shape
     boxes = []
     for p in pl:
@@ -160,6 +161,9 @@ def _mosaic(
                 continue
             own_s -= q.amp * warp(q.tpl.smooth, dx, dy, bw, bh)
             own_r -= q.amp * warp(q.tpl.raw, dx, dy, bw, bh)
+        if clip:
+            np.maximum(own_s, 0.0, out=own_s)
+            np.maximum(own_r, 0.0, out=own_r)
         mos_s[ty : ty + bh, tx : tx + bw] = own_s
         mos_r[ty : ty + bh, tx : tx + bw] = own_r
         back[k] = (ox - tx, oy - ty)
