@@ -115,9 +115,10 @@ def _mosaic(
     smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int, clip: bool = False
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Each placement's own image (frame minus the other placements' templates; with
-    ``clip`` no pixel below zero, where the neighbours' templates cover more than the light)
-    tiled into one mosaic; returns the smoothed and raw mosaics, the placed lines in mosaic
-    coordinates and per placement the offset from mosaic back to frame coordinates."""
+    ``clip`` no pixel below zero: where the neighbours' templates cover more than the light,
+    and where the background-subtracted frame itself is below zero) tiled into one mosaic;
+    returns the smoothed and raw mosaics, the placed lines in mosaic coordinates and per
+    placement the offset from mosaic back to frame coordinates."""
     H, W = smooth.shape
     boxes = []
     for p in pl:
