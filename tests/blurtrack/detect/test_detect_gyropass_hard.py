@@ -7,7 +7,6 @@ control."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,15 +18,9 @@ from blurtrack.detect import gyromeasure, gyropass
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.session import detect_session
 from blurtrack.io.session import load_session
+from rigs.sim.shake import default_shake_path
 
-SHAKE = (
-    Path(__file__).resolve().parents[3].parent
-    / "shared"
-    / "data"
-    / "real"
-    / "gyrodeblurnet-shake"
-    / "gyro_train.txt"
-)
+SHAKE = default_shake_path()
 
 
 def _found_and_false(fs: FrameStreaks, frame: dict[str, Any], tol: float = 3.0) -> tuple[int, int]:

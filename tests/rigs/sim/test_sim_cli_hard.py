@@ -12,15 +12,9 @@ from blurtrack.cli import main
 from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
+from rigs.sim.shake import default_shake_path
 
-SHAKE = (
-    Path(__file__).resolve().parents[3].parent
-    / "shared"
-    / "data"
-    / "real"
-    / "gyrodeblurnet-shake"
-    / "gyro_train.txt"
-)
+SHAKE = default_shake_path()
 
 
 def test_cli_writes_session_truth_and_summary(tmp_path: Path, capsys) -> None:

@@ -10,16 +10,9 @@ import pytest
 from rigs.sim.errors import SimError
 from rigs.sim.motion import shake_omega
 from rigs.sim.preset import PRESETS, SimPreset, get_preset
-from rigs.sim.shake import ShakeTrace, read_shake_trace
+from rigs.sim.shake import ShakeTrace, default_shake_path, read_shake_trace
 
-SHAKE = (
-    Path(__file__).resolve().parents[3].parent
-    / "shared"
-    / "data"
-    / "real"
-    / "gyrodeblurnet-shake"
-    / "gyro_train.txt"
-)
+SHAKE = default_shake_path()
 needs_shake = pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
 
 

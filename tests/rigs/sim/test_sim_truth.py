@@ -13,6 +13,7 @@ from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
+from rigs.sim.shake import default_shake_path
 from rigs.sim.writer import write_session
 
 
@@ -134,14 +135,7 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path) -> None:
     ).read_bytes()
 
 
-SHAKE = (
-    Path(__file__).resolve().parents[3].parent
-    / "shared"
-    / "data"
-    / "real"
-    / "gyrodeblurnet-shake"
-    / "gyro_train.txt"
-)
+SHAKE = default_shake_path()
 
 
 @pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
