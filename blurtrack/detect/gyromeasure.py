@@ -7,6 +7,7 @@ centroids are pulled towards the other and the edge fits see both arms' light. S
 is measured on its own image, the frame minus the other arm's and the other placements'
 templates (the prior decides which light is which arm's), from the turn outwards; the start
 is the first arm's far end, the end the second's, both edge fits of the image.
+:func:`as_streaks` appends the measured streaks to the first pass's kept ones.
 """
 
 from __future__ import annotations
@@ -15,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, _near_border
 from blurtrack.detect.gyroconfirm import mismatch
 from blurtrack.detect.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.segment import Components
 from blurtrack.detect.separate import _mosaic, _overlaps
 from blurtrack.detect.templates import Placement
 
@@ -214,3 +217,66 @@ _FIELDS = (
     "crossing",
     "short",
 )
+
+
+def as_streaks(
+    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, comps: Components, prep: Any, p: Any
+) -> FrameStreaks:
+    """The template pass's frame: rows ``keep`` of the first pass's ``fs`` followed by the
+    measured streaks ``m`` (flags as the first pass sets them; ``comps`` the frame's
+    components, ``prep`` the prepared frame, ``p`` the detection parameters)."""
+    H, W = fs.shape
+    k = np.flatnonzero(keep)
+    if m is None or len(m) == 0:
+        new: dict[str, Any] = {}
+        n_new = 0
+    else:
+        n_new = len(m)
+        flags = {
+            "clipped": _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            "saturated": m.saturated,
+            "crossing": m.crossing,
+            "merged": np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * fs.sigma_c_px),
+            "looped": m.looped,
+            "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
+        }
+        new = {
+            "end_a": m.end_a,
+            "end_b": m.end_b,
+            "time_mid": m.time_mid,
+            "plateau": m.plateau,
+            "length_px": m.length_px,
+            "width_px": m.width_px,
+            "snr": comps.peaks[m.own] / prep.noise_smooth,
+            "short": m.short,
+            "flags": flags,
+            "points": m.points,
+            "profile": m.profile,
+        }
+
+    def cat(name: str) -> np.ndarray:
+        old = getattr(fs, name)[k]
+        return np.concatenate([old, new[name]]) if n_new else old
+
+    short = fs.short if len(fs.short) == len(fs) else np.zeros(len(fs), bool)
+    return FrameStreaks(
+        shape=fs.shape,
+        end_a=cat("end_a"),
+        end_b=cat("end_b"),
+        time_mid=cat("time_mid"),
+        plateau=cat("plateau"),
+        length_px=cat("length_px"),
+        width_px=cat("width_px"),
+        snr=cat("snr"),
+        points=[fs.points[i] for i in k] + (list(new["points"]) if n_new else []),
+        profile=[fs.profile[i] for i in k] + (list(new["profile"]) if n_new else []),
+        flags={
+            f: np.concatenate([fs.flags[f][k], new["flags"][f]]) if n_new else fs.flags[f][k]
+            for f in FLAG_NAMES
+        },
+        sigma_c_px=fs.sigma_c_px,
+        noise=fs.noise,
+        hot_pixels=fs.hot_pixels,
+        short=np.concatenate([short[k], new["short"]]) if n_new else short[k],
+        saturated_fraction=fs.saturated_fraction,
+    )

@@ -67,19 +67,16 @@ from typing import Any
 import numpy as np
 
 from blurtrack.detect.frame import (
-    FLAG_NAMES,
-    MERGED_WIDTH,
     SPOT_FRACTION,
     SPOT_MIN_PX,
     FrameStreaks,
-    _near_border,
 )
 from blurtrack.detect.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyrocurve import Curves, curve_template, predict_curves
-from blurtrack.detect.gyromeasure import measure_placements
+from blurtrack.detect.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import Measured, combine
+from blurtrack.detect.measure import combine
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.pursuit import pursue
@@ -211,68 +208,6 @@ def _pad_px(curves: np.ndarray, sigma: float) -> int:
     the shape search's scaling)."""
     ext = float(np.max(curves.max(axis=1) - curves.min(axis=1))) if curves.size else 0.0
     return int(np.ceil(1.1 * ext + 3.0 * sigma)) + HALO_PX + 8
-
-
-def _as_streaks(
-    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, comps: Components, prep: Any, p: Any
-) -> FrameStreaks:
-    """Rows ``keep`` of ``fs`` followed by the measured streaks ``m`` (flags as the first
-    pass sets them)."""
-    H, W = fs.shape
-    k = np.flatnonzero(keep)
-    if m is None or len(m) == 0:
-        new: dict[str, Any] = {}
-        n_new = 0
-    else:
-        n_new = len(m)
-        flags = {
-            "clipped": _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
-            "saturated": m.saturated,
-            "crossing": m.crossing,
-            "merged": np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * fs.sigma_c_px),
-            "looped": m.looped,
-            "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
-        }
-        new = {
-            "end_a": m.end_a,
-            "end_b": m.end_b,
-            "time_mid": m.time_mid,
-            "plateau": m.plateau,
-            "length_px": m.length_px,
-            "width_px": m.width_px,
-            "snr": comps.peaks[m.own] / prep.noise_smooth,
-            "short": m.short,
-            "flags": flags,
-            "points": m.points,
-            "profile": m.profile,
-        }
-
-    def cat(name: str) -> np.ndarray:
-        old = getattr(fs, name)[k]
-        return np.concatenate([old, new[name]]) if n_new else old
-
-    short = fs.short if len(fs.short) == len(fs) else np.zeros(len(fs), bool)
-    return FrameStreaks(
-        shape=fs.shape,
-        end_a=cat("end_a"),
-        end_b=cat("end_b"),
-        time_mid=cat("time_mid"),
-        plateau=cat("plateau"),
-        length_px=cat("length_px"),
-        width_px=cat("width_px"),
-        snr=cat("snr"),
-        points=[fs.points[i] for i in k] + (list(new["points"]) if n_new else []),
-        profile=[fs.profile[i] for i in k] + (list(new["profile"]) if n_new else []),
-        flags={
-            f: np.concatenate([fs.flags[f][k], new["flags"][f]]) if n_new else fs.flags[f][k]
-            for f in FLAG_NAMES
-        },
-        sigma_c_px=fs.sigma_c_px,
-        noise=fs.noise,
-        hot_pixels=fs.hot_pixels,
-        short=np.concatenate([short[k], new["short"]]) if n_new else short[k],
-        saturated_fraction=fs.saturated_fraction,
-    )
 
 
 def gate(fs: FrameStreaks, timing: FrameTiming, model: Any) -> bool | None:
@@ -485,5 +420,5 @@ def refine_frame(
     long_pred = pred_arc >= SPOT_MIN_PX
     keep_old &= ~(long_pred & (fs.length_px < SPOT_FRACTION * pred_arc))
     keep_old &= ~(long_pred & (fs.length_px > CHAIN_FACTOR * pred_arc))
-    out = _as_streaks(fs, keep_old, m, comps, prep, p)
+    out = as_streaks(fs, keep_old, m, comps, prep, p)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))
