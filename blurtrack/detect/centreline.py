@@ -209,7 +209,8 @@ def refine_lines(
     ``ceiling``: the saturation level (signal units); cross-sections reaching half of it
     get their width from the tails (:func:`tail_sigma`), their top being clipped. The
     moving passes keep each line from its first to its last point above a quarter of its
-    lit level (:func:`_lit_level` with ``lit_median_factor``; None: its peak)."""
+    lit level (:func:`_lit_level` with ``lit_median_factor``; None: its peak), and the faint
+    tails beyond (:data:`TAIL_FRACTION`, :func:`_faint_tails`)."""
     half = int(np.ceil(3.0 * sigma_c)) + 1  # final pass: the whole cross-section integral
     half_move = int(np.ceil(2.0 * sigma_c)) + 1  # earlier passes only need the centroid
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3  # final pass: edges, tails and their baseline
