@@ -14,6 +14,13 @@ from blurtrack.detect.ragged import arc_lengths
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 
+def _frame(shape: tuple[int, int], curves: list[np.ndarray], seed: int) -> np.ndarray:
+    """The streaks of ``curves`` rendered (sigma 1.3 px, light noise) and quantised."""
+    return quantise(
+        render_streaks(shape, curves, flux_per_px=0.8, sigma_px=1.3, noise=0.004, seed=seed)
+    )
+
+
 def _hooked(x0: float, y0: float) -> np.ndarray:
     """A dot that lingers on a 5 px hook for 35 % of the exposure, then runs 80 px: the
     hook's light per px is ten times the tail's (``hard``'s "hockey sticks")."""
@@ -28,9 +35,7 @@ def test_a_line_along_a_bright_hook_and_its_tail_is_kept_whole(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     curves = [_hooked(40.0 + 130.0 * i, 50.0 + 60.0 * j) for i in range(3) for j in range(4)]
-    image = quantise(
-        render_streaks((300, 440), curves, flux_per_px=0.8, sigma_px=1.3, noise=0.004, seed=2)
-    )
+    image = _frame((300, 440), curves, seed=2)
     p = DetectParams()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     coarse = [c[::80] for c in curves]  # the placed curves: the whole streak, coarsely
@@ -71,9 +76,7 @@ def test_a_streak_fading_towards_its_end_is_measured_to_its_end(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     curves = [_speeding_up(30.0 + 140.0 * i, 40.0 + 50.0 * j) for i in range(3) for j in range(4)]
-    image = quantise(
-        render_streaks((260, 450), curves, flux_per_px=0.8, sigma_px=1.3, noise=0.004, seed=3)
-    )
+    image = _frame((260, 450), curves, seed=3)
     fs = detect_frame(image)
     start_err, end_err = _end_errors(fs, curves)
     assert len(fs) == len(curves)
@@ -95,9 +98,7 @@ def test_faint_tails_leave_uniform_streaks_as_they_were(monkeypatch: pytest.Monk
         for i in range(3)
         for j in range(4)
     ]
-    image = quantise(
-        render_streaks((260, 450), curves, flux_per_px=0.8, sigma_px=1.3, noise=0.004, seed=4)
-    )
+    image = _frame((260, 450), curves, seed=4)
     with_tails = detect_frame(image)
     monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
     without = detect_frame(image)
