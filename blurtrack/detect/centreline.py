@@ -138,9 +138,10 @@ TAIL_MIN_PX = 6.0
 
 
 def _faint_tails(strong: np.ndarray, faint: np.ndarray, r: Ragged, min_n: float) -> np.ndarray:
-    """``strong`` ``(M,)`` plus, at each end of each line of ``r``, the run of ``faint``
-    points contiguous with its outermost strong point where that run reaches more than
-    ``min_n`` points past it.
+    """Per point ``(M,)``, whether it lies in its line's kept span (what
+    :func:`blurtrack.detect.ragged.cut` takes): from the line's first to its last ``strong``
+    point, at each end extended over the run of ``faint`` points contiguous with it where that
+    run reaches more than ``min_n`` points further. Lines without a strong point: none.
 
     >>> r = Ragged(np.zeros((12, 2)), np.array([12]))
     >>> strong = np.arange(12) < 3
@@ -175,7 +176,7 @@ def _faint_tails(strong: np.ndarray, faint: np.ndarray, r: Ragged, min_n: float)
     lo = np.where(has & (fs - lo > min_n), lo, fs)
     hi = np.where(has & (hi - ls > min_n), hi, ls)
     line = r.line_of
-    return strong | (has[line] & (idx >= lo[line]) & (idx <= hi[line]) & on)
+    return has[line] & (idx >= lo[line]) & (idx <= hi[line])
 
 
 def _lit_level(values: np.ndarray, r: Ragged, factor: float | None = None) -> np.ndarray:
