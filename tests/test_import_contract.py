@@ -1,4 +1,4 @@
-"""The package layering of DESIGN.md, checked on every import statement of the tree.
+"""The import contract of docs/conventions.md, checked on every import statement of the tree.
 
 | package   | may import (first party)      | must not import (third party)       |
 | blurtrack | blurtrack (its cli/ may reach the others lazily) | casadi, torch             |
