@@ -1,5 +1,5 @@
 """The natural fit's treatments of the unfitted gyro scale on the same tracks, against the
-simulator's truth (docs/natural.md, "Gyro scale under a prior").
+simulator's truth (docs/journal/natural.md, "Gyro scale under a prior").
 
 For each kept session of ``bench/bench_natural.py --root DIR --keep`` (``r{seed}_{rate}``):
 ``calibrate_natural(..., translation="none", scale_prior="consider")`` once (tracking, axis

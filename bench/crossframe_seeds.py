@@ -4,7 +4,7 @@ Every frame of a laser-wall session shows the same wall dots. A streak's time mi
 frame ``j`` (the dot at its row's mid-exposure), carried by the blur model to frame ``k`` (a
 fixed point over the rolling shutter's rows: the row, hence the time, follows the dot), is a
 prediction of where that dot's streak has its time midpoint in frame ``k``: a seed for a joint
-placement where the template pass cannot tell the dots of a chain apart (docs/detection.md,
+placement where the template pass cannot tell the dots of a chain apart (docs/journal/detection.md,
 "Session 2026-12-04, second"). Measured against the simulator's truth (the same dot, by its
 ``dot`` index):
 

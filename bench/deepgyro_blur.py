@@ -1,5 +1,5 @@
 """Does the gyro-predicted blur of the real DeepGyro SHIELD frames follow the blur visible in
-each frame? (issue 13, real-data target; docs/natural.md "Real data").
+each frame? (issue 13, real-data target; docs/journal/natural.md "Real data").
 
 Every tile's blur is measured from the tile alone (blurtrack.features.blur_estimate: power
 cepstrum, no gyro) and compared with the blur the gyro predicts there under a candidate

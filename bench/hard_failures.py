@@ -1,6 +1,6 @@
 """Failure classes of detection on simulated sessions against ``truth.yaml`` (prints JSON).
 
-Issue 14 (docs/detection.md, "Session 2026-12-03: failure classes on hard"). The session is
+Issue 14 (docs/journal/detection.md, "Session 2026-12-03: failure classes on hard"). The session is
 detected as ``bench/bench_detect.py`` does (``detect_session``, one process) with the second
 pass's outcome recorded per frame; detections are matched to the truth exactly as the bench
 does (Hungarian assignment, orientation-free mean endpoint distance, gate 4 px). Each *missed*

@@ -1,6 +1,6 @@
 """Failure modes of the lights *not* found whole on the real photographs (prints JSON).
 
-Issue 14 (docs/detection.md, "Failure modes of the lights not found whole"). Against the
+Issue 14 (docs/journal/detection.md, "Failure modes of the lights not found whole"). Against the
 photograph's whole-component reference vector (``bench/real_streaks.py``), each streak is
 classed: ``clipped``; ``whole`` (within the shape tolerance of the reference, either sign);
 ``fragment`` (its start-to-end length under 0.75 of the reference's); ``chain`` (over 1.25);

@@ -6,7 +6,7 @@ megabytes. glibc serves blocks above its dynamic mmap threshold with fresh ``mma
 returns the heap's free top to the kernel beyond a threshold derived from the block sizes, so
 the next such array faults all its pages in again: detection measured ~2300 faults, several ms
 per 1280x720 frame; ``blurtrack calibrate`` on 10 s of 720p ~1 million faults and 5-9 s of
-system CPU (docs/natural.md, "Allocator settings"). :func:`keep_heap` fixes the mmap
+system CPU (docs/journal/natural.md, "Allocator settings"). :func:`keep_heap` fixes the mmap
 threshold at glibc's 32 MiB maximum, keeps up to 1 GiB of free heap top mapped and grows the
 heap 256 MiB at a time (address space only, until touched), so freed blocks are reused
 (calibrate: ~0.2 million faults, 2-3.6 s). The price: a process keeps its peak heap until it

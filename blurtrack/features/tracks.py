@@ -51,8 +51,8 @@ class TrackParams:
     #: resolution), ``min_distance_px`` and ``block_size`` scaled with it, and tracked at full
     #: resolution. At 720p ``goodFeaturesToTrack`` takes 17 ms per frame at full resolution,
     #: 1.8 ms at half (2), and a natural calibration ~20 % less CPU, but on 10 seeds the half
-    #: resolution's corners lost one cy and one rotation target (docs/natural.md, "Corners at
-    #: half resolution"), so full resolution stays the default.
+    #: resolution's corners lost one cy and one rotation target (docs/journal/natural.md,
+    #: "Corners at half resolution"), so full resolution stays the default.
     corner_downscale: int = 1
 
     def __post_init__(self) -> None:

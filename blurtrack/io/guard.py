@@ -3,7 +3,7 @@
 Every command with an output (``--out``, or an ``OUT`` argument) calls :func:`check_output`
 before it writes anything. It refuses
 
-* any output inside the *recorded* parts of a session (DESIGN.md): ``session.yaml``,
+* any output inside the *recorded* parts of a session (docs/conventions.md): ``session.yaml``,
   ``truth.yaml``, ``cam0/``, ``imu0/`` — found by walking up from the output to the nearest
   folder that holds a ``session.yaml``, after resolving links, so ``S/cam0/../cam0/data`` and a
   link into a session are caught too. The derived names DESIGN reserves inside a session

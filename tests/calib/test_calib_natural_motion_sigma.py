@@ -23,7 +23,7 @@ from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session
 
-#: Seed 5 leaves bias_x and bias_z at z 6 (new sigma); over seeds 0-7 see docs/natural.md.
+#: Seed 5 leaves bias_x and bias_z at z 6 (new sigma); seeds 0-7: docs/journal/natural.md.
 SEED = 1
 
 

@@ -1,4 +1,4 @@
-"""The truth-free correction of bench/crossframe_seeds.py (docs/detection.md, "Session
+"""The truth-free correction of bench/crossframe_seeds.py (docs/journal/detection.md, "Session
 2026-12-04, second"): carried midpoints mapped onto a frame's own detections by the
 displacement most of them agree with, then affine fits to nearest-neighbour pairs."""
 

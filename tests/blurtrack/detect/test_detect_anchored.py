@@ -27,7 +27,7 @@ def test_faint_fragments_are_placed_whole(shared_data, monkeypatch: pytest.Monke
     import cv2
 
     image = cv2.imread(str(shared_data / "real" / "light-streaks" / "night2.jpg"))
-    ref = np.array([4.4, 33.6])  # the photo's whole-component reference (docs/detection.md)
+    ref = np.array([4.4, 33.6])  # the photo's whole-component reference (docs/journal/detection.md)
     calls: list[int] = []
     real = frame_mod.anchored
 
