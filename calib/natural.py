@@ -47,12 +47,13 @@ MIN_FRAMES = 4
 #: Most tracks the continuous fit uses (spread evenly over the frame pairs; the axis search
 #: uses all). 12000 (40 per pair of 10 s of 30 fps video) against 4000: fx/fy within 0.3 %
 #: in 10/10 seeds against 8-9/10, the rotation within 0.1 deg in 9 and 8/10 against 6 and 7/10,
-#: truth in 3 sigma 97.8 % (docs/natural.md, "MAX_FIT_TRACKS 12000 adopted").
+#: truth in 3 sigma 97.8 % (docs/journal/natural.md, "MAX_FIT_TRACKS 12000 adopted").
 MAX_FIT_TRACKS = 12000
 #: Most tracks the translation decision and fits use (thinned from the rotation-only fit's):
 #: their per-pair and per-block jackknives refit the travel for every cluster, so their cost
 #: grows with the tracks; 1 s of driving 720p (9000 tracks) took 23-38 CPU-s with all of them
-#: against 16-20 s with 4000, for the same offsets (docs/natural.md, "MAX_FIT_TRACKS 12000").
+#: against 16-20 s with 4000, for the same offsets (docs/journal/natural.md,
+#: "MAX_FIT_TRACKS 12000").
 MAX_TRANSLATION_TRACKS = 4000
 #: Cells (columns, rows) over which :func:`thinned` spreads each pair's tracks.
 THIN_GRID = (4, 3)
