@@ -15,6 +15,7 @@ pair, warm-started from the training estimate (what is written, ``options.refit_
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -96,7 +97,14 @@ def _best(
     f: float,
     travel: bool,
 ) -> tuple[TranslationFit, int]:
-    fits = [fit_translation(model, streaks, t0, fit_idx, centre, f, travel=travel) for t0 in starts]
+    from blurtrack.features.pairs import concurrently
+
+    fits = concurrently(
+        [
+            partial(fit_translation, model, streaks, t0, fit_idx, centre, f, travel=travel)
+            for t0 in starts
+        ]
+    )
     k = min(range(len(fits)), key=lambda i: fits[i].cost)
     return fits[k], k
 
