@@ -1,4 +1,4 @@
-"""``blurtrack import {deepgyro,marslogger,euroc,rosbag,video} SRC OUT``: third-party
+"""``blurtrack import {deepgyro,marslogger,euroc,rosbag,video,frames} SRC OUT``: third-party
 recordings to sessions (docs/interop.md)."""
 
 from __future__ import annotations
@@ -14,7 +14,9 @@ from blurtrack.io.atomic import write_text_atomic
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import", help="convert a third-party recording into a session folder")
     p.add_argument(
-        "kind", choices=["deepgyro", "marslogger", "euroc", "rosbag", "video"], help="source format"
+        "kind",
+        choices=["deepgyro", "marslogger", "euroc", "rosbag", "video", "frames"],
+        help="source format (frames: a folder of images, a frame-times file, a gyro CSV)",
     )
     p.add_argument("src", type=Path, help="source folder, bag (file or folder) or video file")
     p.add_argument("out", type=Path, help="new session folder (must not exist or be empty)")
@@ -43,7 +45,36 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="rosbag: a Kalibr/BlurTrack calibration file for intrinsics and axes",
     )
     p.add_argument("--gcsv", type=Path, help="video: Gyroflow log (default: SRC with .gcsv)")
-    p.add_argument("--max-frames", type=int, help="euroc, rosbag, video: import at most N frames")
+    p.add_argument(
+        "--max-frames", type=int, help="euroc, rosbag, video, frames: import at most N frames"
+    )
+    p.add_argument("--images", type=Path, help="frames: the image folder (default: found in SRC)")
+    p.add_argument(
+        "--frame-times",
+        type=Path,
+        help="frames: one time per line (line k = frame k) or 'time,filename' rows "
+        "(default: the one *frame*/*stamp*/*times* file in SRC)",
+    )
+    p.add_argument("--gyro", type=Path, help="frames: gyro CSV (default: the *gyro*/*imu* file)")
+    p.add_argument(
+        "--gyro-columns",
+        help="frames: the gyro CSV's columns, e.g. wx,wy,wz,t or t,wx,wy,wz ('-' skips one; "
+        "default: from the header, else the increasing column is time)",
+    )
+    p.add_argument(
+        "--time-unit",
+        choices=["s", "ms", "us", "ns"],
+        help="frames: unit of frame and gyro times (default: detected from the intervals)",
+    )
+    p.add_argument(
+        "--gyro-unit",
+        choices=["rad/s", "deg/s"],
+        help="frames: gyro unit (default rad/s, deg/s when a sample exceeds 35 rad/s)",
+    )
+    p.add_argument(
+        "--intrinsics",
+        help="frames: fx,fy,cx,cy in px (default: a stated guess, fx = fy = width)",
+    )
     p.add_argument(
         "--overlays",
         type=int,
@@ -69,6 +100,13 @@ def importer_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "calib": args.calib,
         "gcsv": args.gcsv,
         "max_frames": args.max_frames,
+        "images": getattr(args, "images", None),
+        "frame_times_file": getattr(args, "frame_times", None),
+        "gyro": getattr(args, "gyro", None),
+        "gyro_columns": getattr(args, "gyro_columns", None),
+        "time_unit": getattr(args, "time_unit", None),
+        "gyro_unit": getattr(args, "gyro_unit", None),
+        "intrinsics": _intrinsics(getattr(args, "intrinsics", None)),
     }
     given = {k: v for k, v in given.items() if v is not None}
     allowed = IMPORTER_OPTIONS[args.kind]
@@ -90,7 +128,28 @@ OPTION_FLAGS = {
     "calib": "--calib",
     "gcsv": "--gcsv",
     "max_frames": "--max-frames",
+    "images": "--images",
+    "frame_times_file": "--frame-times",
+    "gyro": "--gyro",
+    "gyro_columns": "--gyro-columns",
+    "time_unit": "--time-unit",
+    "gyro_unit": "--gyro-unit",
+    "intrinsics": "--intrinsics",
 }
+
+
+def _intrinsics(text: str | None) -> tuple[float, float, float, float] | None:
+    """``--intrinsics fx,fy,cx,cy`` as four numbers."""
+    from blurtrack.errors import ImportFormatError
+
+    if text is None:
+        return None
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ImportFormatError(f"--intrinsics must be fx,fy,cx,cy, got {text!r}") from None
+    return fx, fy, cx, cy
+
 
 #: Stamped on overlays drawn with a guessed camera-IMU axis mapping.
 GUESS_LABEL = "axes UNKNOWN: drawn with the importer's guess, not a calibration"

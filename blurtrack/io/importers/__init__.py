@@ -10,6 +10,7 @@ One module per source; the two real recordings of ``../shared/data/real`` are co
 - ``rosbag``: ROS 1 ``.bag`` files and ROS 2 bags (``sensor_msgs/Image``, ``CompressedImage``,
   ``Imu``, optionally ``CameraInfo``), via ``rosbags``.
 - ``video``: a video file decoded with OpenCV plus a Gyroflow ``.gcsv`` gyro log.
+- ``frames``: a folder of frames, a frame-times file and a gyro CSV (the commonest lab layout).
 
 What the sources do not say (time offset, readout, axis signs) is filled with stated
 assumptions, recorded under ``import.assumptions`` in ``session.yaml``; they are guesses for the
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 from blurtrack.io.importers.deepgyro import import_deepgyro
 from blurtrack.io.importers.euroc import import_euroc
+from blurtrack.io.importers.frames import import_frames
 from blurtrack.io.importers.marslogger import fit_radtan4, import_marslogger
 from blurtrack.io.importers.rosbag import import_rosbag
 from blurtrack.io.importers.video import import_video
@@ -32,6 +34,7 @@ IMPORTERS = {
     "euroc": import_euroc,
     "rosbag": import_rosbag,
     "video": import_video,
+    "frames": import_frames,
 }
 #: The options each importer takes (keyword arguments) beyond ``src`` and ``out``.
 IMPORTER_OPTIONS = {
@@ -48,6 +51,19 @@ IMPORTER_OPTIONS = {
         "max_frames",
     ),
     "video": ("gcsv", "exposure_s", "readout_s", "stamp", "max_frames"),
+    "frames": (
+        "images",
+        "frame_times_file",
+        "gyro",
+        "gyro_columns",
+        "time_unit",
+        "gyro_unit",
+        "exposure_s",
+        "readout_s",
+        "stamp",
+        "intrinsics",
+        "max_frames",
+    ),
 }
 
 __all__ = [
@@ -56,6 +72,7 @@ __all__ = [
     "fit_radtan4",
     "import_deepgyro",
     "import_euroc",
+    "import_frames",
     "import_marslogger",
     "import_rosbag",
     "import_video",
