@@ -256,6 +256,9 @@ class AxisSearch:
     motion_px: float
     n_pairs: int
     source: str
+    #: How the axes were decided when more than one motion model was consulted
+    #: (:func:`calib.natural.discover_axes`): the model used and each model's figures.
+    decision: dict | None = None
 
     def __post_init__(self) -> None:
         if len(self.candidates) != 24:
@@ -288,6 +291,7 @@ class AxisSearch:
             "margin": self.margin,
             "winner": self.winner.to_dict(),
             "candidates": [c.to_dict() for c in self.candidates],
+            **({"decision": self.decision} if self.decision is not None else {}),
         }
 
 

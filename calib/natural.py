@@ -31,7 +31,14 @@ import numpy as np
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.calibration import Calibration
-from calib.axes import AxisSearch, ImageRotations, check_axes, rotations_from_pairs, search_axes
+from calib.axes import (
+    AxisSearch,
+    AxisSearchError,
+    ImageRotations,
+    check_axes,
+    rotations_from_pairs,
+    search_axes,
+)
 from calib.axes_pairs import collect_rotations
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
@@ -192,18 +199,82 @@ def discover_axes(
     window_s: float,
     source: str,
     strict: bool = True,
+    tracks: FeatureTracks | None = None,
+    frame_t_ns: np.ndarray | None = None,
+    exposure_ns: np.ndarray | None = None,
 ) -> tuple[AxisSearch, Calibration]:
     """Axis search (refusing an undecided one unless ``strict`` is off, for diagnostics that
     never write a calibration) and the initial calibration it implies (the winner's axes and
-    time shift)."""
+    time shift).
+
+    With ``tracks`` (and their frames' times and exposures), a search the pure-rotation model
+    does not decide is made again with the common-heading model (:mod:`calib.axes_heading`,
+    a camera travelling along one direction: driving); the decision and both models' figures
+    are in the returned search's ``decision``."""
     g = relative_gyro(gyro, t0_s)
     search = search_axes(
         rots, g, initial.camera.intrinsics[0], initial.timeshift_cam_imu_s, window_s, source
     )
-    if strict:
+    try:
         check_axes(search)
+    except AxisSearchError as exc:
+        if tracks is None or frame_t_ns is None or exposure_ns is None:
+            if strict:
+                raise
+        else:
+            search = _heading_decides(
+                search, str(exc), tracks, frame_t_ns, exposure_ns, g, initial, window_s, strict
+            )
     start = initial.with_(R_cam_imu=search.R_cam_imu, timeshift_cam_imu_s=search.winner.timeshift_s)
     return search, start
+
+
+def _heading_decides(
+    rotation: AxisSearch,
+    refused: str,
+    tracks: FeatureTracks,
+    frame_t_ns: np.ndarray,
+    exposure_ns: np.ndarray,
+    gyro: GyroTrace,
+    initial: Calibration,
+    window_s: float,
+    strict: bool,
+) -> AxisSearch:
+    """The common-heading search where the pure-rotation one (``rotation``, refused with
+    ``refused``) did not decide; refuses with both models' figures when it does not decide
+    either (unless not ``strict``: then the model whose winner explains more)."""
+    from calib.axes_heading import search_axes_heading
+
+    ts = np.asarray(frame_t_ns, np.int64)
+    heading = search_axes_heading(
+        tracks.pts_a,
+        tracks.pts_b,
+        tracks.frame_a,
+        (ts - ts[0]) * 1e-9,
+        np.asarray(exposure_ns, np.int64) * 1e-9,
+        initial.camera,
+        gyro.upsampled(GYRO_UPSAMPLE),
+        initial.timeshift_cam_imu_s,
+        window_s,
+        rotation.motion_px,
+    )
+    h = heading.search
+    decision = {
+        "model": "common heading",
+        "rotation_only": {**rotation.to_dict(), "refused": refused},
+        "heading": heading.to_dict(),
+    }
+    try:
+        check_axes(h)
+    except AxisSearchError as exc:
+        if strict:
+            raise AxisSearchError(
+                f"{refused}; the common-heading model does not decide either: {exc}"
+            ) from None
+        better = h.winner.score_px < rotation.winner.score_px
+        decision["model"] = "common heading (undecided)" if better else "rotation (undecided)"
+        return replace(h if better else rotation, decision=decision)
+    return replace(h, decision=decision)
 
 
 @dataclass(frozen=True)
@@ -279,7 +350,16 @@ def calibrate_natural(
     streaks = tracks_to_streaks(tracks, ts, exp)
     rots = collect_rotations(pair_rots)
     search, start = discover_axes(
-        rots, gyro, streaks.t0_s, initial, options.shift_window_s, "feature tracks", strict_axes
+        rots,
+        gyro,
+        streaks.t0_s,
+        initial,
+        options.shift_window_s,
+        "feature tracks",
+        strict_axes,
+        tracks,
+        ts,
+        exp,
     )
     lk = thinned(tracks, MAX_FIT_TRACKS)
     if blur == "equal-blur":
