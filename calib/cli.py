@@ -148,7 +148,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
         force=args.force,
         inputs=[args.streaks],
         siblings=[
-            stem + s for s in (".openvins.yaml", ".camera_info.yaml", ".failed.summary.json")
+            stem + s
+            for s in (
+                ".openvins.yaml",
+                ".camera_info.yaml",
+                ".failed.summary.json",
+                ".partial.yaml",
+            )
         ],
     )
     if is_natural(args):
@@ -232,6 +238,21 @@ def write_calibration(res: Any, path: Path) -> None:
     res.calibration.to_yaml(path)
 
 
+def cell(value: float, width: int) -> str:
+    """``value`` right-aligned in ``width`` characters with at least one space before it:
+    four decimals where they fit, else four significant digits (``2.473e+08``).
+
+    >>> cell(247.2631, 12) + cell(99338.9141, 11)
+    '    247.2631 99338.9141'
+    >>> cell(6.2e8, 11)
+    '  6.200e+08'
+    """
+    text = f"{value:.4f}"
+    if len(text) > width - 1:
+        text = f"{value:.3e}"
+    return " " + text.rjust(width - 1)
+
+
 def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | None) -> None:
     if res.holdout_fit_values is not None:
         print(
@@ -251,19 +272,19 @@ def _print_table(res: Any, initial: dict[str, float], truth: dict[str, float] | 
         )
     else:
         print(f"fitted {res.residuals}")
-    head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>10}"
-    print(head + (f"{'truth':>12}{'error':>10}" if truth else ""))
+    head = f"{'parameter':<12}{'unit':>8}{'initial':>12}{'estimate':>12}{'1-sigma':>11}"
+    print(head + (f"{'truth':>12}{'error':>11}" if truth else ""))
     for k, v in res.values.items():
         if k.startswith("scale") and k not in res.fitted:
             continue
         s, unit = _SHOW[k]
         sig = res.sigma.get(k)
         line = (
-            f"{k:<12}{unit:>8}{initial.get(k, float('nan')) * s:>12.4f}{v * s:>12.4f}"
-            f"{(sig * s if sig is not None else float('nan')):>10.4f}"
+            f"{k:<12}{unit:>8}{cell(initial.get(k, float('nan')) * s, 12)}{cell(v * s, 12)}"
+            f"{cell(sig * s if sig is not None else float('nan'), 11)}"
         )
         if truth:
-            line += f"{truth[k] * s:>12.4f}{(v - truth[k]) * s:>10.4f}"
+            line += f"{cell(truth[k] * s, 12)}{cell((v - truth[k]) * s, 11)}"
         print(line)
     print(
         f"train endpoint error: mean {res.train.mean_px:.3f} px, median "

@@ -164,14 +164,24 @@ def thinned_result(nat: NaturalResult, n_max: int) -> NaturalResult:
     return replace(nat, tracks=subset_tracks(nat.tracks, keep), streaks=nat.streaks.subset(keep))
 
 
-def check_tracks(tracks: FeatureTracks) -> None:
-    """Refuse frames that do not support a calibration (one line naming what is missing)."""
+def check_tracks(tracks: FeatureTracks, tracked: FeatureTracks | None = None) -> None:
+    """Refuse frames that do not support a calibration (one line naming what is missing).
+
+    ``tracked``: the tracks before the equal-blur refinement, when ``tracks`` are what it
+    kept (the message then says that the refinement dropped them, not the tracking)."""
     if tracks.n_frames < MIN_FRAMES:
         raise CalibError(
             f"too few frames for a natural-scene calibration: {tracks.n_frames} (need {MIN_FRAMES})"
         )
     good = int(np.count_nonzero(tracks.per_pair >= 8))
     if len(tracks) < MIN_TRACKS or good < MIN_FRAMES - 1:
+        if tracked is not None:
+            raise CalibError(
+                f"too few feature tracks after the equal-blur refinement: {len(tracks)} of the "
+                f"{len(tracked)} tracked kept, in {good} of {tracks.n_frames - 1} frame pairs "
+                f"(need {MIN_TRACKS} in {MIN_FRAMES - 1}): the frames' blur differs too much "
+                f"from what the axis search's start predicts"
+            )
         raise CalibError(
             f"too few feature tracks: {len(tracks)} in {good} of {tracks.n_frames - 1} frame "
             f"pairs (need {MIN_TRACKS} in {MIN_FRAMES - 1}): the frames are textureless, too "
@@ -291,6 +301,9 @@ class NaturalResult:
     rotation_only: CalibResult | None = None
     #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural_scale`).
     sigma: dict[str, Any] | None = None
+    #: Tracks found by tracking, before the fit's thinning and equal-blur refinement
+    #: (``tracks`` holds those the fit used); 0 where not known.
+    n_tracked: int = 0
 
     def summary(self) -> dict[str, Any]:
         d = self.tracks.displacement_px
@@ -300,6 +313,7 @@ class NaturalResult:
             "axes": self.axes.to_dict(),
             "features": {
                 "tracks": len(self.tracks),
+                "tracked": self.n_tracked or len(self.tracks),
                 "frames": self.tracks.n_frames,
                 "per_pair_median": float(np.median(self.tracks.per_pair)),
                 "displacement_px_median": float(np.median(d)) if d.size else 0.0,
@@ -347,6 +361,7 @@ def calibrate_natural(
         read, ts, exp, initial, params or TrackParams(), progress, meanwhile=[up]
     )
     check_tracks(tracks)
+    n_tracked = len(tracks)
     streaks = tracks_to_streaks(tracks, ts, exp)
     rots = collect_rotations(pair_rots)
     search, start = discover_axes(
@@ -364,7 +379,7 @@ def calibrate_natural(
     lk = thinned(tracks, MAX_FIT_TRACKS)
     if blur == "equal-blur":
         tracks = equal_blur_tracks(lk, read, ts, exp, start, gyro)
-        check_tracks(tracks)
+        check_tracks(tracks, lk)
     else:
         tracks = corrected_tracks(lk, ts, exp, start, gyro)
     streaks = tracks_to_streaks(tracks, ts, exp)
@@ -381,7 +396,9 @@ def calibrate_natural(
         residuals="endpoints",
     )
     res = calibrate(streaks, gyro, start, opts)
-    nat = NaturalResult(res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"})
+    nat = NaturalResult(
+        res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"}, n_tracked=n_tracked
+    )
     if translation != "none":
         from calib.natural_motion import with_translation
 
@@ -396,8 +413,9 @@ def calibrate_natural(
         if blur != "equal-blur" or res.status == "failed":
             break
         # from the previous pass's points: they are within a few hundredths of a pixel
-        tracks = equal_blur_tracks(tracks, read, ts, exp, res.calibration, gyro)
-        check_tracks(tracks)
+        refined = equal_blur_tracks(tracks, read, ts, exp, res.calibration, gyro)
+        check_tracks(refined, tracks)
+        tracks = refined
         streaks = tracks_to_streaks(tracks, ts, exp)
         res = calibrate(streaks, gyro, res.calibration, opts)
     sigma_info = None

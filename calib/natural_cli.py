@@ -166,8 +166,9 @@ def run_natural(
         summary["error_vs_truth"] = {k: res.values[k] - truth[k] for k in res.values}
     f = summary["features"]
     print(
-        f"feature tracks: {f['tracks']} in {f['frames'] - 1} frame pairs (median "
-        f"{f['per_pair_median']:.0f} per pair, {f['displacement_px_median']:.1f} px motion)"
+        f"feature tracks: {f['tracked']} tracked in {f['frames'] - 1} frame pairs, "
+        f"{f['tracks']} used by the fit (median {f['per_pair_median']:.0f} per pair, "
+        f"{f['displacement_px_median']:.1f} px motion)"
     )
     print_axes(nat.axes)  # what the images decided, shown also when the fit is refused
     tr = nat.translation or {}
@@ -176,10 +177,53 @@ def run_natural(
             f"translation: {tr['mode']} (chosen by {tr['chosen_by']}; rotation-only / "
             f"epipolar mean squared track error {tr['ratio']:.2f}, auto above {tr['auto_ratio']})"
         )
-    check_determined(res, nat.tracks.n_frames)
     out = Path(args.out)
+    try:
+        check_determined(res, nat.tracks.n_frames)
+    except CalibError as exc:
+        partial = write_partial(nat.axes, res.initial, out, str(exc), args.force)
+        raise CalibError(f"{exc}; {partial}") from None
     # a failed fit never replaces the summary of the calibration it leaves in place
     details = write_summary(res, summary, out)
     print("(the endpoint errors below are feature-track errors)")
     print_table(res, summary["initial"], truth)
-    return write_results(res, out, details)
+    try:
+        return write_results(res, out, details)
+    except CalibError as exc:
+        partial = write_partial(nat.axes, res.initial, out, str(exc), args.force)
+        raise CalibError(f"{exc}; {partial}") from None
+
+
+#: What a partial calibration file holds (its ``partial.decided``).
+PARTIAL_DECIDED = "camera-IMU axes and a coarse time offset (axis search)"
+
+
+def partial_path(out: Path) -> Path:
+    """Where ``calibrate --out OUT`` puts the decided axes when the fit is refused."""
+    return out.with_name(out.stem + ".partial.yaml")
+
+
+def write_partial(axes: Any, initial: Any, out: Path, reason: str, force: bool) -> str:
+    """Write the axes the images decided (``axes``, an :class:`calib.axes.AxisSearch`) over
+    ``initial`` (the session's own guesses for the rest) as a calibration file marked
+    ``partial`` beside ``out``; returns the sentence for the refusal. An existing file is
+    replaced only with ``force``."""
+    path = partial_path(out)
+    if path.exists() and not force:
+        return f"the decided axes were not written: {path} exists (--force replaces it)"
+    calib = initial.with_(
+        R_cam_imu=axes.R_cam_imu,
+        timeshift_cam_imu_s=axes.winner.timeshift_s,
+        sigma={},
+        partial={
+            "decided": PARTIAL_DECIDED,
+            "reason": reason,
+            "axis_margin": f"{axes.margin:.2f}",
+            "not_fitted": "intrinsics, readout, bias, fine time offset: the session's guesses",
+        },
+    )
+    calib.to_yaml(path)
+    return (
+        f"the decided axes (margin {axes.margin:.1f}) are in {path}, marked partial: "
+        "predict takes it, labelled"
+    )

@@ -29,9 +29,32 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="skip frames the gyro does not cover instead of refusing",
     )
+    p.add_argument(
+        "--overlays",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also draw the predicted trajectories over the first N frames (overlays/)",
+    )
     add_quiet_arg(p)
     add_force_arg(p)
     p.set_defaults(func=run)
+
+
+def _overlays(session: Any, calib: Any, out: Path, n: int) -> dict[str, object]:
+    """Overlays of the first ``n`` frames in ``out/overlays``, stamped when ``calib`` is
+    partial."""
+    from blurtrack.cli.importers import label_image
+    from blurtrack.overlay import draw_session_overlays
+
+    drawn = draw_session_overlays(
+        session, calib, out / "overlays", list(range(min(n, len(session.frames))))
+    )
+    if calib.partial is not None:
+        stamp = f"PARTIAL: {calib.partial.get('decided', 'not fitted')} only; fit refused"
+        for path in drawn["written"]:  # type: ignore[attr-defined]
+            label_image(Path(path), stamp)
+    return drawn
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,9 +70,13 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError(f"--grid must be NXxNY, got {args.grid!r}") from None
     if gx < 2 or gy < 2 or args.stride < 1 or args.samples < 3:
         raise SynthesisError("--grid needs >= 2 nodes per axis, --stride >= 1, --samples >= 3")
+    if args.overlays < 0:
+        raise SynthesisError(f"--overlays must be 0 or more, got {args.overlays}")
     check_output(args.out, folder=True, force=args.force)
     session = load_session(args.session)
     calib = Calibration.from_yaml(args.calib)
+    if calib.partial_label is not None:
+        print(f"predict: {calib.partial_label}")
     with Progress("predict", "frame", args.quiet) as bar:
         res = predict_session(
             session,
@@ -65,9 +92,12 @@ def run(args: argparse.Namespace) -> int:
         "command": "predict",
         "session": str(args.session),
         "calib": str(args.calib),
+        "partial": calib.partial,
         **res.stats,
         "skipped_timestamps_ns": res.skipped,
     }
+    if args.overlays:
+        summary["overlays"] = _overlays(session, calib, Path(args.out), args.overlays)
     write_json_atomic(Path(args.out) / "summary.json", summary)
     fit = res.stats["bezier_fit_within_0.5px"]
     print(

@@ -44,8 +44,18 @@ class Calibration:
     t_cam_imu_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sigma: dict[str, Any] = field(default_factory=dict)
     gyro_scale_matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
+    #: Set on a PARTIAL calibration (the extra key ``partial``): what was decided from the
+    #: data and why the rest was not fitted, e.g. ``{"decided": "camera-IMU axes and a
+    #: coarse time offset", "reason": "..."}``; commands that use it say so. ``None``: a fit.
+    partial: dict[str, str] | None = None
 
     def __post_init__(self) -> None:
+        if self.partial is not None:
+            if not isinstance(self.partial, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in self.partial.items()
+            ):
+                raise ConfigError("partial must be a mapping of text to text")
+            object.__setattr__(self, "partial", dict(self.partial))
         R = np.array(self.R_cam_imu, dtype=float)
         if not is_rotation(R, tol=1e-5):
             raise ConfigError("T_cam_imu's rotation block is not a rotation matrix")
@@ -74,6 +84,16 @@ class Calibration:
         object.__setattr__(self, "t_cam_imu_m", t)
         object.__setattr__(self, "timeshift_cam_imu_s", shift)
         object.__setattr__(self, "sigma", dict(self.sigma))
+
+    @property
+    def partial_label(self) -> str | None:
+        """One line saying what a partial calibration holds (None for a fitted one)."""
+        if self.partial is None:
+            return None
+        return (
+            f"PARTIAL calibration: {self.partial.get('decided', 'not fitted')} only "
+            f"({self.partial.get('reason', 'the fit was refused')})"
+        )
 
     @property
     def T_cam_imu(self) -> np.ndarray:
@@ -119,6 +139,8 @@ class Calibration:
             entry["gyro_scale_matrix"] = self.gyro_scale_matrix.tolist()
         if self.sigma:
             entry["sigma"] = _plain(self.sigma)
+        if self.partial is not None:
+            entry["partial"] = dict(self.partial)
         return {"cam0": entry}
 
     @classmethod
@@ -149,6 +171,7 @@ class Calibration:
                 gyro_scale_matrix=np.array(
                     c.get("gyro_scale_matrix", np.eye(3).tolist()), dtype=float
                 ),
+                partial=c.get("partial"),
             )
         except ConfigError:
             raise

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from types import SimpleNamespace
@@ -9,6 +10,9 @@ from types import SimpleNamespace
 import pytest
 
 from blurtrack.cli import main
+from blurtrack.errors import ConfigError
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.calibration import Calibration
 from calib.errors import CalibError
 from calib.natural_cli import check_determined
 from calib.uncertainty import UNDETERMINED_FACTOR, WEAK_SIGMA
@@ -50,3 +54,35 @@ def test_deepgyro_recording_is_not_calibrated_from_four_covered_pairs(
         and "[[0, -1, 0], [-1, 0, 0], [0, 0, -1]]" in cap.out
     )
     assert not out.exists() and not out.with_name("calib.summary.json").exists()
+    # ... and written where a user can take them: a calibration file marked partial
+    partial = out.with_name("calib.partial.yaml")
+    assert f"are in {partial}, marked partial" in err[0]
+    cal = Calibration.from_yaml(partial)
+    assert cal.partial is not None and "axes" in cal.partial["decided"]
+    assert cal.R_cam_imu.tolist() == [[0, -1, 0], [-1, 0, 0], [0, 0, -1]]
+    # predict and its overlays take it, labelled as partial
+    pred = tmp_path / "pred"
+    argv = ["predict", str(session), "--calib", str(partial), "--out", str(pred)]
+    assert main([*argv, "--overlays", "2", "--skip-uncovered", "--quiet"]) == 0
+    assert "predict: PARTIAL calibration" in capsys.readouterr().out
+    summary = json.loads((pred / "summary.json").read_text())
+    assert summary["partial"]["decided"] == cal.partial["decided"]
+    assert len(summary["overlays"]["written"]) + len(summary["overlays"]["skipped"]) == 2
+    # a second run does not replace the partial file without --force
+    assert main(["calibrate", str(session), "--out", str(out), "--shift-window-ms", "20"]) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_partial_calibration_round_trips_and_a_fit_has_none(tmp_path: Path) -> None:
+    cam = Camera((64, 48), (60.0, 60.0, 31.5, 23.5))
+    base = Calibration(cam)
+    assert base.partial is None and base.partial_label is None
+    base.to_yaml(tmp_path / "fit.yaml")
+    assert "partial" not in (tmp_path / "fit.yaml").read_text()
+    part = base.with_(partial={"decided": "axes", "reason": "too short"})
+    part.to_yaml(tmp_path / "p.yaml")
+    back = Calibration.from_yaml(tmp_path / "p.yaml")
+    assert back.partial == {"decided": "axes", "reason": "too short"}
+    assert back.partial_label == "PARTIAL calibration: axes only (too short)"
+    with pytest.raises(ConfigError, match="partial"):
+        base.with_(partial={"decided": 3})
