@@ -51,6 +51,9 @@ from calib.axes import (
 MAX_TRACKS_PER_PAIR = 80
 MAX_TRACKS = 4000
 MIN_TRACKS_PER_PAIR = 16
+#: Tracks per frame pair of the coarse scan of all 24 candidates over the shift window;
+#: every candidate is then scored again at its best shift with all the tracks above.
+COARSE_TRACKS_PER_PAIR = 24
 #: Reweighting rounds of the heading fit.
 HEADING_ROUNDS = 4
 #: Tracks farther than this many times the median residual from their epipolar circle are
@@ -202,20 +205,25 @@ def search_axes_heading(
     b /= np.linalg.norm(b, axis=1, keepdims=True)
     P = proper_axis_permutations()
 
-    def derotated(shift: float, which: np.ndarray) -> np.ndarray:
+    def derotated(shift: float, which: np.ndarray, sub: np.ndarray) -> np.ndarray:
+        """First bearings of tracks ``sub`` carried by candidates ``which``: ``(C, n, 3)``."""
         M = gyro_rotations(gyro, ta, tb, shift)  # (K, 3, 3) R_imu(a)ᵀ R_imu(b)
         Rc = np.einsum("cij,kjl,cml->ckim", P[which], M, P[which])  # P M Pᵀ per candidate
         # bearing_b = Rcᵀ bearing_a for a static far point
-        return np.einsum("cnji,nj->cni", Rc[:, idx], a)
+        return np.einsum("cnji,nj->cni", Rc[:, idx[sub]], a[sub])
 
-    def score(shift: float, which: np.ndarray) -> np.ndarray:
-        _, r = fit_heading(derotated(shift, which), b, GATE_FLOOR_PX / fx)
+    def score(shift: float, which: np.ndarray, sub: np.ndarray) -> np.ndarray:
+        _, r = fit_heading(derotated(shift, which, sub), b[sub], GATE_FLOOR_PX / fx)
         return np.median(r, axis=1) * fx
 
-    shifts, scores = scan_candidates(score, shift0_s, window_s)
+    # coarse and fine scans on a few tracks per pair; every candidate then scored with all
+    few = _subsample(idx, COARSE_TRACKS_PER_PAIR)
+    shifts, _ = scan_candidates(lambda s, w: score(s, w, few), shift0_s, window_s)
+    every = np.arange(len(a))
+    scores = np.array([score(float(shifts[c]), np.array([c]), every)[0] for c in range(len(P))])
     search = ranked(shifts, scores, motion_px, int(pairs[ok].size), source)
     win = np.array([int(np.argmin(scores))])
-    a_rot = derotated(float(shifts[win[0]]), win)
+    a_rot = derotated(float(shifts[win[0]]), win, every)
     h, r = fit_heading(a_rot, b, GATE_FLOOR_PX / fx)
     gate = max(OUTLIER_FACTOR * float(np.median(r[0])), GATE_FLOOR_PX / fx)
     out = r[0] > gate
