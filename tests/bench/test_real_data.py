@@ -1,0 +1,47 @@
+"""The short form of bench/real_data.py (issue 44, item 5): the real phone video, imported and
+calibrated with the user's two commands, still calibrates, decides its axes clearly and keeps
+its hold-out error; a recording that calibrates today cannot silently stop calibrating."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from blurtrack.testing.bench_script import load_bench_script
+
+
+@pytest.fixture(scope="module")
+def quick(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    bench = load_bench_script("real_data")
+    out = tmp_path_factory.mktemp("real_data")
+    assert bench.main(["--quick", "--out", str(out / "pics"), "--json", str(out / "r.json")]) == 0
+    recs = json.loads((out / "r.json").read_text())
+    assert [r["item"] for r in recs] == ["phone-video-412hz"]
+    return recs[0]
+
+
+def test_phone_video_calibrates_with_a_clear_axis_decision(quick: dict) -> None:
+    assert quick["outcome"] == "calibrated", quick["outcome"]
+    assert [s["rc"] for s in quick["steps"]] == [0, 0]
+    f = quick["figures"]
+    assert f["status"] == "ok"
+    assert f["axes_margin"] >= 2.0
+    assert f["holdout_median_px"] <= 0.35
+
+
+def test_phone_video_offset_and_readout_have_finite_positive_sigmas(quick: dict) -> None:
+    f = quick["figures"]
+    for key in ("timeshift", "readout"):
+        assert math.isfinite(f[f"{key}_ms"])
+        sigma = f[f"{key}_sigma_ms"]
+        assert sigma is not None and math.isfinite(sigma) and sigma > 0
+
+
+def test_quick_form_writes_the_overlays_outside_the_data(quick: dict, shared_data: Path) -> None:
+    pics = [Path(p) for p in quick["pictures"]]
+    assert len(pics) == 2 and all(p.is_file() for p in pics)
+    assert not any(p.resolve().is_relative_to(shared_data.resolve()) for p in pics)
+    assert "halves" not in quick
