@@ -341,7 +341,8 @@ def figures_text(rec: dict[str, Any]) -> str:
             parts.append(
                 f"half {p['frames']}: {p['outcome']} ({p['wall_s']:.1f} s)"
                 + (
-                    f", timeshift {g['timeshift_ms']:.2f} ± {g['timeshift_sigma_ms']:.2f}, "
+                    f", axes margin {g['axes_margin']:.2f}, "
+                    f"timeshift {g['timeshift_ms']:.2f} ± {g['timeshift_sigma_ms']:.2f}, "
                     f"readout {g['readout_ms']:.2f} ± {g['readout_sigma_ms']:.2f} ms"
                     if g.get("timeshift_ms") is not None
                     else ""
