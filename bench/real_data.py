@@ -149,18 +149,18 @@ def import_and_calibrate(
             "overlays_skipped": (imp.get("overlays") or {}).get("skipped"),
         }
         rec["pictures"] = copy_pictures(
-            [Path(p) for p in (imp.get("overlays") or {}).get("written", [])], pics, name
+            [Path(p) for p in (imp.get("overlays") or {}).get("written", [])], pics, name, work
         )
     if len(steps) == 2:
         rec["figures"] = calib_figures(cal)
     return rec
 
 
-def copy_pictures(paths: list[Path], pics: Path | None, prefix: str) -> list[str]:
-    """Copy pictures to ``pics`` as ``<prefix>_<name>``; their new paths (the old ones, in the
-    work folder, without ``pics``)."""
+def copy_pictures(paths: list[Path], pics: Path | None, prefix: str, work: Path) -> list[str]:
+    """Copy pictures to ``pics`` as ``<prefix>_<name>``; their new paths (without ``pics``:
+    their paths relative to the temporary work folder, which is removed at the end)."""
     if pics is None:
-        return [str(p) for p in paths]
+        return [str(p.relative_to(work)) for p in paths]
     pics.mkdir(parents=True, exist_ok=True)
     out = []
     for p in paths:
@@ -276,7 +276,7 @@ def light_streaks(work: Path, pics: Path | None) -> list[dict[str, Any]]:
                 "wall_s": time.perf_counter() - t0,
                 "outcome": "detected (no gyro: nothing to calibrate)",
                 "figures": m,
-                "pictures": [str(overlay)] if pic else [],
+                "pictures": [str(overlay if pics else overlay.relative_to(work))] if pic else [],
             }
         )
     return out
