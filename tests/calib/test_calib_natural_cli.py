@@ -86,3 +86,48 @@ def test_partial_calibration_round_trips_and_a_fit_has_none(tmp_path: Path) -> N
     assert back.partial_label == "PARTIAL calibration: axes only (too short)"
     with pytest.raises(ConfigError, match="partial"):
         base.with_(partial={"decided": 3})
+
+
+def _phone_layout(src: Path, dst: Path, crop_rows: tuple[int, int] | None = None) -> Path:
+    """The phone drive's layout under ``dst``: frames linked (or cropped to ``crop_rows``),
+    frame times and gyro copied so a test can change them."""
+    import cv2
+
+    (dst / "frames").mkdir(parents=True)
+    for img in sorted((src / "frames").glob("*.jpg")):
+        if crop_rows is None:
+            (dst / "frames" / img.name).symlink_to(img)
+        else:
+            a, b = crop_rows
+            cv2.imwrite(str(dst / "frames" / (img.stem + ".png")), cv2.imread(str(img))[a:b])
+    for name in ("framestamp.txt", "gyro.txt"):
+        (dst / name).write_text((src / name).read_text())
+    return dst
+
+
+@pytest.mark.parametrize("case", ["gyro of another part of the drive", "only the dashboard"])
+def test_phone_drive_without_a_static_scene_or_its_own_gyro_is_refused(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    """Negative controls of the common-heading model on the real drive: the gyro log moved by
+    1.5 s (its rotations are another stretch of the drive's), and the frames cropped to the
+    dashboard (rigid with the camera: nothing static turns). Both refused, nothing written."""
+    src = shared_data / "real" / "phone-video-412hz"
+    cy = 309.01
+    if case.startswith("gyro"):
+        lay = _phone_layout(src, tmp_path / "lay")
+        rows = [r.split(",") for r in (lay / "gyro.txt").read_text().split()]
+        moved = [f"{x},{y},{z},{float(t) - 1.5:.9f}" for x, y, z, t in rows]
+        (lay / "gyro.txt").write_text("\n".join(moved) + "\n")
+    else:
+        lay = _phone_layout(src, tmp_path / "lay", crop_rows=(420, 600))
+        cy -= 420
+    session, out = tmp_path / "S", tmp_path / "out" / "c.yaml"
+    k = f"573.85,575.04,406.01,{cy}"
+    argv = ["import", "frames", str(lay), str(session), "--exposure-ms", "5.1", "--intrinsics", k]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(session), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the common-heading model does not decide either" in err[0]
+    assert not out.parent.exists() or not any(out.parent.iterdir())
