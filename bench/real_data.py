@@ -6,8 +6,9 @@ folder outside the data folder; the table gives what was asked, what came out (c
 refused with the command's one-line error), the figures read from the written summary JSON
 files and the pictures written. The phone video is also calibrated from its two halves apart
 (frames 100-125 and 126-151, temporary layouts of symlinks) to see whether the time offset and
-the readout agree within 2 sigma. The light-streak photographs have no gyro: they run
-``bench/real_streaks.py``'s measurement.
+the readout agree within 2 sigma, and from its frames turned by 180 degrees (rows read bottom
+to top) to see which readout direction the images choose. The light-streak photographs have no
+gyro: they run ``bench/real_streaks.py``'s measurement.
 
     PYTHONPATH=$PWD .venv/bin/python bench/real_data.py [--quick] [--out DIR] [--json FILE]
 
@@ -30,6 +31,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import cv2
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -182,6 +185,42 @@ def phone_half_layout(src: Path, dst: Path, first: int, last: int) -> Path:
     return dst
 
 
+def phone_rotated_layout(src: Path, dst: Path) -> Path:
+    """The phone video's layout with every frame turned by 180 degrees (written as PNG): the
+    rows are then read bottom to top, which a readout >= 0 cannot describe."""
+    (dst / "frames").mkdir(parents=True)
+    for img in sorted((src / "frames").glob("*.jpg")):
+        turned = cv2.rotate(cv2.imread(str(img), cv2.IMREAD_COLOR), cv2.ROTATE_180)
+        cv2.imwrite(str(dst / "frames" / (img.stem + ".png")), turned)
+    for name in ("framestamp.txt", "gyro.txt"):
+        (dst / name).symlink_to(src / name)
+    return dst
+
+
+def readout_direction(src: Path, work: Path, opts: list[str], upright: dict) -> dict[str, Any]:
+    """The readout direction decided by the images: the same fit on the frames turned by 180
+    degrees (principal point mirrored). If the sensor reads top to bottom, the turned frames
+    are read bottom to top, the readout (bounded at 0) cannot follow and the fit is worse."""
+    fx, fy, cx, cy = (float(v) for v in PHONE_INTRINSICS.split(","))
+    w, h = 800, 600
+    turned_k = f"{fx},{fy},{w - 1 - cx},{h - 1 - cy}"
+    lay = phone_rotated_layout(src, work / "turned" / "src")
+    sess, cal = lay.parent / "S", lay.parent / "calib.yaml"
+    opts = [o if o != PHONE_INTRINSICS else turned_k for o in opts]
+    steps = [run_cli(["import", "frames", str(lay), str(sess), *opts])]
+    if steps[0]["rc"] == 0:
+        steps.append(run_cli(["calibrate", str(sess), "--out", str(cal)]))
+    f = calib_figures(cal) if len(steps) == 2 and steps[1]["rc"] == 0 else {}
+    up, down = upright.get("holdout_median_px"), f.get("holdout_median_px")
+    return {
+        "turned_outcome": "calibrated" if f else "refused",
+        "turned_readout_ms": f.get("readout_ms"),
+        "turned_holdout_median_px": down,
+        "upright_holdout_median_px": up,
+        "top_to_bottom": bool(up is not None and down is not None and up < down),
+    }
+
+
 def phone_video(work: Path, pics: Path | None, halves: bool) -> dict[str, Any]:
     src = REAL / "phone-video-412hz"
     opts = ["--exposure-ms", PHONE_EXPOSURE_MS, "--intrinsics", PHONE_INTRINSICS]
@@ -213,6 +252,7 @@ def phone_video(work: Path, pics: Path | None, halves: bool) -> dict[str, Any]:
             halves_rec[f"{key}_diff_ms"] = vals[1] - vals[0]
             halves_rec[f"{key}_diff_sigma_ms"] = math.hypot(vals[2], vals[3])
     rec["halves"] = halves_rec
+    rec["readout_direction"] = readout_direction(src, work, opts, rec.get("figures") or {})
     return rec
 
 
@@ -355,6 +395,16 @@ def figures_text(rec: dict[str, Any]) -> str:
                     f"halves' {key} {ok} within 2σ (diff {h[f'{key}_diff_ms']:+.2f} ms, "
                     f"2σ {2 * h[f'{key}_diff_sigma_ms']:.2f} ms)"
                 )
+    rd = rec.get("readout_direction")
+    if rd:
+        parts.append(
+            "readout "
+            + ("top to bottom" if rd["top_to_bottom"] else "direction NOT decided")
+            + f" (frames turned 180°: {rd['turned_outcome']}, readout "
+            f"{_f(rd['turned_readout_ms'], '.2f')} ms, hold-out median "
+            f"{_f(rd['turned_holdout_median_px'], '.3f')} px against "
+            f"{_f(rd['upright_holdout_median_px'], '.3f')} upright)"
+        )
     parts.append(f"{rec['wall_s']:.1f} s")
     return "; ".join(parts)
 
