@@ -159,6 +159,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
     )
     if is_natural(args):
         return run_natural(args, _print_table)
+    if args.mask:
+        from calib.errors import CalibError
+
+        raise CalibError("--mask applies to natural-scene sessions (feature tracks)")
     session, table = load_session_and_streaks(args)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0

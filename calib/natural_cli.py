@@ -32,6 +32,14 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
         "coordinate explains",
     )
     p.add_argument(
+        "--mask",
+        action="append",
+        default=[],
+        metavar="X0,Y0,X1,Y1",
+        help="natural scenes: leave out the tracks in this rectangle (px; repeatable), a part "
+        "of the image that is not the static scene (a dashboard, a window's reflection)",
+    )
+    p.add_argument(
         "--gyro-scale-prior",
         # spelled out as --translation's (calib.natural_scale.SCALE_PRIORS; a test checks)
         choices=("map", "consider"),
@@ -40,6 +48,28 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
         "without scale: map (default): its six entries fitted under a 0.3 %% Gaussian prior, "
         "sigma the posterior's; consider: left at the identity, its spread added to the sigma",
     )
+
+
+def parse_mask(
+    given: list[str], resolution: tuple[int, int]
+) -> tuple[tuple[float, float, float, float], ...]:
+    """``--mask X0,Y0,X1,Y1`` options as rectangles; one that is malformed, outside the
+    ``(width, height)`` image or covering all of it is refused (:class:`CalibError`)."""
+    from calib.errors import CalibError
+
+    w, h = resolution
+    out = []
+    for text in given:
+        try:
+            x0, y0, x1, y1 = (float(v) for v in text.split(","))
+        except ValueError:
+            raise CalibError(f"--mask must be X0,Y0,X1,Y1 in px, got {text!r}") from None
+        if not (x1 > x0 and y1 > y0 and x0 < w and y0 < h and x1 > 0 and y1 > 0):
+            raise CalibError(f"--mask {text} is empty or outside the {w}x{h} image")
+        if x0 <= 0 and y0 <= 0 and x1 >= w - 1 and y1 >= h - 1:
+            raise CalibError(f"--mask {text} covers the whole {w}x{h} image")
+        out.append((x0, y0, x1, y1))
+    return tuple(out)
 
 
 def is_natural(args: argparse.Namespace) -> bool:
@@ -130,6 +160,7 @@ def run_natural(
     print_table: Callable[[Any, dict, dict | None], None],
 ) -> int:
     """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
+    from blurtrack.features.tracks import TrackParams
     from blurtrack.io.session import load_session
     from calib.cli import truth_values, write_results, write_summary
     from calib.errors import CalibError
@@ -151,13 +182,19 @@ def run_natural(
         shift_window_s=args.shift_window_ms * 1e-3,
         residuals=args.residuals,
     )
+    mask = parse_mask(args.mask, session.meta.camera.resolution)
     nat = calibrate_natural(
-        session, options, translation=args.translation, scale_prior=args.gyro_scale_prior
+        session,
+        options,
+        params=TrackParams(exclude_px=mask),
+        translation=args.translation,
+        scale_prior=args.gyro_scale_prior,
     )
     res = nat.result
     summary = res.to_dict()
     summary.update(nat.summary())
     summary["target"] = "natural"
+    summary["features"]["mask_px"] = [list(r) for r in mask]
     summary["options"] = dataclasses.asdict(options)
     summary["initial"] = named(theta_from(res.initial))
     truth = truth_values(session, res.initial)

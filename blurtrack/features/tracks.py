@@ -54,8 +54,17 @@ class TrackParams:
     #: resolution's corners lost one cy and one rotation target (docs/journal/natural.md,
     #: "Corners at half resolution"), so full resolution stays the default.
     corner_downscale: int = 1
+    #: Rectangles ``(x0, y0, x1, y1)`` (px, the frame's resolution) whose tracks are dropped
+    #: (either end inside): parts of the image that do not show the static scene, e.g. a
+    #: dashboard rigid with the camera (``blurtrack calibrate --mask``).
+    exclude_px: tuple[tuple[float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
+        for r in self.exclude_px:
+            if len(r) != 4 or not all(np.isfinite(r)) or not (r[2] > r[0] and r[3] > r[1]):
+                raise FeatureTrackError(
+                    f"a masked rectangle is x0,y0,x1,y1 with x1 > x0 and y1 > y0, got {r}"
+                )
         if not 8 <= self.max_corners <= 20000:
             raise FeatureTrackError(f"max_corners must be in [8, 20000], got {self.max_corners}")
         if not 0 < self.quality < 1:
@@ -147,8 +156,26 @@ def track_pair(
         a, b, e = _track(small[0], small[1], params)
         # Pixel centres: x_full + 0.5 = (x_small + 0.5) / k.
         back = np.array([1 / ka, 1 / kb])
-        return (a + 0.5) * back - 0.5, (b + 0.5) * back - 0.5, e * float(back.mean())
-    return _track(img_a, img_b, params)
+        a, b, e = (a + 0.5) * back - 0.5, (b + 0.5) * back - 0.5, e * float(back.mean())
+    else:
+        a, b, e = _track(img_a, img_b, params)
+    if not params.exclude_px:
+        return a, b, e
+    keep = ~(in_mask(a, params.exclude_px) | in_mask(b, params.exclude_px))
+    return a[keep], b[keep], e[keep]
+
+
+def in_mask(pts: np.ndarray, rects: tuple[tuple[float, float, float, float], ...]) -> np.ndarray:
+    """``(N,)`` whether each point ``(N, 2)`` (px) lies inside one of the rectangles
+    ``(x0, y0, x1, y1)`` (edges included).
+
+    >>> in_mask(np.array([[5.0, 5.0], [20.0, 5.0]]), ((0, 0, 10, 10),)).tolist()
+    [True, False]
+    """
+    inside = np.zeros(len(pts), bool)
+    for x0, y0, x1, y1 in rects:
+        inside |= (pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)
+    return inside
 
 
 def _track(

@@ -131,3 +131,23 @@ def test_phone_drive_without_a_static_scene_or_its_own_gyro_is_refused(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the common-heading model does not decide either" in err[0]
     assert not out.parent.exists() or not any(out.parent.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("given", "message"),
+    [
+        (["1,2,3"], "must be X0,Y0,X1,Y1"),
+        (["10,10,5,20"], "empty or outside"),
+        (["900,10,950,20"], "empty or outside"),
+        (["-5,-5,900,700"], "covers the whole"),
+    ],
+)
+def test_bad_masks_are_refused(given: list[str], message: str) -> None:
+    from calib.natural_cli import parse_mask
+
+    with pytest.raises(CalibError, match=message):
+        parse_mask(given, (800, 600))
+    assert parse_mask(["0,420,799,599", "700,0,800,50"], (800, 600)) == (
+        (0.0, 420.0, 799.0, 599.0),
+        (700.0, 0.0, 800.0, 50.0),
+    )

@@ -95,3 +95,23 @@ def test_to_gray8_and_params() -> None:
         TrackParams(window_px=20)
     with pytest.raises(FeatureTrackError, match="differ in size"):
         track_pair(_texture(0), _texture(0, (90, 160)))
+
+
+@pytest.mark.parametrize("max_side", [1280, 200])  # at full resolution and downscaled
+def test_masked_rectangles_lose_their_tracks_and_nothing_else(max_side: int) -> None:
+    a = _texture(3)
+    b = _shifted(a, 2.0, 1.0)
+    full = track_pair(a, b, TrackParams(max_side_px=max_side))
+    rect = (0.0, 100.0, 319.0, 179.0)  # the bottom rows, as a dashboard
+    pa, pb, fb = track_pair(a, b, TrackParams(max_side_px=max_side, exclude_px=(rect,)))
+    hit = (full[0][:, 1] >= 100) | (full[1][:, 1] >= 100)
+    assert 0 < len(pa) == np.count_nonzero(~hit) < len(full[0])  # a negative control: some hit
+    np.testing.assert_array_equal(pa, full[0][~hit])
+    np.testing.assert_array_equal(pb, full[1][~hit])
+    np.testing.assert_array_equal(fb, full[2][~hit])
+
+
+@pytest.mark.parametrize("rect", [(10, 10, 5, 20), (0, 0, 10, float("nan")), (1, 2, 3)])
+def test_malformed_mask_rectangles_are_refused(rect: tuple) -> None:
+    with pytest.raises(FeatureTrackError, match="masked rectangle"):
+        TrackParams(exclude_px=(rect,))
