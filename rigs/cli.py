@@ -193,9 +193,12 @@ def run_record(args: argparse.Namespace) -> int:
     if result.imu_stats:
         st = result.imu_stats
         print(
-            f"IMU link: {st['crc_errors']} CRC errors, {st['dropped']} samples dropped in "
-            f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
-            f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps"
+            f"IMU link: {st['received']} samples received = {st['kept']} kept + "
+            f"{st['duplicates']} duplicates + {st['bad_counter']} bad counters + "
+            f"{st['time_jumps_back']} time jumps back; {st['crc_errors']} CRC errors, "
+            f"{st['dropped']} samples dropped in {st['gaps']} gaps, {st['resyncs']} resyncs "
+            f"({st['skipped_bytes']} bytes skipped), {st['counter_wraps']} counter wraps, "
+            f"{st['time_wraps']} clock wraps"
         )
     if imu is not None and s.imu_samples == 0 and result.error is None:
         raise RigError(

@@ -91,7 +91,7 @@ def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, n
         return np.zeros(0, np.int64), np.zeros(0, bool)
     dev_ns = scan.imu_t_dev_us * 1000
     keep = np.ones(n, bool)
-    keep[1:] = np.diff(scan.imu_t_dev_us) > 0  # the driver already guarantees this
+    keep[1:] = np.diff(scan.imu_t_dev_us) > 0  # rigs.sequence guarantees it for live logs
     if n < 2:
         raise RecorderLogError("the log holds a single IMU sample; cannot map device time")
     min_latency = float(scan.metadata.get("imu_min_latency_s", "0") or 0.0)
