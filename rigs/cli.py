@@ -131,6 +131,8 @@ def run_record(args: argparse.Namespace) -> int:
         raise RigError("give --imu URL, --camera URL or both")
     if not args.camera and not args.no_convert:  # refuse now, not after the whole duration
         raise RigError("a session needs camera frames: give --camera URL (or --no-convert)")
+    if not args.imu and not args.no_convert:
+        raise RigError("a session needs gyro samples: give --imu URL (or --no-convert)")
     out: Path = args.out
     log_path: Path = args.log or out.with_name(out.name + ".mcap")
     options = _options(args)
@@ -236,6 +238,7 @@ def run_record(args: argparse.Namespace) -> int:
 def run_recover(args: argparse.Namespace) -> int:
     from blurtrack.io.guard import check_output
     from rigs.convert import log_to_session
+    from rigs.errors import RigError
     from rigs.recover import recover_log
 
     options = _options(args)
@@ -247,6 +250,10 @@ def run_recover(args: argparse.Namespace) -> int:
     res = recover_log(log, out)
     state = "was complete" if res.was_complete else f"was cut short: {res.damage}"
     print(f"{log} {state}; kept {res.imu_samples} IMU samples and {res.frames} frames in {out}")
+    if args.session is not None and res.imu_samples == 0:  # as record refuses it
+        raise RigError(
+            f"{log} holds no IMU samples; no session written (the recovered log {out} is kept)"
+        )
     if args.session is not None:
         with atomic_dir(args.session) as tmp:  # a full disk leaves no half session behind
             conv = dataclasses.replace(log_to_session(out, tmp, options), folder=args.session)

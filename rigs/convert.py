@@ -146,6 +146,11 @@ def log_to_session(
             "the camera reported no exposure time for some frames; "
             "give the exposure explicitly (--exposure-ms)"
         )
+    if scan.imu_index.size == 0:
+        raise RecorderLogError(
+            f"{log_path} holds no IMU samples; a session needs the gyro "
+            "(keep camera-only logs with --no-convert)"
+        )
     imu_t_ns, keep = _imu_host_times(scan, result)
     image = next(iter_frames(log_path)).image()
     h, w = image.shape[:2]
