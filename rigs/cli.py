@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from blurtrack.io.atomic import atomic_dir, write_text_atomic
+from blurtrack.io.atomic import atomic_dir, write_json_atomic
 
 
 def _floats4(text: str) -> tuple[float, float, float, float]:
@@ -115,7 +115,7 @@ def _check_new_folder(folder: Path) -> None:
 
 
 def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
-    write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
+    write_json_atomic(folder / "summary.json", summary, default=str)
 
 
 def run_record(args: argparse.Namespace) -> int:
