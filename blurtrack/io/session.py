@@ -198,7 +198,7 @@ class SessionWriter:
             bounds.check_exposures(
                 np.array([self._last_frame_ns, ts]),
                 np.array([self._last_exposure_ns, 0]),
-                str(self.folder / "cam0" / "data.csv"),
+                "session being written: cam0/data.csv",
                 self.n_frames + 1,
             )
         img = np.asarray(image)
@@ -239,7 +239,7 @@ class SessionWriter:
             raise SessionError("add_imu: accelerometer columns must be given always or never")
         if t.size == 0:
             return
-        where = str(self.folder / "imu0" / "data.csv")
+        where = "session being written: imu0/data.csv"
         bounds.check_gyro(w, where, self.n_imu + 2)
         if a is not None:
             bounds.check_accel(a, where, self.n_imu + 2)
@@ -272,7 +272,7 @@ class SessionWriter:
                 bounds.check_exposures(
                     np.array([last - self._last_interval_ns, last]),
                     np.array([0, self._last_exposure_ns]),
-                    str(self.folder / "cam0" / "data.csv"),
+                    "session being written: cam0/data.csv",
                     self.n_frames,
                 )
         finally:
