@@ -151,3 +151,15 @@ def test_an_importer_refuses_an_absurd_gyro_rate(
     assert rc == 2 and len(err.strip().splitlines()) == 1 and "100 rad/s" in err, err
     assert not (tmp_path / "out").exists() and tree_hashes(src) == before
     assert debris(tmp_path) == []
+
+
+def test_predict_refuses_when_the_gyro_covers_no_frame(
+    env: Path, capsys: pytest.CaptureFixture
+) -> None:
+    imu = env / "S" / "imu0" / "data.csv"
+    lines = imu.read_text().splitlines()
+    imu.write_text("\n".join(lines[:3]) + "\n")  # the gyro ends before the first exposure
+    out = env / "p"
+    args = ["predict", str(env / "S"), "--calib", str(env / "calib.yaml"), "--out", str(out)]
+    err = _refused([*args, "--skip-uncovered"], env, capsys, "covers none of the 3 frames")
+    assert "nan" not in err and not out.exists()
