@@ -35,10 +35,14 @@ COUNTER_TOL_SAMPLES = 0.5
 COUNTER_TOL_NOMINAL = 0.1
 COUNTER_TOL_MEASURED = 0.01
 MEASURED_AFTER = 16
-#: After this many consecutive bad samples that agree with each other, the last kept sample is
-#: taken to be the wrong one (or the device restarted its counter) and the sequencer follows the
-#: new counter, numbering it from the device time.
+#: After this many consecutive bad samples that agree with each other (each 1 to
+#: REANCHOR_MAX_STEP counts after the one before, and later in device time), the last kept sample
+#: is taken to be the wrong one (or the device restarted its counter) and the sequencer follows
+#: the new counter, numbering it from the device time. Where the rate had not been measured yet,
+#: the nominal rate may be what is wrong (``rate=`` mistyped): it is dropped, and counters are
+#: trusted until the rate is measured on the samples kept.
 REANCHOR_AFTER = 4
+REANCHOR_MAX_STEP = 4
 
 
 @dataclass
@@ -97,10 +101,11 @@ class Sequencer:
         self._sum_dt_us = 0  # device time between kept samples, us
         self._filled = 0  # discarded samples since the last kept one that took a counter slot
         self._run: list[tuple[int, int]] = []  # consecutive bad (counter, t_us) that agree
+        self._nominal_ok = True  # False once a re-anchor showed the nominal rate to be wrong
 
     def _estimated_rate(self) -> float | None:
         """Samples per second: the nominal rate, else the median single step (>= 16 seen)."""
-        if self.rate_hz is not None:
+        if self.rate_hz is not None and self._nominal_ok:
             return self.rate_hz
         if len(self._deltas_us) >= 16:
             deltas = sorted(self._deltas_us)
@@ -132,8 +137,8 @@ class Sequencer:
         if self._run:
             c0, t0 = self._run[-1]
             dt = (t_us - t0) % TIME_MODULUS_US
-            _, agrees = self._counter_step((counter - c0) % COUNTER_MODULUS, dt)
-            if not (0 < dt < TIME_MODULUS_US // 2 and agrees):
+            step0 = (counter - c0) % COUNTER_MODULUS
+            if not (0 < dt < TIME_MODULUS_US // 2 and 1 <= step0 <= REANCHOR_MAX_STEP):
                 self._run.clear()
         self._run.append((counter, t_us))
         return len(self._run) >= REANCHOR_AFTER
@@ -175,9 +180,11 @@ class Sequencer:
                 self._filled -= 1
                 st.reanchors += 1
                 reanchored = True
+                if self._check_rate()[1] == COUNTER_TOL_NOMINAL:  # the rate was never measured
+                    self._nominal_ok = False
                 check_rate = self._check_rate()[0]
-                assert check_rate is not None  # a sample is bad only against a known rate
-                step = max(1, round(dt_us * check_rate / 1e6))
+                by_time = round(dt_us * check_rate / 1e6) if check_rate is not None else step0
+                step = max(1, by_time)
         self._run.clear()
         if len(self._deltas_us) < 64 and step == 1:
             self._deltas_us.append(dt_us)

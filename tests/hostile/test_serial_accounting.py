@@ -234,3 +234,26 @@ def test_sequencer_counts_bad_and_missing_samples_exactly(
     assert s.bad_counter == fate.count("b")
     assert s.dropped == fate[:last].count("d")
     assert s.received == s.kept + s.bad_counter + s.duplicates + s.time_jumps_back
+
+
+def test_a_fast_device_with_jittery_stamps_keeps_every_sample() -> None:
+    # 10 kHz with +-1 us stamp jitter and a nominal rate 3 % off; gaps of up to 2000 samples
+    rng = np.random.default_rng(5)
+    ks = np.sort(rng.choice(50_000, 20_000, replace=False))
+    ks = ks[(ks < 10_000) | (ks > 12_000)]
+    seq = Sequencer(rate_hz=10_300.0)
+    t = [100 * int(k) + int(rng.integers(-1, 2)) for k in ks]
+    out = [seq.push(int(k) % 65536, ti % 2**32) for k, ti in zip(ks, t, strict=True)]
+    assert all(o is not None for o in out)
+    assert [o.index for o in out if o is not None] == [int(k) for k in ks]
+    assert seq.stats.dropped == int(ks[-1] - ks[0] + 1 - ks.size)
+
+
+def test_a_wrong_nominal_rate_costs_only_the_first_samples() -> None:
+    seq = Sequencer(rate_hz=100.0)  # mistyped: the device samples at 1 kHz
+    out = [seq.push(k, k * PERIOD_US) for k in range(300)]
+    assert [o.index for o in out if o is not None] == [0, *range(4, 300)]
+    s = seq.stats
+    assert s.bad_counter == 3 and s.reanchors == 1 and s.dropped == 0
+    assert s.received == s.kept + s.bad_counter
+    assert seq.push(40_000, 300 * PERIOD_US) is None  # measured now: garbage is still caught
