@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -50,9 +51,14 @@ def test_duration_stop_keeps_the_imu_past_the_last_frame(
             "0.5",
         ]
     )
-    capsys.readouterr()
+    text = capsys.readouterr().out
     assert rc == 0
+    m = re.search(r"(\d+) samples received = (\d+) kept \+ (\d+) duplicates \+ (\d+) bad", text)
+    assert m is not None, text
+    received, kept, dup, bad = map(int, m.groups())
+    assert received == kept + dup + bad and received > 0  # no time jumps on the virtual board
     s = load_session(out)
+    assert s.imu_t_ns.size == kept == s.meta.extra["recording"]["imu_stats"]["kept"]
     last_end = s.frame_times_s[-1] + s.exposures_s[-1] + s.meta.imu.timeshift_cam_imu
     assert s.imu_times_s[-1] >= last_end + 0.2  # docs/recording.md: the IMU runs 0.3 s on
 
