@@ -16,6 +16,10 @@ class SessionError(BlurTrackError):
     """A session folder is missing, malformed or inconsistent."""
 
 
+class BoundsError(SessionError):
+    """A session value lies outside its physical bound (blurtrack/io/bounds.py)."""
+
+
 class ImportFormatError(BlurTrackError):
     """A third-party recording could not be imported."""
 

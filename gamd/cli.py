@@ -7,13 +7,12 @@ Only this module prints and chooses exit codes; errors from the library
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.guard import add_force_arg, check_output
 
 
@@ -58,9 +57,7 @@ def _train(args: argparse.Namespace) -> int:
             "final_loss_mean10": mean,
             "checkpoint": str(res.checkpoint),
         }
-        write_text_atomic(
-            Path(config.train.out_dir) / "summary.json", json.dumps(summary, indent=2)
-        )
+        write_json_atomic(Path(config.train.out_dir) / "summary.json", summary)
     return 0
 
 
@@ -70,11 +67,20 @@ def _checkpoint(args: argparse.Namespace) -> Path:
     return Path(args.checkpoint) if args.checkpoint else shipped_weights(args.net)
 
 
+def _check_limit(limit: int | None) -> None:
+    """Refuse a ``--limit`` that is not a positive number of images (before any work)."""
+    from gamd.errors import GamdError
+
+    if limit is not None and limit < 1:
+        raise GamdError(f"--limit must be a positive number of images, got {limit}")
+
+
 def _eval(args: argparse.Namespace) -> int:
     from gamd.checkpoint import load_model
     from gamd.data import DeblurDataset
     from gamd.evaluate import evaluate, gain_table, summary_table
 
+    _check_limit(args.limit)
     check_output(args.out, folder=True, force=args.force)
     ckpt = _checkpoint(args)
     model, config, step = load_model(ckpt)
@@ -114,6 +120,7 @@ def _eval(args: argparse.Namespace) -> int:
 def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
+    _check_limit(args.limit)
     check_output(args.out, folder=True, force=args.force)
     s = deblur_session(
         _checkpoint(args),

@@ -14,7 +14,6 @@ from __future__ import annotations
 import csv
 import io
 import itertools
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,8 +23,9 @@ import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from tqdm import tqdm
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic, write_text_atomic
 from gamd.data import DeblurDataset
+from gamd.errors import GamdError
 from gamd.nets import DeblurNet
 from gamd.restorer import RestoreOptions, restore_image
 
@@ -183,6 +183,8 @@ def evaluate(
     Blur lengths for the bins come from the dataset's own heat maps (``length_dataset``'s when
     given: the true ones when ``dataset`` carries perturbed heat maps).
     """
+    if limit is not None and limit < 1:
+        raise GamdError(f"limit must be a positive number of images, got {limit}")
     model.eval()
     rows = []
     count = len(dataset) if limit is None else min(limit, len(dataset))
@@ -231,7 +233,7 @@ def evaluate(
         w.writeheader()
         w.writerows(rows)
         write_text_atomic(out / "per_image.csv", table.getvalue())
-        write_text_atomic(out / "summary.json", json.dumps(result.summary(), indent=2))
+        write_json_atomic(out / "summary.json", result.summary())
     return result
 
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import torch
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.images import write_image
 from gamd.checkpoint import load_model
 from gamd.data import read_heat, to_tensor
@@ -101,6 +101,8 @@ def deblur_session(
     """
     from blurtrack.io.session import load_session
 
+    if limit is not None and limit < 1:
+        raise GamdDataError(f"limit must be a positive number of images, got {limit}")
     model, config, _ = load_model(checkpoint)
     options = config.data.restore_options()
     if ensemble is not None:
@@ -149,7 +151,7 @@ def deblur_session(
         heat_scale_px=config.data.heat_scale_px,
         ensemble=options.ensemble,
     )
-    write_text_atomic(out / "summary.json", summary.to_json())
+    write_json_atomic(out / "summary.json", asdict(summary))
     return summary
 
 

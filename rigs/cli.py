@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from blurtrack.io.atomic import atomic_dir, write_text_atomic
+from blurtrack.io.atomic import atomic_dir, write_json_atomic
 
 
 def _floats4(text: str) -> tuple[float, float, float, float]:
@@ -115,7 +115,7 @@ def _check_new_folder(folder: Path) -> None:
 
 
 def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
-    write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
+    write_json_atomic(folder / "summary.json", summary, default=str)
 
 
 def run_record(args: argparse.Namespace) -> int:
@@ -131,6 +131,8 @@ def run_record(args: argparse.Namespace) -> int:
         raise RigError("give --imu URL, --camera URL or both")
     if not args.camera and not args.no_convert:  # refuse now, not after the whole duration
         raise RigError("a session needs camera frames: give --camera URL (or --no-convert)")
+    if not args.imu and not args.no_convert:
+        raise RigError("a session needs gyro samples: give --imu URL (or --no-convert)")
     out: Path = args.out
     log_path: Path = args.log or out.with_name(out.name + ".mcap")
     options = _options(args)
@@ -193,9 +195,12 @@ def run_record(args: argparse.Namespace) -> int:
     if result.imu_stats:
         st = result.imu_stats
         print(
-            f"IMU link: {st['crc_errors']} CRC errors, {st['dropped']} samples dropped in "
-            f"{st['gaps']} gaps, {st['resyncs']} resyncs ({st['skipped_bytes']} bytes "
-            f"skipped), {st['counter_wraps']} counter wraps, {st['time_wraps']} clock wraps"
+            f"IMU link: {st['received']} samples received = {st['kept']} kept + "
+            f"{st['duplicates']} duplicates + {st['bad_counter']} bad counters + "
+            f"{st['time_jumps_back']} time jumps back; {st['crc_errors']} CRC errors, "
+            f"{st['dropped']} samples dropped in {st['gaps']} gaps, {st['resyncs']} resyncs "
+            f"({st['skipped_bytes']} bytes skipped), {st['counter_wraps']} counter wraps, "
+            f"{st['time_wraps']} clock wraps"
         )
     if imu is not None and s.imu_samples == 0 and result.error is None:
         raise RigError(
@@ -233,6 +238,7 @@ def run_record(args: argparse.Namespace) -> int:
 def run_recover(args: argparse.Namespace) -> int:
     from blurtrack.io.guard import check_output
     from rigs.convert import log_to_session
+    from rigs.errors import RigError
     from rigs.recover import recover_log
 
     options = _options(args)
@@ -244,6 +250,10 @@ def run_recover(args: argparse.Namespace) -> int:
     res = recover_log(log, out)
     state = "was complete" if res.was_complete else f"was cut short: {res.damage}"
     print(f"{log} {state}; kept {res.imu_samples} IMU samples and {res.frames} frames in {out}")
+    if args.session is not None and res.imu_samples == 0:  # as record refuses it
+        raise RigError(
+            f"{log} holds no IMU samples; no session written (the recovered log {out} is kept)"
+        )
     if args.session is not None:
         with atomic_dir(args.session) as tmp:  # a full disk leaves no half session behind
             conv = dataclasses.replace(log_to_session(out, tmp, options), folder=args.session)

@@ -91,7 +91,7 @@ def _imu_host_times(scan: LogScan, result: ConvertResult) -> tuple[np.ndarray, n
         return np.zeros(0, np.int64), np.zeros(0, bool)
     dev_ns = scan.imu_t_dev_us * 1000
     keep = np.ones(n, bool)
-    keep[1:] = np.diff(scan.imu_t_dev_us) > 0  # the driver already guarantees this
+    keep[1:] = np.diff(scan.imu_t_dev_us) > 0  # rigs.sequence guarantees it for live logs
     if n < 2:
         raise RecorderLogError("the log holds a single IMU sample; cannot map device time")
     min_latency = float(scan.metadata.get("imu_min_latency_s", "0") or 0.0)
@@ -145,6 +145,11 @@ def log_to_session(
         raise RecorderLogError(
             "the camera reported no exposure time for some frames; "
             "give the exposure explicitly (--exposure-ms)"
+        )
+    if scan.imu_index.size == 0:
+        raise RecorderLogError(
+            f"{log_path} holds no IMU samples; a session needs the gyro "
+            "(keep camera-only logs with --no-convert)"
         )
     imu_t_ns, keep = _imu_host_times(scan, result)
     image = next(iter_frames(log_path)).image()

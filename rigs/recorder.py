@@ -72,6 +72,7 @@ class RecorderStatus:
     fps: float = 0.0
     imu_crc_errors: int = 0
     imu_dropped: int = 0
+    imu_discarded: int = 0  # duplicates, bad counters and time jumps back (see rigs.sequence)
     imu_resyncs: int = 0
     camera_dropped: int = 0
     flushed_imu_samples: int = 0
@@ -81,7 +82,8 @@ class RecorderStatus:
     def line(self) -> str:
         return (
             f"{self.elapsed_s:7.1f} s  imu {self.imu_samples} ({self.imu_rate_hz:.0f} Hz, "
-            f"dropped {self.imu_dropped}, crc {self.imu_crc_errors}, resync "
+            f"dropped {self.imu_dropped}, discarded {self.imu_discarded}, crc "
+            f"{self.imu_crc_errors}, resync "
             f"{self.imu_resyncs})  cam {self.frames} ({self.fps:.1f} fps, dropped "
             f"{self.camera_dropped})  flushed imu {self.flushed_imu_samples} frames "
             f"{self.flushed_frames}  {self.log_bytes / 1e6:.1f} MB"
@@ -218,6 +220,7 @@ class Recorder:
                 st["dropped"],
                 st["resyncs"],
             )
+            s.imu_discarded = st["received"] - st["kept"]
         if self.camera is not None:
             s.camera_dropped = int(self.camera.frames_dropped)
         s.flushed_imu_samples, s.flushed_frames = flushed["imu"], flushed["frames"]

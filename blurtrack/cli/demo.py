@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 
 if TYPE_CHECKING:
     pass
@@ -284,7 +284,7 @@ def demo_deblur(
         config.data.heat_scale_px,
     )
     summary = {**summary, "steps": 0, "checkpoint": str(ckpt), "weights_step": step}
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    write_json_atomic(out / "summary.json", summary)
     return summary
 
 
@@ -333,5 +333,5 @@ def demo_train(
         config.data.heat_scale_px,
     )
     summary = {**summary, "steps": steps, "checkpoint": str(res.checkpoint)}
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    write_json_atomic(out / "summary.json", summary)
     return summary

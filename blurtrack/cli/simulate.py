@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from blurtrack.cli.progress import Progress, add_quiet_arg
 from blurtrack.errors import BlurTrackError
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -132,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         summary = dict(
             write_session(rig, tmp, progress=bar, workers=args.workers), session=str(out)
         )
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(out / "summary.json", summary)
     t = summary["true"]
     print(f"simulated {summary['frames']} frames ({preset.name}, seed {args.seed}) into {out}")
     print(

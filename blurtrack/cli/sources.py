@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -54,7 +53,7 @@ def load_session_and_streaks(args: argparse.Namespace) -> tuple[Any, Any]:
 def _detect_first(session: Any, path: Path, quiet: bool) -> Any:
     """Run ``blurtrack detect`` (default parameters) into the session's ``streaks.parquet``."""
     from blurtrack.cli.detect import detect_summary_path, detect_to_table
-    from blurtrack.io.yamlio import write_text_atomic
+    from blurtrack.io.atomic import write_json_atomic
 
     print(
         f"no streak table at {path}: detecting the streaks first "
@@ -63,7 +62,7 @@ def _detect_first(session: Any, path: Path, quiet: bool) -> Any:
     )
     result = detect_to_table(session, path, quiet=quiet)
     summary = dict(result.summary, session=str(session.folder), table=str(path))
-    write_text_atomic(detect_summary_path(path, session.folder), json.dumps(summary, indent=2))
+    write_json_atomic(detect_summary_path(path, session.folder), summary)
     print(
         f"detect: {result.summary['streaks']} streaks in {result.summary['frames']} frames "
         f"-> {path}"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any, cast
 
@@ -202,7 +201,7 @@ def spec_from_args(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from blurtrack.errors import SynthesisError
-    from blurtrack.io.yamlio import write_text_atomic
+    from blurtrack.io.atomic import write_json_atomic
     from blurtrack.synth.dataset import build, parse_shard
 
     if args.workers < 1:
@@ -241,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
         **result.to_dict(),
     }
     name = "summary.json" if shard[1] == 1 else f"summary-shard{shard[0]}.json"
-    write_text_atomic(Path(args.out) / name, json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(Path(args.out) / name, summary)
     rate = summary["triplets_per_s"]
     print(
         f"synth: {result.made} made, {result.skipped} already done, of {result.planned} in "
@@ -264,11 +263,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_merge(args: argparse.Namespace) -> int:
-    from blurtrack.io.yamlio import write_text_atomic
+    from blurtrack.io.atomic import write_json_atomic
     from blurtrack.synth.merge import merge
 
     summary = {"command": "synth-merge", **merge(args.dataset, args.shards, args.allow_missing)}
-    write_text_atomic(Path(args.dataset) / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(Path(args.dataset) / "summary.json", summary)
     print(
         f"synth-merge: {summary['triplets']} of {summary['count']} triplets in "
         f"{args.dataset}"

@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
 from blurtrack.errors import DetectionError
+from blurtrack.workers import worker_initializer
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -80,7 +81,8 @@ def fork_map(
     _WORKER_STATE["fn"] = fn
     try:
         ctx = mp.get_context("fork")
-        with ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_start) as pool:
+        init = worker_initializer(_worker_start)  # workers end when this process dies
+        with ProcessPoolExecutor(n, mp_context=ctx, initializer=init) as pool:
             results = pool.map(_call, items, chunksize=chunk)  # submits every item (forks)
             if meanwhile is not None:
                 meanwhile()

@@ -9,7 +9,8 @@ Layout (EuRoC/ASL style)::
     session/truth.yaml                   simulated sessions only
 
 The writer appends and flushes as it goes, so whatever it wrote before a crash stays readable.
-The reader refuses malformed input with one-line :class:`~blurtrack.errors.SessionError` messages.
+The reader refuses malformed input with one-line :class:`~blurtrack.errors.SessionError` messages;
+writer and reader both refuse values outside the physical bounds of :mod:`blurtrack.io.bounds`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import pandas as pd
 
 from blurtrack.errors import BlurTrackError, ConfigError, SessionError
 from blurtrack.geometry.camera import Camera
-from blurtrack.io import atomic, images
+from blurtrack.io import atomic, bounds, images
 from blurtrack.io.csvtable import check_strictly_increasing, numeric_column, read_csv_table
 from blurtrack.io.yamlio import read_yaml, write_yaml
 
@@ -172,6 +173,8 @@ class SessionWriter:
         self._imu: io.TextIOWrapper | None = None
         self._imu_accel: bool | None = None
         self._last_frame_ns: int | None = None
+        self._last_exposure_ns = 0
+        self._last_interval_ns: int | None = None
         self._last_imu_ns: int | None = None
         self.n_frames = 0
         self.n_imu = 0
@@ -179,8 +182,8 @@ class SessionWriter:
     def __enter__(self) -> SessionWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        self.close(check_last=exc_type is None)
 
     def add_frame(self, timestamp_ns: int, image: np.ndarray, exposure_ns: int) -> None:
         """Write ``cam0/data/<timestamp>.png`` (atomically) and its CSV row."""
@@ -191,6 +194,13 @@ class SessionWriter:
             )
         if int(exposure_ns) <= 0:
             raise SessionError(f"frame {ts}: exposure must be positive, got {exposure_ns} ns")
+        if self._last_frame_ns is not None:  # the previous frame's exposure vs its interval
+            bounds.check_exposures(
+                np.array([self._last_frame_ns, ts]),
+                np.array([self._last_exposure_ns, 0]),
+                "session being written: cam0/data.csv",
+                self.n_frames + 1,
+            )
         img = np.asarray(image)
         if img.dtype not in (np.uint8, np.uint16) or img.ndim not in (2, 3):
             raise SessionError(
@@ -204,7 +214,10 @@ class SessionWriter:
         atomic.write_bytes_atomic(path, buf.tobytes())
         self._cam.write(f"{ts},{name},{int(exposure_ns)}\n")
         self._cam.flush()
+        if self._last_frame_ns is not None:
+            self._last_interval_ns = ts - self._last_frame_ns
         self._last_frame_ns = ts
+        self._last_exposure_ns = int(exposure_ns)
         self.n_frames += 1
 
     def add_imu(
@@ -226,6 +239,10 @@ class SessionWriter:
             raise SessionError("add_imu: accelerometer columns must be given always or never")
         if t.size == 0:
             return
+        where = "session being written: imu0/data.csv"
+        bounds.check_gyro(w, where, self.n_imu + 2)
+        if a is not None:
+            bounds.check_accel(a, where, self.n_imu + 2)
         prev = self._last_imu_ns
         if np.any(np.diff(t) <= 0) or (prev is not None and t[0] <= prev):
             raise SessionError("add_imu: IMU timestamps must be strictly increasing")
@@ -244,12 +261,24 @@ class SessionWriter:
     def write_truth(self, truth: dict[str, Any]) -> None:
         write_yaml(self.folder / "truth.yaml", truth)
 
-    def close(self) -> None:
-        if self._imu is None:  # a session always has an imu0/data.csv, possibly empty
-            self.add_imu(np.zeros(0, np.int64), np.zeros((0, 3)))
-        for f in (self._cam, self._imu):
-            if f is not None and not f.closed:
-                f.close()
+    def close(self, check_last: bool = True) -> None:
+        """Close the tables; ``check_last``: also check the last frame's exposure against the
+        interval before it (:func:`blurtrack.io.bounds.check_exposures`)."""
+        try:
+            if self._imu is None:  # a session always has an imu0/data.csv, possibly empty
+                self.add_imu(np.zeros(0, np.int64), np.zeros((0, 3)))
+            if check_last and self._last_frame_ns is not None and self._last_interval_ns:
+                last = self._last_frame_ns
+                bounds.check_exposures(
+                    np.array([last - self._last_interval_ns, last]),
+                    np.array([0, self._last_exposure_ns]),
+                    "session being written: cam0/data.csv",
+                    self.n_frames,
+                )
+        finally:
+            for f in (self._cam, self._imu):
+                if f is not None and not f.closed:
+                    f.close()
 
 
 @dataclass(frozen=True)
@@ -357,6 +386,8 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
             f"{cam_csv}: exposure must be positive (line {int(np.flatnonzero(exp <= 0)[0]) + 2})"
         )
     names = [str(n) for n in cdf[1]]
+    bounds.check_unique_names(names, str(cam_csv))
+    bounds.check_exposures(ts, exp, str(cam_csv))
     data_dir = root / "cam0" / "data"
     for n in names:
         if not safe_member(data_dir, n).is_file():
@@ -378,6 +409,9 @@ def load_session(folder: str | Path, max_gyro_gap_s: float | None = None) -> Ses
             else np.zeros((0, 3))
         )
     check_strictly_increasing(t_imu, imu_csv)
+    bounds.check_gyro(omega, str(imu_csv))
+    if accel is not None:
+        bounds.check_accel(accel, str(imu_csv))
     session = Session(root, meta, frames, t_imu, omega, accel)
     if max_gyro_gap_s is not None and len(frames) and t_imu.size:
         shift = meta.imu.timeshift_cam_imu

@@ -52,6 +52,7 @@ from blurtrack.synth.store import (
     write_atomic,
 )
 from blurtrack.synth.triplet import TripletParams, draw_triplet
+from blurtrack.workers import worker_initializer
 
 __all__ = ["DatasetSpec", "build", "open_build", "read_manifest"]
 
@@ -402,7 +403,8 @@ def build(
         else:
             ctx = multiprocessing.get_context("spawn")
             init = (spec.to_dict(), str(run.root), run.tag, png_level)
-            with _single_threaded_children(), ctx.Pool(workers, _init_worker, init) as pool:
+            start = worker_initializer(_init_worker, *init)  # workers end when we die
+            with _single_threaded_children(), ctx.Pool(workers, start) as pool:
                 for rec in pool.imap_unordered(_work, run.todo):
                     run.record(rec)
     return run.result()

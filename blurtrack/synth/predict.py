@@ -86,6 +86,10 @@ def predict_session(
     if len(frames) == 0:
         raise SynthesisError(f"session {session.folder} has no frames")
     bad = uncovered_frames(session, model)
+    if len(bad) == len(frames):  # --skip-uncovered would write nothing and score NaN
+        raise CoverageError(
+            f"the gyro covers none of the {len(frames)} frames' exposures; nothing to predict"
+        )
     if bad and not skip_uncovered:
         shown = ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else "")
         raise CoverageError(

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from blurtrack.io.session import SessionWriter, load_session
+from blurtrack.workers import worker_initializer
 from rigs.sim.errors import SimError
 from rigs.sim.rig import SimRig
 from rigs.sim.truthio import write_truth
@@ -50,9 +51,8 @@ def rendered_frames(rig: SimRig, workers: int = 1) -> Generator[np.ndarray, None
         return
     chunks = [times[i : i + CHUNK_FRAMES] for i in range(0, len(times), CHUNK_FRAMES)]
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        int(workers), mp_context=ctx, initializer=_init_worker, initargs=(rig,)
-    ) as pool:
+    start = worker_initializer(_init_worker, rig)  # workers end when this process dies
+    with ProcessPoolExecutor(int(workers), mp_context=ctx, initializer=start) as pool:
         window = 2 * int(workers)  # chunks in flight: bounds the frames held in memory
         pending: list[Future[list[np.ndarray]]] = [
             pool.submit(_render_chunk, c) for c in chunks[:window]

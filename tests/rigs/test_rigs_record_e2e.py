@@ -178,11 +178,13 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path) -> None:
 def test_record_refuses_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("x")
+    full = str(tmp_path / "full")
     cases = [
         (["record", "--out", str(tmp_path / "a")], "give --imu"),
         (["record", "--imu", "sim://imu", "--out", str(tmp_path / "c")], "needs camera frames"),
+        (["record", "--camera", "sim://camera", "--out", str(tmp_path / "d")], "needs gyro"),
         (
-            ["record", "--camera", "sim://camera", "--out", str(tmp_path / "full")],
+            ["record", "--imu", "sim://imu", "--camera", "sim://camera", "--out", full],
             "not empty",
         ),
         (
