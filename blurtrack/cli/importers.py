@@ -4,11 +4,10 @@ recordings to sessions (docs/interop.md)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
-from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.atomic import write_json_atomic
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -199,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
         if not axes_known:
             for path in summary["overlays"]["written"]:
                 label_image(Path(path), GUESS_LABEL)
-    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2))
+    write_json_atomic(args.out / "summary.json", summary)
     print(
         f"imported {summary['frames']} frames and {summary['gyro_samples']} gyro samples "
         f"from {args.src} into {args.out}"
