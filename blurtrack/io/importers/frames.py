@@ -228,12 +228,11 @@ def frame_times(path: Path, files: list[Path]) -> tuple[list[tuple[Path, Decimal
 
 
 def _unit(values: list[Decimal], given: str | None, span: tuple[float, float], what: str) -> str:
-    """The time unit of ``values`` (raw): ``given``, or the one that puts their median
-    positive step in ``span`` seconds."""
-    if given is not None:
-        if given not in TIME_UNITS:
-            raise ImportFormatError(f"time unit must be one of {list(TIME_UNITS)}, got {given!r}")
-        return given
+    """The time unit of ``values`` (raw): the one that puts their median positive step in
+    ``span`` seconds; ``given`` (``--time-unit``) must do so too (a wrong unit makes 30 fps
+    30 000 fps or one frame in 33 s: refused, not imported)."""
+    if given is not None and given not in TIME_UNITS:
+        raise ImportFormatError(f"time unit must be one of {list(TIME_UNITS)}, got {given!r}")
     arr = np.array([float(v) for v in values])
     d = np.abs(np.diff(arr))
     d = d[d > 0]
@@ -241,6 +240,13 @@ def _unit(values: list[Decimal], given: str | None, span: tuple[float, float], w
         raise ImportFormatError(f"{what}: fewer than 2 distinct times")
     step = float(np.median(d))
     fits = [u for u, ns in TIME_UNITS.items() if span[0] <= step * ns * 1e-9 < span[1]]
+    if given is not None:
+        if given not in fits:
+            raise ImportFormatError(
+                f"{what}: with --time-unit {given} the median step is "
+                f"{step * TIME_UNITS[given] * 1e-9:g} s, outside [{span[0]:g}, {span[1]:g}) s"
+            )
+        return given
     if len(fits) != 1:
         raise ImportFormatError(
             f"{what}: a median step of {step:g} fits no time unit with a step in "

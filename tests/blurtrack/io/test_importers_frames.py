@@ -116,6 +116,7 @@ def test_time_filename_rows(tmp_path: Path) -> None:
         ("decreasing", "do not increase"),
         ("bad_number", "is not a number"),
         ("no_exposure", "--exposure-ms"),
+        ("wrong_unit", "with --time-unit ms the median step is 3.333"),
     ],
 )
 def test_bad_layouts_are_refused_with_the_reason(tmp_path: Path, change: str, message: str) -> None:
@@ -138,6 +139,8 @@ def test_bad_layouts_are_refused_with_the_reason(tmp_path: Path, change: str, me
         (src / "frame_times.txt").write_text("0.1\n0.2x\n")
     elif change == "no_exposure":
         kwargs = {}
+    elif change == "wrong_unit":  # the frame times are seconds
+        kwargs["time_unit"] = "ms"
     with pytest.raises(ImportFormatError, match=message):
         import_frames(src, tmp_path / "out", **kwargs)
     assert not (tmp_path / "out" / "session.yaml").exists()
