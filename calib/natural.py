@@ -10,8 +10,9 @@ residual of :mod:`calib.tracks`, written as a pseudo-streak (``start = p``, ``en
 search, exact CasADi Jacobian, robust LM with outlier rejection, cluster-robust σ and frame
 hold-out as laser tracks.
 
-Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping (:mod:`calib.axes`);
-the fit starts from the winner and fits the gyro scale under a prior (:mod:`calib.natural_scale`).
+Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping
+(:mod:`calib.axes.search`); the fit starts from the winner and fits the gyro scale under a
+prior (:mod:`calib.natural_scale`).
 
 Lucas–Kanade between differently blurred frames is pulled along the difference of the blurs:
 tracks are refined on equally blurred patches (:mod:`calib.natural_blur`, each end convolved
@@ -31,15 +32,15 @@ import numpy as np
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.calibration import Calibration
-from calib.axes import (
+from calib.axes.search import (
     AxisSearch,
     AxisSearchError,
     ImageRotations,
     check_axes,
+    collect_rotations,
     rotations_from_pairs,
     search_axes,
 )
-from calib.axes_pairs import collect_rotations
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
@@ -193,8 +194,8 @@ def image_rotations(
     tracks: FeatureTracks, frame_t_ns: np.ndarray, exposure_ns: np.ndarray, initial: Calibration
 ) -> ImageRotations:
     """Per-frame-pair rotations measured by the tracks (times relative to the first frame),
-    translation a nuisance where the data need it (:mod:`calib.axes_translation`)."""
-    from calib.axes_translation import fit_rotation_translating as fit
+    translation a nuisance where the data need it (:mod:`calib.axes.translation`)."""
+    from calib.axes.translation import fit_rotation_translating as fit
 
     ts, e = np.asarray(frame_t_ns, np.int64), np.asarray(exposure_ns, np.int64) * 1e-9
     t, cam = (ts - ts[0]) * 1e-9, initial.camera
@@ -218,7 +219,7 @@ def discover_axes(
     time shift).
 
     With ``tracks`` (and their frames' times and exposures), a search the pure-rotation model
-    does not decide is made again with the common-heading model (:mod:`calib.axes_heading`,
+    does not decide is made again with the common-heading model (:mod:`calib.axes.heading`,
     a camera travelling along one direction: driving); the decision and both models' figures
     are in the returned search's ``decision``."""
     g = relative_gyro(gyro, t0_s)
@@ -253,7 +254,7 @@ def _heading_decides(
     """The common-heading search where the pure-rotation one (``rotation``, refused with
     ``refused``) did not decide; refuses with both models' figures when it does not decide
     either (unless not ``strict``: then the model whose winner explains more)."""
-    from calib.axes_heading import search_axes_heading
+    from calib.axes.heading import search_axes_heading
 
     ts = np.asarray(frame_t_ns, np.int64)
     heading = search_axes_heading(

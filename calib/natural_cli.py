@@ -1,5 +1,5 @@
 """The natural-scene and axis-search parts of ``blurtrack calibrate`` (CLI layer of
-:mod:`calib.natural` and :mod:`calib.axes`; registered through :mod:`calib.cli`)."""
+:mod:`calib.natural` and :mod:`calib.axes.search`; registered through :mod:`calib.cli`)."""
 
 from __future__ import annotations
 
@@ -82,8 +82,8 @@ def laser_axes(
             file=sys.stderr,
         )
         return None, initial
-    from calib.axes import check_axes
-    from calib.axes_laser import search_axes_laser
+    from calib.axes.laser import search_axes_laser
+    from calib.axes.search import check_axes
     from calib.data import relative_gyro
     from calib.tracks import mean_rows
 
@@ -204,7 +204,7 @@ def partial_path(out: Path) -> Path:
 
 
 def write_partial(axes: Any, initial: Any, out: Path, reason: str, force: bool) -> str:
-    """Write the axes the images decided (``axes``, an :class:`calib.axes.AxisSearch`) over
+    """Write the axes the images decided (``axes``, an :class:`calib.axes.search.AxisSearch`) over
     ``initial`` (the session's own guesses for the rest) as a calibration file marked
     ``partial`` beside ``out``; returns the sentence for the refusal. An existing file is
     replaced only with ``force``."""

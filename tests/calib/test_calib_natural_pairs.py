@@ -11,8 +11,7 @@ import pytest
 
 from blurtrack.features.tracks import FeatureTrackError, TrackParams, track_frames, tracks_of_pairs
 from blurtrack.io.session import load_session
-from calib.axes import AxisSearchError
-from calib.axes_pairs import collect_rotations
+from calib.axes.search import AxisSearchError, collect_rotations
 from calib.natural import image_rotations
 from calib.natural_pairs import track_and_rotate
 from rigs.sim.natural import NaturalRig

@@ -1,4 +1,4 @@
-"""Axis discovery (calib.axes): the 24 proper permutations, robust rotation fits, the search
+"""Axis discovery (calib.axes.search): the 24 proper permutations, robust rotation fits, the search
 on simulated motion with known truth, and its refusals."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp
-from calib.axes import (
+from calib.axes.search import (
     AxisSearchError,
     ImageRotations,
     check_axes,
