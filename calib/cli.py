@@ -94,7 +94,7 @@ def register(subparsers: Any) -> None:
         "against the images and starts from the winner (refusing an ambiguous one); session "
         "keeps session.yaml's T_cam_imu",
     )
-    from calib.natural_cli import add_natural_args
+    from calib.natural.cli import add_natural_args
 
     add_natural_args(p)
     p.set_defaults(func=run_calibrate)
@@ -138,7 +138,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.fit import FitOptions, calibrate, check_fit_inputs
-    from calib.natural_cli import is_natural, laser_axes, run_natural
+    from calib.natural.cli import is_natural, laser_axes, run_natural
     from calib.params import theta_from
     from calib.result import named
 

@@ -24,7 +24,7 @@ One frame pair's image rotation is measured at a time (:func:`pair_rotation`) an
 :class:`ImageRotations` are gathered from them (:func:`collect_rotations`).
 :func:`rotations_from_pairs` measures the pairs of a finished track set with these; a natural
 calibration measures each pair on the tracking thread that has just tracked it
-(:mod:`calib.natural_pairs`), so the rotations cost no time of their own. A pair's rotation
+(:mod:`calib.natural.pairs`), so the rotations cost no time of their own. A pair's rotation
 depends only on its own matches (its RANSAC seed is its frame index), so both give the same
 values.
 """
@@ -263,7 +263,7 @@ class AxisSearch:
     n_pairs: int
     source: str
     #: How the axes were decided when more than one motion model was consulted
-    #: (:func:`calib.natural.discover_axes`): the model used and each model's figures.
+    #: (:func:`calib.natural.pipeline.discover_axes`): the model used and each model's figures.
     decision: dict | None = None
 
     def __post_init__(self) -> None:

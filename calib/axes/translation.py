@@ -28,7 +28,7 @@ directions up to 70° off the direction of travel). Fixing the focus of expansio
 principal point removes that freedom; a heading ``Δe`` px off the optical axis biases a pair's
 rotation by about ``s · Δe`` px (0.0125 · 100 px = 1.25 px on that drive), small beside the
 rotations the search scores. The continuous fit models the translation properly afterwards
-(:mod:`calib.natural_motion`). Either way the images alone measure the rotation: a wrong gyro
+(:mod:`calib.natural.motion`). Either way the images alone measure the rotation: a wrong gyro
 still predicts it badly and is refused by :func:`calib.axes.search.check_axes`.
 """
 

@@ -12,10 +12,10 @@ hold-out as laser tracks.
 
 Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping
 (:mod:`calib.axes.search`); the fit starts from the winner and fits the gyro scale under a
-prior (:mod:`calib.natural_scale`).
+prior (:mod:`calib.natural.scale`).
 
 Lucas–Kanade between differently blurred frames is pulled along the difference of the blurs:
-tracks are refined on equally blurred patches (:mod:`calib.natural_blur`, each end convolved
+tracks are refined on equally blurred patches (:mod:`calib.natural.blur`, each end convolved
 with the other end's kernel from the same blur model), making them mid-exposure positions; this
 is repeated with the fitted calibration's kernels and the fit redone (:data:`EQUAL_BLUR_PASSES`).
 """
@@ -44,9 +44,9 @@ from calib.axes.search import (
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
-from calib.natural_blur import corrected_tracks, equal_blur_tracks, subset_tracks
-from calib.natural_pairs import track_and_rotate
-from calib.natural_scale import DEFAULT_SCALE_PRIOR, check_scale_prior, natural_sigma_fit
+from calib.natural.blur import corrected_tracks, equal_blur_tracks, subset_tracks
+from calib.natural.pairs import track_and_rotate
+from calib.natural.scale import DEFAULT_SCALE_PRIOR, check_scale_prior, natural_sigma_fit
 from calib.result import CalibResult
 
 #: Fewest feature tracks and frame pairs a natural calibration starts from.
@@ -296,11 +296,11 @@ class NaturalResult:
     axes: AxisSearch
     tracks: FeatureTracks
     streaks: StreakSet
-    #: The translation model used and why (:mod:`calib.natural_motion`).
+    #: The translation model used and why (:mod:`calib.natural.motion`).
     translation: dict[str, Any] | None = None
     #: The rotation-only fit, when the per-pair translation fit replaced it.
     rotation_only: CalibResult | None = None
-    #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural_scale`).
+    #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural.scale`).
     sigma: dict[str, Any] | None = None
     #: Tracks found by tracking, before the fit's thinning and equal-blur refinement
     #: (``tracks`` holds those the fit used); 0 where not known.
@@ -336,12 +336,12 @@ def calibrate_natural(
     """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``).
 
     ``translation``: ``none`` (pure rotation), ``per-pair`` (an epipole per frame pair as a
-    nuisance, :mod:`calib.natural_motion`) or ``auto`` (per-pair when the rotation-only
-    fit leaves parallax, :func:`calib.natural_motion.prefers_translation`). ``strict_axes``
+    nuisance, :mod:`calib.natural.motion`) or ``auto`` (per-pair when the rotation-only
+    fit leaves parallax, :func:`calib.natural.motion.prefers_translation`). ``strict_axes``
     off: fit from an undecided axis search's winner (diagnostics that write nothing).
-    ``scale_prior``: the unfitted gyro scale's treatment (:mod:`calib.natural_scale`).
+    ``scale_prior``: the unfitted gyro scale's treatment (:mod:`calib.natural.scale`).
     """
-    from calib.natural_motion import TRANSLATIONS
+    from calib.natural.motion import TRANSLATIONS
 
     if translation not in TRANSLATIONS:
         raise CalibError(f"translation must be one of {TRANSLATIONS}, got {translation!r}")
@@ -401,7 +401,7 @@ def calibrate_natural(
         res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"}, n_tracked=n_tracked
     )
     if translation != "none":
-        from calib.natural_motion import with_translation
+        from calib.natural.motion import with_translation
 
         moved = with_translation(
             thinned_result(nat, MAX_TRANSLATION_TRACKS), gyro, opts, translation

@@ -1,5 +1,5 @@
 """The natural-scene and axis-search parts of ``blurtrack calibrate`` (CLI layer of
-:mod:`calib.natural` and :mod:`calib.axes.search`; registered through :mod:`calib.cli`)."""
+:mod:`calib.natural.pipeline` and :mod:`calib.axes.search`; registered through :mod:`calib.cli`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from typing import Any
 
 #: --fit default for natural scenes: the gyro scale is not observable from a few hundred
 #: inter-frame rotations of hand shake (it trades with the focal lengths); it is fitted under
-#: a prior instead (--gyro-scale-prior, :mod:`calib.natural_scale`).
+#: a prior instead (--gyro-scale-prior, :mod:`calib.natural.scale`).
 NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
 
 
@@ -20,7 +20,7 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
     """``blurtrack calibrate`` options of natural-scene sessions."""
     p.add_argument(
         "--translation",
-        # Spelled out, not imported from calib.natural_motion (that import costs CasADi at
+        # Spelled out, not imported from calib.natural.motion (that import costs CasADi at
         # parse time); a test checks the two lists agree.
         choices=("none", "auto", "per-pair", "travel"),
         default="auto",
@@ -33,7 +33,7 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--gyro-scale-prior",
-        # spelled out as --translation's (calib.natural_scale.SCALE_PRIORS; a test checks)
+        # spelled out as --translation's (calib.natural.scale.SCALE_PRIORS; a test checks)
         choices=("map", "consider"),
         default="map",
         help="natural scenes with an unknown gyro scale (session.yaml gives none) and --fit "
@@ -134,7 +134,7 @@ def run_natural(
     from calib.cli import truth_values, write_results, write_summary
     from calib.errors import CalibError
     from calib.fit import FitOptions
-    from calib.natural import calibrate_natural
+    from calib.natural.pipeline import calibrate_natural
     from calib.params import DEFAULT_FIT, theta_from
     from calib.result import named
 

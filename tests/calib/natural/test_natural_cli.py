@@ -14,7 +14,7 @@ from blurtrack.errors import ConfigError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.calibration import Calibration
 from calib.errors import CalibError
-from calib.natural_cli import check_determined
+from calib.natural.cli import check_determined
 from calib.uncertainty import UNDETERMINED_FACTOR, WEAK_SIGMA
 
 

@@ -6,7 +6,7 @@ depends only on the pair's own tracks. Measured inside :func:`blurtrack.features
 work on a pair, its numpy work (which holds the GIL) overlaps the other thread's decoding and
 Lucas–Kanade (which do not), instead of running on one core after tracking (0.9 s for 10 s of
 720p). The tracks and rotations are those of :func:`blurtrack.features.tracks.track_frames`
-followed by :func:`calib.natural.image_rotations`.
+followed by :func:`calib.natural.pipeline.image_rotations`.
 """
 
 from __future__ import annotations
