@@ -131,10 +131,11 @@ def run_natural(
 ) -> int:
     """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
     from blurtrack.io.session import load_session
-    from calib.cli import truth_values, write_results, write_summary
+    from calib.cli import truth_values
     from calib.errors import CalibError
     from calib.fit import FitOptions
     from calib.natural.pipeline import calibrate_natural
+    from calib.output import write_results, write_summary
     from calib.params import DEFAULT_FIT, theta_from
     from calib.result import named
 
