@@ -6,7 +6,7 @@ For each kept session of ``bench/bench_natural.py --root DIR --keep`` (``r{seed}
 search, equal-blur passes), then on its final tracks
 
 - ``consider``: that fit (scale at the identity, the consider term in sigma);
-- ``map``: :func:`calib.natural_scale.with_scale_prior` (the default of ``blurtrack calibrate``);
+- ``map``: :func:`calib.natural.scale.with_scale_prior` (the default of ``blurtrack calibrate``);
 - ``known``: :func:`calib.fit.calibrate` from the true scale matrix (a reference only).
 
 Prints JSON: per gyro rate and treatment, the issue 13 target counts, medians and the share
@@ -30,9 +30,9 @@ from natural_common import KEYS, TARGETS
 from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import load_session
 from calib.fit import FitOptions, calibrate
-from calib.natural import calibrate_natural
-from calib.natural_cli import NATURAL_FIT
-from calib.natural_scale import with_scale_prior
+from calib.natural.cli import NATURAL_FIT
+from calib.natural.pipeline import calibrate_natural
+from calib.natural.scale import with_scale_prior
 from calib.params import rotation_error_rad
 
 TREATMENTS = ("consider", "map", "known")

@@ -11,7 +11,7 @@ and the two differ beyond that because ``d`` is measured in the reference frame 
 anchored at ``x`` at the start of exposure.
 
 The calibration: the session's published intrinsics, the camera–IMU axes and time offset
-decided from the images by the axis search (``calib.natural.discover_axes``, as
+decided from the images by the axis search (``calib.natural.pipeline.discover_axes``, as
 ``blurtrack calibrate`` does; the continuous fit is not determined by these 7 frames, see
 docs/natural.md), and the readout DeepGyro publishes for the device (24.4944 ms).
 
@@ -42,7 +42,7 @@ DEEPGYRO_READOUT_S = 0.0244944
 def shield_calibration(session, window_s: float):
     """The session's published intrinsics with axes and time offset from the axis search."""
     from blurtrack.features.tracks import TrackParams, track_frames
-    from calib.natural import discover_axes, image_rotations, tracks_to_streaks
+    from calib.natural.pipeline import discover_axes, image_rotations, tracks_to_streaks
 
     frames = session.frames
     ts = frames["timestamp_ns"].to_numpy(np.int64)

@@ -28,7 +28,7 @@ from deepgyro_blur import evaluate, make_tiles
 from json_out import emit
 
 from blurtrack.io.session import load_session
-from calib.axes import proper_axis_permutations
+from calib.axes.search import proper_axis_permutations
 
 #: Tiles at half resolution: 384 px tiles (192 px) hold blurs up to the 48 px map radius.
 SCALE, SIZE, RADIUS = 0.5, 384, 48

@@ -24,7 +24,7 @@ import numpy as np
 
 from blurtrack.io.session import load_session
 from calib.fit import FitOptions
-from calib.natural import calibrate_natural
+from calib.natural.pipeline import calibrate_natural
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "real" / "marslogger-phone"

@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks, summary_path
+from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks
 from blurtrack.io.guard import add_force_arg, check_output
+from calib.output import write_results, write_summary
 from calib.params import DEFAULT_FIT
 
 #: Display scale and unit of each parameter in the printed table.
@@ -94,7 +95,7 @@ def register(subparsers: Any) -> None:
         "against the images and starts from the winner (refusing an ambiguous one); session "
         "keeps session.yaml's T_cam_imu",
     )
-    from calib.natural_cli import add_natural_args
+    from calib.natural.cli import add_natural_args
 
     add_natural_args(p)
     p.set_defaults(func=run_calibrate)
@@ -138,7 +139,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
     from calib.fit import FitOptions, calibrate, check_fit_inputs
-    from calib.natural_cli import is_natural, laser_axes, run_natural
+    from calib.natural.cli import is_natural, laser_axes, run_natural
     from calib.params import theta_from
     from calib.result import named
 
@@ -200,46 +201,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return write_results(res, out, details)
 
 
-def write_summary(res: Any, summary: dict, out: Path) -> Path:
-    """Write the fit's summary beside ``out``; a failed fit writes ``<stem>.failed.summary.json``
-    and never replaces the summary of the calibration it leaves in place. Returns the path."""
-    from blurtrack.io.atomic import write_json_atomic
-
-    failed = res.status == "failed"
-    details = out.with_name(out.stem + ".failed.summary.json") if failed else summary_path(out)
-    write_json_atomic(details, summary, default=float)  # strict JSON: NaN becomes null
-    return details
-
-
-def write_results(res: Any, out: Path, details: Path) -> int:
-    """Refuse a failed fit (one line naming its summary), else write the calibration and its
-    OpenVINS and camera_info twins."""
-    from calib.errors import CalibError
-    from calib.export import write_camera_info, write_openvins
-
-    if res.status == "failed":
-        raise CalibError(
-            "calibration failed: "
-            + "; ".join(res.warnings)
-            + f" (details in {details}; no calibration written)"
-        )
-    write_calibration(res, out)
-    write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
-    write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
-    print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
-    return 0
-
-
 def _render_progress(p: Any) -> None:
     """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
 
     what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
     print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)
-
-
-def write_calibration(res: Any, path: Path) -> None:
-    """The calibration YAML (a fitted gyro scale is its ``gyro_scale_matrix``)."""
-    res.calibration.to_yaml(path)
 
 
 def cell(value: float, width: int) -> str:

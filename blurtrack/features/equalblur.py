@@ -16,8 +16,8 @@ positions over its exposure *relative to its mid-exposure position* (``o_k``, so
 between the two mid-exposure positions: the refined ``(pts_a, pts_b)`` are mid-exposure
 positions, with no blur-centroid correction to apply.
 
-The kernels come from outside (the gyro-driven blur model, :mod:`calib.natural`); this module
-only filters images. A kernel is locally constant: it is rendered once per track and applied
+The kernels come from outside (the gyro-driven blur model, :mod:`calib.natural.pipeline`); this
+module only filters images. A kernel is locally constant: it is rendered once per track and applied
 to a small patch around each end (``cv2.getRectSubPix``, ``cv2.filter2D``), then a
 single-level Lucas–Kanade refines ``pts_b`` from its first estimate.
 """

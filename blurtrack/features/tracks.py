@@ -10,8 +10,9 @@ corners) and both ends lie inside the image by ``border_px``.
 In a motion-blurred frame a tracked point sits where the blurred patch's light is centred: to
 first order the scene point's position at the middle of its row's exposure. A point at pixel
 ``(x, y)`` of frame ``i`` is therefore dated ``t_i + readout · y / H + exposure_i / 2``
-(DESIGN's rolling-shutter row times); :mod:`calib.natural` builds the inter-frame residual from
-that. Pixels follow DESIGN (``(0, 0)`` is the centre of the top-left pixel), as OpenCV's do.
+(DESIGN's rolling-shutter row times); :mod:`calib.natural.pipeline` builds the inter-frame
+residual from that. Pixels follow DESIGN (``(0, 0)`` is the centre of the top-left pixel), as
+OpenCV's do.
 """
 
 from __future__ import annotations

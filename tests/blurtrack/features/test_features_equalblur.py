@@ -159,7 +159,7 @@ def test_refinement_validates_shapes() -> None:
 
 
 def test_patches_of_several_pairs_refine_as_pair_by_pair(monkeypatch) -> None:
-    """Lucas–Kanade on the concatenated patches of two frame pairs (how calib.natural runs
+    """Lucas–Kanade on the concatenated patches of two frame pairs (how calib.natural.pipeline runs
     it) gives exactly the pair-by-pair refinement; a pair refined with the other pair's
     kernels does not (negative control: the comparison sees the kernels)."""
     sharp = _texture(5)

@@ -1,4 +1,4 @@
-"""Honest 1-sigma of translation fits (:mod:`calib.natural_motion`).
+"""Honest 1-sigma of translation fits (:mod:`calib.natural.motion`).
 
 The translation fit's residuals depend on the calibration parameters ``θ`` *and* on the
 nuisance epipoles / travel directions ``d`` (unit 3-vectors, two degrees of freedom each),
@@ -14,7 +14,7 @@ which the fit re-estimates at every step (variable projection). Its sigma theref
    same texture is tracked under nearly the same blur for several pairs: leave-one-cluster-out
    jackknives (linearised: leaving cluster ``c`` out moves the estimate by
    ``(A − A_c)⁻¹ g_c``) clustered by frame pair and by blocks of
-   :data:`calib.natural_sigma.BLOCK_PAIRS` pairs; the largest of the plain ``s² A⁻¹`` and the
+   :data:`calib.natural.sigma.BLOCK_PAIRS` pairs; the largest of the plain ``s² A⁻¹`` and the
    two is kept. (Rotation-only fits use sandwiches; a driving session is short, 29 pairs or 6
    blocks in 1 s for 14 parameters and nuisances, and a sandwich with that few clusters is
    biased low, of rank at most the number of clusters. The jackknife is not. It is taken about
@@ -24,7 +24,7 @@ which the fit re-estimates at every step (variable projection). Its sigma theref
    outside 3σ.)
 3. **The unfitted gyro scale matrix** as a *consider* covariance ``S P Sᵀ``,
    ``S = −[(JᵀWJ)⁻¹ JᵀW J_s]_θ`` (the nuisances absorb what they can of a scale error), with
-   ``P`` from :data:`calib.natural_sigma.GYRO_SCALE_SIGMA`; a scale matrix given in
+   ``P`` from :data:`calib.natural.sigma.GYRO_SCALE_SIGMA`; a scale matrix given in
    session.yaml counts as known.
 
 Jacobians are forward differences of the fit's own numpy residual (``_Problem.residual``).
@@ -36,11 +36,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from calib.natural_sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES
+from calib.natural.sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES
 from calib.params import LAYOUT, THETA_NAMES
 
 if TYPE_CHECKING:
-    from calib.natural_motion import _Problem
+    from calib.natural.motion import _Problem
 
 #: Forward-difference step of a nuisance direction (unit vector, radians).
 D_STEP = 1e-6

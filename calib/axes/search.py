@@ -19,12 +19,20 @@ coarse-to-fine time-shift search: a wrong mapping cannot be rescued by another o
 :func:`search_axes` scores all 24, :func:`check_axes` refuses (:class:`AxisSearchError`) when
 the images hardly rotate, when no candidate explains them, or when the winner is not clearly
 better than the runner-up.
+
+One frame pair's image rotation is measured at a time (:func:`pair_rotation`) and the
+:class:`ImageRotations` are gathered from them (:func:`collect_rotations`).
+:func:`rotations_from_pairs` measures the pairs of a finished track set with these; a natural
+calibration measures each pair on the tracking thread that has just tracked it
+(:mod:`calib.natural.pairs`), so the rotations cost no time of their own. A pair's rotation
+depends only on its own matches (its RANSAC seed is its frame index), so both give the same
+values.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import cast
 
@@ -159,7 +167,7 @@ class ImageRotations:
         n_points: ``(K,)`` inlier point pairs behind each rotation.
         frame_a: ``(K,)`` index of the earlier frame.
         translating: ``(K,)`` whether the rotation was measured with the camera's translation
-            as a nuisance (:mod:`calib.axes_translation`); all false when ``None``.
+            as a nuisance (:mod:`calib.axes.translation`); all false when ``None``.
     """
 
     t_a_s: np.ndarray
@@ -212,8 +220,6 @@ def rotations_from_pairs(
         pair_fit: ``(a, b, threshold_rad, seed) -> (R, inliers, translating)`` on a pair's
             unit bearings; default :func:`fit_rotation` (pure rotation).
     """
-    from calib.axes_pairs import collect_rotations, pair_rotation
-
     # each pair's matches in their order, without a mask over all matches per pair
     order = np.argsort(pair, kind="stable")
     firsts, starts = np.unique(pair[order], return_index=True)
@@ -257,7 +263,7 @@ class AxisSearch:
     n_pairs: int
     source: str
     #: How the axes were decided when more than one motion model was consulted
-    #: (:func:`calib.natural.discover_axes`): the model used and each model's figures.
+    #: (:func:`calib.natural.pipeline.discover_axes`): the model used and each model's figures.
     decision: dict | None = None
 
     def __post_init__(self) -> None:
@@ -427,3 +433,61 @@ def check_axes(search: AxisSearch) -> None:
             f"and {search.runner_up.score_px:.2f} px (margin {search.margin:.2f}, need "
             f"{MIN_MARGIN:g}); record with rotation about all three axes"
         )
+
+
+#: One frame pair's measured rotation: times of its two frames' points, ``R (3, 3)``, inlier
+#: count, earlier frame, translating (:func:`pair_rotation`).
+PairRotation = tuple[float, float, np.ndarray, int, int, bool]
+
+
+def pair_rotation(
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    f: int,
+    frame_t_s: np.ndarray,
+    exposure_s: np.ndarray,
+    camera: Camera,
+    threshold_px: float = 2.0,
+    pair_fit: PairFit | None = None,
+) -> PairRotation | None:
+    """The rotation of frame pair ``(f, f + 1)`` from its matches ``pts_a, pts_b (M, 2)``
+    (arguments as :func:`rotations_from_pairs`'), ``None`` with fewer than
+    :data:`MIN_POINTS` matches or inliers. Pairs are independent: they may be measured as
+    they are tracked, on any thread, and gathered by :func:`collect_rotations`."""
+    if len(pts_a) < MIN_POINTS:
+        return None
+    fx = camera.intrinsics[0]
+    H = camera.height
+    ba = camera.unproject(pts_a)
+    bb = camera.unproject(pts_b)
+    ba /= np.linalg.norm(ba, axis=1, keepdims=True)
+    bb /= np.linalg.norm(bb, axis=1, keepdims=True)
+    if pair_fit is None:
+        R, inl = fit_rotation(ba, bb, threshold_px / fx, seed=f)
+        moved = False
+    else:
+        R, inl, moved = pair_fit(ba, bb, threshold_px / fx, f)
+    n = int(np.count_nonzero(inl))
+    if n < MIN_POINTS:
+        return None
+    g = f + 1
+    ya = float(np.mean(pts_a[inl, 1]))
+    yb = float(np.mean(pts_b[inl, 1]))
+    ta = frame_t_s[f] + camera.readout_s * ya / H + exposure_s[f] / 2
+    tb = frame_t_s[g] + camera.readout_s * yb / H + exposure_s[g] / 2
+    return ta, tb, R, n, f, bool(moved)
+
+
+def collect_rotations(pairs: Sequence[PairRotation | None]) -> ImageRotations:
+    """:class:`ImageRotations` of the measured pairs (``None``: not measured), in order;
+    :class:`AxisSearchError` for fewer than :data:`MIN_PAIRS`."""
+    got = [p for p in pairs if p is not None]
+    if len(got) < MIN_PAIRS:
+        raise AxisSearchError(
+            f"too few frame pairs with {MIN_POINTS}+ matched points to measure rotations "
+            f"({len(got)}; need {MIN_PAIRS})"
+        )
+    ta, tb, Rs, npts, fa, tr = zip(*got, strict=True)
+    return ImageRotations(
+        np.array(ta), np.array(tb), np.stack(Rs), np.array(npts), np.array(fa), np.array(tr, bool)
+    )

@@ -1,7 +1,7 @@
 """MAP fit of the gyro scale of natural-scene fits: the six scale / cross-axis entries fitted
 under a Gaussian prior, the reported sigma the posterior's.
 
-A natural fit (:func:`calib.natural.calibrate_natural`) leaves the gyro's symmetric scale
+A natural fit (:func:`calib.natural.pipeline.calibrate_natural`) leaves the gyro's symmetric scale
 error ``S`` (:mod:`calib.params`) unfitted: a few hundred inter-frame rotations of hand shake
 determine it only about as well as a factory trim does (``fx`` follows the scale of the gyro
 axis along camera y almost one to one; only the field of view's nonlinearity and roll
@@ -14,7 +14,7 @@ the maximum a posteriori fit
 over every fitted parameter and ``S`` (``s``: the data's per-coordinate residual sigma, held
 fixed, so the prior rows weigh as many pixels as ``σ_k`` is worth; ``S0``: the session's
 guess, the identity) lets the data move ``S`` where they can and holds it at the prior
-otherwise. ``σ_k`` is :data:`calib.natural_sigma.GYRO_SCALE_SIGMA` for a diagonal entry and
+otherwise. ``σ_k`` is :data:`calib.natural.sigma.GYRO_SCALE_SIGMA` for a diagonal entry and
 ``1/√2`` of it off the diagonal (an off-diagonal entry of ``S`` averages two independent
 matrix entries). A scale matrix given in session.yaml counts as known and is not fitted
 (:func:`scale_is_known`); ``--fit ...,scale`` fits it freely (no prior).
@@ -22,8 +22,8 @@ matrix entries). A scale matrix given in session.yaml counts as known and is not
 Sigma: the posterior covariance ``s² H⁻¹`` (``H = A + s² Λ``, ``A = JᵀWJ`` of the data, ``Λ``
 the prior precision) and three sandwiches with the prior's own ``s² Λ`` in the meat, the
 largest per parameter: clustered by frame pair and by blocks of
-:data:`calib.natural_sigma.BLOCK_PAIRS` pairs (:mod:`calib.natural_sigma`), and by scene cell
-(:mod:`calib.natural_scene`: the tracks of one part of the scene over the whole session, whose
+:data:`calib.natural.sigma.BLOCK_PAIRS` pairs (:mod:`calib.natural.sigma`), and by scene cell
+(:mod:`calib.natural.scene`: the tracks of one part of the scene over the whole session, whose
 shared tracking error the other two cannot see). This replaces the consider term (the
 unfitted scale's spread carried into the other parameters): the prior now enters the estimate
 itself. The prior rows enter no residual statistic: train / hold-out errors and the residual
@@ -42,15 +42,15 @@ from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.errors import CalibError
 from calib.fitcore import FINE_DELTA_SIGMAS, FitOptions, _outlier_threshold, _rayleigh_sigma
 from calib.grid import GridEvaluator
-from calib.natural_scene import SCENE_CELL_PX, SCENE_MIN_CELLS, cluster_meat, scene_cells
-from calib.natural_sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES, gyro_scale_known
+from calib.natural.scene import SCENE_CELL_PX, SCENE_MIN_CELLS, cluster_meat, scene_cells
+from calib.natural.sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES, gyro_scale_known
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
 from calib.solve import huber_weights, lm_driver, pseudo_huber
 from calib.uncertainty import MODEL_FLOOR_PX, information
 
 #: How a natural fit treats the unfitted gyro scale: ``map`` (this module) or ``consider``
-#: (left at the session's guess, its spread added to the sigma: :mod:`calib.natural_sigma`).
+#: (left at the session's guess, its spread added to the sigma: :mod:`calib.natural.sigma`).
 SCALE_PRIORS = ("map", "consider")
 DEFAULT_SCALE_PRIOR = "map"
 #: Most Levenberg–Marquardt iterations of one MAP fit (it starts at the data's optimum with
@@ -104,8 +104,8 @@ def map_fit(
 ) -> MapFit:
     """The MAP fit of the module docstring over ``names`` (the scale entries among them get
     the prior, centred on their ``theta0`` values), from ``theta0``. ``scene``: ``(N,)``
-    scene-cell cluster of each streak (:mod:`calib.natural_scene`), a third sandwich where
-    the inliers span at least :data:`calib.natural_scene.SCENE_MIN_CELLS` cells.
+    scene-cell cluster of each streak (:mod:`calib.natural.scene`), a third sandwich where
+    the inliers span at least :data:`calib.natural.scene.SCENE_MIN_CELLS` cells.
 
     The inliers are those within the fit's outlier threshold (:func:`_outlier_threshold`,
     from the errors at ``theta0``); the robust loss is the final stage's pseudo-Huber."""
@@ -272,10 +272,10 @@ def natural_sigma_fit(
 ) -> tuple[CalibResult, dict[str, Any]]:
     """The natural fit's last step: the MAP scale fit (:func:`with_scale_prior`) when
     ``scale_prior`` is ``map`` and the scale is unknown and unfitted; otherwise the fit kept
-    and its sigma widened by :func:`calib.natural_sigma.honest_sigma` (the consider term
+    and its sigma widened by :func:`calib.natural.sigma.honest_sigma` (the consider term
     for an unknown unfitted scale, none for a known or freely fitted one). The calibration's
     sigma block is the returned sigma either way."""
-    from calib.natural_sigma import honest_sigma
+    from calib.natural.sigma import honest_sigma
 
     check_scale_prior(scale_prior)
     fitted = any(n in res.fitted for n in SCALE_NAMES)

@@ -1,4 +1,4 @@
-"""Axis discovery on laser midpoints (calib.axes_laser) with known truth, and refusals; its
+"""Axis discovery on laser midpoints (calib.axes.laser) with known truth, and refusals; its
 orientation table, batched prediction and cell look-up against direct computations."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import pytest
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.geometry.kernels import Mat3, relative_rotation
 from blurtrack.geometry.rotation import so3_exp, so3_log
-from calib.axes import (
+from calib.axes.laser import CellIndex, OrientationTable, carried_px, covered, search_axes_laser
+from calib.axes.search import (
     AxisSearchError,
     check_axes,
     gyro_rotations,
     nearest_axis_permutation,
     proper_axis_permutations,
 )
-from calib.axes_laser import CellIndex, OrientationTable, carried_px, covered, search_axes_laser
 from calib.data import relative_gyro
 from calib.errors import CalibError
 from calib.testing import make_problem

@@ -1,4 +1,4 @@
-"""Camera translation as a nuisance (calib.natural_motion): the epipolar residual is exact for
+"""Camera translation as a nuisance (calib.natural.motion): the epipolar residual is exact for
 a translating camera, the data choose the model, and on a simulated driving session the time
 offset is recovered with it and the calibration is wrong without it (negative control)."""
 
@@ -13,7 +13,7 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.geometry.rotation import so3_exp
-from calib.natural_motion import AUTO_RATIO, epipolar_residual, epipoles, prefers_translation
+from calib.natural.motion import AUTO_RATIO, epipolar_residual, epipoles, prefers_translation
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session
@@ -78,7 +78,7 @@ def test_driving_session_offset_with_the_nuisance_and_not_without(driving, tmp_p
     d = _summary(out)
     assert d["translation"]["mode"] == "travel" and d["translation"]["chosen_by"] == "data"
     assert d["translation"]["ratio"] > AUTO_RATIO
-    # held-out frame pairs predicted by the travel fit (calib.natural_travel)
+    # held-out frame pairs predicted by the travel fit (calib.natural.travel)
     assert d["holdout_all"]["n"] > 0 and d["refitted_on_all_frames"]
     err, tru = d["error_vs_truth"], d["truth"]
     assert abs(err["timeshift_s"]) < 1e-3
@@ -125,8 +125,8 @@ def test_cli_offers_every_translation_model() -> None:
     library's, ``travel`` included."""
     import argparse
 
-    from calib.natural_cli import add_natural_args
-    from calib.natural_motion import TRANSLATIONS
+    from calib.natural.cli import add_natural_args
+    from calib.natural.motion import TRANSLATIONS
 
     p = argparse.ArgumentParser()
     add_natural_args(p)

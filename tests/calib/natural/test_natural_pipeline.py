@@ -107,7 +107,7 @@ def test_no_rotation(tmp_path, capsys, shared_data) -> None:
 
 def test_thinning_spreads_each_pairs_tracks_over_the_image() -> None:
     from blurtrack.features.tracks import FeatureTracks
-    from calib.natural import THIN_GRID, thinned
+    from calib.natural.pipeline import THIN_GRID, thinned
 
     rng = np.random.default_rng(0)
     n_pairs, per_pair = 5, 120
@@ -137,7 +137,7 @@ def test_thinned_result_keeps_each_track_with_its_pseudo_streak() -> None:
     from typing import Any, cast
 
     from blurtrack.features.tracks import FeatureTracks
-    from calib.natural import NaturalResult, thinned, thinned_result, tracks_to_streaks
+    from calib.natural.pipeline import NaturalResult, thinned, thinned_result, tracks_to_streaks
 
     rng = np.random.default_rng(1)
     n_pairs, per_pair = 6, 50

@@ -1,5 +1,5 @@
 """The natural-scene and axis-search parts of ``blurtrack calibrate`` (CLI layer of
-:mod:`calib.natural` and :mod:`calib.axes`; registered through :mod:`calib.cli`)."""
+:mod:`calib.natural.pipeline` and :mod:`calib.axes.search`; registered through :mod:`calib.cli`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from typing import Any
 
 #: --fit default for natural scenes: the gyro scale is not observable from a few hundred
 #: inter-frame rotations of hand shake (it trades with the focal lengths); it is fitted under
-#: a prior instead (--gyro-scale-prior, :mod:`calib.natural_scale`).
+#: a prior instead (--gyro-scale-prior, :mod:`calib.natural.scale`).
 NATURAL_FIT = "timeshift,fx,fy,cx,cy,readout,bias,rotation"
 
 
@@ -20,7 +20,7 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
     """``blurtrack calibrate`` options of natural-scene sessions."""
     p.add_argument(
         "--translation",
-        # Spelled out, not imported from calib.natural_motion (that import costs CasADi at
+        # Spelled out, not imported from calib.natural.motion (that import costs CasADi at
         # parse time); a test checks the two lists agree.
         choices=("none", "auto", "per-pair", "travel"),
         default="auto",
@@ -41,7 +41,7 @@ def add_natural_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--gyro-scale-prior",
-        # spelled out as --translation's (calib.natural_scale.SCALE_PRIORS; a test checks)
+        # spelled out as --translation's (calib.natural.scale.SCALE_PRIORS; a test checks)
         choices=("map", "consider"),
         default="map",
         help="natural scenes with an unknown gyro scale (session.yaml gives none) and --fit "
@@ -112,8 +112,8 @@ def laser_axes(
             file=sys.stderr,
         )
         return None, initial
-    from calib.axes import check_axes
-    from calib.axes_laser import search_axes_laser
+    from calib.axes.laser import search_axes_laser
+    from calib.axes.search import check_axes
     from calib.data import relative_gyro
     from calib.tracks import mean_rows
 
@@ -162,10 +162,11 @@ def run_natural(
     """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
     from blurtrack.features.tracks import TrackParams
     from blurtrack.io.session import load_session
-    from calib.cli import truth_values, write_results, write_summary
+    from calib.cli import truth_values
     from calib.errors import CalibError
     from calib.fit import FitOptions
-    from calib.natural import calibrate_natural
+    from calib.natural.pipeline import calibrate_natural
+    from calib.output import write_results, write_summary
     from calib.params import DEFAULT_FIT, theta_from
     from calib.result import named
 
@@ -241,7 +242,7 @@ def partial_path(out: Path) -> Path:
 
 
 def write_partial(axes: Any, initial: Any, out: Path, reason: str, force: bool) -> str:
-    """Write the axes the images decided (``axes``, an :class:`calib.axes.AxisSearch`) over
+    """Write the axes the images decided (``axes``, an :class:`calib.axes.search.AxisSearch`) over
     ``initial`` (the session's own guesses for the rest) as a calibration file marked
     ``partial`` beside ``out``; returns the sentence for the refusal. An existing file is
     replaced only with ``force``."""

@@ -8,7 +8,7 @@ clustered by frame pair) leaves out two things that natural scenes have:
    patch repeats; a sandwich clustered by blocks of :data:`BLOCK_PAIRS` consecutive pairs
    keeps that correlation (the larger of the two sandwiches is used).
 2. **The gyro's scale and cross-axis matrix**, under ``--gyro-scale-prior consider`` (the
-   default fits it under a prior instead: :mod:`calib.natural_scale`). Left unfitted (it
+   default fits it under a prior instead: :mod:`calib.natural.scale`). Left unfitted (it
    trades with the focal lengths), it is not known: an error ``δs`` of its six entries moves
    the fitted parameters by ``S δs`` with ``S = −(J_fᵀ W J_f)⁻¹ J_fᵀ W J_s`` (Jacobians of
    the same residual at the optimum). The *consider* covariance ``S P Sᵀ`` with

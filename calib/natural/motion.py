@@ -46,7 +46,7 @@ from calib.params import THETA_NAMES, bounded_step
 from calib.problem import ResidualModel
 
 if TYPE_CHECKING:
-    from calib.natural import NaturalResult
+    from calib.natural.pipeline import NaturalResult
 
 #: ``--translation`` choices.
 TRANSLATIONS = ("none", "auto", "per-pair", "travel")
@@ -362,8 +362,8 @@ def with_translation(
     docstring): from both the rotation-only estimate and the axis search's start (the lower
     robust cost wins), with a hold-out of whole frame pairs (each predicted with its own
     refitted translation), the refit on every pair and the sigma of
-    :mod:`calib.natural_motion_sigma`. Track errors are epipolar distances. See
-    :mod:`calib.natural_travel`."""
-    from calib.natural_travel import refit_with_translation
+    :mod:`calib.natural.motion_sigma`. Track errors are epipolar distances. See
+    :mod:`calib.natural.travel`."""
+    from calib.natural.travel import refit_with_translation
 
     return refit_with_translation(nat, gyro, options, mode)

@@ -10,11 +10,12 @@ residual of :mod:`calib.tracks`, written as a pseudo-streak (``start = p``, ``en
 search, exact CasADi Jacobian, robust LM with outlier rejection, cluster-robust σ and frame
 hold-out as laser tracks.
 
-Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping (:mod:`calib.axes`);
-the fit starts from the winner and fits the gyro scale under a prior (:mod:`calib.natural_scale`).
+Before the fit, :func:`discover_axes` decides the camera–IMU axis mapping
+(:mod:`calib.axes.search`); the fit starts from the winner and fits the gyro scale under a
+prior (:mod:`calib.natural.scale`).
 
 Lucas–Kanade between differently blurred frames is pulled along the difference of the blurs:
-tracks are refined on equally blurred patches (:mod:`calib.natural_blur`, each end convolved
+tracks are refined on equally blurred patches (:mod:`calib.natural.blur`, each end convolved
 with the other end's kernel from the same blur model), making them mid-exposure positions; this
 is repeated with the fitted calibration's kernels and the fit redone (:data:`EQUAL_BLUR_PASSES`).
 """
@@ -31,21 +32,21 @@ import numpy as np
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.calibration import Calibration
-from calib.axes import (
+from calib.axes.search import (
     AxisSearch,
     AxisSearchError,
     ImageRotations,
     check_axes,
+    collect_rotations,
     rotations_from_pairs,
     search_axes,
 )
-from calib.axes_pairs import collect_rotations
 from calib.data import StreakSet, relative_gyro
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
-from calib.natural_blur import corrected_tracks, equal_blur_tracks, subset_tracks
-from calib.natural_pairs import track_and_rotate
-from calib.natural_scale import DEFAULT_SCALE_PRIOR, check_scale_prior, natural_sigma_fit
+from calib.natural.blur import corrected_tracks, equal_blur_tracks, subset_tracks
+from calib.natural.pairs import track_and_rotate
+from calib.natural.scale import DEFAULT_SCALE_PRIOR, check_scale_prior, natural_sigma_fit
 from calib.result import CalibResult
 
 #: Fewest feature tracks and frame pairs a natural calibration starts from.
@@ -193,8 +194,8 @@ def image_rotations(
     tracks: FeatureTracks, frame_t_ns: np.ndarray, exposure_ns: np.ndarray, initial: Calibration
 ) -> ImageRotations:
     """Per-frame-pair rotations measured by the tracks (times relative to the first frame),
-    translation a nuisance where the data need it (:mod:`calib.axes_translation`)."""
-    from calib.axes_translation import fit_rotation_translating as fit
+    translation a nuisance where the data need it (:mod:`calib.axes.translation`)."""
+    from calib.axes.translation import fit_rotation_translating as fit
 
     ts, e = np.asarray(frame_t_ns, np.int64), np.asarray(exposure_ns, np.int64) * 1e-9
     t, cam = (ts - ts[0]) * 1e-9, initial.camera
@@ -218,7 +219,7 @@ def discover_axes(
     time shift).
 
     With ``tracks`` (and their frames' times and exposures), a search the pure-rotation model
-    does not decide is made again with the common-heading model (:mod:`calib.axes_heading`,
+    does not decide is made again with the common-heading model (:mod:`calib.axes.heading`,
     a camera travelling along one direction: driving); the decision and both models' figures
     are in the returned search's ``decision``."""
     g = relative_gyro(gyro, t0_s)
@@ -253,7 +254,7 @@ def _heading_decides(
     """The common-heading search where the pure-rotation one (``rotation``, refused with
     ``refused``) did not decide; refuses with both models' figures when it does not decide
     either (unless not ``strict``: then the model whose winner explains more)."""
-    from calib.axes_heading import search_axes_heading
+    from calib.axes.heading import search_axes_heading
 
     ts = np.asarray(frame_t_ns, np.int64)
     heading = search_axes_heading(
@@ -295,11 +296,11 @@ class NaturalResult:
     axes: AxisSearch
     tracks: FeatureTracks
     streaks: StreakSet
-    #: The translation model used and why (:mod:`calib.natural_motion`).
+    #: The translation model used and why (:mod:`calib.natural.motion`).
     translation: dict[str, Any] | None = None
     #: The rotation-only fit, when the per-pair translation fit replaced it.
     rotation_only: CalibResult | None = None
-    #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural_scale`).
+    #: The rotation-only fit's gyro scale and sigma model (:mod:`calib.natural.scale`).
     sigma: dict[str, Any] | None = None
     #: Tracks found by tracking, before the fit's thinning and equal-blur refinement
     #: (``tracks`` holds those the fit used); 0 where not known.
@@ -335,12 +336,12 @@ def calibrate_natural(
     """Track, decide the axes, and fit a natural-scene session (a loaded ``Session``).
 
     ``translation``: ``none`` (pure rotation), ``per-pair`` (an epipole per frame pair as a
-    nuisance, :mod:`calib.natural_motion`) or ``auto`` (per-pair when the rotation-only
-    fit leaves parallax, :func:`calib.natural_motion.prefers_translation`). ``strict_axes``
+    nuisance, :mod:`calib.natural.motion`) or ``auto`` (per-pair when the rotation-only
+    fit leaves parallax, :func:`calib.natural.motion.prefers_translation`). ``strict_axes``
     off: fit from an undecided axis search's winner (diagnostics that write nothing).
-    ``scale_prior``: the unfitted gyro scale's treatment (:mod:`calib.natural_scale`).
+    ``scale_prior``: the unfitted gyro scale's treatment (:mod:`calib.natural.scale`).
     """
-    from calib.natural_motion import TRANSLATIONS
+    from calib.natural.motion import TRANSLATIONS
 
     if translation not in TRANSLATIONS:
         raise CalibError(f"translation must be one of {TRANSLATIONS}, got {translation!r}")
@@ -400,7 +401,7 @@ def calibrate_natural(
         res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"}, n_tracked=n_tracked
     )
     if translation != "none":
-        from calib.natural_motion import with_translation
+        from calib.natural.motion import with_translation
 
         moved = with_translation(
             thinned_result(nat, MAX_TRANSLATION_TRACKS), gyro, opts, translation

@@ -1,6 +1,6 @@
 """A rotation-only natural fit refitted with the camera's translation as a nuisance
-(:func:`calib.natural_motion.with_translation`): the choice of the model, a hold-out of whole
-frame pairs, the refit on every pair and its honest sigma (:mod:`calib.natural_motion_sigma`).
+(:func:`calib.natural.motion.with_translation`): the choice of the model, a hold-out of whole
+frame pairs, the refit on every pair and its honest sigma (:mod:`calib.natural.motion_sigma`).
 
 **Hold-out** (as :func:`calib.fit.calibrate`): the frame pairs of
 :func:`calib.data.holdout_mask` are left out; the translation fit on the others (from both
@@ -24,7 +24,7 @@ from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.fitcore import FitOptions
-from calib.natural_motion import (
+from calib.natural.motion import (
     AUTO_MODEL,
     AUTO_RATIO,
     TranslationFit,
@@ -34,14 +34,14 @@ from calib.natural_motion import (
     mean_squares,
     prefers_translation,
 )
-from calib.natural_motion_sigma import translation_sigma
-from calib.natural_sigma import gyro_scale_known
+from calib.natural.motion_sigma import translation_sigma
+from calib.natural.sigma import gyro_scale_known
 from calib.params import THETA_NAMES, apply_theta, parse_fit, theta_from
 from calib.problem import ResidualModel, choose_substeps
 from calib.result import ErrorStats, named
 
 if TYPE_CHECKING:
-    from calib.natural import NaturalResult
+    from calib.natural.pipeline import NaturalResult
 
 #: Robust re-weighting rounds of a held-out pair's own nuisance translation.
 HOLDOUT_ROUNDS = 3
@@ -112,7 +112,7 @@ def _best(
 def refit_with_translation(
     nat: NaturalResult, gyro: GyroTrace, options: FitOptions, mode: str
 ) -> NaturalResult:
-    """See :func:`calib.natural_motion.with_translation` and the module docstring."""
+    """See :func:`calib.natural.motion.with_translation` and the module docstring."""
     res, streaks = nat.result, nat.streaks
     base = res.initial
     model, centre, f = residual_model(base, streaks, gyro, options)

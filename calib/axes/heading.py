@@ -1,7 +1,7 @@
 """Camera–IMU axes of a translating camera: the gyro's rotation leaves a common heading.
 
-:mod:`calib.axes` scores each candidate by the inter-frame rotations the images measure on
-their own, which assumes a far scene (or, :mod:`calib.axes_translation`, a zoom about the
+:mod:`calib.axes.search` scores each candidate by the inter-frame rotations the images measure on
+their own, which assumes a far scene (or, :mod:`calib.axes.translation`, a zoom about the
 principal point). A phone on a car's dashboard breaks both: near buildings and overhead signs
 slide metres-scale parallax past far towers, and a rotation fitted to such tracks mixes
 parallax into rotation (the shared 800×600 drive: the best candidate leaves 1.29 px of a
@@ -10,7 +10,7 @@ parallax into rotation (the shared 800×600 drive: the best candidate leaves 1.2
 Here the gyro, not the images, gives each candidate's rotation, and the images only have to
 be consistent with it. For candidate ``P`` at time shift ``s``, each track's first bearing is
 carried by the predicted rotation of its frame pair, ``â = R_pred · a``
-(``R_pred = (P · M_imu · Pᵀ)ᵀ``, as in :mod:`calib.axes`); what is left between ``â`` and the
+(``R_pred = (P · M_imu · Pᵀ)ᵀ``, as in :mod:`calib.axes.search`); what is left between ``â`` and the
 second bearing ``b`` must be translation: ``b`` lies on the great circle through ``â`` and the
 direction of travel ``h`` (the epipolar constraint with known rotation, ``h · (â × b) = 0``).
 A camera rigid on a vehicle travels along one direction in its own frame (the vehicle's
@@ -22,7 +22,7 @@ circle, in pixels (angle · fx).
 
 Why one heading and not one per pair: with a free direction per pair a wrong rotation's
 nearly uniform error flow is absorbed by a sideways translation (the ambiguity described in
-:mod:`calib.axes_translation`); one direction for all pairs cannot absorb errors that differ
+:mod:`calib.axes.translation`); one direction for all pairs cannot absorb errors that differ
 from pair to pair, and with no translation at all (a far scene) any ``h`` fits the correct
 candidate. Tracks that move with the camera (a dashboard: still in the image while the gyro
 turns) or on other vehicles disagree with the winner and are counted in :class:`HeadingSearch`.
@@ -36,7 +36,7 @@ import numpy as np
 
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from calib.axes import (
+from calib.axes.search import (
     MIN_PAIRS,
     AxisSearch,
     AxisSearchError,
@@ -174,7 +174,7 @@ def search_axes_heading(
         pair: ``(N,)`` earlier frame of each track; ``frame_t_s``, ``exposure_s`` per frame
             (s, the gyro's origin).
         gyro: the IMU-clock trace, upsampled; ``shift0_s ± window_s`` searched as in
-            :func:`calib.axes.search_axes`.
+            :func:`calib.axes.search.search_axes`.
         motion_px: the images' median inter-frame rotation (px), reported with the search.
     """
     pair = np.asarray(pair, np.int64)

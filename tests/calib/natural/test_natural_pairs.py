@@ -1,4 +1,4 @@
-"""Tracking with each pair's rotation measured on its tracking thread (calib.natural_pairs)
+"""Tracking with each pair's rotation measured on its tracking thread (calib.natural.pairs)
 gives exactly the tracks of track_frames and the rotations of image_rotations afterwards,
 on a small simulated natural session; too few measured pairs are refused in one line."""
 
@@ -11,10 +11,9 @@ import pytest
 
 from blurtrack.features.tracks import FeatureTrackError, TrackParams, track_frames, tracks_of_pairs
 from blurtrack.io.session import load_session
-from calib.axes import AxisSearchError
-from calib.axes_pairs import collect_rotations
-from calib.natural import image_rotations
-from calib.natural_pairs import track_and_rotate
+from calib.axes.search import AxisSearchError, collect_rotations
+from calib.natural.pairs import track_and_rotate
+from calib.natural.pipeline import image_rotations
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session

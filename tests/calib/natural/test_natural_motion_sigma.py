@@ -1,4 +1,4 @@
-"""Sigma of translation fits (calib.natural_motion_sigma) on a simulated driving session: the
+"""Sigma of translation fits (calib.natural.motion_sigma) on a simulated driving session: the
 nuisance part equals the covariance of the profiled fit (travel direction re-estimated at every
 parameter), the widened sigma covers the simulator's truth where the old one (travel direction
 held, no clustering, no gyro scale) did not, and a known gyro scale drops the consider term."""
@@ -13,11 +13,11 @@ import pytest
 from blurtrack.io.session import load_session
 from calib.cli import truth_values
 from calib.fit import FitOptions
-from calib.natural import calibrate_natural
-from calib.natural_cli import NATURAL_FIT
-from calib.natural_motion import _Problem, _weights
-from calib.natural_motion_sigma import translation_sigma
-from calib.natural_travel import residual_model
+from calib.natural.cli import NATURAL_FIT
+from calib.natural.motion import _Problem, _weights
+from calib.natural.motion_sigma import translation_sigma
+from calib.natural.pipeline import calibrate_natural
+from calib.natural.travel import residual_model
 from calib.params import LAYOUT, THETA_NAMES, parse_fit
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset

@@ -1,4 +1,4 @@
-"""Translation fits (calib.natural_travel) get a hold-out like rotation-only fits: whole frame
+"""Translation fits (calib.natural.travel) get a hold-out like rotation-only fits: whole frame
 pairs left out of the fit, predicted by its calibration with their own refitted travel
 direction; a wrong calibration is not absorbed by that nuisance (negative control)."""
 
@@ -13,9 +13,9 @@ import pytest
 from blurtrack.io.session import load_session
 from calib.data import holdout_mask
 from calib.fit import FitOptions
-from calib.natural import calibrate_natural
-from calib.natural_cli import NATURAL_FIT
-from calib.natural_travel import predict_held_out, residual_model
+from calib.natural.cli import NATURAL_FIT
+from calib.natural.pipeline import calibrate_natural
+from calib.natural.travel import predict_held_out, residual_model
 from calib.params import LAYOUT, THETA_NAMES
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
@@ -73,7 +73,7 @@ def test_wrong_calibration_is_not_absorbed_by_the_refitted_translation(drive) ->
 
 def test_no_hold_out_when_asked(drive) -> None:
     """``--holdout 0``: the fit on every pair from both starts, no hold-out, a warning."""
-    from calib.natural_motion import with_translation
+    from calib.natural.motion import with_translation
 
     nat, sess = drive["nat"], drive["sess"]
     rot = replace(nat, result=nat.rotation_only, rotation_only=None)

@@ -14,7 +14,7 @@ from blurtrack.errors import ConfigError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.calibration import Calibration
 from calib.errors import CalibError
-from calib.natural_cli import check_determined
+from calib.natural.cli import check_determined
 from calib.uncertainty import UNDETERMINED_FACTOR, WEAK_SIGMA
 
 
@@ -143,7 +143,7 @@ def test_phone_drive_without_a_static_scene_or_its_own_gyro_is_refused(
     ],
 )
 def test_bad_masks_are_refused(given: list[str], message: str) -> None:
-    from calib.natural_cli import parse_mask
+    from calib.natural.cli import parse_mask
 
     with pytest.raises(CalibError, match=message):
         parse_mask(given, (800, 600))

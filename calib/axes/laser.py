@@ -8,7 +8,7 @@ to frame ``a + 1`` with the gyro's rotation over the midpoint's own interval
 rolling shutter) and scores the median distance to the nearest midpoint there, capped at a
 third of the dots' spacing: under the true mapping the prediction lands on the same dot
 (sub-pixel), under a wrong one anywhere in the grid (about a quarter of the spacing). The
-scan, ranking and refusals are :mod:`calib.axes`'s.
+scan, ranking and refusals are :mod:`calib.axes.search`'s.
 
 Speed (the search runs before every laser fit: ~120 time shifts, 24 candidates at each coarse
 one): the gyro's rotation over each midpoint's interval comes from one orientation table of the
@@ -29,7 +29,7 @@ import numpy as np
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.geometry.kernels import Mat3, matmul3, project_c, so3_exp_c, transpose3
-from calib.axes import (
+from calib.axes.search import (
     COARSE_STEP_S,
     MIN_PAIRS,
     MIN_POINTS,

@@ -1,4 +1,4 @@
-"""Equal-blur tracks (calib.natural_blur.equal_blur_tracks) against the simulator's truth: on a
+"""Equal-blur tracks (calib.natural.blur.equal_blur_tracks) against the simulator's truth: on a
 strongly blurred simulated far scene the refined tracks carry each point's mid-exposure
 position to the other frame's far more exactly than Lucas–Kanade's points with the blur
 centroid removed (the negative control), and the kernels follow the true motion."""
@@ -12,7 +12,7 @@ import pytest
 
 from blurtrack.features.tracks import track_frames
 from blurtrack.io.session import load_session
-from calib.natural_blur import corrected_tracks, equal_blur_tracks, exposure_offsets
+from calib.natural.blur import corrected_tracks, equal_blur_tracks, exposure_offsets
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session

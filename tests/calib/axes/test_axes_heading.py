@@ -8,7 +8,8 @@ import pytest
 
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
-from calib.axes import (
+from calib.axes.heading import epipolar_distance, fit_heading, search_axes_heading
+from calib.axes.search import (
     AxisSearchError,
     check_axes,
     gyro_rotations,
@@ -16,8 +17,7 @@ from calib.axes import (
     rotations_from_pairs,
     search_axes,
 )
-from calib.axes_heading import epipolar_distance, fit_heading, search_axes_heading
-from calib.axes_translation import fit_rotation_translating
+from calib.axes.translation import fit_rotation_translating
 
 CAM = Camera((800, 600), (575.0, 575.0, 400.0, 300.0))
 FPS = 30.0

@@ -1,4 +1,4 @@
-"""MAP gyro-scale fit of natural scenes (calib.natural_scale): a vanishing prior sigma gives
+"""MAP gyro-scale fit of natural scenes (calib.natural.scale): a vanishing prior sigma gives
 the fit with the scale unfitted, a flat one the free fit; on a simulated gyro with a scale
 error the posterior covers the truth; a known or freely fitted scale gets no prior, and a bad
 choice is refused before any work."""
@@ -15,17 +15,17 @@ from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import load_session
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
-from calib.natural import calibrate_natural
-from calib.natural_cli import NATURAL_FIT
-from calib.natural_scale import (
+from calib.natural.cli import NATURAL_FIT
+from calib.natural.pipeline import calibrate_natural
+from calib.natural.scale import (
     SCALE_PRIORS,
     natural_sigma_fit,
     prior_sigma,
     scale_is_known,
     with_scale_prior,
 )
-from calib.natural_scene import SCENE_MIN_CELLS
-from calib.natural_sigma import GYRO_SCALE_SIGMA, SCALE_NAMES
+from calib.natural.scene import SCENE_MIN_CELLS
+from calib.natural.sigma import GYRO_SCALE_SIGMA, SCALE_NAMES
 from calib.params import rotation_error_rad, scale_entries
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
@@ -94,7 +94,7 @@ def test_posterior_covers_the_true_scale_and_the_prior_holds_it(case) -> None:
     assert np.max(np.abs(scale_entries(case["M"]))) > 1e-3  # a scale error to find
     m, info = natural_sigma_fit(nat.result, nat.streaks, s.gyro(), FIT_OPTS, "map")
     assert info["gyro_scale"] == "map" and info["gyro_scale_sigma"] == GYRO_SCALE_SIGMA
-    # 320×180 spans ~22 scene cells of 64 px: too few for the scene sandwich (natural_scene)
+    # 320×180 spans ~22 scene cells of 64 px: too few for the scene sandwich (calib.natural.scene)
     assert 1 < info["scene_cells"] < SCENE_MIN_CELLS
     assert all("scene" not in p for p in info["parts"].values())
     assert set(SCALE_NAMES) <= set(m.fitted)
@@ -152,7 +152,7 @@ def test_bad_scale_prior_refused_before_tracking(case) -> None:
 def test_cli_choices_match_the_module() -> None:
     import argparse
 
-    from calib.natural_cli import add_natural_args
+    from calib.natural.cli import add_natural_args
 
     p = argparse.ArgumentParser()
     add_natural_args(p)

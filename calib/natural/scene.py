@@ -5,7 +5,7 @@ a textured patch is tracked in frame pair after frame pair, at nearly the same p
 under similar blur. A tracking error that belongs to the patch (its texture pulls Lucas–
 Kanade the same way every time) therefore repeats in every pair that sees it, for seconds,
 far beyond the neighbouring pairs that the frame-pair and block sandwiches of
-:mod:`calib.natural_sigma` / :mod:`calib.natural_scale` group together. Such an error is
+:mod:`calib.natural.sigma` / :mod:`calib.natural.scale` group together. Such an error is
 common to a session but not to all of its tracks, so a sandwich clustered by *scene cell*
 sees it: each track's start point is carried by the fitted calibration and the gyro into the
 view of the first frame (:func:`scene_pixels`), and tracks whose scene pixels share a

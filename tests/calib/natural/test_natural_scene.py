@@ -1,4 +1,4 @@
-"""Scene clusters of natural-scene tracks (calib.natural_scene): a scene point's tracks in
+"""Scene clusters of natural-scene tracks (calib.natural.scene): a scene point's tracks in
 different frame pairs land in one cell (the fit's own model carries the points); the
 cluster-robust variance recovers a known per-cluster error and, as a negative control, adds
 nothing when the errors are independent."""
@@ -12,7 +12,7 @@ from blurtrack.geometry.rotation import so3_exp
 from blurtrack.io.calibration import Calibration, Camera
 from calib.data import StreakSet
 from calib.grid import GridEvaluator
-from calib.natural_scene import cells_of, cluster_meat, scene_cells, scene_pixels
+from calib.natural.scene import cells_of, cluster_meat, scene_cells, scene_pixels
 from calib.params import theta_from
 
 W, H = 640, 360

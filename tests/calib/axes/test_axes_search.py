@@ -1,4 +1,4 @@
-"""Axis discovery (calib.axes): the 24 proper permutations, robust rotation fits, the search
+"""Axis discovery (calib.axes.search): the 24 proper permutations, robust rotation fits, the search
 on simulated motion with known truth, and its refusals."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp
-from calib.axes import (
+from calib.axes.search import (
     AxisSearchError,
     ImageRotations,
     check_axes,
@@ -150,7 +150,7 @@ def test_no_rotation_and_no_coverage_are_refused() -> None:
 def test_discover_axes_refuses_an_undecided_search_unless_told_not_to() -> None:
     """``strict=False`` (diagnostics that write nothing, bench/mars_readout.py) returns the
     winner of a search ``check_axes`` refuses; the default refuses it."""
-    from calib.natural import discover_axes
+    from calib.natural.pipeline import discover_axes
 
     rig, rots, _ = _sim(0)
     _, _, other = _sim(7)

@@ -1,4 +1,4 @@
-"""Axis discovery under forward translation (calib.axes_translation): synthetic tracks of a
+"""Axis discovery under forward translation (calib.axes.translation): synthetic tracks of a
 textured plane approached by a shaking camera, with the simulator's gyro and known axes."""
 
 from __future__ import annotations
@@ -8,8 +8,14 @@ import pytest
 
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp, so3_log
-from calib.axes import AxisSearchError, check_axes, fit_rotation, rotations_from_pairs, search_axes
-from calib.axes_translation import fit_rotation_translating, fit_rotation_zoom, zoomed
+from calib.axes.search import (
+    AxisSearchError,
+    check_axes,
+    fit_rotation,
+    rotations_from_pairs,
+    search_axes,
+)
+from calib.axes.translation import fit_rotation_translating, fit_rotation_zoom, zoomed
 from rigs.sim.preset import NOMINAL_R_CAM_IMU, get_preset
 from rigs.sim.rig import SimRig
 

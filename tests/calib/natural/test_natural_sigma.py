@@ -1,4 +1,4 @@
-"""Natural-scene sigma (calib.natural_sigma): the consider term's sensitivity of the fitted
+"""Natural-scene sigma (calib.natural.sigma): the consider term's sensitivity of the fitted
 focal length to the unfitted gyro scale predicts what a refit with that scale error does,
 the widened sigma never falls below the fit's own, and a scale matrix given in session.yaml
 counts as known."""
@@ -13,8 +13,8 @@ import pytest
 
 from blurtrack.io.session import load_session
 from calib.fit import FitOptions
-from calib.natural import calibrate_natural
-from calib.natural_cli import NATURAL_FIT
+from calib.natural.cli import NATURAL_FIT
+from calib.natural.pipeline import calibrate_natural
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session

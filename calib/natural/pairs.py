@@ -1,12 +1,12 @@
 """Feature tracking of a natural-scene session with each frame pair's image rotation measured
 on the thread that tracked it.
 
-The axis search needs every pair's rotation (:func:`calib.axes_pairs.pair_rotation`), which
+The axis search needs every pair's rotation (:func:`calib.axes.search.pair_rotation`), which
 depends only on the pair's own tracks. Measured inside :func:`blurtrack.features.pairs.map_pairs`'s
 work on a pair, its numpy work (which holds the GIL) overlaps the other thread's decoding and
 Lucas–Kanade (which do not), instead of running on one core after tracking (0.9 s for 10 s of
 720p). The tracks and rotations are those of :func:`blurtrack.features.tracks.track_frames`
-followed by :func:`calib.natural.image_rotations`.
+followed by :func:`calib.natural.pipeline.image_rotations`.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from blurtrack.features.tracks import (
     tracks_of_pairs,
 )
 from blurtrack.io.calibration import Calibration
-from calib.axes_pairs import PairRotation, pair_rotation
-from calib.axes_translation import fit_rotation_translating
+from calib.axes.search import PairRotation, pair_rotation
+from calib.axes.translation import fit_rotation_translating
 
 
 def track_and_rotate(
@@ -41,8 +41,8 @@ def track_and_rotate(
     meanwhile: Sequence[Callable[[], object]] = (),
 ) -> tuple[FeatureTracks, list[PairRotation | None]]:
     """Tracks of every consecutive frame pair and each pair's rotation (``None`` where too few
-    points; gather them with :func:`calib.axes_pairs.collect_rotations`), translation a
-    nuisance where the data need it (:mod:`calib.axes_translation`); times relative to the
+    points; gather them with :func:`calib.axes.search.collect_rotations`), translation a
+    nuisance where the data need it (:mod:`calib.axes.translation`); times relative to the
     first frame.
 
     ``meanwhile``: calls run on one more thread while the frames are tracked, for work the
