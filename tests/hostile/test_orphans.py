@@ -1,6 +1,7 @@
 """Worker processes end when their parent is killed with SIGKILL (blurtrack/workers.py).
 
-Each case runs a parent in a subprocess whose workers print their pids and then wait; the test
+Each case runs a parent in a subprocess whose workers write their pids (one ``os.write`` each,
+so two workers' lines cannot interleave) and then wait; the test
 kills the parent with SIGKILL and checks that every worker is gone within a few seconds
 (a zombie that nobody has reaped yet counts as gone: it runs nothing and holds no memory).
 """
@@ -29,7 +30,7 @@ import os, time
 from blurtrack.detect.forkmap import fork_map
 
 def fn(i):
-    print(os.getpid(), flush=True)
+    os.write(1, f"{os.getpid()}\\n".encode())  # one write: lines never interleave
     time.sleep(120)
     return i
 
@@ -42,7 +43,7 @@ from concurrent.futures import ProcessPoolExecutor
 from blurtrack.workers import worker_initializer
 
 def fn(i):
-    print(os.getpid(), flush=True)
+    os.write(1, f"{os.getpid()}\\n".encode())  # one write: lines never interleave
     time.sleep(120)
     return i
 
@@ -57,7 +58,7 @@ import multiprocessing, os, threading, time
 from blurtrack.workers import worker_initializer
 
 def fn(i):
-    print(os.getpid(), flush=True)
+    os.write(1, f"{os.getpid()}\\n".encode())  # one write: lines never interleave
     time.sleep(120)
     return i
 
