@@ -243,14 +243,24 @@ def streak_figure(
         Line2D([], [], ls="", marker="o", color=START_COLOR, label="start of exposure"),
         Line2D([], [], ls="", marker="o", color=END_COLOR, label="end of exposure"),
     ]
-    # the legend in the other corner on the inset's side
-    below: dict[str, Literal["upper right", "lower right", "upper left", "lower left"]] = {
-        "upper right": "lower right",
-        "lower right": "upper right",
-        "upper left": "lower left",
-        "lower left": "upper left",
-    }
-    ax.legend(handles=handles, loc=below[corner], fontsize=10, framealpha=1.0)
+    # the legend in another corner, preferably on the inset's side, off the zoomed region
+    # (its box taken as a quarter of the width by a fifth of the height)
+    order: list[Literal["upper right", "lower right", "upper left", "lower left"]] = [
+        "lower right", "upper right", "lower left", "upper left",
+    ]  # fmt: skip
+    side = corner.split()[1]
+    order.sort(key=lambda c: c.split()[1] != side)
+
+    def covers_zoom(c: str) -> bool:
+        lx0 = 0.0 if c.endswith("left") else 0.75 * w
+        ly0 = 0.0 if c.startswith("upper") else 0.8 * h
+        return not (
+            x0 + win_w < lx0 or x0 > lx0 + 0.25 * w or y0 + win_h < ly0 or y0 > ly0 + 0.2 * h
+        )
+
+    free = [c for c in order if c != corner and not covers_zoom(c)]
+    loc = free[0] if free else next(c for c in order if c != corner)
+    ax.legend(handles=handles, loc=loc, fontsize=10, framealpha=1.0)
     return fig
 
 

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from matplotlib.patches import Patch, Rectangle
-from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator
+from matplotlib.ticker import FuncFormatter, LogFormatter, LogLocator, MaxNLocator
 
 #: One colour per compared variant (before, after, motion models...), in order.
 COLORS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e")
@@ -50,10 +50,12 @@ def _px_ticks(v: float, _pos: object) -> str:
     return f"{v:g}"
 
 
-def _minor_px_ticks(v: float, _pos: object) -> str:
-    """Minor log ticks labelled only where matplotlib would (at 2, 3, 5 x a power of ten)."""
-    m = v / 10.0 ** np.floor(np.log10(v)) if v > 0 else 0.0
-    return f"{v:g}" if any(abs(m - k) < 1e-6 for k in (2.0, 3.0, 5.0)) else ""
+class _PlainLogFormatter(LogFormatter):
+    """Matplotlib's choice of which minor log ticks to label (none over many decades, 2, 3, 5
+    over about one), written as plain decimals (0.3, 2) instead of 3 × 10⁻¹."""
+
+    def _num_to_string(self, x: float, vmin: float, vmax: float) -> str:
+        return f"{x:g}"
 
 
 def _log_px_axis(set_scale: Callable[..., None], axis: matplotlib.axis.Axis) -> None:
@@ -61,7 +63,7 @@ def _log_px_axis(set_scale: Callable[..., None], axis: matplotlib.axis.Axis) -> 
     set_scale("log")
     axis.set_major_locator(LogLocator(base=10))
     axis.set_major_formatter(FuncFormatter(_px_ticks))
-    axis.set_minor_formatter(FuncFormatter(_minor_px_ticks))
+    axis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
 
 
 def histogram_bins(values: np.ndarray, n: int = 50) -> tuple[np.ndarray, float]:
@@ -82,6 +84,7 @@ def histogram_cdf_figure(errors: dict[str, pd.DataFrame], title: str) -> plt.Fig
     )
     bins, hi = histogram_bins(allv)
     drawn = False
+    labels: list[str] = []
     for (label, df), c in zip(errors.items(), COLORS, strict=False):
         e = _finite(df)["error_px"].to_numpy()
         if e.size == 0:
@@ -91,7 +94,8 @@ def histogram_cdf_figure(errors: dict[str, pd.DataFrame], title: str) -> plt.Fig
         lab = f"{label} ({over} beyond {hi:.3g} px)" if over else label
         a.hist(np.minimum(e, bins[-1] - 1e-9), bins=bins, histtype="step", color=c, label=lab)
         s = np.sort(np.maximum(e, FLOOR_PX))
-        b.plot(s, np.arange(1, s.size + 1) / s.size, color=c, label=label)
+        b.plot(s, np.arange(1, s.size + 1) / s.size, color=c, label=lab)
+        labels.append(lab)
     if drawn:
         a.set_yscale("log")
         a.set_ylim(bottom=0.7)
@@ -103,9 +107,16 @@ def histogram_cdf_figure(errors: dict[str, pd.DataFrame], title: str) -> plt.Fig
     a.set_xlabel("endpoint error (px); last bin: everything beyond")
     a.set_ylabel("streaks (log scale)")
     a.set_title("histogram, same bins for all", fontsize=9)
-    if drawn:
-        a.legend(fontsize=7, loc="upper right")
-        b.legend(fontsize=7, loc="lower right")
+    if drawn:  # one legend for both panels, under them: it hides no bar and no curve
+        fig.legend(
+            handles=b.get_lines(),
+            labels=labels,
+            loc="upper center",
+            bbox_to_anchor=(0.5, 0.0),
+            ncol=min(len(labels), 2),
+            fontsize=8,
+            frameon=False,
+        )
     _log_px_axis(b.set_xscale, b.xaxis)
     b.set_xlabel(f"endpoint error (px, log; below {FLOOR_PX:g} drawn at {FLOOR_PX:g})")
     b.set_ylabel("fraction of streaks")

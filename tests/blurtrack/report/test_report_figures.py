@@ -78,7 +78,8 @@ def test_histogram_counts_are_log_scaled_and_labelled() -> None:
     fig = figures.histogram_cdf_figure(errs, "before vs after")
     hist, cdf = fig.axes
     assert hist.get_yscale() == "log" and cdf.get_xscale() == "log"
-    assert [t.get_text() for t in hist.get_legend().get_texts()][1] == "after"
+    (legend,) = fig.legends  # one legend for both panels
+    assert [t.get_text() for t in legend.get_texts()][1] == "after"
     assert fig.get_suptitle() == "before vs after"
     plt.close(fig)
     assert figures.histogram_cdf(errs, "t")[:4] == b"\x89PNG"
