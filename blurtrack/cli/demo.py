@@ -155,7 +155,10 @@ def run(args: argparse.Namespace) -> int:
         ("deepgyro/overlays/", "predicted trajectories on the DeepGyro frames"),
         ("marslogger/overlays/", "predicted trajectories on the MARS logger frames"),
         ("dataset/", "training triplets (sharp, blur, heat maps)"),
-        ("gamd/before_after.png", "blurred | GAMD output | sharp (gamd/summary.json: PSNR)"),
+        (
+            "gamd/before_after.png",
+            "blurred | GAMD output | sharp, with PSNR/SSIM (and in summary.json)",
+        ),
     ]:
         print(f"   {out / name}: {what}")
     return 0
@@ -239,10 +242,12 @@ def _before_after(
     dataset: str | Path, out: Path, restore_fn: Any, heat_scale_px: float
 ) -> dict[str, Any]:
     """Restore the first test image (train split for tiny sets) with ``restore_fn(blur, heat)``
-    and write ``out/before_after.png``; PSNR/SSIM of the blurred and the restored image."""
+    and write ``out/before_after.png`` (:func:`before_after_figure`); PSNR/SSIM of the blurred
+    and the restored image."""
+    from blurtrack.detect.overlay import figure_pixels
+    from blurtrack.io.images import write_image
     from gamd.data import DeblurDataset
     from gamd.evaluate import psnr_ssim
-    from gamd.infer import side_by_side, write_rgb
 
     split = "test" if (Path(dataset) / "test").is_dir() else "train"  # tiny demo sets
     test = DeblurDataset(dataset, split, crop=None, augment=False, heat_scale_px=heat_scale_px)
@@ -251,16 +256,70 @@ def _before_after(
     blur = item["blur"].permute(1, 2, 0).numpy()
     sharp = item["sharp"].permute(1, 2, 0).numpy()
     picture = out / "before_after.png"
-    write_rgb(picture, side_by_side(blur, restored, sharp))
     (bp, bs), (rp, rs) = psnr_ssim(blur, sharp), psnr_ssim(restored, sharp)
+    name = f"{split}/{test.triplets[0].name}"
+    fig = before_after_figure(blur, restored, sharp, (bp, bs), (rp, rs), name)
+    write_image(picture, figure_pixels(fig))
     return {
-        "image": f"{split}/{test.triplets[0].name}",
+        "image": name,
         "picture": str(picture),
         "blurred_psnr_db": bp,
         "blurred_ssim": bs,
         "restored_psnr_db": rp,
         "restored_ssim": rs,
     }
+
+
+def before_after_figure(
+    blur: Any,
+    restored: Any,
+    sharp: Any,
+    blurred_psnr_ssim: tuple[float, float],
+    restored_psnr_ssim: tuple[float, float],
+    image: str = "",
+) -> Any:
+    """Three labelled panels, "blurred input", "GAMD output", "sharp reference" (float RGB
+    ``(H, W, 3)`` in [0, 1]), each at a whole number of picture pixels per image pixel (at
+    least 480 px wide, images wider than 600 px scaled down), with the PSNR/SSIM of the blurred
+    and the restored image against the sharp one written under their panels. Returns the
+    :class:`matplotlib.figure.Figure` (no pyplot state)."""
+    import math
+
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    h, w = np.asarray(blur).shape[:2]
+    scale = float(math.ceil(480 / w)) if w < 480 else min(1.0, 600 / w)
+    pw, ph = w * scale, h * scale
+    pad, top, bottom, dpi = 14.0, 72.0, 52.0, 100.0
+    fig_w, fig_h = 3 * pw + 4 * pad, ph + top + bottom
+    fig = Figure(figsize=(fig_w / dpi, fig_h / dpi), dpi=dpi)
+    (bp, bs), (rp, rs) = blurred_psnr_ssim, restored_psnr_ssim
+    notes = [
+        f"PSNR {bp:.2f} dB\nSSIM {bs:.3f}",
+        f"PSNR {rp:.2f} dB ({rp - bp:+.2f} dB)\nSSIM {rs:.3f} ({rs - bs:+.3f})",
+        "PSNR / SSIM measured\nagainst this image",
+    ]
+    for k, (img, label, note) in enumerate(
+        zip(
+            (blur, restored, sharp),
+            ("blurred input", "GAMD output", "sharp reference"),
+            notes,
+            strict=True,
+        )
+    ):
+        ax = fig.add_axes(((pad + k * (pw + pad)) / fig_w, bottom / fig_h, pw / fig_w, ph / fig_h))
+        ax.imshow(np.clip(np.asarray(img), 0.0, 1.0), interpolation="nearest")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"({'abc'[k]}) {label}", fontsize=12, pad=4)
+        ax.text(
+            0.5, -0.02, note, transform=ax.transAxes, ha="center", va="top", fontsize=10.5,
+            linespacing=1.3,
+        )  # fmt: skip
+    what = f" on {image}" if image else ""
+    fig.suptitle(f"GAMD deblurring{what}", y=1.0 - 6.0 / fig_h, va="top", fontsize=13)
+    return fig
 
 
 def demo_deblur(

@@ -128,8 +128,7 @@ def detect_to_table(
 
 def run(args: argparse.Namespace) -> int:
     from blurtrack.detect import DetectParams
-    from blurtrack.detect.overlay import draw_streaks
-    from blurtrack.io.images import write_image
+    from blurtrack.detect.overlay import write_streak_picture
     from blurtrack.io.session import load_session
 
     if args.out is None:
@@ -145,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
     summary = dict(result.summary, session=str(args.session), table=str(args.out))
     if args.overlay is not None:
         first = int(result.table["frame"].iloc[0])
-        pic = draw_streaks(session.read_image(first), result.table[result.table["frame"] == first])
-        write_image(args.overlay, pic)
+        rows = result.table[result.table["frame"] == first]
+        write_streak_picture(args.overlay, session.read_image(first), rows, first)
         summary["overlay"] = str(args.overlay)
     write_json_atomic(summary_path, summary)
     s = result.summary

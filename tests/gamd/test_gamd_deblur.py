@@ -169,7 +169,7 @@ def test_demo_writes_before_after_picture(tiny_dataset, tmp_path) -> None:
 
     s = demo_train(tiny_dataset, tmp_path / "demo", steps=3, crop=16, batch_size=2, progress=False)
     img = cv2.imread(s["picture"])
-    assert img.shape == (40, 3 * 48 + 8, 3)
+    assert img.shape[1] >= 3 * 480 and img.shape[0] > 400  # three labelled, magnified panels
     assert json.loads((tmp_path / "demo/summary.json").read_text())["steps"] == 3
     assert np.isfinite(s["restored_psnr_db"]) and s["image"].startswith("test/")
     json.dumps(s)  # the demo prints it
@@ -180,7 +180,7 @@ def test_demo_deblurs_with_the_shipped_weights(tiny_dataset, tmp_path) -> None:
     from gamd.weights import shipped_weights
 
     s = demo_deblur(tiny_dataset, tmp_path / "demo")
-    assert cv2.imread(s["picture"]).shape == (40, 3 * 48 + 8, 3)
+    assert cv2.imread(s["picture"]).shape[1] >= 3 * 480  # three labelled, magnified panels
     assert s["checkpoint"] == str(shipped_weights("gamd")) and s["steps"] == 0
     assert json.loads((tmp_path / "demo/summary.json").read_text()) == s
 
