@@ -146,6 +146,19 @@ def safe_member(folder: Path, name: str) -> Path:
     return folder / name
 
 
+def encode_frame(image: np.ndarray, what: str = "frame") -> bytes:
+    """A frame (uint8/uint16 gray or BGR) as the PNG bytes a session stores."""
+    img = np.asarray(image)
+    if img.dtype not in (np.uint8, np.uint16) or img.ndim not in (2, 3):
+        raise SessionError(
+            f"{what}: image must be uint8/uint16 gray or BGR, got {img.dtype} {img.shape}"
+        )
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise SessionError(f"{what}: PNG encoding failed")
+    return buf.tobytes()
+
+
 class SessionWriter:
     """Write a session folder incrementally; every call leaves a readable folder behind.
 
@@ -187,6 +200,11 @@ class SessionWriter:
 
     def add_frame(self, timestamp_ns: int, image: np.ndarray, exposure_ns: int) -> None:
         """Write ``cam0/data/<timestamp>.png`` (atomically) and its CSV row."""
+        self.add_png(timestamp_ns, encode_frame(image, f"frame {int(timestamp_ns)}"), exposure_ns)
+
+    def add_png(self, timestamp_ns: int, png: bytes, exposure_ns: int) -> None:
+        """:meth:`add_frame` of a frame already encoded by :func:`encode_frame` (importers
+        encode on several threads: PNG encoding is most of an import's time)."""
         ts = int(timestamp_ns)
         if self._last_frame_ns is not None and ts <= self._last_frame_ns:
             raise SessionError(
@@ -201,17 +219,9 @@ class SessionWriter:
                 "session being written: cam0/data.csv",
                 self.n_frames + 1,
             )
-        img = np.asarray(image)
-        if img.dtype not in (np.uint8, np.uint16) or img.ndim not in (2, 3):
-            raise SessionError(
-                f"frame {ts}: image must be uint8/uint16 gray or BGR, got {img.dtype} {img.shape}"
-            )
         name = f"{ts}.png"
         path = self.folder / "cam0" / "data" / name
-        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        if not ok:
-            raise SessionError(f"frame {ts}: PNG encoding failed")
-        atomic.write_bytes_atomic(path, buf.tobytes())
+        atomic.write_bytes_atomic(path, png)
         self._cam.write(f"{ts},{name},{int(exposure_ns)}\n")
         self._cam.flush()
         if self._last_frame_ns is not None:

@@ -53,7 +53,7 @@ MAX_TRACKS = 4000
 MIN_TRACKS_PER_PAIR = 16
 #: Tracks per frame pair of the coarse scan of all 24 candidates over the shift window;
 #: every candidate is then scored again at its best shift with all the tracks above.
-COARSE_TRACKS_PER_PAIR = 24
+COARSE_TRACKS_PER_PAIR = 16
 #: Reweighting rounds of the heading fit.
 HEADING_ROUNDS = 4
 #: Tracks farther than this many times the median residual from their epipolar circle are

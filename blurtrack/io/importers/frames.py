@@ -31,13 +31,17 @@ from __future__ import annotations
 
 import itertools
 import re
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from blurtrack.errors import ImportFormatError
+from blurtrack.features.pairs import usable_cores
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.importers.common import (
     MAX_FRAMES,
@@ -49,7 +53,10 @@ from blurtrack.io.importers.common import (
     read_image,
     text_lines,
 )
-from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter, encode_frame
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 #: Nanoseconds per time unit.
@@ -356,6 +363,23 @@ def read_gyro(
     return t_ns[keep], omega[keep], assumptions
 
 
+def in_order(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[R]:
+    """``fn(item)`` of each item, in order, computed on up to ``workers`` threads with at most
+    ``2 · workers`` results waiting (decoding and PNG encoding release the GIL: an import's
+    frames are encoded two at a time on two cores, and memory stays bounded)."""
+    if workers <= 1:
+        yield from (fn(i) for i in items)
+        return
+    with ThreadPoolExecutor(workers) as pool:
+        window: deque[Future[R]] = deque()
+        for item in items:
+            window.append(pool.submit(fn, item))
+            if len(window) >= 2 * workers:
+                yield window.popleft().result()
+        while window:
+            yield window.popleft().result()
+
+
 def import_frames(
     src: str | Path,
     out: str | Path,
@@ -433,14 +457,19 @@ def import_frames(
         target_kind="natural",
         extra={"import": {"source": "frames", "path": str(src), "assumptions": assumptions}},
     )
+
+    def encoded(path: Path) -> bytes:
+        img = first if path == pairs[0][0] else read_image(path)
+        if img.shape[:2] != (h, w):
+            raise ImportFormatError(
+                f"{path} is {img.shape[1]}x{img.shape[0]}, the first frame {w}x{h}"
+            )
+        return encode_frame(img, str(path))
+
     with SessionWriter(out, meta) as wr:
-        for (path, _), t0 in zip(pairs, starts, strict=True):
-            img = first if path == pairs[0][0] else read_image(path)
-            if img.shape[:2] != (h, w):
-                raise ImportFormatError(
-                    f"{path} is {img.shape[1]}x{img.shape[0]}, the first frame {w}x{h}"
-                )
-            wr.add_frame(t0, img, exp)
+        pngs = in_order(encoded, [p for p, _ in pairs], usable_cores())
+        for png, t0 in zip(pngs, starts, strict=True):
+            wr.add_png(t0, png, exp)
         wr.add_imu(t_imu, omega)
     return {
         "frames": len(pairs),
