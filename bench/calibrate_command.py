@@ -52,7 +52,7 @@ def run_command(
     truth with the |z| of each estimate."""
     import resource
 
-    from calib.cli import truth_values
+    from calib.truth import truth_values
 
     out_dir.mkdir(parents=True, exist_ok=True)
     out = out_dir / "calib.yaml"

@@ -112,3 +112,81 @@ def test_the_recording_stack_does_not_know_the_simulator() -> None:
             if isinstance(n, ast.ImportFrom) and n.module is not None
         } | {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         assert not {m for m in mods if any(m == f or m.startswith(f + ".") for f in fake)}, name
+
+
+def module_graph(packages: tuple[str, ...]) -> dict[str, set[str]]:
+    """First-party module -> first-party modules it imports anywhere in its file (imports
+    inside functions included; those under ``if TYPE_CHECKING:`` left out: they never run)."""
+    files = {}
+    for pkg in packages:
+        for p in sorted((REPO / pkg).rglob("*.py")):
+            name = ".".join(p.relative_to(REPO).with_suffix("").parts)
+            files[name.removesuffix(".__init__")] = p
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        typing_only = {
+            id(n)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+            for n in ast.walk(node)
+        }
+        deps = set()
+        for node in ast.walk(tree):
+            if id(node) in typing_only:
+                continue
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                for alias in node.names:
+                    sub = f"{node.module}.{alias.name}"
+                    deps.add(sub if sub in files else node.module)
+            elif isinstance(node, ast.Import):
+                deps.update(alias.name for alias in node.names)
+        graph[name] = {d for d in deps if d in files and d != name}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (import cycles).
+
+    >>> cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}})
+    [['a', 'b']]
+    """
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles_function_level_imports_included() -> None:
+    """docs/conventions.md: modules import only downward; a lazy import inside a function
+    keeps start-up fast but must not close a loop."""
+    assert cycles(module_graph(FIRST_PARTY)) == []
+    # negative control: the checker sees a loop closed by a function-level import
+    assert cycles({"calib.a": {"calib.b"}, "calib.b": {"calib.a"}}) == [["calib.a", "calib.b"]]

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.progress import Progress
-from blurtrack.cli.report import load_calibrations, load_fit_summary
+from blurtrack.cli.report_inputs import load_calibrations, load_fit_summary
 
 
 def run_natural_report(args: argparse.Namespace, session: Any) -> int:

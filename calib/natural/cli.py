@@ -162,13 +162,13 @@ def run_natural(
     """``blurtrack calibrate`` on a natural-scene session (feature tracks, axis search)."""
     from blurtrack.features.tracks import TrackParams
     from blurtrack.io.session import load_session
-    from calib.cli import truth_values
     from calib.errors import CalibError
     from calib.fit import FitOptions
     from calib.natural.pipeline import calibrate_natural
     from calib.output import write_results, write_summary
     from calib.params import DEFAULT_FIT, theta_from
     from calib.result import named
+    from calib.truth import truth_values
 
     if args.axes != "search":
         raise CalibError("natural-scene calibration always decides the axes (--axes search)")

@@ -38,15 +38,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from blurtrack.geometry.gyro import GyroTrace
 from calib.data import StreakSet
 from calib.errors import CalibError
-from calib.fitcore import FitOptions
 from calib.params import THETA_NAMES, bounded_step
 from calib.problem import ResidualModel
 
 if TYPE_CHECKING:
-    from calib.natural.pipeline import NaturalResult
+    pass
 
 #: ``--translation`` choices.
 TRANSLATIONS = ("none", "auto", "per-pair", "travel")
@@ -352,18 +350,3 @@ def prefers_translation(ms_rotation: float, ms_epipolar: float) -> bool:
     """``auto``: whether the parallax the rotation model leaves is more than its missing
     coordinate explains (see the module docstring)."""
     return bool(ms_rotation > AUTO_RATIO * max(ms_epipolar, 1e-12))
-
-
-def with_translation(
-    nat: NaturalResult, gyro: GyroTrace, options: FitOptions, mode: str
-) -> NaturalResult:
-    """``nat`` (a rotation-only natural fit) refitted with a translation nuisance when
-    ``mode`` is ``per-pair`` or ``travel``, or ``auto`` and the data ask for it (module
-    docstring): from both the rotation-only estimate and the axis search's start (the lower
-    robust cost wins), with a hold-out of whole frame pairs (each predicted with its own
-    refitted translation), the refit on every pair and the sigma of
-    :mod:`calib.natural.motion_sigma`. Track errors are epipolar distances. See
-    :mod:`calib.natural.travel`."""
-    from calib.natural.travel import refit_with_translation
-
-    return refit_with_translation(nat, gyro, options, mode)

@@ -401,9 +401,9 @@ def calibrate_natural(
         res, search, tracks, streaks, {"mode": "none", "chosen_by": "option"}, n_tracked=n_tracked
     )
     if translation != "none":
-        from calib.natural.motion import with_translation
+        from calib.natural.travel import refit_with_translation
 
-        moved = with_translation(
+        moved = refit_with_translation(
             thinned_result(nat, MAX_TRANSLATION_TRACKS), gyro, opts, translation
         )
         if moved.rotation_only is not None:  # translation modelled: first-pass tracks

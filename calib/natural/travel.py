@@ -1,6 +1,6 @@
 """A rotation-only natural fit refitted with the camera's translation as a nuisance
-(:func:`calib.natural.motion.with_translation`): the choice of the model, a hold-out of whole
-frame pairs, the refit on every pair and its honest sigma (:mod:`calib.natural.motion_sigma`).
+(:func:`refit_with_translation`): the choice of the model, a hold-out of whole frame pairs,
+the refit on every pair and its honest sigma (:mod:`calib.natural.motion_sigma`).
 
 **Hold-out** (as :func:`calib.fit.calibrate`): the frame pairs of
 :func:`calib.data.holdout_mask` are left out; the translation fit on the others (from both
@@ -112,7 +112,13 @@ def _best(
 def refit_with_translation(
     nat: NaturalResult, gyro: GyroTrace, options: FitOptions, mode: str
 ) -> NaturalResult:
-    """See :func:`calib.natural.motion.with_translation` and the module docstring."""
+    """``nat`` (a rotation-only natural fit) refitted with a translation nuisance when
+    ``mode`` is ``per-pair`` or ``travel``, or ``auto`` and the data ask for it
+    (:mod:`calib.natural.motion`'s docstring): from both the rotation-only estimate and the
+    axis search's start (the lower robust cost wins), with a hold-out of whole frame pairs
+    (each predicted with its own refitted translation), the refit on every pair and the sigma
+    of :mod:`calib.natural.motion_sigma`. Track errors are epipolar distances (module
+    docstring)."""
     res, streaks = nat.result, nat.streaks
     base = res.initial
     model, centre, f = residual_model(base, streaks, gyro, options)

@@ -227,7 +227,7 @@ def test_truth_rotation_is_the_one_the_gyro_data_define() -> None:
 
     from blurtrack.geometry.camera import Camera
     from blurtrack.geometry.rotation import so3_exp, so3_log
-    from calib.cli import truth_values
+    from calib.truth import truth_values
 
     R = so3_exp(np.array([0.02, -0.01, 0.03]))
     initial = Calibration(Camera((64, 48), (50.0, 50.0, 32.0, 24.0)))

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from blurtrack.io.session import load_session
-from calib.cli import truth_values
 from calib.fit import FitOptions
 from calib.natural.cli import NATURAL_FIT
 from calib.natural.motion import _Problem, _weights
@@ -19,6 +18,7 @@ from calib.natural.motion_sigma import translation_sigma
 from calib.natural.pipeline import calibrate_natural
 from calib.natural.travel import residual_model
 from calib.params import LAYOUT, THETA_NAMES, parse_fit
+from calib.truth import truth_values
 from rigs.sim.natural import NaturalRig
 from rigs.sim.preset import get_preset
 from rigs.sim.writer import write_session

@@ -73,11 +73,11 @@ def test_wrong_calibration_is_not_absorbed_by_the_refitted_translation(drive) ->
 
 def test_no_hold_out_when_asked(drive) -> None:
     """``--holdout 0``: the fit on every pair from both starts, no hold-out, a warning."""
-    from calib.natural.motion import with_translation
+    from calib.natural.travel import refit_with_translation
 
     nat, sess = drive["nat"], drive["sess"]
     rot = replace(nat, result=nat.rotation_only, rotation_only=None)
     opts = replace(drive["opts"], holdout_fraction=0.0)
-    out = with_translation(rot, sess.gyro(), opts, "travel").result
+    out = refit_with_translation(rot, sess.gyro(), opts, "travel").result
     assert out.holdout.n == 0 and out.holdout_fit_values is None
     assert any("no hold-out" in w for w in out.warnings)
