@@ -114,6 +114,8 @@ def calib_figures(out_yaml: Path) -> dict[str, Any]:
     fig["inliers"] = (d.get("train_inliers") or {}).get("n")
     fig["outliers"] = d.get("n_outliers")
     fig["translation"] = (d.get("translation") or {}).get("mode")
+    fig["axes_model"] = ((axes.get("decision") or {}).get("model")) or "rotation"
+    fig["translation_starts"] = (d.get("translation") or {}).get("starts_tried")
     err = d.get("error_vs_truth")
     if err:
         fig["error_vs_truth_ms"] = {

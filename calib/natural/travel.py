@@ -138,7 +138,11 @@ def refit_with_translation(
     if not wanted:
         return replace(nat, translation=info)
     fit_idx = parse_fit(options.fit)
-    starts = (th_rot, theta_from(base))
+    # Where the pure-rotation model could not decide the axes (the common heading did), its
+    # fit is biased by the parallax it could not explain: only the axis search's start is
+    # tried (the phone drive: 40 iterations from it without converging, a worse cost).
+    heading = (nat.axes.decision or {}).get("model") == "common heading"
+    starts = (theta_from(base),) if heading else (th_rot, theta_from(base))
     held = holdout_mask(streaks.frame, options.holdout_fraction)
     train, test = streaks.subset(~held), streaks.subset(held)
     hold_fit: TranslationFit | None = None
@@ -156,7 +160,9 @@ def refit_with_translation(
     else:
         best, k = _best(model, streaks, starts, fit_idx, centre, f, travel)
         fitted_on = streaks
-    info["start"] = "rotation-only fit" if k == 0 else "axis search"
+    info["start"] = "rotation-only fit" if k == 0 and not heading else "axis search"
+    if heading:
+        info["starts_tried"] = "axis search only (the axes were decided by the common heading)"
     info["epipoles"] = best.epipoles.tolist()
     pb = _Problem(model, fitted_on, centre, float(f), travel)
     w, _ = _weights(best.residual_px, pb.usable)

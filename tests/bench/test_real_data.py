@@ -30,6 +30,10 @@ def test_phone_video_calibrates_with_a_clear_axis_decision(quick: dict) -> None:
     assert f["status"] == "ok"
     assert f["axes_margin"] >= 2.0
     assert f["holdout_median_px"] <= 0.35
+    # the pure-rotation model does not decide a drive; the common heading does, and the
+    # translation fit then starts from the axis search only
+    assert f["axes_model"] == "common heading" and f["translation"] == "travel"
+    assert f["translation_starts"].startswith("axis search only")
 
 
 def test_phone_video_offset_and_readout_have_finite_positive_sigmas(quick: dict) -> None:
