@@ -114,10 +114,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
     check_output(
         args.out,
         force=args.force,
-        inputs=[args.streaks],
+        # the streak table calibrate reads (detecting first when it is missing) is an input
+        inputs=[args.streaks or Path(args.session) / "streaks.parquet"],
         siblings=[
             stem + s
             for s in (
+                ".summary.json",
                 ".openvins.yaml",
                 ".camera_info.yaml",
                 ".failed.summary.json",

@@ -78,14 +78,16 @@ def check_output(
         force: an existing result may be replaced.
         inputs: the command's input files (a calibration, a streak table ...).
         what: how the command names the output in messages.
-        siblings: names of further files the command writes beside the output (their
-            lengths are checked too, so a long name fails before any work, not half-way).
+        siblings: names of further files the command writes beside the output: their
+            lengths are checked too (a long name fails before any work, not half-way), an
+            existing one is a result that only ``force`` replaces, and none may be an input.
 
     Returns the path, unchanged.
     """
     out = Path(path)
     name = os.fsdecode(out)
     res = _resolve(out)
+    siblings = tuple(siblings)
     root = session_root(out)
     if root is not None:
         rel = res.relative_to(root).parts
@@ -113,9 +115,20 @@ def check_output(
         raise OutputRefusedError(
             f"{what} {name!r}: the folder {os.fsdecode(probe)!r} is not writable"
         )
-    for inp in inputs:
-        if inp is not None and _resolve(Path(inp)) == res:
-            raise OutputRefusedError(f"{what} {name!r} is also an input of this command")
+    ins = {_resolve(Path(inp)) for inp in inputs if inp is not None}
+    if res in ins:
+        raise OutputRefusedError(f"{what} {name!r} is also an input of this command")
+    for sib in siblings:
+        beside = _resolve(res.parent / sib)
+        if beside in ins:
+            raise OutputRefusedError(
+                f"{what} {name!r}: {sib!r}, written beside it, is an input of this command"
+            )
+        if not force and beside.exists():
+            raise OutputRefusedError(
+                f"{what} {name!r}: {sib!r} beside it exists (an earlier result); "
+                "--force replaces it"
+            )
     if not force:
         if folder and (res / "summary.json").exists():
             raise OutputRefusedError(
