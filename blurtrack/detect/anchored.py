@@ -11,7 +11,7 @@ with two conditions that keep it on the fragment's own light: its support covers
 :data:`COVER_MIN` of the fragment's centre line (the *anchor*), and its normalised correlation
 over the support is at least :data:`SCORE_MIN`. The light of every other component is removed
 from the image first (neighbouring lights are not matched). The placed centre line is then
-measured on that image (:func:`blurtrack.detect.measure.measure_lines`) and replaces the
+measured on that image (:func:`blurtrack.detect.lines.measure.measure_lines`) and replaces the
 fragment only when the measurement agrees with the local consensus within the shape tolerance
 (:func:`blurtrack.detect.quality.shape_tolerance`). Pixels, frame coordinates.
 """
@@ -21,9 +21,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blurtrack.detect.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.quality import Consensus, shape_tolerance
-from blurtrack.detect.segment import Components
 from blurtrack.detect.templates import Template, similar, template
 
 #: A streak whose chord is under this fraction of the local consensus length is a fragment.

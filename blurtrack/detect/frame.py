@@ -10,18 +10,18 @@ import numpy as np
 from blurtrack.allocator import keep_heap
 from blurtrack.detect.anchored import anchored
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import LineSet, measure_lines
-from blurtrack.detect.measure import combine as _combine
-from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import Ragged, split_at
-from blurtrack.detect.segment import (
+from blurtrack.detect.lines.measure import LineSet, measure_lines
+from blurtrack.detect.lines.measure import combine as _combine
+from blurtrack.detect.lines.ragged import Ragged, split_at
+from blurtrack.detect.lines.segment import (
     Components,
     axis_polylines,
     drop_artefacts,
     find_components,
 )
+from blurtrack.detect.lines.skeleton import trace_paths
+from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separate import separate
-from blurtrack.detect.skeleton import trace_paths
 
 #: Flag columns, in table order.
 FLAG_NAMES: tuple[str, ...] = ("clipped", "saturated", "crossing", "merged", "looped", "faint")

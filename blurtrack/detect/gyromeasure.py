@@ -2,7 +2,7 @@
 images, hairpins as two arms joined at the turn.
 
 A hairpin's two arms lie 2-4 px apart, closer than the cross-section windows of
-:func:`blurtrack.detect.measure.measure_lines`: measured as one out-and-back line, each arm's
+:func:`blurtrack.detect.lines.measure.measure_lines`: measured as one out-and-back line, each arm's
 centroids are pulled towards the other and the edge fits see both arms' light. So each arm
 is measured on its own image, the frame minus the other arm's and the other placements'
 templates (the prior decides which light is which arm's), from the turn outwards; the start
@@ -19,16 +19,17 @@ import numpy as np
 from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, _near_border
 from blurtrack.detect.gyroconfirm import mismatch
 from blurtrack.detect.gyrocurve import arm_templates, turn_index
-from blurtrack.detect.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.segment import Components
+from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separate import _mosaic, _overlaps
 from blurtrack.detect.templates import Placement
 
 #: A placement's line is kept from its first to its last point above a quarter of its peak
-#: profile, but at most this times its median (:func:`blurtrack.detect.centreline.refine_lines`;
-#: 2 and 4 measured worse): the placed curve runs along the whole streak, whose bright hook
-#: can be several times its tail. (The first pass keeps the peak: the same factor there
-#: moved ``phone``'s ends into the blooming, 1.43 -> 1.55 px on its optics test frame.)
+#: profile, but at most this times its median
+#: (:func:`blurtrack.detect.lines.centreline.refine_lines`; 2 and 4 measured worse): the placed
+#: curve runs along the whole streak, whose bright hook can be several times its tail. (The
+#: first pass keeps the peak: the same factor there moved ``phone``'s ends into the blooming,
+#: 1.43 -> 1.55 px on its optics test frame.)
 LIT_MEDIAN_FACTOR = 3.0
 #: Placements whose curve's chord is under this fraction of its arc are measured as two arms.
 ARMS_CHORD = 0.8

@@ -40,7 +40,7 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    :func:`~blurtrack.detect.gyroconfirm.cut_at_border`): chains into the border hold streaks
    leaving the frame, which no template wholly inside explains.
 4. **Measurement** on each placement's own image (the mosaic of separation), with the placed
-   curve as the coarse centre line, by :func:`blurtrack.detect.measure.measure_lines`
+   curve as the coarse centre line, by :func:`blurtrack.detect.lines.measure.measure_lines`
    (:mod:`blurtrack.detect.gyromeasure`; hairpins as two arms): the ends, midpoints and
    profiles are the image's, not the prediction's. The prior decides *segmentation* (which
    light is which dot's, which way its line runs), not the endpoints, so calibration from
@@ -76,12 +76,12 @@ from blurtrack.detect.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import combine
+from blurtrack.detect.lines.measure import combine
+from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.pursuit import pursue
 from blurtrack.detect.refit import model_image, refit
-from blurtrack.detect.segment import Components, drop_artefacts, find_components
 from blurtrack.detect.separate import HALO_MAX, RESIDUAL_MAX
 from blurtrack.detect.templates import HALO_PX, Placement, Template
 from blurtrack.errors import CoverageError

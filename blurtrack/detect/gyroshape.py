@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.gyrocurve import similar_curve
-from blurtrack.detect.segment import Components
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.templates import INSIDE_MIN, Template, inside_norm2
 
 #: Shape search (calibration error): rotations (rad) and scales of the predicted curve.

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from blurtrack.detect.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.quality import MIN_REFERENCE, Consensus, consensus_field
-from blurtrack.detect.segment import Components
 
 #: Smallest component (px) that can be a whole streak of the modal cluster.
 MIN_AREA_PX = 40

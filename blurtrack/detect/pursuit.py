@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blurtrack.detect.segment import Components
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.templates import HALO_PX, INSIDE_MIN, Placement, Template, inside_norm2
 
 #: Lowest support-normalised correlation of an accepted placement.

@@ -24,7 +24,8 @@ isolated streak is a matched template for its neighbours (shape *and* brightness
 4. **Measurement**: each placement gets its own image, the smoothed (and raw) frame around it
    minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
    the placed centre lines (the reference's, shifted) are measured there by
-   :func:`blurtrack.detect.measure.measure_lines` exactly like the first pass's, and moved back.
+   :func:`blurtrack.detect.lines.measure.measure_lines` exactly like the first pass's, and moved
+   back.
    Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
 """
 
@@ -34,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.detect.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.modal import component_references
 from blurtrack.detect.pursuit import pursue
 from blurtrack.detect.quality import (
@@ -44,7 +46,6 @@ from blurtrack.detect.quality import (
     shape_tolerance,
 )
 from blurtrack.detect.refit import refit
-from blurtrack.detect.segment import Components
 from blurtrack.detect.templates import (
     Placement,
     Template,

@@ -25,9 +25,9 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.lines.ragged import split_at
 from blurtrack.detect.orientation import Orientation
 from blurtrack.detect.quality import add_quality
-from blurtrack.detect.ragged import split_at
 from blurtrack.io import atomic, streaks
 
 EXTRA_COLUMNS: dict[str, str] = {

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from blurtrack.detect.segment import Components
+from blurtrack.detect.lines.segment import Components
 
 #: A placement reaching past the frame's border needs this fraction of its template (in
 #: squares) inside the frame (:func:`inside_norm2`).

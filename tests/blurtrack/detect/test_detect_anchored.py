@@ -8,7 +8,7 @@ import pytest
 
 import blurtrack.detect.frame as frame_mod
 from blurtrack.detect import detect_frame
-from blurtrack.detect.measure import Measured
+from blurtrack.detect.lines.measure import Measured
 
 
 def _classes(fs, ref: np.ndarray) -> tuple[int, int]:

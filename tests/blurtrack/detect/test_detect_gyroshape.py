@@ -111,7 +111,7 @@ def test_the_shape_search_finds_a_rotated_and_scaled_curve(monkeypatch) -> None:
     # The light holds the curve rotated by 0.03 rad and scaled by 1.04 about its centroid:
     # the coordinate search's pick.
     from blurtrack.detect.gyrocurve import similar_curve
-    from blurtrack.detect.segment import find_components
+    from blurtrack.detect.lines.segment import find_components
 
     rng = np.random.default_rng(8)
     pts = _curve(rng, 60.0, 40.0)

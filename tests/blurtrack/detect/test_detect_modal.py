@@ -7,8 +7,8 @@ import numpy as np
 
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.lines.segment import Components, find_components
 from blurtrack.detect.modal import component_references, modal_components, skeleton_path
-from blurtrack.detect.segment import Components, find_components
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 SHAPE = (300, 420)

@@ -7,8 +7,8 @@ import numpy as np
 
 from blurtrack.detect import DetectParams
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.lines.segment import find_components
 from blurtrack.detect.refit import _paint, _peak, _tile, refit
-from blurtrack.detect.segment import find_components
 from blurtrack.detect.templates import Placement, Template, template
 from blurtrack.testing.streak_frames import quantise, render_streaks
 

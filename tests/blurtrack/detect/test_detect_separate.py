@@ -1,5 +1,5 @@
 """Template separation of touching streaks (blurtrack.detect.separate) and the artefact filter
-(blurtrack.detect.segment.drop_artefacts), on exactly rendered frames."""
+(blurtrack.detect.lines.segment.drop_artefacts), on exactly rendered frames."""
 
 from __future__ import annotations
 
@@ -97,8 +97,8 @@ def _first_pass(image: np.ndarray):  # type: ignore[no-untyped-def]
     """The first pass of detect_frame up to separation: prepared frame, components, lines."""
     from blurtrack.detect.frame import _first_lines
     from blurtrack.detect.image import prepare_frame
-    from blurtrack.detect.measure import measure_lines
-    from blurtrack.detect.segment import axis_polylines, find_components
+    from blurtrack.detect.lines.measure import measure_lines
+    from blurtrack.detect.lines.segment import axis_polylines, find_components
 
     p = DetectParams()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)

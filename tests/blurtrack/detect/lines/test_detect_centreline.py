@@ -1,16 +1,17 @@
-"""Centre-line refinement (blurtrack.detect.centreline): where a line's ends are cut."""
+"""Centre-line refinement (blurtrack.detect.lines.centreline): where a line's ends are cut."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from blurtrack.detect import centreline, detect_frame
-from blurtrack.detect.centreline import refine_lines
+from blurtrack.detect import detect_frame
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.lines import centreline
+from blurtrack.detect.lines.centreline import refine_lines
+from blurtrack.detect.lines.ragged import arc_lengths
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import arc_lengths
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 

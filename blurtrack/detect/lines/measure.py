@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.detect.centreline import raw_profiles, refine_lines, trim_lines
-from blurtrack.detect.endpoints import fit_edges, unclip_profiles
-from blurtrack.detect.gaps import split_at_gaps
-from blurtrack.detect.ragged import Ragged, to_matrix
+from blurtrack.detect.lines.centreline import raw_profiles, refine_lines, trim_lines
+from blurtrack.detect.lines.endpoints import fit_edges, unclip_profiles
+from blurtrack.detect.lines.gaps import split_at_gaps
+from blurtrack.detect.lines.ragged import Ragged, to_matrix
 
 
 @dataclass
@@ -78,7 +78,7 @@ def measure_lines(
     ``sigma_c``: guess of the smoothed cross-section sigma, replaced by the lines' median width
     when ``measure_sigma``; ``smooth_sigma``: the pre-smoothing sigma; ``sigma_raw``: the
     unsmoothed sigma of saturated streaks (None: from the unsaturated widths);
-    ``lit_median_factor``: see :func:`blurtrack.detect.centreline.refine_lines`."""
+    ``lit_median_factor``: see :func:`blurtrack.detect.lines.centreline.refine_lines`."""
     ceiling = saturation if sat_comp is not None and sat_comp.any() else None
     ref = refine_lines(smooth, ls.lines, sigma_c, ceiling, lit_median_factor)
     ref, parent = split_at_gaps(ref)

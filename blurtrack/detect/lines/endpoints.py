@@ -12,7 +12,7 @@ line extrapolated to the end under-fills, pushing the end outwards; so ``d`` is 
 the density of a constant acceleration, ``(alpha + beta x)**-1/2`` (:func:`_time_law_density`).
 Streaks too short to have a plateau at each end use the profile's first three moments (a
 segment of linearly varying brightness, :func:`linear_density_segment`), then a least-squares
-fit (:mod:`~blurtrack.detect.shortfit`).
+fit (:mod:`~blurtrack.detect.lines.shortfit`).
 
 All positions here are in sample-index units of uniformly sampled profiles; rows of the
 matrices are streaks, padded with zeros past each row's length.
@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blurtrack.detect.normal import normal_cdf
-from blurtrack.detect.ragged import row_nanmedian
-from blurtrack.detect.shortfit import fit_short
+from blurtrack.detect.lines.normal import normal_cdf
+from blurtrack.detect.lines.ragged import row_nanmedian
+from blurtrack.detect.lines.shortfit import fit_short
 
 #: Plateau fit window (samples) and how far inside the half-level crossing it starts (sigmas).
 PLATEAU_WINDOW = 7

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from blurtrack.detect.centreline import RefinedLines
-from blurtrack.detect.ragged import Ragged, row_nanmedian, to_matrix
+from blurtrack.detect.lines.centreline import RefinedLines
+from blurtrack.detect.lines.ragged import Ragged, row_nanmedian, to_matrix
 
 GAP_LEVEL = 0.3
 LONG_FACTOR = 1.6

@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import ndtr
 
-from blurtrack.detect import ragged
-from blurtrack.detect.endpoints import clipped_integral, fit_edges, unclip_profiles
+from blurtrack.detect.lines import ragged
+from blurtrack.detect.lines.endpoints import clipped_integral, fit_edges, unclip_profiles
+from blurtrack.detect.lines.skeleton import trace_paths
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.skeleton import trace_paths
 from blurtrack.errors import ConfigError
 
 

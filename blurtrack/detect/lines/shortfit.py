@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.normal import normal_cdf_given_exp as _phi
+from blurtrack.detect.lines.normal import normal_cdf_given_exp as _phi
 
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
 

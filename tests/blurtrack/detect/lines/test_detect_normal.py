@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr
 
-from blurtrack.detect.normal import MAX_ABS_ERROR, normal_cdf, normal_cdf_given_exp
+from blurtrack.detect.lines.normal import MAX_ABS_ERROR, normal_cdf, normal_cdf_given_exp
 
 
 def test_within_the_stated_bound_of_scipy_everywhere() -> None:

@@ -4,7 +4,7 @@ Most streaks are single-valued over their principal axis (straight or gently cur
 of them at once, :func:`axis_polylines` bins the component pixels along that axis and takes
 weighted centroids per 1-px bin, giving an ordered coarse centre line with numpy reductions
 instead of per-pixel loops. Components that are not single-valued (S-curves folding back,
-loops, crossings) are reported as ``folded`` and handed to :mod:`blurtrack.detect.skeleton`.
+loops, crossings) are reported as ``folded`` and handed to :mod:`blurtrack.detect.lines.skeleton`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from blurtrack.detect.ragged import split_at
+from blurtrack.detect.lines.ragged import split_at
 from blurtrack.errors import DetectionError
 
 

@@ -5,7 +5,7 @@ swept along a curve. Across the curve the image is a Gaussian, so the intensity 
 each normal is the centre line; the sum along the normal is the profile ``I(s)``: the line
 density (brightness per px, inversely proportional to the dot's speed, i.e. proportional to
 the time spent there) blurred by the same Gaussian. Endpoints are located on ``I(s)`` by
-:mod:`blurtrack.detect.endpoints`.
+:mod:`blurtrack.detect.lines.endpoints`.
 
 Coarse polylines are refined in two passes, all streaks at once with one image sampling call
 per pass: the first resamples at 1 px, extends past the ends, samples the normals, shifts to
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from blurtrack.detect import ragged
-from blurtrack.detect.ragged import Ragged
-from blurtrack.detect.sampling import sample_image
+from blurtrack.detect.lines import ragged
+from blurtrack.detect.lines.ragged import Ragged
+from blurtrack.detect.lines.sampling import sample_image
 
 #: Sampling passes over the normals: all but the last move the line to the centroids.
 REFINE_PASSES = 2
@@ -139,7 +139,7 @@ TAIL_MIN_PX = 6.0
 
 def _faint_tails(strong: np.ndarray, faint: np.ndarray, r: Ragged, min_n: float) -> np.ndarray:
     """Per point ``(M,)``, whether it lies in its line's kept span (what
-    :func:`blurtrack.detect.ragged.cut` takes): from the line's first to its last ``strong``
+    :func:`blurtrack.detect.lines.ragged.cut` takes): from the line's first to its last ``strong``
     point, at each end extended over the run of ``faint`` points contiguous with it where that
     run reaches more than ``min_n`` points further. Lines without a strong point: none.
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from blurtrack.detect import ragged
-from blurtrack.detect.centreline import _centre_shift, cross_section_sigma, tail_sigma
 from blurtrack.detect.image import background_and_noise, remove_hot_pixels, sparse_points
-from blurtrack.detect.ragged import row_nanmedian
-from blurtrack.detect.segment import find_components
-from blurtrack.detect.shortfit import _basis, fit_short
+from blurtrack.detect.lines import ragged
+from blurtrack.detect.lines.centreline import _centre_shift, cross_section_sigma, tail_sigma
+from blurtrack.detect.lines.ragged import row_nanmedian
+from blurtrack.detect.lines.segment import find_components
+from blurtrack.detect.lines.shortfit import _basis, fit_short
 from blurtrack.errors import DetectionError
 
 _RING = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
