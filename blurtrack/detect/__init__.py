@@ -8,10 +8,10 @@ sub-pixel centre lines and profiles), :mod:`~blurtrack.detect.lines.gaps` (strea
 to end),
 :mod:`~blurtrack.detect.lines.endpoints` and :mod:`~blurtrack.detect.lines.shortfit` (endpoints),
 :mod:`~blurtrack.detect.lines.measure` (measuring a set of lines),
-:mod:`~blurtrack.detect.separate` and :mod:`~blurtrack.detect.templates` (template separation of
-touching streaks), :mod:`~blurtrack.detect.quality` (shape consistency, quality flag),
-:mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.allocator` (allocator
-tuning), :mod:`~blurtrack.detect.orientation` and
+:mod:`~blurtrack.detect.separation.separate` and :mod:`~blurtrack.detect.separation.templates`
+(template separation of touching streaks), :mod:`~blurtrack.detect.separation.quality` (shape
+consistency, quality flag), :mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.allocator`
+(allocator tuning), :mod:`~blurtrack.detect.orientation` and
 :mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
 (a whole session), :mod:`~blurtrack.detect.table` (the streak table),
 :mod:`~blurtrack.detect.overlay` (pictures),

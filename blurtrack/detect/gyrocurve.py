@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from blurtrack.detect.templates import Template, finish
+from blurtrack.detect.separation.templates import Template, finish
 
 #: Samples per predicted curve (uniform in time).
 CURVE_SAMPLES = 65
@@ -101,8 +101,8 @@ def curve_template(
     ceiling: float | None,
     with_raw: bool = True,
 ) -> Template:
-    """A :class:`~blurtrack.detect.templates.Template` of the predicted curve ``pts`` (frame
-    px): its smoothed image holds ``light`` (the light of a typical dot of the frame, in the
+    """A :class:`~blurtrack.detect.separation.templates.Template` of the predicted curve ``pts``
+    (frame px): its smoothed image holds ``light`` (the light of a typical dot of the frame, in the
     smoothed image's units, summed over pixels) and is clipped at ``ceiling`` (the
     saturation level: a saturated tip is flat in the image too); ``points`` is the curve
     itself, the coarse centre line that the measurement refines. ``with_raw=False`` leaves

@@ -21,8 +21,8 @@ from blurtrack.detect.gyroconfirm import mismatch
 from blurtrack.detect.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.separate import _mosaic, _overlaps
-from blurtrack.detect.templates import Placement
+from blurtrack.detect.separation.separate import _mosaic, _overlaps
+from blurtrack.detect.separation.templates import Placement
 
 #: A placement's line is kept from its first to its last point above a quarter of its peak
 #: profile, but at most this times its median

@@ -1,9 +1,9 @@
 """Second detection pass with the gyro's predicted streak shape as the template.
 
 The first pass (:func:`blurtrack.detect.frame.detect_frame`) works from the image alone; its
-template separation (:mod:`blurtrack.detect.separate`) takes the frame's own clean streaks as
-templates. Where the shake reverses within the exposure every dot draws a *hairpin* (it comes
-back a few px beside its own trail): each component is one wedge whose first-pass line is the
+template separation (:mod:`blurtrack.detect.separation.separate`) takes the frame's own clean
+streaks as templates. Where the shake reverses within the exposure every dot draws a *hairpin* (it
+comes back a few px beside its own trail): each component is one wedge whose first-pass line is the
 mean of both arms, every streak of the frame is alike, so the image consensus agrees with the
 wrong lines and no image template corrects them. Once the session's time shift is found the
 blur model predicts every dot's curve (:mod:`blurtrack.detect.gyrocurve`), and that curve,
@@ -30,13 +30,13 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    the whole frame, the median of a sample's, measured worse: hard seed 2 frames 0-3 recall
    94.4 against 95.3 %.)
 3. **Pursuit and joint fit** with that template, exactly as in separation
-   (:func:`blurtrack.detect.pursuit.pursue`, :func:`blurtrack.detect.refit.refit`);
-   then up to :data:`SWEEPS` more pursuits of every candidate's template over what the
-   refitted placements leave, each followed by the joint refit of all (:func:`_sweep`);
-   components whose light the placements explain are candidates for replacement. Where a
-   candidate touches the border the images are padded with zeros beyond the frame and a
-   placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its template's
-   part inside the frame, its placed curve cut at the border,
+   (:func:`blurtrack.detect.separation.pursuit.pursue`,
+   :func:`blurtrack.detect.separation.refit.refit`); then up to :data:`SWEEPS` more pursuits of
+   every candidate's template over what the refitted placements leave, each followed by the joint
+   refit of all (:func:`_sweep`); components whose light the placements explain are candidates for
+   replacement. Where a candidate touches the border the images are padded with zeros beyond the
+   frame and a placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its
+   template's part inside the frame, its placed curve cut at the border,
    :func:`~blurtrack.detect.gyroconfirm.cut_at_border`): chains into the border hold streaks
    leaving the frame, which no template wholly inside explains.
 4. **Measurement** on each placement's own image (the mosaic of separation), with the placed
@@ -80,10 +80,10 @@ from blurtrack.detect.lines.measure import combine
 from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.pursuit import pursue
-from blurtrack.detect.refit import model_image, refit
-from blurtrack.detect.separate import HALO_MAX, RESIDUAL_MAX
-from blurtrack.detect.templates import HALO_PX, Placement, Template
+from blurtrack.detect.separation.pursuit import pursue
+from blurtrack.detect.separation.refit import model_image, refit
+from blurtrack.detect.separation.separate import HALO_MAX, RESIDUAL_MAX
+from blurtrack.detect.separation.templates import HALO_PX, Placement, Template
 from blurtrack.errors import CoverageError
 
 #: Samples of the gate's predicted curves (odd: its middle sample is the mid-exposure one, as

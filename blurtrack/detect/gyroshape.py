@@ -25,7 +25,7 @@ import numpy as np
 
 from blurtrack.detect.gyrocurve import similar_curve
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.templates import INSIDE_MIN, Template, inside_norm2
+from blurtrack.detect.separation.templates import INSIDE_MIN, Template, inside_norm2
 
 #: Shape search (calibration error): rotations (rad) and scales of the predicted curve.
 ROTATIONS_RAD = (-0.06, -0.03, 0.0, 0.03, 0.06)
@@ -57,8 +57,8 @@ def best_shape(
     ``frame``: for a ``light`` padded with zeros beyond the frame, the frame's pixels in it
     ``(x0, y0, x1, y1)``; a
     placement reaching past the border is normalised by its template's part inside the frame
-    (at least :data:`~blurtrack.detect.templates.INSIDE_MIN` of it), so a streak leaving the
-    frame is matched by its predicted curve cut at the border.
+    (at least :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of it), so a streak leaving
+    the frame is matched by its predicted curve cut at the border.
     """
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tried: dict[tuple[float, float], _Trial] = {}

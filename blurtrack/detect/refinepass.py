@@ -20,7 +20,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyropass import FrameOutcome, refine_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.quality import frame_quality
+from blurtrack.detect.separation.quality import frame_quality
 
 
 @dataclass

@@ -25,8 +25,8 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.quality import frame_quality
 from blurtrack.detect.refinepass import TemplatePass, refine_frames
+from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import BlurTrackError, CoverageError, DetectionError

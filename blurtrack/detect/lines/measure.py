@@ -3,7 +3,7 @@ fits and trimming, all lines of a frame at once (one call per detection pass).
 
 :func:`measure_lines` is what :func:`blurtrack.detect.frame.detect_frame` runs on the lines of
 the segmentation (first pass) and again on the lines that template separation
-(:mod:`blurtrack.detect.separate`) places in its mosaic of separated streak images.
+(:mod:`blurtrack.detect.separation.separate`) places in its mosaic of separated streak images.
 """
 
 from __future__ import annotations

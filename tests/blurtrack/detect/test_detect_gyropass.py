@@ -8,10 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame, gyroconfirm, gyropass, pursuit
+from blurtrack.detect import detect_frame, gyroconfirm, gyropass
 from blurtrack.detect.gyrocurve import predict_curves
 from blurtrack.detect.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.separation import pursuit
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
@@ -321,7 +322,7 @@ def test_the_norm_inside_the_frame_is_the_mask_correlation() -> None:
     # A padded image of 40 x 30 px around a 20 x 12 px frame: the template's squared norm
     # inside the frame per placement equals the correlation of the frame's mask with the
     # template's square; None where every placement lies inside.
-    from blurtrack.detect.templates import inside_norm2
+    from blurtrack.detect.separation.templates import inside_norm2
 
     rng = np.random.default_rng(3)
     sm = rng.random((7, 9)).astype(np.float32)

@@ -51,7 +51,9 @@ def test_detecting_a_frame_imports_no_table_or_spline_package() -> None:
         "assert len(fs) == 2, len(fs)"
     )
     mods = _modules_after(code)
-    assert "blurtrack.detect.separate" in mods and "cv2" in mods  # detection was imported
+    assert (
+        "blurtrack.detect.separation.separate" in mods and "cv2" in mods
+    )  # detection was imported
     assert _present(mods, NOT_FOR_FRAMES) == []
     # negative control: the session layer does import pandas
     assert _present(_modules_after("import blurtrack.detect.session"), ("pandas",)) == ["pandas"]

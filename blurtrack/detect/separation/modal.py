@@ -1,4 +1,5 @@
-"""References for template separation from whole *components* (:mod:`blurtrack.detect.separate`).
+"""References for template separation from whole *components*
+(:mod:`blurtrack.detect.separation.separate`).
 
 Separation needs a few whole, isolated streaks as templates. On a frame whose streaks are
 curved (the "2"-shaped trails of real point lights under hand shake) the first pass breaks
@@ -19,7 +20,7 @@ import numpy as np
 
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.quality import MIN_REFERENCE, Consensus, consensus_field
+from blurtrack.detect.separation.quality import MIN_REFERENCE, Consensus, consensus_field
 
 #: Smallest component (px) that can be a whole streak of the modal cluster.
 MIN_AREA_PX = 40

@@ -1,5 +1,6 @@
 """Matching pursuit of one template over a component's light (the separation of touching
-streaks, :mod:`blurtrack.detect.separate`, and the template pass, :mod:`blurtrack.detect.gyropass`).
+streaks, :mod:`blurtrack.detect.separation.separate`, and the template pass,
+:mod:`blurtrack.detect.gyropass`).
 
 The template ``T`` is correlated with the residual image ``X`` (OpenCV ``matchTemplate``); a
 placement's score is the normalised correlation over the template's support, its amplitude
@@ -14,7 +15,13 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.templates import HALO_PX, INSIDE_MIN, Placement, Template, inside_norm2
+from blurtrack.detect.separation.templates import (
+    HALO_PX,
+    INSIDE_MIN,
+    Placement,
+    Template,
+    inside_norm2,
+)
 
 #: Lowest support-normalised correlation of an accepted placement.
 SCORE_MIN = 0.8
@@ -59,10 +66,10 @@ def pursue(
     light it explains.
 
     ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
-    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.templates.inside_norm2`): a placement
+    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.separation.templates.inside_norm2`): a placement
     reaching past the border is scored and scaled by its template's part inside the frame
     (a streak leaving the frame), and needs at least
-    :data:`~blurtrack.detect.templates.INSIDE_MIN` of its template inside."""
+    :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of its template inside."""
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box

@@ -3,17 +3,18 @@
 A faint light on a string (night2 of the real photographs) is above the threshold only where
 it is brightest, its hook or its foot: the first pass and the separation measure that part,
 a *fragment* far shorter than the frame's consensus vector. The rest of the light is in the
-image, below the threshold. With whole-component references (:mod:`blurtrack.detect.modal`)
-every light drew the reference's curve, so the nearest reference's template, mapped onto the
-local consensus (:func:`blurtrack.detect.templates.similar`), is matched to the smoothed image
-around each fragment at any amplitude down to :data:`AMP_MIN` (relative to the reference),
-with two conditions that keep it on the fragment's own light: its support covers
-:data:`COVER_MIN` of the fragment's centre line (the *anchor*), and its normalised correlation
-over the support is at least :data:`SCORE_MIN`. The light of every other component is removed
-from the image first (neighbouring lights are not matched). The placed centre line is then
-measured on that image (:func:`blurtrack.detect.lines.measure.measure_lines`) and replaces the
-fragment only when the measurement agrees with the local consensus within the shape tolerance
-(:func:`blurtrack.detect.quality.shape_tolerance`). Pixels, frame coordinates.
+image, below the threshold. With whole-component references
+(:mod:`blurtrack.detect.separation.modal`) every light drew the reference's curve, so the nearest
+reference's template, mapped onto the local consensus
+(:func:`blurtrack.detect.separation.templates.similar`), is matched to the smoothed image around
+each fragment at any amplitude down to :data:`AMP_MIN` (relative to the reference), with two
+conditions that keep it on the fragment's own light: its support covers :data:`COVER_MIN` of the
+fragment's centre line (the *anchor*), and its normalised correlation over the support is at least
+:data:`SCORE_MIN`. The light of every other component is removed from the image first (neighbouring
+lights are not matched). The placed centre line is then measured on that image
+(:func:`blurtrack.detect.lines.measure.measure_lines`) and replaces the fragment only when the
+measurement agrees with the local consensus within the shape tolerance
+(:func:`blurtrack.detect.separation.quality.shape_tolerance`). Pixels, frame coordinates.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import numpy as np
 
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.quality import Consensus, shape_tolerance
-from blurtrack.detect.templates import Template, similar, template
+from blurtrack.detect.separation.quality import Consensus, shape_tolerance
+from blurtrack.detect.separation.templates import Template, similar, template
 
 #: A streak whose chord is under this fraction of the local consensus length is a fragment.
 FRAGMENT = 0.75

@@ -1,5 +1,5 @@
-"""Template separation of touching streaks (blurtrack.detect.separate) and the artefact filter
-(blurtrack.detect.lines.segment.drop_artefacts), on exactly rendered frames."""
+"""Template separation of touching streaks (blurtrack.detect.separation.separate) and the artefact
+filter (blurtrack.detect.lines.segment.drop_artefacts), on exactly rendered frames."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def _collapse(m, i: int) -> None:  # type: ignore[no-untyped-def]
 
 
 def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    import blurtrack.detect.separate as sep
+    import blurtrack.detect.separation.separate as sep
 
     image, curves = _frame()
     prep, comps, folded, m = _first_pass(image)

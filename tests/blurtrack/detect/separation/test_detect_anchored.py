@@ -1,5 +1,5 @@
-"""Anchored placement of the modal template on fragments (blurtrack.detect.anchored), on the
-real photograph night2.jpg (skipped without the shared data)."""
+"""Anchored placement of the modal template on fragments (blurtrack.detect.separation.anchored), on
+the real photograph night2.jpg (skipped without the shared data)."""
 
 from __future__ import annotations
 

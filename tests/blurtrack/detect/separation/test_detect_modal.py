@@ -1,4 +1,4 @@
-"""Whole-component references of template separation (blurtrack.detect.modal), on exactly
+"""Whole-component references of template separation (blurtrack.detect.separation.modal), on exactly
 rendered frames of "2"-shaped streaks (the trails of real point lights under hand shake)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import numpy as np
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.segment import Components, find_components
-from blurtrack.detect.modal import component_references, modal_components, skeleton_path
+from blurtrack.detect.separation.modal import component_references, modal_components, skeleton_path
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 SHAPE = (300, 420)

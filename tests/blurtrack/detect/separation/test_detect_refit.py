@@ -1,5 +1,5 @@
-"""Joint refinement of overlapping template placements (blurtrack.detect.refit), on exactly
-rendered streaks whose true positions are known."""
+"""Joint refinement of overlapping template placements (blurtrack.detect.separation.refit), on
+exactly rendered streaks whose true positions are known."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 from blurtrack.detect import DetectParams
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.segment import find_components
-from blurtrack.detect.refit import _paint, _peak, _tile, refit
-from blurtrack.detect.templates import Placement, Template, template
+from blurtrack.detect.separation.refit import _paint, _peak, _tile, refit
+from blurtrack.detect.separation.templates import Placement, Template, template
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 SHAPE = (160, 240)

@@ -4,8 +4,8 @@ Within one frame every dot draws nearly the same curve: the camera's rotation mo
 alike, up to perspective and the rolling shutter, which vary slowly over the frame. So a clean,
 isolated streak is a matched template for its neighbours (shape *and* brightness profile).
 
-1. **Consensus** (:func:`blurtrack.detect.quality.consensus_field`): the robust affine field
-   of the start-to-end vectors of the first pass's unflagged streaks.
+1. **Consensus** (:func:`blurtrack.detect.separation.quality.consensus_field`): the robust affine
+   field of the start-to-end vectors of the first pass's unflagged streaks.
 2. **Candidates**: components whose lines are flagged (crossing, looped, merged), deviate from
    the consensus by more than the quality tolerance (chains of several streaks, fragments,
    hooks), or that gave no measurable line at all.
@@ -14,19 +14,18 @@ isolated streak is a matched template for its neighbours (shape *and* brightness
    template ``T``): the normalised correlation over the template's support,
    ``<T, X> / (|T| |X|_support)``, is 1 where ``X`` holds a scaled copy of ``T`` whatever lies
    outside, and about ``sqrt(f)`` where only a fraction ``f`` of a collinear neighbour overlaps;
-   the best placement above :data:`~blurtrack.detect.pursuit.SCORE_MIN` with an amplitude
-   ``<T, X> / |T|^2`` above :data:`~blurtrack.detect.pursuit.AMP_MIN` is accepted and ``a T``
-   subtracted from the candidates' residual image, until none is left
-   (:func:`blurtrack.detect.pursuit.pursue`). Fragments of one streak (a dim middle) are
+   the best placement above :data:`~blurtrack.detect.separation.pursuit.SCORE_MIN` with an amplitude
+   ``<T, X> / |T|^2`` above :data:`~blurtrack.detect.separation.pursuit.AMP_MIN` is accepted and
+   ``a T`` subtracted from the candidates' residual image, until none is left
+   (:func:`blurtrack.detect.separation.pursuit.pursue`). Fragments of one streak (a dim middle) are
    joined: one placement explains both. Placements that share light are then fitted together
-   (:mod:`blurtrack.detect.refit`). Components that the accepted placements explain (most of
-   their light) are replaced.
+   (:mod:`blurtrack.detect.separation.refit`). Components that the accepted placements explain (most
+   of their light) are replaced.
 4. **Measurement**: each placement gets its own image, the smoothed (and raw) frame around it
    minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
    the placed centre lines (the reference's, shifted) are measured there by
    :func:`blurtrack.detect.lines.measure.measure_lines` exactly like the first pass's, and moved
-   back.
-   Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
+   back. Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
 """
 
 from __future__ import annotations
@@ -37,16 +36,16 @@ import numpy as np
 
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.modal import component_references
-from blurtrack.detect.pursuit import pursue
-from blurtrack.detect.quality import (
+from blurtrack.detect.separation.modal import component_references
+from blurtrack.detect.separation.pursuit import pursue
+from blurtrack.detect.separation.quality import (
     MIN_REFERENCE,
     Consensus,
     consensus_field,
     shape_tolerance,
 )
-from blurtrack.detect.refit import refit
-from blurtrack.detect.templates import (
+from blurtrack.detect.separation.refit import refit
+from blurtrack.detect.separation.templates import (
     Placement,
     Template,
     similar,
@@ -61,7 +60,7 @@ OVERLAP_FRACTION = 0.1
 #: Components larger than this many reference areas are candidates (chains).
 AREA_FACTOR = 1.6
 #: Most light (squared, relative to that under the template) a template's halo (a ring of
-#: :data:`~blurtrack.detect.templates.HALO_PX`) may hold where it is placed.
+#: :data:`~blurtrack.detect.separation.templates.HALO_PX`) may hold where it is placed.
 HALO_MAX = 0.25
 #: The same with whole-component references: real lights on a string touch their neighbours,
 #: whose light then lies in the halo.
@@ -82,8 +81,8 @@ class Separation:
     streaks: Measured | None
     replaced: np.ndarray | None
     field: Consensus | None
-    #: The whole-component references (:mod:`blurtrack.detect.modal`) and those that agree
-    #: with the field, where the frame took them (else None).
+    #: The whole-component references (:mod:`blurtrack.detect.separation.modal`) and those that
+    #: agree with the field, where the frame took them (else None).
     refs: Measured | None = None
     good: np.ndarray | None = None
 
@@ -205,7 +204,7 @@ def separate(
     voters = single & ~(first.crossing | first.looped | merged | clipped)
     field = consensus_field(v, first.time_mid, voters)
     refs = first  # the streaks the references are taken from
-    whole = False  # references from whole components (blurtrack.detect.modal)
+    whole = False  # references from whole components (blurtrack.detect.separation.modal)
     good = np.zeros(len(first), bool)
     if field is not None:
         good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c))

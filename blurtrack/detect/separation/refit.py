@@ -1,4 +1,5 @@
-"""Joint refinement of template placements that overlap (:mod:`blurtrack.detect.separate`).
+"""Joint refinement of template placements that overlap
+(:mod:`blurtrack.detect.separation.separate`).
 
 The matching pursuit places one template at a time, each at the best match of what the
 earlier ones left. Where two streaks run along each other (a dot's streak overlapping the next
@@ -19,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blurtrack.detect.templates import INSIDE_MIN, Placement, inside_norm2, warp
+from blurtrack.detect.separation.templates import INSIDE_MIN, Placement, inside_norm2, warp
 
 #: Coordinate-descent rounds over the overlapping placements.
 ROUNDS = 3
@@ -113,7 +114,7 @@ def refit(
     (the candidates' light, float32, frame coordinates; ``frame``: for a ``light`` padded
     with zeros beyond the frame, the frame's pixels in it, and a placement reaching past the border
     is scaled by its template's part inside, see
-    :func:`blurtrack.detect.templates.inside_norm2`).
+    :func:`blurtrack.detect.separation.templates.inside_norm2`).
 
     Returns the placements (moved and re-scaled where that fits better; the others as they
     were) and the model image ``sum amp * template`` of all of them (None when no

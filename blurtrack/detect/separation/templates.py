@@ -1,6 +1,6 @@
-"""Templates for :mod:`blurtrack.detect.separate`: a clean streak's pixels of the smoothed
-(and raw) frame, its support and halo, mapped onto another place of the frame by a rotation and
-scaling, and placements of them."""
+"""Templates for :mod:`blurtrack.detect.separation.separate`: a clean streak's pixels of the
+smoothed (and raw) frame, its support and halo, mapped onto another place of the frame by a rotation
+and scaling, and placements of them."""
 
 from __future__ import annotations
 

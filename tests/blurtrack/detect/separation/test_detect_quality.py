@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from blurtrack.detect.quality import add_quality
+from blurtrack.detect.separation.quality import add_quality
 from blurtrack.io import streaks
 
 
