@@ -37,7 +37,8 @@ class DetectParams:
     - ``separate``: separate touching and overlapping streaks with the frame's own clean
       streaks as templates (:mod:`blurtrack.detect.separation.separate`).
     - ``gyro_template``: in a session with a gyro, a second pass on frames of hairpin
-      streaks with the gyro's predicted curve as the template (:mod:`blurtrack.detect.gyropass`).
+      streaks with the gyro's predicted curve as the template
+      (:mod:`blurtrack.detect.gyro.gyropass`).
     """
 
     smooth_sigma_px: float = 1.0

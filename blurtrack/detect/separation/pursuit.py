@@ -1,6 +1,6 @@
 """Matching pursuit of one template over a component's light (the separation of touching
 streaks, :mod:`blurtrack.detect.separation.separate`, and the template pass,
-:mod:`blurtrack.detect.gyropass`).
+:mod:`blurtrack.detect.gyro.gyropass`).
 
 The template ``T`` is correlated with the residual image ``X`` (OpenCV ``matchTemplate``); a
 placement's score is the normalised correlation over the template's support, its amplitude

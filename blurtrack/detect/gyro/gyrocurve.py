@@ -1,5 +1,5 @@
 """The gyro's predicted streak curves and templates rendered from them
-(:mod:`blurtrack.detect.gyropass`).
+(:mod:`blurtrack.detect.gyro.gyropass`).
 
 A dot seen at pixel ``p`` at its row's mid-exposure draws, over its row's exposure, the curve
 ``warp(p, t_ref, t)``: the blur model (gyro, intrinsics, ``R_cam_imu``, time shift) predicts

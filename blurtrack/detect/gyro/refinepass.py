@@ -1,6 +1,6 @@
 """The gyro-template second pass over a session's covered frames, in worker processes.
 
-:func:`blurtrack.detect.gyropass.refine_frame` frame by frame: each frame's refinement needs
+:func:`blurtrack.detect.gyro.gyropass.refine_frame` frame by frame: each frame's refinement needs
 only its own first-pass streaks, its image and the session's blur model (with the time shift
 the scan found), so the frames are refined in forked workers after the scan, in order, with
 exactly the result of one process.
@@ -17,7 +17,7 @@ import numpy as np
 
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.gyropass import FrameOutcome, refine_frame
+from blurtrack.detect.gyro.gyropass import FrameOutcome, refine_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.quality import frame_quality

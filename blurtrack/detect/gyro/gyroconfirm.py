@@ -1,5 +1,5 @@
 """Whether the lines measured on a frame confirm the gyro-predicted curves placed there
-(the template pass's check, :mod:`blurtrack.detect.gyropass`): end-to-end mismatch either way
+(the template pass's check, :mod:`blurtrack.detect.gyro.gyropass`): end-to-end mismatch either way
 round, a line of the placed curve's shape slightly shifted along a chain, a placed curve cut
 at the frame's border, and the frame's acceptance. Pixels as DESIGN's (``(0, 0)`` the centre
 of the top-left pixel); ends ``(N, 2)``.

@@ -1,5 +1,5 @@
-"""The gyro pass's template rendering and shape-search trial (blurtrack.detect.gyrocurve,
-blurtrack.detect.gyroshape) against plain reference computations: splats summed by
+"""The gyro pass's template rendering and shape-search trial (blurtrack.detect.gyro.gyrocurve,
+blurtrack.detect.gyro.gyroshape) against plain reference computations: splats summed by
 ``np.add.at`` and blurred by ``cv2.GaussianBlur``; the ranking correlations summed
 placement by placement."""
 
@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.detect import gyroshape
-from blurtrack.detect.gyrocurve import _render, curve_template
-from blurtrack.detect.gyroshape import DEN_FLOOR, SHIFT_WINDOW_PX, _trial
+from blurtrack.detect.gyro import gyroshape
+from blurtrack.detect.gyro.gyrocurve import _render, curve_template
+from blurtrack.detect.gyro.gyroshape import DEN_FLOOR, SHIFT_WINDOW_PX, _trial
 
 
 def _splat_blur(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
@@ -110,7 +110,7 @@ def test_the_trial_ranks_placements_by_their_own_sums_and_never_the_dark() -> No
 def test_the_shape_search_finds_a_rotated_and_scaled_curve(monkeypatch) -> None:
     # The light holds the curve rotated by 0.03 rad and scaled by 1.04 about its centroid:
     # the coordinate search's pick.
-    from blurtrack.detect.gyrocurve import similar_curve
+    from blurtrack.detect.gyro.gyrocurve import similar_curve
     from blurtrack.detect.lines.segment import find_components
 
     rng = np.random.default_rng(8)

@@ -1,4 +1,4 @@
-"""The gyro-template second pass (blurtrack.detect.gyropass) on an exactly rendered frame of
+"""The gyro-template second pass (blurtrack.detect.gyro.gyropass) on an exactly rendered frame of
 hairpin streaks: the shake reverses within the exposure and every dot comes back 3 px beside
 its own trail, which the image-only first pass measures as one line down the middle."""
 
@@ -8,9 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame, gyroconfirm, gyropass
-from blurtrack.detect.gyrocurve import predict_curves
-from blurtrack.detect.gyropass import refine_frame
+from blurtrack.detect import detect_frame
+from blurtrack.detect.gyro import gyroconfirm, gyropass
+from blurtrack.detect.gyro.gyrocurve import predict_curves
+from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.separation import pursuit
 from blurtrack.geometry.blur_model import BlurModel

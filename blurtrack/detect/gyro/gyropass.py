@@ -6,7 +6,7 @@ streaks as templates. Where the shake reverses within the exposure every dot dra
 comes back a few px beside its own trail): each component is one wedge whose first-pass line is the
 mean of both arms, every streak of the frame is alike, so the image consensus agrees with the
 wrong lines and no image template corrects them. Once the session's time shift is found the
-blur model predicts every dot's curve (:mod:`blurtrack.detect.gyrocurve`), and that curve,
+blur model predicts every dot's curve (:mod:`blurtrack.detect.gyro.gyrocurve`), and that curve,
 rendered with the frame's cross-section and brightness, is the template.
 
 Frames are refined where the prediction says the first pass cannot be right: *hairpin
@@ -25,7 +25,7 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    are guesses, the time shift is the scan's), so the predicted curve is off by a px or
    two: per candidate the curve is rotated and scaled about its centroid, a coordinate
    search ranked by the correlation normalised over the template's support and halo
-   (:func:`blurtrack.detect.gyroshape.best_shape`); shifts are searched by the matched filter
+   (:func:`blurtrack.detect.gyro.gyroshape.best_shape`); shifts are searched by the matched filter
    over the component's box and by the joint fit (up to 8 px). (One rotation and scale for
    the whole frame, the median of a sample's, measured worse: hard seed 2 frames 0-3 recall
    94.4 against 95.3 %.)
@@ -37,25 +37,25 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    replacement. Where a candidate touches the border the images are padded with zeros beyond the
    frame and a placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its
    template's part inside the frame, its placed curve cut at the border,
-   :func:`~blurtrack.detect.gyroconfirm.cut_at_border`): chains into the border hold streaks
+   :func:`~blurtrack.detect.gyro.gyroconfirm.cut_at_border`): chains into the border hold streaks
    leaving the frame, which no template wholly inside explains.
 4. **Measurement** on each placement's own image (the mosaic of separation), with the placed
    curve as the coarse centre line, by :func:`blurtrack.detect.lines.measure.measure_lines`
-   (:mod:`blurtrack.detect.gyromeasure`; hairpins as two arms): the ends, midpoints and
+   (:mod:`blurtrack.detect.gyro.gyromeasure`; hairpins as two arms): the ends, midpoints and
    profiles are the image's, not the prediction's. The prior decides *segmentation* (which
    light is which dot's, which way its line runs), not the endpoints, so calibration from
    these streaks is not circular. (Each placement is measured on two own images, the
    neighbours' templates subtracted as they are and clipped at zero, and keeps the line
-   nearer its placed curve, :data:`~blurtrack.detect.gyromeasure.CLIP_CHOICE`: a choice
+   nearer its placed curve, :data:`~blurtrack.detect.gyro.gyromeasure.CLIP_CHOICE`: a choice
    between two segmentations, both lines the image's.)
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
    placed curve's (and whose shape does not match it within twice that, :func:`_confirmed`)
    is dropped (its component keeps its first-pass lines), and a component
    keeps its first-pass lines unless the new streaks fit the placed curves better (per
    placement, the nearest old line against the new one); a frame where fewer than
-   :data:`~blurtrack.detect.gyroconfirm.ACCEPT_MIN` of the measured placements survive keeps
+   :data:`~blurtrack.detect.gyro.gyroconfirm.ACCEPT_MIN` of the measured placements survive keeps
    its first pass entirely (a wrong prior, e.g. a gyro of the wrong sign, draws shapes the
-   image does not hold; :mod:`blurtrack.detect.gyroconfirm` holds these checks).
+   image does not hold; :mod:`blurtrack.detect.gyro.gyroconfirm` holds these checks).
 """
 
 from __future__ import annotations
@@ -71,10 +71,10 @@ from blurtrack.detect.frame import (
     SPOT_MIN_PX,
     FrameStreaks,
 )
-from blurtrack.detect.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
-from blurtrack.detect.gyrocurve import Curves, curve_template, predict_curves
-from blurtrack.detect.gyromeasure import as_streaks, measure_placements
-from blurtrack.detect.gyroshape import best_shape
+from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
+from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
+from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
+from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
 from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
@@ -87,7 +87,7 @@ from blurtrack.detect.separation.templates import HALO_PX, Placement, Template
 from blurtrack.errors import CoverageError
 
 #: Samples of the gate's predicted curves (odd: its middle sample is the mid-exposure one, as
-#: at :data:`~blurtrack.detect.gyrocurve.CURVE_SAMPLES`; the gate is most of the pass's cost
+#: at :data:`~blurtrack.detect.gyro.gyrocurve.CURVE_SAMPLES`; the gate is most of the pass's cost
 #: on frames it lets through to nothing, ``dense``: 13 ms per frame at 65 samples).
 GATE_SAMPLES = 17
 #: Frames whose median predicted chord is under this fraction of the arc are hairpin frames.

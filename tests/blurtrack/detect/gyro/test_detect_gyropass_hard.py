@@ -1,4 +1,4 @@
-"""The template pass (blurtrack.detect.gyropass) on a simulated `hard` session of long straight
+"""The template pass (blurtrack.detect.gyro.gyropass) on a simulated `hard` session of long straight
 streaks that chain and touch, checked against the simulator's truth: the further pursuit
 sweeps (``SWEEPS``) find dots the first pursuit did not place, and measuring each placement
 also with the neighbours' subtraction clipped at zero (``gyromeasure.CLIP_CHOICE``) finds more
@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-import blurtrack.detect.refinepass as refinepass
+import blurtrack.detect.gyro.refinepass as refinepass
 from blurtrack.cli import main
-from blurtrack.detect import gyromeasure, gyropass
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro import gyromeasure, gyropass
 from blurtrack.detect.session import detect_session
 from blurtrack.io.session import load_session
 from rigs.sim.shake import default_shake_path

@@ -1,4 +1,4 @@
-"""The time shift and readout refined by the predicted templates (blurtrack.detect.shiftfit),
+"""The time shift and readout refined by the predicted templates (blurtrack.detect.gyro.shiftfit),
 on an exactly rendered rolling-shutter frame of arcs: the gyro's rate turns within the
 exposure, so a wrong shift bends the predicted curves the wrong way, and a wrong readout
 does so by a different amount in every row."""
@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.detect import detect_frame, shiftfit
-from blurtrack.detect.gyrocurve import predict_curves
+from blurtrack.detect import detect_frame
+from blurtrack.detect.gyro import shiftfit
+from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.geometry.blur_model import BlurModel

@@ -1,4 +1,4 @@
-"""Measurement of the gyro pass's placements (:mod:`blurtrack.detect.gyropass`) on their own
+"""Measurement of the gyro pass's placements (:mod:`blurtrack.detect.gyro.gyropass`) on their own
 images, hairpins as two arms joined at the turn.
 
 A hairpin's two arms lie 2-4 px apart, closer than the cross-section windows of
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, _near_border
-from blurtrack.detect.gyroconfirm import mismatch
-from blurtrack.detect.gyrocurve import arm_templates, turn_index
+from blurtrack.detect.gyro.gyroconfirm import mismatch
+from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.separate import _mosaic, _overlaps

@@ -1,4 +1,4 @@
-"""The gyro pass's shape search (:mod:`blurtrack.detect.gyropass`): the rotation and scale of
+"""The gyro pass's shape search (:mod:`blurtrack.detect.gyro.gyropass`): the rotation and scale of
 a predicted curve whose template explains a component's light best.
 
 Calibration is nominal, so the predicted curve is off by a px or two: it is rotated and
@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from blurtrack.detect.gyrocurve import similar_curve
+from blurtrack.detect.gyro.gyrocurve import similar_curve
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.templates import INSIDE_MIN, Template, inside_norm2
 

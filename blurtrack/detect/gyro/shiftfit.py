@@ -1,5 +1,5 @@
 """The camera–IMU time shift refined by the gyro's predicted streak templates, for the
-template pass (:mod:`blurtrack.detect.gyropass`).
+template pass (:mod:`blurtrack.detect.gyro.gyropass`).
 
 The scan (:mod:`blurtrack.detect.timeshift`) matches the first pass's measured *ends* with the
 predicted ones. Where the frames hold saturated, touching streaks measured by the first pass
@@ -16,7 +16,7 @@ frame's middle). Both are refined here, together.
 
 The shift is the one whose predicted curves explain the light of isolated first-pass
 streaks best: each streak's curve, predicted from its mid-exposure point at a trial shift, is
-rendered as a template (:func:`blurtrack.detect.gyrocurve.curve_template`) and matched within
+rendered as a template (:func:`blurtrack.detect.gyro.gyrocurve.curve_template`) and matched within
 :data:`WINDOW_PX` of where it was predicted, by its correlation normalised over its support
 *and halo* (light past a template's ends counts against it: a curve too long or too short,
 too bent or not enough); the best placement's value, summed over the streaks, is the score of
@@ -43,8 +43,8 @@ import numpy as np
 
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.gyrocurve import curve_template, predict_curves
-from blurtrack.detect.gyropass import gate
+from blurtrack.detect.gyro.gyrocurve import curve_template, predict_curves
+from blurtrack.detect.gyro.gyropass import gate
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
