@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_detect import _truth_arrays, match  # noqa: E402
 
-import blurtrack.detect.refinepass as refinepass  # noqa: E402
+import blurtrack.detect.gyro.refinepass as refinepass  # noqa: E402
 from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.session import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402

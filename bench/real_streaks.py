@@ -5,10 +5,10 @@ are found, how many of them pass the quality flag, and the spread of start-to-en
 around the photograph's consensus (every light drew nearly the same curve), orientation-free,
 over streaks (neither clipped, crossing nor looped) whose length is within 30 % of their
 median length. And, where the photograph's isolated lights form a modal cluster of
-components (:mod:`blurtrack.detect.modal`), a count of *whole* streaks that does not depend on
-the streaks detected: the reference vector is the median start-to-end vector of those whole
-components' skeleton lines, and a streak (not clipped) counts as whole when its vector is within
-max(3 px, 25 %) of it, either sign.
+components (:mod:`blurtrack.detect.separation.modal`), a count of *whole* streaks that does not
+depend on the streaks detected: the reference vector is the median start-to-end vector of those
+whole components' skeleton lines, and a streak (not clipped) counts as whole when its vector is
+within max(3 px, 25 %) of it, either sign.
 
 Usage: ``python bench/real_streaks.py [--overlay-dir docs/figures]``
 """
@@ -28,11 +28,11 @@ sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
 from blurtrack.detect.image import prepare_frame  # noqa: E402
-from blurtrack.detect.modal import component_references  # noqa: E402
+from blurtrack.detect.lines.segment import drop_artefacts, find_components  # noqa: E402
 from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks  # noqa: E402
-from blurtrack.detect.quality import shape_tolerance  # noqa: E402
-from blurtrack.detect.segment import drop_artefacts, find_components  # noqa: E402
+from blurtrack.detect.separation.modal import component_references  # noqa: E402
+from blurtrack.detect.separation.quality import shape_tolerance  # noqa: E402
 from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "light-streaks"

@@ -8,20 +8,20 @@ from typing import Any
 import numpy as np
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.anchored import anchored
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.measure import LineSet, measure_lines
-from blurtrack.detect.measure import combine as _combine
-from blurtrack.detect.params import DetectParams
-from blurtrack.detect.ragged import Ragged, split_at
-from blurtrack.detect.segment import (
+from blurtrack.detect.lines.measure import LineSet, measure_lines
+from blurtrack.detect.lines.measure import combine as _combine
+from blurtrack.detect.lines.ragged import Ragged, split_at
+from blurtrack.detect.lines.segment import (
     Components,
     axis_polylines,
     drop_artefacts,
     find_components,
 )
-from blurtrack.detect.separate import separate
-from blurtrack.detect.skeleton import trace_paths
+from blurtrack.detect.lines.skeleton import trace_paths
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.separation.anchored import anchored
+from blurtrack.detect.separation.separate import separate
 
 #: Flag columns, in table order.
 FLAG_NAMES: tuple[str, ...] = ("clipped", "saturated", "crossing", "merged", "looped", "faint")
@@ -55,8 +55,8 @@ class FrameStreaks:
     short: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     saturated_fraction: float = 0.0
     #: The streaks' ``(shape_deviation_px, thick_saturated, quality_ok)``
-    #: (:func:`blurtrack.detect.quality.frame_quality`; independent of which end is A), where
-    #: the frame's worker computed them; None: the table computes them.
+    #: (:func:`blurtrack.detect.separation.quality.frame_quality`; independent of which end is A),
+    #: where the frame's worker computed them; None: the table computes them.
     quality: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:

@@ -35,9 +35,10 @@ class DetectParams:
       ``artefact_ratio`` times that of a component within ``artefact_gap_px`` is dropped as an
       artefact of it (JPEG ringing, demosaicing, blooming); 0 keeps every component.
     - ``separate``: separate touching and overlapping streaks with the frame's own clean
-      streaks as templates (:mod:`blurtrack.detect.separate`).
+      streaks as templates (:mod:`blurtrack.detect.separation.separate`).
     - ``gyro_template``: in a session with a gyro, a second pass on frames of hairpin
-      streaks with the gyro's predicted curve as the template (:mod:`blurtrack.detect.gyropass`).
+      streaks with the gyro's predicted curve as the template
+      (:mod:`blurtrack.detect.gyro.gyropass`).
     """
 
     smooth_sigma_px: float = 1.0

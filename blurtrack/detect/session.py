@@ -14,6 +14,7 @@ import pandas as pd
 from blurtrack.allocator import keep_heap
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
     GYRO_SIGMA_REL,
@@ -25,8 +26,7 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.quality import frame_quality
-from blurtrack.detect.refinepass import TemplatePass, refine_frames
+from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.detect.table import build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
@@ -259,7 +259,7 @@ def detect_session(
         covered = _covered(found, timings, model)
         if found_shift and p.gyro_template and covered:
             # The template pass's frames: the shift their predicted curves explain best.
-            from blurtrack.detect.shiftfit import refine_timeshift as refine_by_templates
+            from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
 
             refined = refine_by_templates(
                 lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers

@@ -6,8 +6,9 @@ signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-s
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
 ``mid_y`` (time midpoint: where the dot was at mid-exposure), ``llr_gyro``,
 ``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
-``shape_deviation_px``, ``thick_saturated``, ``quality_ok`` (:mod:`blurtrack.detect.quality`).
-The column ``merged`` of the core schema means "merged with or crossing another streak".
+``shape_deviation_px``, ``thick_saturated``, ``quality_ok``
+(:mod:`blurtrack.detect.separation.quality`). The column ``merged`` of the core schema means "merged
+with or crossing another streak".
 
 In the table :func:`build_table` returns, a ``centerline`` cell is an ``(n, 2)`` float64 array
 and a ``profile`` cell an ``(n,)`` one (views of one rounded array per frame: no per-value
@@ -25,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.lines.ragged import split_at
 from blurtrack.detect.orientation import Orientation
-from blurtrack.detect.quality import add_quality
-from blurtrack.detect.ragged import split_at
+from blurtrack.detect.separation.quality import add_quality
 from blurtrack.io import atomic, streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
@@ -61,7 +62,7 @@ def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
     return out
 
 
-#: The columns of :func:`blurtrack.detect.quality.add_quality`, in its order.
+#: The columns of :func:`blurtrack.detect.separation.quality.add_quality`, in its order.
 QUALITY_COLUMNS = ("shape_deviation_px", "thick_saturated", "quality_ok")
 
 

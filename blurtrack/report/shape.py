@@ -2,7 +2,7 @@
 
 Within one frame every dot draws nearly the same curve, so detection measures how far each
 streak's start-to-end vector lies from its frame's consensus (``shape_deviation_px``,
-:mod:`blurtrack.detect.quality`). Its distribution per frame says how well detection did
+:mod:`blurtrack.detect.separation.quality`). Its distribution per frame says how well detection did
 (merged chains, fragments and hooks lie far out) and, for the streaks kept, how consistent
 the measured shapes are. :func:`shape_summary` condenses the table's column (None when the
 table has none); :func:`shape_section` renders it.

@@ -97,7 +97,7 @@ def test_time_midpoints_of_decelerating_streaks(length: float) -> None:
     # Speed falling from 1.4 to 0.6 times the mean: the dot is at 60 % of the streak at
     # mid-exposure (1.2-2.4 px past the centre). The blurred profile's halving point between
     # the ends is pulled back towards the centre (by 0.2-0.35 px here before the correction,
-    # :func:`blurtrack.detect.centreline.blur_corrected_mid`); the mean signed error along
+    # :func:`blurtrack.detect.lines.centreline.blur_corrected_mid`); the mean signed error along
     # the streak of twelve streaks must stay under 0.05 px.
     rng = np.random.default_rng(11)
     curves = []

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blurtrack.detect.ragged import split_at
+from blurtrack.detect.lines.ragged import split_at
 from blurtrack.detect.table import read_table
 from blurtrack.testing.mini_session import write_synthetic_session
 
@@ -51,7 +51,9 @@ def test_detecting_a_frame_imports_no_table_or_spline_package() -> None:
         "assert len(fs) == 2, len(fs)"
     )
     mods = _modules_after(code)
-    assert "blurtrack.detect.separate" in mods and "cv2" in mods  # detection was imported
+    assert (
+        "blurtrack.detect.separation.separate" in mods and "cv2" in mods
+    )  # detection was imported
     assert _present(mods, NOT_FOR_FRAMES) == []
     # negative control: the session layer does import pandas
     assert _present(_modules_after("import blurtrack.detect.session"), ("pandas",)) == ["pandas"]
@@ -80,7 +82,7 @@ def test_the_detect_command_never_imports_torch_or_scipy(tmp_path: Path) -> None
 def test_what_the_command_imports_before_forking_holds_no_scipy() -> None:
     code = "import blurtrack.cli.detect, blurtrack.io.session, blurtrack.detect.session"
     mods = _modules_after(code)
-    assert "blurtrack.detect.endpoints" in mods  # the detector was imported
+    assert "blurtrack.detect.lines.endpoints" in mods  # the detector was imported
     assert sorted(m for m in mods if m == "scipy" or m.startswith("scipy.")) == []
     # negative control: the test renderer does import scipy.special
     assert "scipy.special" in _modules_after("import blurtrack.testing.streak_frames")

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from blurtrack.detect import quality
+from blurtrack.detect.separation import quality
 from blurtrack.detect.session import detect_session
 from blurtrack.detect.table import read_table, to_arrow, write_table
 from blurtrack.io import streaks

@@ -1,0 +1,179 @@
+"""The gyro's predicted streak curves and templates rendered from them
+(:mod:`blurtrack.detect.gyro.gyropass`).
+
+A dot seen at pixel ``p`` at its row's mid-exposure draws, over its row's exposure, the curve
+``warp(p, t_ref, t)``: the blur model (gyro, intrinsics, ``R_cam_imu``, time shift) predicts
+it, with the rolling shutter (the row, hence the time, follows the dot: a fixed point, two
+iterations). Light is proportional to time, so the curve sampled *uniformly in time* and
+blurred by the frame's cross-section Gaussian is the streak's image, brightness profile
+included: a dot that slows down and turns (a hairpin) is brighter at its tip.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.separation.templates import Template, finish
+
+#: Samples per predicted curve (uniform in time).
+CURVE_SAMPLES = 65
+#: Rolling-shutter fixed-point iterations (the row of each sample moves its time).
+SHUTTER_ITERATIONS = 2
+#: A template's support: pixels above this fraction of its peak (before clipping).
+SUPPORT_LEVEL = 0.08
+
+
+@dataclass(frozen=True)
+class Curves:
+    """Predicted curves ``pts (N, S, 2)`` (frame px, uniform in time, start first) of points
+    seen at ``ref (N, 2)`` at their rows' mid-exposure; ``arc`` and ``chord`` ``(N,)``."""
+
+    pts: np.ndarray
+    ref: np.ndarray
+
+    @property
+    def arc(self) -> np.ndarray:
+        return np.asarray(np.sum(np.hypot(*np.diff(self.pts, axis=1).transpose(2, 0, 1)), axis=1))
+
+    @property
+    def chord(self) -> np.ndarray:
+        return np.asarray(np.hypot(*(self.pts[:, -1] - self.pts[:, 0]).T))
+
+
+def predict_curves(
+    model: Any, ref: np.ndarray, frame_t_s: float, exposure_s: float, samples: int = CURVE_SAMPLES
+) -> Curves:
+    """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure (one model call
+    per shutter iteration). ``model``: a :class:`blurtrack.geometry.blur_model.BlurModel`
+    covering the frame (:class:`~blurtrack.errors.CoverageError` otherwise)."""
+    cam = model.camera
+    H = float(cam.height)
+    ref = np.asarray(ref, float).reshape(-1, 2)
+    n = ref.shape[0]
+    tau = np.linspace(0.0, 1.0, samples)
+    row_t = frame_t_s + cam.readout_s * np.clip(ref[:, 1], 0, H - 1) / H
+    t_ref = row_t + 0.5 * exposure_s
+    t = row_t[:, None] + exposure_s * tau[None, :]
+    pos = np.broadcast_to(ref[:, None, :], (n, samples, 2))
+    for _ in range(SHUTTER_ITERATIONS + 1):
+        pos = model.point_track(ref, t_ref, t)
+        t = frame_t_s + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + exposure_s * tau
+    return Curves(np.asarray(pos, float), ref)
+
+
+def similar_curve(pts: np.ndarray, z: complex) -> np.ndarray:
+    """``pts (S, 2)`` rotated and scaled by ``z`` about its mean (its light's centroid)."""
+    c = pts.mean(axis=0)
+    w = (pts[:, 0] - c[0]) + 1j * (pts[:, 1] - c[1])
+    w = w * z
+    return np.stack([w.real + c[0], w.imag + c[1]], axis=1)
+
+
+def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """The curve ``pts`` (uniform in time, unit total light) blurred by ``sigma`` on the grid
+    ``[x0, x0 + w) x [y0, y0 + h)``: bilinear splats (variance ~1/6 px^2 per axis) then the rest
+    of the Gaussian."""
+    u, v = pts[:, 0] - x0, pts[:, 1] - y0
+    iu, iv = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fu, fv = u - iu, v - iv
+    gu, gv = 1.0 - fu, 1.0 - fv
+    # The four corners of every sample, accumulated in one pass (in the order of four
+    # sequential ``np.add.at``: the same sums).
+    cu = np.concatenate([iu, iu + 1, iu, iu + 1])
+    cv = np.concatenate([iv, iv, iv + 1, iv + 1])
+    k = np.concatenate([gu * gv, fu * gv, gu * fv, fu * fv]) * (1.0 / len(pts))
+    ok = (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
+    img = np.bincount(cv[ok] * w + cu[ok], k[ok], h * w).astype(np.float64, copy=False)
+    img = img.reshape(h, w)
+    s = float(np.sqrt(max(sigma * sigma - 1.0 / 6.0, 0.09)))
+    return np.asarray(cv2.GaussianBlur(img, (0, 0), s, borderType=cv2.BORDER_CONSTANT))
+
+
+def curve_template(
+    pts: np.ndarray,
+    sigma_smooth: float,
+    sigma_raw: float,
+    light: float,
+    ceiling: float | None,
+    with_raw: bool = True,
+) -> Template:
+    """A :class:`~blurtrack.detect.separation.templates.Template` of the predicted curve ``pts``
+    (frame px): its smoothed image holds ``light`` (the light of a typical dot of the frame, in the
+    smoothed image's units, summed over pixels) and is clipped at ``ceiling`` (the
+    saturation level: a saturated tip is flat in the image too); ``points`` is the curve
+    itself, the coarse centre line that the measurement refines. ``with_raw=False`` leaves
+    the unsmoothed image zero (a template only to be correlated: half the work)."""
+    pad = int(np.ceil(3.0 * max(sigma_smooth, sigma_raw))) + 2
+    x0, y0 = (np.floor(pts.min(axis=0)).astype(int) - pad).tolist()
+    x1, y1 = (np.ceil(pts.max(axis=0)).astype(int) + pad + 1).tolist()
+    w, h = x1 - x0, y1 - y0
+    sm = _render(pts, sigma_smooth, x0, y0, w, h)
+    sup = sm > SUPPORT_LEVEL * sm.max()
+    vals = sm[sup]
+    tot = float(np.sum(vals))
+    a = light / max(tot, 1e-12)
+    if ceiling is not None:
+        # The amplitude whose clipped template still holds ``light`` (a few fixed-point steps:
+        # the clipped sum is increasing and concave in the amplitude).
+        for _ in range(6):
+            got = float(np.sum(np.minimum(a * vals, ceiling)))
+            if got <= 0 or abs(got - light) < 1e-3 * light:
+                break
+            a *= light / got
+            a = min(a, 50.0 * light / max(tot, 1e-12))
+
+    def scaled(img: np.ndarray) -> np.ndarray:
+        out = a * img
+        if ceiling is not None:
+            np.minimum(out, ceiling, out=out)
+        return np.where(sup, out, 0.0).astype(np.float32)
+
+    raw = (
+        scaled(_render(pts, sigma_raw, x0, y0, w, h)) if with_raw else np.zeros((h, w), np.float32)
+    )
+    return finish((x0, y0, w, h), scaled(sm), raw, sup.astype(np.float32), np.asarray(pts, float))
+
+
+def turn_index(pts: np.ndarray) -> int:
+    """The sample where a hairpin turns: the farthest from the middle of its two ends."""
+    mid = 0.5 * (pts[0] + pts[-1])
+    return int(np.argmax(np.hypot(*(pts - mid).T)))
+
+
+def arm_templates(
+    tpl: Template, sigma_smooth: float, sigma_raw: float
+) -> tuple[Template, Template]:
+    """The two arms of a hairpin template (``tpl.points`` start to turn, turn to end): its
+    light shared in proportion to each arm's unclipped rendering, so the two add up to
+    ``tpl``; each arm's ``points`` run from the turn outwards (their far ends are the streak's
+    start and end)."""
+    pts = tpl.points
+    k = turn_index(pts)
+    x, y, w, h = tpl.box
+    out = []
+    parts = (pts[: k + 1][::-1], pts[k:])
+    share = [_render(q, sigma_smooth, x, y, w, h) * len(q) for q in parts]
+    share_r = [_render(q, sigma_raw, x, y, w, h) * len(q) for q in parts]
+    tot = share[0] + share[1] + 1e-30
+    tot_r = share_r[0] + share_r[1] + 1e-30
+    for q, s, sr in zip(parts, share, share_r, strict=True):
+        f = (s / tot).astype(np.float32)
+        fr = (sr / tot_r).astype(np.float32)
+        sm = tpl.smooth * f
+        out.append(
+            Template(
+                tpl.box,
+                sm,
+                tpl.raw * fr,
+                tpl.support,
+                tpl.halo,
+                float(np.sum(sm * sm)),
+                np.asarray(q, float),
+                tpl.area,
+            )
+        )
+    return out[0], out[1]

@@ -1,0 +1,82 @@
+"""The gyro-template second pass over a session's covered frames, in worker processes.
+
+:func:`blurtrack.detect.gyro.gyropass.refine_frame` frame by frame: each frame's refinement needs
+only its own first-pass streaks, its image and the session's blur model (with the time shift
+the scan found), so the frames are refined in forked workers after the scan, in order, with
+exactly the result of one process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.gyropass import FrameOutcome, refine_frame
+from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.separation.quality import frame_quality
+
+
+@dataclass
+class TemplatePass:
+    """What the template pass did over a session: ``frames``, the count of frames per
+    outcome status (``skipped``, ``refused``, ``refined``); over the refined frames, the
+    ``candidates`` (components the first pass could not have right), those ``replaced`` by
+    the pass's streaks and the ``streaks`` it measured. Candidates not replaced keep their
+    first-pass lines, less those far longer or shorter than their predicted curves (chains
+    the pass could not split, remnants): what the pass could not do, per session."""
+
+    frames: dict[str, int] = field(default_factory=dict)
+    candidates: int = 0
+    replaced: int = 0
+    streaks: int = 0
+
+
+def refine_frames(
+    session: Any,
+    found: list[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    idx: Sequence[int],
+    covered: Sequence[int],
+    model: Any,
+    params: DetectParams,
+    workers: int = 1,
+    meanwhile: Callable[[], None] | None = None,
+) -> TemplatePass:
+    """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
+    is updated in place; ``idx`` their frame indices, the images re-read from ``session``
+    only for the frames the gate lets through), in ``workers`` forked processes (the same
+    result as in one). ``meanwhile``: work of this process run while the workers refine,
+    before ``found`` changes (before the first frame without workers)."""
+    out = TemplatePass()
+    # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
+    # (measured on lines down the middle of both arms) is too wide. The session's median.
+    sig = [fs.sigma_c_px for fs in found if len(fs)]
+    sigma_c = float(np.median(sig)) if sig else None
+
+    def one(k: int) -> tuple[FrameStreaks | None, FrameOutcome]:  # None: as it was
+        fs = found[k]
+        out, what = refine_frame(
+            partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c
+        )
+        if out is fs:
+            return None, what
+        out.quality = frame_quality(out)
+        return out, what
+
+    results = fork_map(one, covered, workers, 1, meanwhile)
+    for k, (changed, what) in zip(covered, results, strict=True):
+        if changed is not None:
+            found[k] = changed
+        out.frames[what.status] = out.frames.get(what.status, 0) + 1
+        if what.status == "refined":
+            out.candidates += what.candidates
+            out.replaced += what.replaced
+            out.streaks += what.streaks
+    return out

@@ -1,0 +1,161 @@
+"""Measuring coarse centre lines: refinement, gap splits, widths, saturated profiles, endpoint
+fits and trimming, all lines of a frame at once (one call per detection pass).
+
+:func:`measure_lines` is what :func:`blurtrack.detect.frame.detect_frame` runs on the lines of
+the segmentation (first pass) and again on the lines that template separation
+(:mod:`blurtrack.detect.separation.separate`) places in its mosaic of separated streak images.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.detect.lines.centreline import raw_profiles, refine_lines, trim_lines
+from blurtrack.detect.lines.endpoints import fit_edges, unclip_profiles
+from blurtrack.detect.lines.gaps import split_at_gaps
+from blurtrack.detect.lines.ragged import Ragged, to_matrix
+
+
+@dataclass
+class LineSet:
+    """Coarse lines with their bookkeeping: ``owner`` (component index), ``crossing`` and
+    ``looped`` per line; ``lines`` a list of ``(n, 2)`` arrays or a :class:`Ragged`."""
+
+    lines: Ragged | list[np.ndarray]
+    owner: list[int]
+    crossing: list[bool]
+    looped: list[bool]
+
+
+@dataclass
+class Measured:
+    """Measured streaks (rows kept: ``N``), in the coordinates of the image measured on.
+
+    ``own``: component index per streak; ``src``: index of the input line it came from;
+    ``sigma_c``: the cross-section sigma used (measured from the widths unless fixed);
+    ``sigma_raw``: that of the unsmoothed signal (saturated streaks); the rest as in
+    :class:`~blurtrack.detect.frame.FrameStreaks`.
+    """
+
+    own: np.ndarray
+    src: np.ndarray
+    end_a: np.ndarray
+    end_b: np.ndarray
+    time_mid: np.ndarray
+    plateau: np.ndarray
+    length_px: np.ndarray
+    width_px: np.ndarray
+    points: list[np.ndarray]
+    profile: list[np.ndarray]
+    saturated: np.ndarray
+    crossing: np.ndarray
+    looped: np.ndarray
+    short: np.ndarray
+    sigma_c: float
+    sigma_raw: float
+
+    def __len__(self) -> int:
+        return int(self.own.size)
+
+
+def measure_lines(
+    smooth: np.ndarray,
+    signal: np.ndarray,
+    saturation: float,
+    sat_comp: np.ndarray | None,
+    ls: LineSet,
+    sigma_c: float,
+    measure_sigma: bool,
+    smooth_sigma: float,
+    sigma_raw: float | None = None,
+    lit_median_factor: float | None = None,
+) -> Measured:
+    """Refine, split, fit and trim the lines of ``ls`` on ``smooth`` (and, for lines of
+    saturated components, ``sat_comp[owner]``, the unsmoothed ``signal``).
+
+    ``sigma_c``: guess of the smoothed cross-section sigma, replaced by the lines' median width
+    when ``measure_sigma``; ``smooth_sigma``: the pre-smoothing sigma; ``sigma_raw``: the
+    unsmoothed sigma of saturated streaks (None: from the unsaturated widths);
+    ``lit_median_factor``: see :func:`blurtrack.detect.lines.centreline.refine_lines`."""
+    ceiling = saturation if sat_comp is not None and sat_comp.any() else None
+    ref = refine_lines(smooth, ls.lines, sigma_c, ceiling, lit_median_factor)
+    ref, parent = split_at_gaps(ref)
+    owner = np.asarray(ls.owner, np.int64)[parent]
+    crossing = np.asarray(ls.crossing, bool)[parent]
+    looped = np.asarray(ls.looped, bool)[parent]
+    finite = ref.width[np.isfinite(ref.width)]
+    if measure_sigma and finite.size:
+        sigma_c = float(np.median(finite))
+    lens = ref.lines.sizes
+    A = to_matrix(ref.profile, lens)
+    line_sat = np.zeros(lens.size, bool)
+    sig_raw = sigma_c if sigma_raw is None else sigma_raw
+    if sat_comp is not None and sat_comp.any():
+        line_sat = sat_comp[owner]
+        if sigma_raw is None:
+            clean = ref.width[~line_sat]
+            clean = clean[np.isfinite(clean)]
+            # Saturated streaks: width from the unsaturated ones if there are enough of
+            # them, else from everyone's flanks (refine_lines measured clipped sections).
+            if clean.size < 8:
+                clean = ref.width[np.isfinite(ref.width)]
+            sig_c = float(np.median(clean)) if clean.size else sigma_c
+            sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
+            if measure_sigma:
+                sigma_c = sig_c
+        # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
+        # (there the clipped cross-section integral is an exact function of the true one).
+        if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
+            sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
+            raw = to_matrix(raw_profiles(signal, sat_lines, sigma_c), sat_lines.sizes)
+            A[line_sat, : raw.shape[1]] = unclip_profiles(raw, saturation, sig_raw)
+    # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
+    edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + 1.0 / 6.0), sigma_c)
+    fit = fit_edges(A, lens, edge_sigma / ref.step)
+    pos_a = np.where(fit.valid, fit.pos_a, 0.0)
+    pos_b = np.where(fit.valid, fit.pos_b, 1.0)
+    trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)
+    keep = np.flatnonzero(fit.valid)
+    return Measured(
+        own=owner[keep],
+        src=parent[keep],
+        end_a=trimmed.end_a[keep],
+        end_b=trimmed.end_b[keep],
+        time_mid=trimmed.time_mid[keep],
+        plateau=np.stack([fit.plateau_a, fit.plateau_b], axis=1)[keep],
+        length_px=trimmed.length_px[keep],
+        width_px=ref.width[keep],
+        points=[trimmed.points[k] for k in keep],
+        profile=[trimmed.profile[k] for k in keep],
+        saturated=line_sat[keep],
+        crossing=crossing[keep],
+        looped=looped[keep],
+        short=fit.short[keep],
+        sigma_c=sigma_c,
+        sigma_raw=sig_raw,
+    )
+
+
+def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
+    """Rows ``keep`` of ``a`` followed by all of ``b`` (if any)."""
+    k = np.flatnonzero(keep)
+    parts = [a] if b is None else [a, b]
+    idx = [k] if b is None else [k, np.arange(len(b))]
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(x, name)[i] for x, i in zip(parts, idx, strict=True)])
+
+    def lst(name: str) -> list[np.ndarray]:
+        return [getattr(x, name)[j] for x, i in zip(parts, idx, strict=True) for j in i]
+
+    arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
+    flags = ("saturated", "crossing", "looped", "short")
+    return Measured(
+        **{n: cat(n) for n in arrays + flags},
+        points=lst("points"),
+        profile=lst("profile"),
+        sigma_c=a.sigma_c,
+        sigma_raw=a.sigma_raw,
+    )

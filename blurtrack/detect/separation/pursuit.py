@@ -1,0 +1,131 @@
+"""Matching pursuit of one template over a component's light (the separation of touching
+streaks, :mod:`blurtrack.detect.separation.separate`, and the template pass,
+:mod:`blurtrack.detect.gyro.gyropass`).
+
+The template ``T`` is correlated with the residual image ``X`` (OpenCV ``matchTemplate``); a
+placement's score is the normalised correlation over the template's support, its amplitude
+``<T, X> / |T|^2``; the best placements above :data:`SCORE_MIN` and :data:`AMP_MIN` are
+taken, ``a T`` subtracted, for up to :data:`MAX_ROUNDS` rounds. Positions in pixels of the
+(possibly padded) images, refined to sub-pixel by a parabola through the score's peak.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from blurtrack.detect.lines.segment import Components
+from blurtrack.detect.separation.templates import (
+    HALO_PX,
+    INSIDE_MIN,
+    Placement,
+    Template,
+    inside_norm2,
+)
+
+#: Lowest support-normalised correlation of an accepted placement.
+SCORE_MIN = 0.8
+#: Lowest amplitude (relative to the reference) of an accepted placement.
+AMP_MIN = 0.6
+#: Rounds of the pursuit (each takes every good placement that keeps ``SUPPRESS`` x the
+#: template's size from a better one, then subtracts them all).
+MAX_ROUNDS = 3
+SUPPRESS = 0.4
+#: A further round needs this fraction of a weakest placement's light left in the box.
+LEFT_MIN = 0.5
+#: Matched-filter peaks tried per round, and how far (px) a refused one suppresses its
+#: neighbours.
+MAX_TRIES = 16
+FAIL_SUPPRESS_PX = 2
+
+
+def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
+    """Parabolic refinement of an integer maximum of ``score``."""
+
+    def para(a: float, b: float, c: float) -> float:
+        den = a - 2.0 * b + c
+        return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+    h, w = score.shape
+    fx = para(score[iy, ix - 1], score[iy, ix], score[iy, ix + 1]) if 0 < ix < w - 1 else 0.0
+    fy = para(score[iy - 1, ix], score[iy, ix], score[iy + 1, ix]) if 0 < iy < h - 1 else 0.0
+    return fx, fy
+
+
+def pursue(
+    residual: np.ndarray,
+    comps: Components,
+    c: int,
+    tpl: Template,
+    comp_of_label: np.ndarray,
+    halo_max: float,
+    frame: tuple[int, int, int, int] | None = None,
+) -> list[Placement]:
+    """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
+    it updates in place). Each placement belongs to the component that holds most of the
+    light it explains.
+
+    ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
+    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.separation.templates.inside_norm2`): a placement
+    reaching past the border is scored and scaled by its template's part inside the frame
+    (a streak leaving the frame), and needs at least
+    :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of its template inside."""
+    H, W = residual.shape
+    x, y, w, h = (int(v) for v in comps.boxes[c])
+    tx, ty, tw, th = tpl.box
+    # Placements whose centre lies in the candidate's box (+ a margin) only.
+    m = HALO_PX + 1
+    x0, y0 = max(x - m - tw // 2, 0), max(y - m - th // 2, 0)
+    x1, y1 = min(x + w + m + tw - tw // 2, W), min(y + h + m + th - th // 2, H)
+    if x1 - x0 < tw or y1 - y0 < th:
+        return []
+    region = residual[y0:y1, x0:x1]  # a view: subtractions update the residual
+    out: list[Placement] = []
+    norm = float(np.sqrt(tpl.norm2))
+    sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
+    n2 = inside_norm2(frame, (x0, y0, x1, y1), tpl.smooth)  # the same region every round
+    for _ in range(MAX_ROUNDS):
+        # The matched filter's peaks are the candidates; the normalised score and the halo
+        # are evaluated at those few positions only.
+        num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
+        if n2 is None:
+            open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
+        else:
+            open_ = np.where((num >= AMP_MIN * n2) & (n2 >= INSIDE_MIN * tpl.norm2), num, 0.0)
+        picked: list[tuple[int, int, float]] = []
+        for _try in range(MAX_TRIES):
+            jy, jx = np.unravel_index(int(np.argmax(open_)), open_.shape)
+            iy, ix = int(jy), int(jx)
+            if open_[iy, ix] <= 0.0:
+                break
+            win = region[iy : iy + th, ix : ix + tw]
+            w2 = win * win
+            den = float(np.sum(w2 * tpl.support))
+            halo = float(np.sum(w2 * tpl.halo))
+            t2 = tpl.norm2 if n2 is None else float(n2[iy, ix])
+            t1 = norm if n2 is None else float(np.sqrt(t2))
+            score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * t1 + 1e-12)
+            # A streak's template lies in the dark: no blob or wider streak fits it.
+            if score >= SCORE_MIN and halo <= halo_max * den:
+                picked.append((iy, ix, float(num[iy, ix]) / t2))
+                ry, rx = sy, sx
+            else:
+                ry, rx = FAIL_SUPPRESS_PX, FAIL_SUPPRESS_PX
+            open_[max(iy - ry, 0) : iy + ry + 1, max(ix - rx, 0) : ix + rx + 1] = 0.0
+        if not picked:
+            break
+        for iy, ix, a in picked:
+            fx, fy = _subpixel(num, iy, ix)
+            shift = np.array([x0 + ix + fx - tx, y0 + iy + fy - ty])
+            win = region[iy : iy + th, ix : ix + tw]
+            lab = comps.labels[y0 + iy : y0 + iy + th, x0 + ix : x0 + ix + tw]
+            owner = comp_of_label[lab]
+            light = np.bincount(owner[owner >= 0], (win * tpl.smooth)[owner >= 0])
+            out.append(Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
+            win -= a * tpl.smooth
+            np.maximum(win, 0.0, out=win)
+        # Another round only if the candidate's box still holds a good part of a template.
+        left = residual[y : y + h, x : x + w]
+        if float(np.sum(left * left)) < LEFT_MIN * AMP_MIN**2 * tpl.norm2:
+            break
+    return out

@@ -1,0 +1,371 @@
+"""Separation of touching and overlapping streaks with the frame's own streak as a template.
+
+Within one frame every dot draws nearly the same curve: the camera's rotation moves every dot
+alike, up to perspective and the rolling shutter, which vary slowly over the frame. So a clean,
+isolated streak is a matched template for its neighbours (shape *and* brightness profile).
+
+1. **Consensus** (:func:`blurtrack.detect.separation.quality.consensus_field`): the robust affine
+   field of the start-to-end vectors of the first pass's unflagged streaks.
+2. **Candidates**: components whose lines are flagged (crossing, looped, merged), deviate from
+   the consensus by more than the quality tolerance (chains of several streaks, fragments,
+   hooks), or that gave no measurable line at all.
+3. **Matching pursuit** per candidate, with the nearest *reference* (an unflagged streak whose
+   vector agrees with the consensus; its component's pixels of the smoothed image are the
+   template ``T``): the normalised correlation over the template's support,
+   ``<T, X> / (|T| |X|_support)``, is 1 where ``X`` holds a scaled copy of ``T`` whatever lies
+   outside, and about ``sqrt(f)`` where only a fraction ``f`` of a collinear neighbour overlaps;
+   the best placement above :data:`~blurtrack.detect.separation.pursuit.SCORE_MIN` with an amplitude
+   ``<T, X> / |T|^2`` above :data:`~blurtrack.detect.separation.pursuit.AMP_MIN` is accepted and
+   ``a T`` subtracted from the candidates' residual image, until none is left
+   (:func:`blurtrack.detect.separation.pursuit.pursue`). Fragments of one streak (a dim middle) are
+   joined: one placement explains both. Placements that share light are then fitted together
+   (:mod:`blurtrack.detect.separation.refit`). Components that the accepted placements explain (most
+   of their light) are replaced.
+4. **Measurement**: each placement gets its own image, the smoothed (and raw) frame around it
+   minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
+   the placed centre lines (the reference's, shifted) are measured there by
+   :func:`blurtrack.detect.lines.measure.measure_lines` exactly like the first pass's, and moved
+   back. Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
+from blurtrack.detect.lines.segment import Components
+from blurtrack.detect.separation.modal import component_references
+from blurtrack.detect.separation.pursuit import pursue
+from blurtrack.detect.separation.quality import (
+    MIN_REFERENCE,
+    Consensus,
+    consensus_field,
+    shape_tolerance,
+)
+from blurtrack.detect.separation.refit import refit
+from blurtrack.detect.separation.templates import (
+    Placement,
+    Template,
+    similar,
+    template,
+    warp,
+)
+
+#: Candidates whose light the placements leave more than this fraction of keep their lines.
+RESIDUAL_MAX = 0.5
+#: Placements whose supports share more than this fraction are flagged ``crossing``.
+OVERLAP_FRACTION = 0.1
+#: Components larger than this many reference areas are candidates (chains).
+AREA_FACTOR = 1.6
+#: Most light (squared, relative to that under the template) a template's halo (a ring of
+#: :data:`~blurtrack.detect.separation.templates.HALO_PX`) may hold where it is placed.
+HALO_MAX = 0.25
+#: The same with whole-component references: real lights on a string touch their neighbours,
+#: whose light then lies in the halo.
+HALO_MAX_WHOLE = 1.0
+#: A plain line shorter than this fraction of the consensus length is no measurement of
+#: its component (a line that collapsed): the component is a candidate whatever its area.
+STUB_FRACTION = 0.5
+#: ... where the consensus is at least this long (px): short streaks vary more.
+STUB_MIN_PX = 20.0
+#: References whose median area a component's area is compared with.
+NEIGHBOURS = 6
+
+
+@dataclass(frozen=True)
+class Separation:
+    """What :func:`separate` found (see there)."""
+
+    streaks: Measured | None
+    replaced: np.ndarray | None
+    field: Consensus | None
+    #: The whole-component references (:mod:`blurtrack.detect.separation.modal`) and those that
+    #: agree with the field, where the frame took them (else None).
+    refs: Measured | None = None
+    good: np.ndarray | None = None
+
+
+def _overlaps(pl: list[Placement]) -> np.ndarray:
+    """``(P,)`` bool: the placement's support shares more than :data:`OVERLAP_FRACTION` of
+    its pixels with another placement's."""
+    P = len(pl)
+    flag = np.zeros(P, bool)
+    org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.rint([p.shift for p in pl])
+    size = np.array([[p.tpl.box[2], p.tpl.box[3]] for p in pl])
+    end = org + size
+    boxes_meet = np.all(
+        (np.maximum(org[:, None], org[None]) < np.minimum(end[:, None], end[None])), axis=2
+    )
+    for i, j in zip(*np.nonzero(np.triu(boxes_meet, 1)), strict=True):
+        lo = np.maximum(org[i], org[j]).astype(int)
+        hi = np.minimum(end[i], end[j]).astype(int)
+        oi, oj = (lo - org[i]).astype(int), (lo - org[j]).astype(int)
+        ext = hi - lo
+        si = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
+        sj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
+        shared = float(np.sum(si * sj))
+        if shared > OVERLAP_FRACTION * min(pl[i].tpl.area, pl[j].tpl.area):
+            flag[i] = flag[j] = True
+    return flag
+
+
+def _mosaic(
+    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int, clip: bool = False
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    """Each placement's own image (frame minus the other placements' templates; with
+    ``clip`` no pixel below zero: where the neighbours' templates cover more than the light,
+    and where the background-subtracted frame itself is below zero) tiled into one mosaic;
+    returns the smoothed and raw mosaics, the placed lines in mosaic coordinates and per
+    placement the offset from mosaic back to frame coordinates."""
+    H, W = smooth.shape
+    boxes = []
+    for p in pl:
+        x, y, w, h = p.tpl.box
+        ox, oy = int(np.floor(x + p.shift[0])) - pad, int(np.floor(y + p.shift[1])) - pad
+        boxes.append((ox, oy, w + 2 * pad + 1, h + 2 * pad + 1))
+    width = max(1024, max(b[2] for b in boxes))
+    tiles: list[tuple[int, int]] = []
+    cx = cy = row_h = 0
+    for b in boxes:  # shelf packing, ``pad`` of zeros between tiles
+        if cx + b[2] > width:
+            cx, cy, row_h = 0, cy + row_h + pad, 0
+        tiles.append((cx, cy))
+        cx += b[2] + pad
+        row_h = max(row_h, b[3])
+    mos_s = np.zeros((cy + row_h, width), np.float32)
+    mos_r = np.zeros_like(mos_s)
+    lines: list[np.ndarray] = []
+    back = np.zeros((len(pl), 2))
+    # Which templates reach into which placement's box (the others cannot matter there).
+    org = np.array([b[:2] for b in boxes], float)
+    end = org + np.array([b[2:] for b in boxes], float)
+    t_org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.floor([p.shift for p in pl])
+    t_end = t_org + np.array([[p.tpl.box[2] + 1, p.tpl.box[3] + 1] for p in pl])
+    meet = np.all(
+        np.maximum(org[:, None], t_org[None]) < np.minimum(end[:, None], t_end[None]), axis=2
+    )
+    np.fill_diagonal(meet, False)
+    for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
+        fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
+        own_s = np.zeros((bh, bw), np.float32)
+        own_r = np.zeros((bh, bw), np.float32)
+        if fx1 > fx0 and fy1 > fy0:
+            own_s[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = smooth[fy0:fy1, fx0:fx1]
+            own_r[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = signal[fy0:fy1, fx0:fx1]
+        for j in np.flatnonzero(meet[k]).tolist():
+            q = pl[j]
+            qx, qy, qw, qh = q.tpl.box
+            dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
+            if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
+                continue
+            own_s -= q.amp * warp(q.tpl.smooth, dx, dy, bw, bh)
+            own_r -= q.amp * warp(q.tpl.raw, dx, dy, bw, bh)
+        if clip:
+            np.maximum(own_s, 0.0, out=own_s)
+            np.maximum(own_r, 0.0, out=own_r)
+        mos_s[ty : ty + bh, tx : tx + bw] = own_s
+        mos_r[ty : ty + bh, tx : tx + bw] = own_r
+        back[k] = (ox - tx, oy - ty)
+        lines.append(p.tpl.points + p.shift - back[k])
+    return mos_s, mos_r, lines, back
+
+
+def separate(
+    smooth: np.ndarray,
+    signal: np.ndarray,
+    saturation: float,
+    sat_comp: np.ndarray | None,
+    comps: Components,
+    first: Measured,
+    folded: np.ndarray,
+    clipped: np.ndarray,
+    merged: np.ndarray,
+    smooth_sigma: float,
+) -> Separation:
+    """Template separation of the first pass's doubtful components (see the module text).
+
+    Args:
+        smooth, signal, saturation: the prepared frame.
+        sat_comp: per component, whether it has saturated pixels (None: none has).
+        comps: the components; ``folded`` ``(C,)`` those the skeleton tracer took.
+        first: the first pass's streaks; ``clipped``/``merged`` ``(N,)`` their flags.
+        smooth_sigma: the pre-smoothing sigma.
+    Returns:
+        The separated streaks (frame coordinates; None when nothing was separated), the
+        ``(C,)`` bool mask of the components they replace, and the frame's consensus field
+        (None without enough voters).
+    """
+    C = comps.ids.size
+    v = first.end_b - first.end_a
+    n_lines = np.bincount(first.own, minlength=C)
+    single = n_lines[first.own] == 1
+    voters = single & ~(first.crossing | first.looped | merged | clipped)
+    field = consensus_field(v, first.time_mid, voters)
+    refs = first  # the streaks the references are taken from
+    whole = False  # references from whole components (blurtrack.detect.separation.modal)
+    good = np.zeros(len(first), bool)
+    if field is not None:
+        good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c))
+    if field is None or int(good.sum()) < MIN_REFERENCE:
+        # Too few whole first-pass lines: references from whole components instead.
+        alt = component_references(
+            smooth,
+            signal,
+            saturation,
+            sat_comp,
+            comps,
+            first.sigma_c,
+            first.sigma_raw,
+            smooth_sigma,
+        )
+        if alt is None:
+            return Separation(None, None, field)
+        # Whole components are references by their shape; their lines only need to agree.
+        alt_good = alt[1].use & (alt[1].dev <= shape_tolerance(alt[1].c))
+        if int(alt_good.sum()) < MIN_REFERENCE:
+            return Separation(None, None, field)
+        (refs, field), good, whole = alt, alt_good, True
+        cf = field.at(first.time_mid)
+        dev = np.minimum(np.hypot(*(v - cf).T), np.hypot(*(v + cf).T))
+        tol = shape_tolerance(cf)
+    else:
+        dev, tol = field.dev, shape_tolerance(field.c)
+    bad_line = ~clipped & ((dev > tol) | first.crossing | first.looped | merged)
+
+    def done(m: Measured | None, replaced: np.ndarray | None) -> Separation:
+        """With component references, their whole lines replace their components' lines
+        where the first pass's were broken: a component whose one plain first-pass line
+        agrees with the field keeps it (measured on the image itself)."""
+        if not whole:
+            return Separation(m, replaced, field)
+        rep = np.zeros(C, bool) if replaced is None else replaced.copy()
+        # Components all of whose reference lines agree with the field, and whose first pass
+        # did not already measure them whole.
+        bad = np.zeros(C, bool)
+        bad[refs.own[~good]] = True
+        fine = ~(clipped | first.crossing | first.looped) & (dev <= tol)
+        bad[first.own[fine & (n_lines[first.own] == 1)]] = True
+        rows = ~bad[refs.own] & ~rep[refs.own]
+        rep[refs.own[rows]] = True
+        return Separation(combine(refs, rows, m), rep, field, refs, good)
+
+    cand = np.zeros(C, bool)
+    cand[first.own[bad_line]] = True
+    cand |= folded | (n_lines == 0)
+    ref_idx = np.flatnonzero(good)
+    # A component is compared with its nearest references other than itself: a chain of two
+    # streaks whose one line measured the first of them looks clean but has twice the area.
+    ref_area = comps.areas[refs.own[ref_idx]].astype(np.float64)
+    x, y, w, h = comps.boxes.T.astype(np.float64)
+    centre = np.stack([x + w / 2, y + h / 2], axis=1)
+    ref_mid = refs.time_mid[ref_idx]
+    d2 = (centre[:, None, 0] - ref_mid[None, :, 0]) ** 2 + (
+        centre[:, None, 1] - ref_mid[None, :, 1]
+    ) ** 2
+    d2[refs.own[ref_idx], np.arange(ref_idx.size)] = np.inf
+    k_near = min(NEIGHBOURS, ref_idx.size - 1)
+    near = np.argpartition(d2, k_near - 1, axis=1)[:, :k_near]
+    cand |= comps.areas > AREA_FACTOR * np.median(ref_area[near], axis=1)
+    # (Whole components are references whatever their first-pass lines were.)
+    keep_ref = np.full(ref_idx.size, True) if whole else ~cand[refs.own[ref_idx]]
+    if int(keep_ref.sum()) < MIN_REFERENCE:
+        return done(None, None)
+    ref_idx, ref_mid, d2 = ref_idx[keep_ref], ref_mid[keep_ref], d2[:, keep_ref]
+    # Every component's nearest reference (local: the streaks' shape varies over the frame).
+    nearest = ref_idx[np.argmin(d2, axis=1)]
+    cand[refs.own[ref_idx]] = False
+    # One plain line in a component of about a reference's area is one streak measured a
+    # little off: no template can split or join it.
+    plain_one = np.zeros(C, bool)
+    plain_one[first.own[~(first.crossing | first.looped | merged)]] = True
+    ratio = comps.areas / comps.areas[refs.own[nearest]]
+    # ... unless that line is far shorter than the consensus (a measurement that collapsed).
+    stub = np.zeros(C, bool)
+    c_len = np.hypot(*field.at(first.time_mid).T)
+    stub[first.own[(c_len >= STUB_MIN_PX) & (first.length_px < STUB_FRACTION * c_len)]] = True
+    cand &= ~(plain_one & ~stub & (n_lines == 1) & ~folded & (ratio > 0.75) & (ratio < 1.3))
+    if not cand.any():
+        return done(None, None)
+    # Residual image: the candidates' light only (clean neighbours are not matched).
+    is_cand = np.zeros(int(comps.labels.max()) + 1, bool)
+    is_cand[comps.ids[cand]] = True
+    pix_cand = np.repeat(cand, comps.areas)
+    residual = np.zeros(smooth.shape, np.float32)
+    residual[comps.ys[pix_cand], comps.xs[pix_cand]] = comps.values[pix_cand]
+    light = residual.copy()
+    templates: dict[tuple[int, int, int], Template] = {}
+    bases: dict[int, Template] = {}
+    local = field.at(centre)
+    placements: list[Placement] = []
+    order = np.flatnonzero(cand)
+    order = order[np.argsort(-comps.areas[order], kind="stable")]
+    comp_of_label = np.full(is_cand.size, -1, np.int64)
+    comp_of_label[comps.ids] = np.arange(C)
+    for ci in order.tolist():
+        k = int(nearest[ci])
+        # The reference mapped onto the local consensus by a rotation and scaling.
+        vk = complex(*field.at(refs.time_mid[k : k + 1])[0])
+        zt = complex(*local[ci])
+        z = zt / vk if (zt / vk).real > 0 else -zt / vk
+        if not 0.7 < abs(z) < 1.4:
+            continue
+        key = (k, round(abs(z) / 0.02), round(float(np.angle(z)) / 0.02))
+        if key not in templates:
+            if k not in bases:
+                bases[k] = template(smooth, signal, comps, int(refs.own[k]), refs.points[k])
+            base = bases[k]
+            templates[key] = similar(base, z, refs.time_mid[k]) if abs(z - 1) > 0.02 else base
+        halo = HALO_MAX_WHOLE if whole else HALO_MAX
+        placements += pursue(residual, comps, ci, templates[key], comp_of_label, halo)
+    if not placements:
+        return done(None, None)
+    # Placements that share light are fitted together (streaks running along each other);
+    # not with whole-component references: real lights on a string differ more from their
+    # template than the pair's fit can tell (night2: 61 whole streaks without, 55 with).
+    placements, model = (placements, None) if whole else refit(light, placements)
+    if model is not None:
+        residual = np.maximum(light - model, 0.0)
+    # Candidates whose light the placements mostly explain are replaced.
+    before = np.zeros(C)
+    after = np.zeros(C)
+    ci_pix = np.repeat(np.arange(C), comps.areas)[pix_cand]
+    vals = comps.values[pix_cand]
+    res = residual[comps.ys[pix_cand], comps.xs[pix_cand]].astype(np.float64)
+    before += np.bincount(ci_pix, vals * vals, C)
+    after += np.bincount(ci_pix, res * res, C)
+    # Components at the border keep parts that no placement can explain (streaks leaving
+    # the frame): one placement is enough there.
+    x, y, w, h = comps.boxes.T
+    H, W = smooth.shape
+    border = (x == 0) | (y == 0) | (x + w == W) | (y + h == H)
+    explained = np.zeros(C, bool)
+    explained[[p.comp for p in placements]] = True
+    replaced = cand & ((after <= RESIDUAL_MAX * before) | (border & explained))
+    # A candidate explained by one placement of its own, whose first pass gave one plain
+    # line, is one streak: its first measurement (on the image itself) stands.
+    n_place = np.bincount([p.comp for p in placements], minlength=C)
+    plain = np.zeros(C, bool)
+    plain[first.own[~(first.crossing | first.looped)]] = True
+    replaced &= ~((n_place == 1) & (n_lines == 1) & plain & ~stub)
+    placements = [p for p in placements if replaced[p.comp]]
+    if not placements:
+        return done(None, None)
+    pad = int(np.ceil(6.0 * first.sigma_c)) + 8
+    mos_s, mos_r, lines, back = _mosaic(smooth, signal, placements, pad)
+    ls = LineSet(
+        lines=lines,
+        owner=[p.comp for p in placements],
+        crossing=_overlaps(placements).tolist(),
+        looped=[False] * len(placements),
+    )
+    m = measure_lines(
+        mos_s, mos_r, saturation, sat_comp, ls, first.sigma_c, False, smooth_sigma, first.sigma_raw
+    )
+    off = back[m.src]
+    m.end_a = m.end_a + off
+    m.end_b = m.end_b + off
+    m.time_mid = m.time_mid + off
+    m.points = [pt + o for pt, o in zip(m.points, off, strict=True)]
+    return done(m, replaced)

@@ -1,0 +1,107 @@
+"""Centre-line refinement (blurtrack.detect.lines.centreline): where a line's ends are cut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blurtrack.detect import detect_frame
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.lines import centreline
+from blurtrack.detect.lines.centreline import refine_lines
+from blurtrack.detect.lines.ragged import arc_lengths
+from blurtrack.detect.params import DetectParams
+from blurtrack.testing.streak_frames import quantise, render_streaks
+
+
+def _frame(shape: tuple[int, int], curves: list[np.ndarray], seed: int) -> np.ndarray:
+    """The streaks of ``curves`` rendered (sigma 1.3 px, light noise) and quantised."""
+    return quantise(
+        render_streaks(shape, curves, flux_per_px=0.8, sigma_px=1.3, noise=0.004, seed=seed)
+    )
+
+
+def _hooked(x0: float, y0: float) -> np.ndarray:
+    """A dot that lingers on a 5 px hook for 35 % of the exposure, then runs 80 px: the
+    hook's light per px is ten times the tail's (``hard``'s "hockey sticks")."""
+    t = np.linspace(0.0, 1.0, 1600)
+    hook = t < 0.35
+    u = np.where(hook, 5.0 * t / 0.35, 5.0 + 80.0 * (t - 0.35) / 0.65)
+    y = y0 + np.where(hook, 3.0 * (1.0 - t / 0.35) ** 2, 0.0)
+    return np.stack([x0 + u, y], axis=1)
+
+
+def test_a_line_along_a_bright_hook_and_its_tail_is_kept_whole(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    curves = [_hooked(40.0 + 130.0 * i, 50.0 + 60.0 * j) for i in range(3) for j in range(4)]
+    image = _frame((300, 440), curves, seed=2)
+    p = DetectParams()
+    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    coarse = [c[::80] for c in curves]  # the placed curves: the whole streak, coarsely
+    arc = np.array([float(np.sum(np.hypot(*np.diff(c, axis=0).T))) for c in curves])
+    _, kept = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, None, 3.0).lines)
+    # Kept: the whole streak plus the final pass's extensions past both ends (3 sigma + 3).
+    assert np.all(kept > arc) and np.all(kept < arc + 2 * (3 * 1.6 + 3) + 2)
+    # Negative control: cut at a quarter of the peak (the first pass's rule) without the faint
+    # tails, every line keeps little more than its hook.
+    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
+    _, cut = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, None, None).lines)
+    assert np.all(cut < 0.6 * arc)
+
+
+def _speeding_up(x0: float, y0: float, k: float = 3.5, length: float = 90.0) -> np.ndarray:
+    """A dot whose speed grows linearly from v to (1 + 2k) v over the exposure: its light per
+    px fades from the start to an eighth of it at the end (``hard`` seed 4's streaks)."""
+    t = np.linspace(0.0, 1.0, 1600)
+    u = length * (t + k * t * t) / (1.0 + k)
+    return np.stack([x0 + u, np.full_like(u, y0)], axis=1)
+
+
+def _end_errors(fs: FrameStreaks, curves: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per curve, the nearest detection's start and end errors (px, either orientation)."""
+    errs = []
+    for c in curves:
+        s, e = c[0], c[-1]
+        same = np.hypot(*(fs.end_a - s).T) + np.hypot(*(fs.end_b - e).T)
+        swap = np.hypot(*(fs.end_b - s).T) + np.hypot(*(fs.end_a - e).T)
+        i = int(np.argmin(np.minimum(same, swap)))
+        a, b = (fs.end_a[i], fs.end_b[i]) if same[i] <= swap[i] else (fs.end_b[i], fs.end_a[i])
+        errs.append((np.hypot(*(a - s)), np.hypot(*(b - e))))
+    out = np.array(errs)
+    return out[:, 0], out[:, 1]
+
+
+def test_a_streak_fading_towards_its_end_is_measured_to_its_end(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    curves = [_speeding_up(30.0 + 140.0 * i, 40.0 + 50.0 * j) for i in range(3) for j in range(4)]
+    image = _frame((260, 450), curves, seed=3)
+    fs = detect_frame(image)
+    start_err, end_err = _end_errors(fs, curves)
+    assert len(fs) == len(curves)
+    assert np.all(start_err < 0.5) and np.all(end_err < 0.5)
+    # Negative control: without the faint tails the lines stop where the light falls under a
+    # quarter of the start's, 10-50 px short, and some streaks are lost.
+    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
+    fs = detect_frame(image)
+    _, end_err = _end_errors(fs, curves)
+    assert len(fs) < len(curves)
+    assert np.median(end_err) > 5.0
+
+
+def test_faint_tails_leave_uniform_streaks_as_they_were(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Streaks of one brightness end in their caps' blur (runs under :data:`TAIL_MIN_PX`):
+    their measured ends do not change."""
+    curves = [
+        np.stack([np.linspace(30.0, 110.0, 800) + 140.0 * i, np.full(800, 40.0 + 50.0 * j)], 1)
+        for i in range(3)
+        for j in range(4)
+    ]
+    image = _frame((260, 450), curves, seed=4)
+    with_tails = detect_frame(image)
+    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
+    without = detect_frame(image)
+    np.testing.assert_array_equal(with_tails.end_a, without.end_a)
+    np.testing.assert_array_equal(with_tails.end_b, without.end_b)

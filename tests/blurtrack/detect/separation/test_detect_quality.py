@@ -1,0 +1,66 @@
+"""Shape consistency and the quality flag of the streak table."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from blurtrack.detect.separation.quality import add_quality
+from blurtrack.io import streaks
+
+
+def _frame(n: int = 12, seed: int = 0) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    mid = rng.uniform(50, 600, (n, 2))
+    # A roll about the optical axis: the start-to-end vector varies linearly over the frame.
+    v = np.array([20.0, 5.0]) + (mid - 300.0) @ np.array([[0.0, 0.02], [-0.02, 0.0]])
+    flip = rng.random(n) < 0.4  # start/end swapped on some: not a shape error
+    v[flip] *= -1
+    start, end = mid - v / 2, mid + v / 2
+    return pd.DataFrame(
+        {
+            "frame": 0,
+            "start_x": start[:, 0],
+            "start_y": start[:, 1],
+            "end_x": end[:, 0],
+            "end_y": end[:, 1],
+            "mid_x": mid[:, 0],
+            "mid_y": mid[:, 1],
+            "clipped": False,
+            "merged": False,
+            "crossing": False,
+            "looped": False,
+            "saturated": False,
+            "width_px": 1.8,
+        }
+    )
+
+
+def test_consistent_shapes_are_ok_and_an_odd_one_is_not() -> None:
+    d = _frame()
+    d.loc[3, ["end_x", "end_y"]] = d.loc[3, ["start_x", "start_y"]].to_numpy() + np.array(
+        [5.0, 30.0]
+    )
+    d.loc[5, "saturated"] = True
+    d.loc[5, "width_px"] = 5.0
+    q = add_quality(d)
+    dev = q["shape_deviation_px"].to_numpy()
+    assert np.all(np.delete(dev, [3, 5]) < 1e-6)
+    assert dev[3] > 20
+    assert not q.quality_ok[3] and not q.quality_ok[5] and q.thick_saturated[5]
+    assert q.quality_ok.sum() == len(d) - 2
+
+
+def test_too_few_streaks_give_no_consensus_and_flags_decide() -> None:
+    d = _frame(n=3)
+    d.loc[1, "clipped"] = True
+    q = add_quality(d)
+    assert q["shape_deviation_px"].isna().all()
+    assert q.quality_ok.tolist() == [True, False, True]
+
+
+def test_usable_falls_back_to_flags_for_older_tables() -> None:
+    d = pd.DataFrame({"clipped": [False, True, False], "merged": [False, False, True]})
+    assert streaks.usable(d).tolist() == [True, False, False]
+    d["quality_ok"] = [False, False, True]
+    assert streaks.usable(d).tolist() == [False, False, True]
