@@ -107,3 +107,43 @@ def check_unique_names(names: list[str], where: str, first_line: int = 2) -> Non
                 f"{seen[n] + first_line}; every frame needs its own image file"
             )
         seen[n] = k
+
+
+#: Most trajectory samples per pixel a prediction takes: 4 per px along a 256 px blur, far
+#: beyond what a heat map's Bezier fit needs (16 by default).
+MAX_TRAJECTORY_SAMPLES = 1024
+#: Bytes a prediction holds per evaluated pixel and trajectory sample while it builds one
+#: frame's heat maps (x, y and the Bezier fit's float64 work arrays: a generous upper bound).
+PREDICT_BYTES_PER_SAMPLE = 128
+
+
+def memory_bytes() -> int:
+    """Physical memory of this machine (bytes); 0 where it cannot be read."""
+    import os
+
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def check_prediction_size(
+    width: int, height: int, stride: int, samples: int, what: str = "predict"
+) -> None:
+    """Refuse, before anything is allocated, trajectory samples beyond
+    :data:`MAX_TRAJECTORY_SAMPLES` and one frame's heat-map work that would need more than
+    half of this machine's memory (:class:`BoundsError`, the bound in the message)."""
+    if samples > MAX_TRAJECTORY_SAMPLES:
+        raise BoundsError(
+            f"{what}: --samples {samples} exceeds {MAX_TRAJECTORY_SAMPLES} trajectory samples "
+            "per pixel"
+        )
+    pixels = -(-int(width) // int(stride)) * -(-int(height) // int(stride))
+    need = pixels * int(samples) * PREDICT_BYTES_PER_SAMPLE
+    have = memory_bytes()
+    if have and need > have // 2:
+        raise BoundsError(
+            f"{what}: {pixels} pixels x {samples} samples need about {need / 2**30:.1f} GiB per "
+            f"frame, more than half of this machine's {have / 2**30:.1f} GiB; raise --stride "
+            "or lower --samples"
+        )

@@ -738,3 +738,38 @@ def test_253_character_names_work(env: Env, capsys: pytest.CaptureFixture) -> No
     rc = main(["detect", str(env.S), "--out", str(table)])
     assert rc == 0, capsys.readouterr().err
     assert table.is_file() and debris(env.root) == []
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--samples", "1000000000"], "exceeds 1024 trajectory samples"),
+        (["--samples", "1024", "--stride", "1"], None),  # allowed count; memory decides
+    ],
+)
+def test_predict_refuses_absurd_sizes_before_allocating(
+    env: Env,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture,
+    monkeypatch: pytest.MonkeyPatch,
+    extra: list[str],
+    needle: str | None,
+) -> None:
+    """``predict --samples 1e9`` once allocated 238 GiB after 13 s: refused at once now, with
+    the bound. The memory rule is checked against a machine of 1 GiB (monkeypatched)."""
+    from blurtrack.io import bounds
+
+    monkeypatch.setattr(bounds, "memory_bytes", lambda: 2**30)
+    before = tree_hashes(env.S)
+    out = tmp_path / "p"
+    rc = main(["predict", str(env.S), "--calib", str(env.calib), "--out", str(out), *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert (needle or "more than half of this machine's 1.0 GiB") in err
+    assert not (out / "summary.json").exists() and tree_hashes(env.S) == before
+
+
+def test_prediction_size_bound_lets_the_defaults_through() -> None:
+    from blurtrack.io.bounds import check_prediction_size
+
+    check_prediction_size(1920, 1080, 8, 16)  # the defaults on 1080p: a few MB
