@@ -167,7 +167,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     details = write_summary(res, summary, out)
     _print_table(res, summary.get("initial", {}), truth)
-    return write_results(res, out, details)
+    print(write_results(res, out, details))
+    return 0
 
 
 def _render_progress(p: Any) -> None:

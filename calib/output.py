@@ -21,9 +21,9 @@ def write_summary(res: Any, summary: dict, out: Path) -> Path:
     return details
 
 
-def write_results(res: Any, out: Path, details: Path) -> int:
+def write_results(res: Any, out: Path, details: Path) -> str:
     """Refuse a failed fit (one line naming its summary), else write the calibration and its
-    OpenVINS and camera_info twins."""
+    OpenVINS and camera_info twins; returns the line the command prints."""
     from calib.errors import CalibError
     from calib.export import write_camera_info, write_openvins
 
@@ -36,8 +36,7 @@ def write_results(res: Any, out: Path, details: Path) -> int:
     write_calibration(res, out)
     write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
     write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
-    print(f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)")
-    return 0
+    return f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)"
 
 
 def write_calibration(res: Any, path: Path) -> None:

@@ -99,13 +99,13 @@ def importer_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "calib": args.calib,
         "gcsv": args.gcsv,
         "max_frames": args.max_frames,
-        "images": getattr(args, "images", None),
-        "frame_times_file": getattr(args, "frame_times", None),
-        "gyro": getattr(args, "gyro", None),
-        "gyro_columns": getattr(args, "gyro_columns", None),
-        "time_unit": getattr(args, "time_unit", None),
-        "gyro_unit": getattr(args, "gyro_unit", None),
-        "intrinsics": _intrinsics(getattr(args, "intrinsics", None)),
+        "images": args.images,
+        "frame_times_file": args.frame_times,
+        "gyro": args.gyro,
+        "gyro_columns": args.gyro_columns,
+        "time_unit": args.time_unit,
+        "gyro_unit": args.gyro_unit,
+        "intrinsics": _intrinsics(args.intrinsics),
     }
     given = {k: v for k, v in given.items() if v is not None}
     allowed = IMPORTER_OPTIONS[args.kind]

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import itertools
 import os
-from collections.abc import Callable, Sequence
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
 import numpy as np
 
 T = TypeVar("T")
+R = TypeVar("R")
 
 #: Frame pairs handled per block (frames held in memory: about ``BLOCK + 1``).
 BLOCK = 16
@@ -102,3 +104,20 @@ def map_pairs(
 
 def _frames_of(block: Sequence[int]) -> list[int]:
     return sorted(set(block) | {f + 1 for f in block})
+
+
+def in_order(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[R]:
+    """``fn(item)`` of each item, in order, computed on up to ``workers`` threads with at most
+    ``2 · workers`` results waiting (decoding and PNG encoding release the GIL: an import's
+    frames are encoded two at a time on two cores, and memory stays bounded)."""
+    if workers <= 1:
+        yield from (fn(i) for i in items)
+        return
+    with ThreadPoolExecutor(workers) as pool:
+        window: deque[Future[R]] = deque()
+        for item in items:
+            window.append(pool.submit(fn, item))
+            if len(window) >= 2 * workers:
+                yield window.popleft().result()
+        while window:
+            yield window.popleft().result()

@@ -37,9 +37,8 @@ import numpy as np
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from calib.axes.search import (
-    MIN_PAIRS,
     AxisSearch,
-    AxisSearchError,
+    covered_pairs,
     gyro_rotations,
     proper_axis_permutations,
     ranked,
@@ -188,14 +187,7 @@ def search_axes_heading(
     tb = np.array([pb[idx == k, 1].mean() for k in range(pairs.size)])
     ta = frame_t_s[pairs] + camera.readout_s * ta / H + exposure_s[pairs] / 2
     tb = frame_t_s[pairs + 1] + camera.readout_s * tb / H + exposure_s[pairs + 1] / 2
-    lo, hi = np.minimum(ta, tb) + shift0_s - window_s, np.maximum(ta, tb) + shift0_s + window_s
-    ok = np.array([gyro.covers(float(x), float(y)) for x, y in zip(lo, hi, strict=True)])
-    if np.count_nonzero(ok) < MIN_PAIRS:
-        raise AxisSearchError(
-            f"the gyro does not cover the frames: {np.count_nonzero(ok)} of {pairs.size} frame "
-            f"pairs (± {window_s * 1e3:.0f} ms shift search) lie inside its samples; "
-            f"need {MIN_PAIRS}"
-        )
+    ok = covered_pairs(gyro, ta, tb, shift0_s, window_s)
     use = ok[idx]
     pa, pb, idx = pa[use], pb[use], np.searchsorted(np.flatnonzero(ok), idx[use])
     ta, tb = ta[ok], tb[ok]

@@ -340,15 +340,7 @@ def search_axes(
     out; :class:`AxisSearchError` when fewer than :data:`MIN_PAIRS` remain.
     """
     g = gyro.upsampled(GYRO_UPSAMPLE)
-    lo = np.minimum(rots.t_a_s, rots.t_b_s) + shift0_s - window_s
-    hi = np.maximum(rots.t_a_s, rots.t_b_s) + shift0_s + window_s
-    ok = np.array([g.covers(float(a), float(b)) for a, b in zip(lo, hi, strict=True)])
-    if np.count_nonzero(ok) < MIN_PAIRS:
-        raise AxisSearchError(
-            f"the gyro does not cover the frames: {np.count_nonzero(ok)} of {len(rots)} "
-            f"frame pairs (± {window_s * 1e3:.0f} ms shift search) lie inside its samples; "
-            f"need {MIN_PAIRS}"
-        )
+    ok = covered_pairs(g, rots.t_a_s, rots.t_b_s, shift0_s, window_s)
     ta, tb, Ri = rots.t_a_s[ok], rots.t_b_s[ok], rots.R_img[ok]
     P = proper_axis_permutations()
 
@@ -365,6 +357,24 @@ def search_axes(
     if n_tr:
         source += f" ({n_tr} of {int(np.count_nonzero(ok))} pairs with translation)"
     return ranked(shifts, scores, float(np.median(ang) * fx), int(np.count_nonzero(ok)), source)
+
+
+def covered_pairs(
+    gyro: GyroTrace, t_a_s: np.ndarray, t_b_s: np.ndarray, shift0_s: float, window_s: float
+) -> np.ndarray:
+    """``(K,)`` the frame pairs (camera times ``t_a_s``, ``t_b_s``) whose interval the gyro
+    covers for every shift of ``shift0_s ± window_s``; :class:`AxisSearchError` when fewer
+    than :data:`MIN_PAIRS` are."""
+    lo = np.minimum(t_a_s, t_b_s) + shift0_s - window_s
+    hi = np.maximum(t_a_s, t_b_s) + shift0_s + window_s
+    ok = np.array([gyro.covers(float(a), float(b)) for a, b in zip(lo, hi, strict=True)])
+    if np.count_nonzero(ok) < MIN_PAIRS:
+        raise AxisSearchError(
+            f"the gyro does not cover the frames: {np.count_nonzero(ok)} of {len(ok)} "
+            f"frame pairs (± {window_s * 1e3:.0f} ms shift search) lie inside its samples; "
+            f"need {MIN_PAIRS}"
+        )
+    return ok
 
 
 def scan_candidates(

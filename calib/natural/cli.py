@@ -226,7 +226,8 @@ def run_natural(
     print("(the endpoint errors below are feature-track errors)")
     print_table(res, summary["initial"], truth)
     try:
-        return write_results(res, out, details)
+        print(write_results(res, out, details))
+        return 0
     except CalibError as exc:
         partial = write_partial(nat.axes, res.initial, out, str(exc), args.force)
         raise CalibError(f"{exc}; {partial}") from None
