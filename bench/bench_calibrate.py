@@ -45,8 +45,9 @@ import numpy as np
 from calibrate_command import command_bench
 from calibrate_common import REPO, TARGETS, _errors, effective_rotation, simulate
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.io import streaks as streak_table
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.session import load_session
 from calib.data import relative_gyro, streaks_from_table
 from calib.fit import RESIDUALS, FitOptions, calibrate
@@ -115,7 +116,7 @@ def run_one(
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if options.centreline else 0
     )
-    truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
+    truth = calibration_from_dict(session.truth["calibration"], "truth.yaml")
     initial = session.initial_calibration()
     gyro = session.gyro()
     # Baseline: one numpy residual evaluation over all streaks (the fit's unit of work).

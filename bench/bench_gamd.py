@@ -92,12 +92,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> None:
     """A global-shutter pinhole camera at the synthesised size."""
+    from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.camera import Camera
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import write_calibration
 
     w, h = size
     cam = Camera(resolution=(w, h), intrinsics=(focal_px, focal_px, (w - 1) / 2, (h - 1) / 2))
-    Calibration(camera=cam).to_yaml(path)
+    write_calibration(Calibration(camera=cam), path)
 
 
 def run_synth(

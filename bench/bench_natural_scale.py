@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 from natural_common import KEYS, TARGETS
 
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.session import load_session
 from calib.fit import FitOptions, calibrate
 from calib.natural.cli import NATURAL_FIT
@@ -59,7 +60,7 @@ def run_session(folder: Path) -> dict[str, Any]:
     s = load_session(folder)
     if not s.truth:
         raise SystemExit(f"error: {folder} has no truth.yaml")
-    truth = Calibration.from_dict(s.truth["calibration"], source="truth.yaml")
+    truth = calibration_from_dict(s.truth["calibration"], source="truth.yaml")
     M: np.ndarray = np.asarray(s.truth["simulator"]["gyro"]["scale_matrix"], dtype=np.float64)
     U, _, Vt = np.linalg.svd(M)
     R_true = truth.R_cam_imu @ (U @ Vt).T

@@ -94,12 +94,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from blurtrack.cli import main as bt
     from blurtrack.cli.demo import demo_calibration
+    from blurtrack.io.calibration import write_calibration
 
     args.out.mkdir(parents=True, exist_ok=True)
     calib = args.calib
     if calib is None:
         calib = args.out / "demo_calibration.yaml"
-        demo_calibration().to_yaml(calib)
+        write_calibration(demo_calibration(), calib)
     results: dict = {"calib": str(calib), "count": args.count, "size": args.size}
     for name, extra in VARIANTS.items():
         root = args.out / name

@@ -40,8 +40,9 @@ import cv2
 import numpy as np
 
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict, write_calibration
 from blurtrack.synth.dataset import DatasetSpec, build
 from blurtrack.synth.images import camera_for_size, list_images, load_image
 from blurtrack.synth.motion import open_source
@@ -173,7 +174,7 @@ def cli_build(
     cluster's scheduler, nannies and workers included), the seconds until the first triplet
     was written (start-up) and after the last one (shutting down)."""
     calib = tmp / f"calib{size[0]}.yaml"
-    CALIB.to_yaml(calib)
+    write_calibration(CALIB, calib)
     out = tmp / f"cli{size[0]}{name}"
     cmd = [
         sys.executable,
@@ -326,7 +327,9 @@ def render_in_workers(gyro: str, images: Path, size: tuple[int, int], n: int = 6
     from blurtrack.synth.cluster import connect
     from blurtrack.synth.dataset import plan
 
-    spec = DatasetSpec(CALIB.to_dict(), gyro, str(images), 64, 3, TripletParams(size=size))
+    spec = DatasetSpec(
+        calibration_to_dict(CALIB), gyro, str(images), 64, 3, TripletParams(size=size)
+    )
     jobs = plan(spec, list_images(images), open_source(gyro).tag)[: n + 1]
     args, out = (spec.to_dict(), jobs), {}
     saved = dict(os.environ)
@@ -353,7 +356,7 @@ def inprocess_cpu(size: tuple[int, int], count: int, gyro: str, images: Path, tm
 
     def mk(n: int, seed: int) -> DatasetSpec:
         return DatasetSpec(
-            calib=CALIB.to_dict(),
+            calib=calibration_to_dict(CALIB),
             gyro=gyro,
             images=str(images),
             count=n,

@@ -15,7 +15,7 @@ import numpy as np
 from calibrate_common import REPO, TARGETS, _errors, effective_rotation, simulate
 
 from blurtrack.io import streaks as streak_table
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict, read_calibration
 from blurtrack.io.session import load_session
 
 
@@ -73,7 +73,7 @@ def run_command(
     name = "calib.summary.json" if proc.returncode == 0 else "calib.failed.summary.json"
     summary = json.loads((out_dir / name).read_text())
     session = _session(session_dir)
-    truth = Calibration.from_dict(session.truth["calibration"], "truth.yaml")
+    truth = calibration_from_dict(session.truth["calibration"], "truth.yaml")
     run: dict = {
         "session": session_dir.name,
         "returncode": proc.returncode,
@@ -99,7 +99,7 @@ def run_command(
     run["wall_per_track_ms"] = 1e3 * wall / max(n_units, 1)
     run["cpu_per_track_ms"] = 1e3 * cpu / max(n_units, 1)
     if out.is_file():
-        cal = Calibration.from_yaml(out)
+        cal = read_calibration(out)
         err = _errors(cal, truth, effective_rotation(session.truth, truth.R_cam_imu))
         run["error"] = err
         run["within_target"] = {k: abs(v) <= TARGETS[k] for k, v in err.items() if k in TARGETS}

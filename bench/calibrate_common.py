@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.rotation import rotation_angle_deg
-from blurtrack.io.calibration import Calibration
 from calib.params import theta_from
 
 REPO = Path(__file__).resolve().parents[1]

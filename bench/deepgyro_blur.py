@@ -48,8 +48,9 @@ from deepgyro_deblur import DEEPGYRO_READOUT_S, DEFAULT_DATA, calibration, set_r
 
 from blurtrack.features import blur_estimate as be
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import read_calibration
 from blurtrack.synth.photometry import decode_srgb8
 
 REPO = Path(__file__).resolve().parents[1]
@@ -398,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
         set_readout(sess, DEEPGYRO_READOUT_S)
         cal_info = calibration(bt, sess, calib_path, 20.0)
         session = load_session(sess)
-        base = Calibration.from_yaml(calib_path)
+        base = read_calibration(calib_path)
         importer_R = session.initial_calibration().R_cam_imu
         cands = json.loads((Path(tmp) / "calib.failed.summary.json").read_text())["axes"]
         controls = {

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from deepgyro_blur import Tile, trajectories, with_fx_gain
 
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
 
 
 def figure(path: Path, session, base: Calibration, tiles: list[Tile], res: dict, args) -> str:

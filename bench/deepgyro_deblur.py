@@ -64,6 +64,7 @@ def set_readout(session_dir: Path, readout_s: float) -> None:
 
 def calibration(bt, session_dir: Path, calib_path: Path, window_ms: float) -> dict:
     """Write ``calib_path``: calibrate's own result, or its axis search + published values."""
+    from blurtrack.io.calibration import write_calibration
     from blurtrack.io.session import load_session
 
     args = ["calibrate", str(session_dir), "--out", str(calib_path), "--fit", "timeshift"]
@@ -78,7 +79,7 @@ def calibration(bt, session_dir: Path, calib_path: Path, window_ms: float) -> di
         R_cam_imu=np.asarray(winner["R_cam_imu"], dtype=float),
         timeshift_cam_imu_s=float(winner["timeshift_s"]),
     )
-    calib.to_yaml(calib_path)
+    write_calibration(calib, calib_path)
     return {
         "source": "axis search of blurtrack calibrate (R_cam_imu, time offset) + published "
         "intrinsics and readout",

@@ -58,13 +58,14 @@ RUNS = ("gamd", "gamd_finetune", "gamd_finetune2", "gamd_finetune3", "gamd_only"
 
 def write_calibration(path: Path, size: tuple[int, int], focal_px: float) -> Path:
     """A global-shutter pinhole camera of ``size`` (W, H) and focal length ``focal_px``."""
+    from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.camera import Camera
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import write_calibration
 
     w, h = size
     cam = Camera(resolution=(w, h), intrinsics=(focal_px, focal_px, (w - 1) / 2, (h - 1) / 2))
     path.parent.mkdir(parents=True, exist_ok=True)
-    Calibration(camera=cam).to_yaml(path)
+    write_calibration(Calibration(camera=cam), path)
     return path
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from blurtrack.errors import CoverageError
 from blurtrack.geometry.blur_model import BlurModel
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.io.images import write_image
 from blurtrack.io.session import Session
 

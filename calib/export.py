@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from blurtrack.io.calibration import ROSTOPIC, Calibration
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.io.calibration import ROSTOPIC
 from blurtrack.io.kalibr_imu import write_kalibr_imu
 from blurtrack.io.yamlio import write_text_atomic
 

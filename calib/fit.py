@@ -25,8 +25,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from calib import finish, stages
 from calib.data import StreakSet
 from calib.fitcore import (

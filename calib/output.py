@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.sources import summary_path
+from blurtrack.io.calibration import write_calibration
 
 
 def write_summary(res: Any, summary: dict, out: Path) -> Path:
@@ -33,12 +34,7 @@ def write_results(res: Any, out: Path, details: Path) -> str:
             + "; ".join(res.warnings)
             + f" (details in {details}; no calibration written)"
         )
-    write_calibration(res, out)
+    write_calibration(res.calibration, out)  # a fitted gyro scale is its gyro_scale_matrix
     write_openvins(res.calibration, out.with_name(out.stem + ".openvins.yaml"))
     write_camera_info(res.calibration, out.with_name(out.stem + ".camera_info.yaml"))
     return f"wrote {out} (+ .openvins.yaml, .camera_info.yaml, .summary.json)"
-
-
-def write_calibration(res: Any, path: Path) -> None:
-    """The calibration YAML (a fitted gyro scale is its ``gyro_scale_matrix``)."""
-    res.calibration.to_yaml(path)

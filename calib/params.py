@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.rotation import so3_exp, so3_log
-from blurtrack.io.calibration import Calibration
 from calib.errors import CalibError
 
 #: Scalar parameter names in ``theta`` order.

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict
 from calib.params import THETA_NAMES
 
 
@@ -117,7 +118,7 @@ class CalibResult:
             "holdout_fit_values": self.holdout_fit_values,
             "warnings": list(self.warnings),
             "timings_s": dict(self.timings_s),
-            "calibration": self.calibration.to_dict(),
+            "calibration": calibration_to_dict(self.calibration),
         }
 
 

@@ -9,8 +9,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from calib import init as init_mod
 from calib import uncertainty
 from calib.centreline import CentreGridEvaluator

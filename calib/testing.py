@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp
-from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, centre_points
 
 #: Sampling rate of the "continuous" true motion behind the truth endpoints.

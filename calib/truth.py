@@ -18,7 +18,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     import numpy as np
 
     from blurtrack.errors import BlurTrackError
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import calibration_from_dict
     from calib.params import LAYOUT, rotation_error_rad, scale_entries, theta_from
     from calib.result import named
 
@@ -26,7 +26,7 @@ def truth_values(session: Any, initial: Any) -> dict[str, float] | None:
     if not truth or "calibration" not in truth:
         return None
     try:
-        cal = Calibration.from_dict(truth["calibration"], source="truth.yaml")
+        cal = calibration_from_dict(truth["calibration"], source="truth.yaml")
     except BlurTrackError:
         return None
     th = theta_from(cal)

@@ -165,9 +165,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _synth(out: Path, data: Path) -> int:
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import read_calibration
 
-    calib = Calibration.from_yaml(out / "calib.yaml")
+    calib = read_calibration(out / "calib.yaml")
     res = demo_dataset(out / "dataset", data, count=24, size=(256, 192), calib=calib)
     print(f"   {json.dumps({k: v for k, v in res.items() if not isinstance(v, (dict, list))})}")
     return 0
@@ -191,8 +191,8 @@ def _gamd(out: Path, steps: int, progress: bool) -> int:
 
 def demo_calibration() -> Any:
     """A 720p phone-class camera: 65° horizontal field of view, 20 ms rolling-shutter readout."""
+    from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.camera import Camera
-    from blurtrack.io.calibration import Calibration
 
     return Calibration(Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5), readout_s=0.02))
 
@@ -212,6 +212,7 @@ def demo_dataset(
     the build summary.
     """
     from blurtrack.errors import SynthesisError
+    from blurtrack.io.calibration import calibration_to_dict
     from blurtrack.synth.dataset import DatasetSpec, build
     from blurtrack.synth.photometry import Photometry
     from blurtrack.synth.triplet import TripletParams
@@ -226,7 +227,7 @@ def demo_dataset(
         size=size, exposure_ms=(10.0, 30.0), photometry=Photometry(noise_shot=2e-4, noise_read=2e-3)
     )
     spec = DatasetSpec(
-        calib=(calib or demo_calibration()).to_dict(),
+        calib=calibration_to_dict(calib or demo_calibration()),
         gyro=gyro,
         images=str(images.resolve()),
         count=count,

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from blurtrack.errors import SynthesisError
     from blurtrack.io.atomic import write_json_atomic
     from blurtrack.io.bounds import check_prediction_size
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import read_calibration
     from blurtrack.io.session import load_session
     from blurtrack.synth.predict import predict_session
 
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError(f"--overlays must be 0 or more, got {args.overlays}")
     check_output(args.out, folder=True, force=args.force)
     session = load_session(args.session)
-    calib = Calibration.from_yaml(args.calib)
+    calib = read_calibration(args.calib)
     check_prediction_size(*calib.camera.resolution, args.stride, args.samples)
     if calib.partial_label is not None:
         print(f"predict: {calib.partial_label}")

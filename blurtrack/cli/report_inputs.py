@@ -15,10 +15,10 @@ def load_calibrations(args: argparse.Namespace, session: Any) -> tuple[Any, Any]
     """The calibrations to compare (``--before``, default the session's own, and ``--calib``),
     each checked to be for the session's frame size."""
     from blurtrack.errors import BlurTrackError
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import read_calibration
 
-    after = Calibration.from_yaml(args.calib)
-    before = Calibration.from_yaml(args.before) if args.before else session.initial_calibration()
+    after = read_calibration(args.calib)
+    before = read_calibration(args.before) if args.before else session.initial_calibration()
     want = tuple(session.meta.camera.resolution)
     for name, cal in (("--calib", after), ("--before", before)):
         if tuple(cal.camera.resolution) != want:

@@ -144,7 +144,7 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 
 def spec_from_args(args: argparse.Namespace):
     from blurtrack.errors import SynthesisError
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import calibration_to_dict, read_calibration
     from blurtrack.synth.dataset import DatasetSpec
     from blurtrack.synth.perturb import Perturbation
     from blurtrack.synth.photometry import Photometry
@@ -185,10 +185,10 @@ def spec_from_args(args: argparse.Namespace):
         readout_ms=args.readout_ms,
         min_blur_px=args.min_blur_px,
     )
-    calib = Calibration.from_yaml(args.calib)
+    calib = read_calibration(args.calib)
     gyro = args.gyro if args.gyro.startswith("synthetic") else str(Path(args.gyro).resolve())
     return DatasetSpec(
-        calib=calib.to_dict(),
+        calib=calibration_to_dict(calib),
         gyro=gyro,
         images=str(Path(args.images).resolve()),
         count=args.count,

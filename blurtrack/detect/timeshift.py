@@ -20,8 +20,8 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import CUE_SUBSTEP_S, GYRO_SIGMA_PX, FrameTiming
 
 if TYPE_CHECKING:
+    from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.gyro import GyroTrace
-    from blurtrack.io.calibration import Calibration
 
 #: Streaks used per frame and frames used (spread over the session).
 MAX_STREAKS_PER_FRAME = 30

@@ -17,6 +17,7 @@ import numpy as np
 
 from blurtrack.errors import GeometryError
 from blurtrack.geometry import heatmap
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.geometry.kernels import (
     DEFAULT_MAX_SUBSTEP_S,
@@ -34,7 +35,6 @@ from blurtrack.geometry.kernels import (
     unproject_c,
     warp_c,
 )
-from blurtrack.io.calibration import Calibration
 
 #: Motion models: exact rotation integration, or the source paper's per-axis small angles.
 ROTATION_MODELS: dict[str, Callable[..., Mat3]] = {

@@ -22,6 +22,7 @@ import numpy as np
 
 from blurtrack.errors import BlurTrackError
 from blurtrack.io.calibration import ROSTOPIC as IMAGE_TOPIC
+from blurtrack.io.calibration import calibration_to_dict
 from blurtrack.io.rosimage import encode_raw
 from blurtrack.io.session import Session
 
@@ -203,7 +204,9 @@ def write_kalibr_companions(session: Session, out: str | Path) -> dict[str, str]
     note = "# Kalibr camchain from the session's own guesses (session.yaml), not a calibration.\n"
     if not session.meta.imu.axes_known:
         note += "# T_cam_imu is a GUESS: the session says imu.axes_known: false.\n"
-    body = yaml.safe_dump(session.initial_calibration().to_dict(), sort_keys=False, width=100)
+    body = yaml.safe_dump(
+        calibration_to_dict(session.initial_calibration()), sort_keys=False, width=100
+    )
     write_text_atomic(cams, note + body)
     source = write_kalibr_imu(session, imu, rostopic=IMU_TOPIC)
     return {"camchain": str(cams), "imu": str(imu), "imu_noise_source": source}

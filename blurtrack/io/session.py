@@ -358,7 +358,7 @@ class Session:
 
     def initial_calibration(self):
         """The rig's own guesses (session.yaml) as a calibration."""
-        from blurtrack.io.calibration import Calibration
+        from blurtrack.geometry.calibration import Calibration
 
         T = self.meta.imu.T_cam_imu
         try:

@@ -18,9 +18,10 @@ import pandas as pd
 
 from blurtrack.errors import BlurTrackError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.io.atomic import write_json_atomic
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict
 from blurtrack.io.session import Session
 from blurtrack.io.yamlio import write_text_atomic
 from blurtrack.report import figures
@@ -253,8 +254,8 @@ def build_report(
             "overall": overall,
             "motion_models": model_stats,
             "motion_model_labels": {v.name: v.label for v in MOTION_VARIANTS},
-            "calibration_before": before.to_dict(),
-            "calibration_after": after.to_dict(),
+            "calibration_before": calibration_to_dict(before),
+            "calibration_after": calibration_to_dict(after),
             "fit": fit_summary or {},
             "warnings": warnings,
             "gyro_upsample": GYRO_UPSAMPLE,

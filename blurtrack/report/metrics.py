@@ -19,9 +19,9 @@ import pandas as pd
 
 from blurtrack.errors import BlurTrackError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import ROW_TIME_ITERATIONS
-from blurtrack.io.calibration import Calibration
 
 
 class ReportError(BlurTrackError):

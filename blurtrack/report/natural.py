@@ -31,11 +31,12 @@ import pandas as pd
 
 from blurtrack.features.tracks import FeatureTracks, track_frames
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import row_start_c
 from blurtrack.geometry.rotation import so3_log
 from blurtrack.io.atomic import write_json_atomic
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict
 from blurtrack.io.session import Session
 from blurtrack.io.yamlio import write_text_atomic
 from blurtrack.report import figures
@@ -301,8 +302,8 @@ def build_natural_report(
                 "axes": (fit_summary or {}).get("axes"),
                 "agreement": agreement,
             },
-            "calibration_before": before.to_dict(),
-            "calibration_after": after.to_dict(),
+            "calibration_before": calibration_to_dict(before),
+            "calibration_after": calibration_to_dict(after),
             "fit": fit_summary or {},
             "warnings": warnings,
             "files": [

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from blurtrack.errors import BlurTrackError, SynthesisError
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.yamlio import read_yaml, write_yaml
 from blurtrack.synth.images import list_images, load_image, split_of
 from blurtrack.synth.motion import open_source
@@ -83,7 +83,7 @@ class DatasetSpec:
             raise SynthesisError(
                 f"count must be in [1, {MAX_COUNT}] and group >= 1, got {self.count}"
             )
-        Calibration.from_dict(self.calib)  # validates
+        calibration_from_dict(self.calib)  # validates
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -160,7 +160,7 @@ class Renderer:
     def __init__(self, spec_dict: dict[str, Any], png_level: int = DEFAULT_PNG_LEVEL) -> None:
         self.spec = DatasetSpec.from_dict(spec_dict)
         self.png = int(png_level)
-        self.calib = Calibration.from_dict(self.spec.calib)
+        self.calib = calibration_from_dict(self.spec.calib)
         self.source = open_source(self.spec.gyro)
 
     def render(self, job: Job) -> tuple[dict[str, Any], dict[str, bytes | np.ndarray]]:

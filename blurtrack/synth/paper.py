@@ -24,8 +24,8 @@ import numpy as np
 
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from blurtrack.synth.render import (
     BORDERS,
     NodeGrid,

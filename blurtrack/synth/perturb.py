@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 
 #: Keys accepted by :meth:`Perturbation.parse` and their units.
 KEYS = {

@@ -21,8 +21,8 @@ import pandas as pd
 
 from blurtrack.errors import CoverageError, SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.io import atomic
-from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import Session
 from blurtrack.synth.render import source_positions
 

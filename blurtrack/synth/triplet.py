@@ -17,7 +17,7 @@ import numpy as np
 
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.synth import photometry as ph
 from blurtrack.synth.images import camera_for_size, fit_to_size
 from blurtrack.synth.motion import GyroSource

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 from blurtrack.testing.streak_frames import quantise, render_streaks
 

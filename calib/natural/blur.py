@@ -17,8 +17,8 @@ from functools import partial
 import numpy as np
 
 from blurtrack.features.tracks import FeatureTracks, to_gray8
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 
 #: Time samples of the blur-centroid correction.
 CENTROID_SAMPLES = 8

@@ -247,6 +247,8 @@ def write_partial(axes: Any, initial: Any, out: Path, reason: str, force: bool) 
     ``initial`` (the session's own guesses for the rest) as a calibration file marked
     ``partial`` beside ``out``; returns the sentence for the refusal. An existing file is
     replaced only with ``force``."""
+    from blurtrack.io.calibration import write_calibration
+
     path = partial_path(out)
     if path.exists() and not force:
         return f"the decided axes were not written: {path} exists (--force replaces it)"
@@ -261,7 +263,7 @@ def write_partial(axes: Any, initial: Any, out: Path, reason: str, force: bool) 
             "not_fitted": "intrinsics, readout, bias, fine time offset: the session's guesses",
         },
     )
-    calib.to_yaml(path)
+    write_calibration(calib, path)
     return (
         f"the decided axes (margin {axes.margin:.1f}) are in {path}, marked partial: "
         "predict takes it, labelled"

@@ -25,7 +25,7 @@ from blurtrack.features.tracks import (
     track_pair,
     tracks_of_pairs,
 )
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
 from calib.axes.search import PairRotation, pair_rotation
 from calib.axes.translation import fit_rotation_translating
 

@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
-from blurtrack.io.calibration import Calibration
 from calib.axes.search import (
     AxisSearch,
     AxisSearchError,

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp
-from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet
 
 #: Side of a scene cell (px of the first frame's view): several tracker windows (21 px), so

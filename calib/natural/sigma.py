@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, relative_gyro
 from calib.fitcore import FitOptions
 from calib.params import LAYOUT, N_THETA, THETA_NAMES

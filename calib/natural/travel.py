@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.fitcore import FitOptions
 from calib.natural.motion import (

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.rotation import so3_exp
-from blurtrack.io.calibration import Calibration
 from blurtrack.io.session import ImuConfig, SessionMeta
 from rigs.sim.dots import TrueFrameStreaks, dot_directions, dot_pixels, frame_streaks
 from rigs.sim.errors import SimError

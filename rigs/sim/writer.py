@@ -12,6 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from blurtrack.io.calibration import calibration_to_dict
 from blurtrack.io.session import SessionWriter, load_session
 from blurtrack.workers import worker_initializer
 from rigs.sim.errors import SimError
@@ -126,7 +127,7 @@ def write_session(
             source.close()  # shuts the worker pool down
         truth = {
             "format": TRUTH_FORMAT,
-            "calibration": rig.calibration.to_dict(),
+            "calibration": calibration_to_dict(rig.calibration),
             "simulator": rig.simulator_info(),
             "frames": frames,
         }

@@ -10,8 +10,9 @@ import pandas as pd
 import pytest
 
 from blurtrack.cli import main
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.io import streaks as streak_table
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict, read_calibration
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
 from calib.testing import make_problem
 
@@ -65,7 +66,11 @@ def _write_session(folder: Path, seed: int = 21, tracked: bool = False) -> tuple
                 }
             )
         w.write_truth(
-            {"calibration": p.truth.to_dict(), "simulator": {"preset": "test"}, "frames": frames}
+            {
+                "calibration": calibration_to_dict(p.truth),
+                "simulator": {"preset": "test"},
+                "frames": frames,
+            }
         )
     from blurtrack.io.session import load_session
 
@@ -85,7 +90,7 @@ def test_calibrate_and_report(session_dir, tmp_path: Path, capsys) -> None:
     assert main(["calibrate", str(folder), "--out", str(out), "--holdout", "0.2"]) == 0
     text = capsys.readouterr().out
     assert "truth" in text and "timeshift_s" in text
-    cal = Calibration.from_yaml(out)
+    cal = read_calibration(out)
     assert abs(cal.timeshift_cam_imu_s - truth.timeshift_cam_imu_s) < 2e-4
     assert "timeshift_cam_imu" in cal.sigma and len(cal.sigma["intrinsics"]) == 4
     summ = json.loads((tmp_path / "calib.summary.json").read_text())
@@ -167,7 +172,7 @@ def test_calibrate_with_centre_lines(session_dir, tmp_path: Path, capsys) -> Non
     out = tmp_path / "calib.yaml"
     assert main(["calibrate", str(folder), "--out", str(out), "--from-truth", "--centreline"]) == 0
     capsys.readouterr()
-    cal = Calibration.from_yaml(out)
+    cal = read_calibration(out)
     summ = json.loads((tmp_path / "calib.summary.json").read_text())
     # Centre lines weigh this small session's shift to z ~ 3 (200-220 µs, sigma 74 µs after
     # the refit on every frame; the training fit 198 µs, as before the refit existed).
@@ -236,13 +241,16 @@ def test_truth_rotation_is_the_one_the_gyro_data_define() -> None:
     P = np.eye(3) + np.diag([0.002, -0.001, 0.003])
     sim = {"gyro": {"scale_matrix": (P @ Q).tolist()}}
     tv = truth_values(
-        SimpleNamespace(truth={"calibration": truth.to_dict(), "simulator": sim}), initial
+        SimpleNamespace(truth={"calibration": calibration_to_dict(truth), "simulator": sim}),
+        initial,
     )
     rot = np.array([tv["rot_x"], tv["rot_y"], tv["rot_z"]])
     assert np.allclose(rot, so3_log(R @ Q.T), atol=1e-12)
     # the symmetric part of M - I: P - I to first order (second-order terms ~1e-5)
     assert abs(tv["scale_xx"] - 0.002) < 1e-4 and abs(tv["scale_zz"] - 0.003) < 1e-4
     # negative control: without the scale matrix the truth is the stated rotation
-    plain = truth_values(SimpleNamespace(truth={"calibration": truth.to_dict()}), initial)
+    plain = truth_values(
+        SimpleNamespace(truth={"calibration": calibration_to_dict(truth)}), initial
+    )
     assert np.allclose([plain["rot_x"], plain["rot_y"], plain["rot_z"]], so3_log(R), atol=1e-12)
     assert np.degrees(np.linalg.norm(rot - so3_log(R))) > 0.2

@@ -10,9 +10,10 @@ import pytest
 import yaml
 
 from blurtrack.errors import ConfigError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.rotation import so3_exp
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import read_calibration, write_calibration
 from calib.export import write_camera_info, write_kalibr_imu, write_openvins
 
 
@@ -65,12 +66,12 @@ def test_camera_info(tmp_path: Path) -> None:
 def test_calibration_file_has_kalibr_keys_and_reads_back(tmp_path: Path) -> None:
     c = _calib()
     undistorted = c.with_(distortion_model="none", distortion_coeffs=())
-    undistorted.to_yaml(tmp_path / "c.yaml")
+    write_calibration(undistorted, tmp_path / "c.yaml")
     d = yaml.safe_load((tmp_path / "c.yaml").read_text())["cam0"]
     assert d["rostopic"] == "/cam0/image_raw" and d["cam_overlaps"] == []
     assert d["distortion_model"] == "radtan" and d["distortion_coeffs"] == [0.0] * 4
     assert d["line_delay"] == pytest.approx(0.021 / 720)  # s per row
-    back = Calibration.from_yaml(tmp_path / "c.yaml")
+    back = read_calibration(tmp_path / "c.yaml")
     assert back.camera == undistorted.camera  # all-zero radtan reads as none
 
 
@@ -103,7 +104,7 @@ cam1:
   rostopic: /cam1/image_raw
 """
     (tmp_path / "camchain-imucam.yaml").write_text(text)
-    c = Calibration.from_yaml(tmp_path / "camchain-imucam.yaml")
+    c = read_calibration(tmp_path / "camchain-imucam.yaml")
     assert c.camera.intrinsics == (458.654, 457.296, 367.215, 248.375)
     assert c.camera.distortion_model == "radtan"
     assert c.camera.readout_s == pytest.approx(2e-5 * 480)
@@ -111,7 +112,7 @@ cam1:
     assert c.R_cam_imu[0, 1] == pytest.approx(-0.999880929698, abs=1e-6)
     (tmp_path / "fisheye.yaml").write_text(text.replace("radtan", "equidistant"))
     with pytest.raises(ConfigError):
-        Calibration.from_yaml(tmp_path / "fisheye.yaml")
+        read_calibration(tmp_path / "fisheye.yaml")
 
 
 def test_own_openvins_file_reads_back(tmp_path: Path) -> None:
@@ -119,13 +120,13 @@ def test_own_openvins_file_reads_back(tmp_path: Path) -> None:
     p = tmp_path / "calib.openvins.yaml"
     write_openvins(c, p)
     assert p.read_text().startswith("%YAML:1.0\n")
-    back = Calibration.from_yaml(p)
+    back = read_calibration(p)
     np.testing.assert_allclose(back.T_cam_imu, c.T_cam_imu, atol=1e-12)
     assert back.camera == c.camera
     assert back.timeshift_cam_imu_s == c.timeshift_cam_imu_s
     (tmp_path / "evil.yaml").write_text("%YAML:1.0\n!!python/object/apply:os.system ['true']\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
-        Calibration.from_yaml(tmp_path / "evil.yaml")
+        read_calibration(tmp_path / "evil.yaml")
 
 
 def test_kalibr_imu_file(tmp_path: Path) -> None:

@@ -75,9 +75,9 @@ def _fake_session(omega_radps: np.ndarray, readout_s: float):
 
     import pandas as pd
 
+    from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.camera import Camera
     from blurtrack.geometry.gyro import GyroTrace
-    from blurtrack.io.calibration import Calibration
 
     t = np.linspace(0.0, 0.2, 201)
     gyro = GyroTrace(t, np.tile(omega_radps, (t.size, 1)))

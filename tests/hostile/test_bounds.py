@@ -14,6 +14,7 @@ from blurtrack.cli import main
 from blurtrack.errors import BoundsError, SessionError
 from blurtrack.geometry.camera import Camera
 from blurtrack.io import bounds
+from blurtrack.io.calibration import write_calibration
 from blurtrack.io.session import SessionMeta, SessionWriter, load_session
 from blurtrack.testing.mini_session import write_synthetic_session
 from tests.hostile.conftest import debris, tree_hashes
@@ -26,7 +27,7 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small synthetic session (30 fps, 12 ms exposures) and its initial calibration."""
     root = tmp_path_factory.mktemp("bounds")
     write_synthetic_session(root / "S", n_frames=3, resolution=(96, 72), grid=(3, 2))
-    load_session(root / "S").initial_calibration().to_yaml(root / "calib.yaml")
+    write_calibration(load_session(root / "S").initial_calibration(), root / "calib.yaml")
     return root
 
 

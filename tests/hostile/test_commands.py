@@ -21,6 +21,7 @@ import yaml
 
 from blurtrack.cli import main
 from blurtrack.io import streaks as streak_table
+from blurtrack.io.calibration import write_calibration
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
 from tests.hostile.conftest import debris, tree_hashes
@@ -36,7 +37,7 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_synthetic_session(s, n_frames=3, resolution=(160, 120), grid=(4, 3))
     session = load_session(s)
     streak_table.write(streak_table.from_truth(session.truth), s / "streaks.parquet")
-    session.initial_calibration().to_yaml(root / "calib.yaml")
+    write_calibration(session.initial_calibration(), root / "calib.yaml")
     return root
 
 

@@ -122,7 +122,7 @@ def import_rosbag(
     max_frames: int | None = None,
 ) -> dict[str, Any]:
     """Import a ROS 1 or ROS 2 bag into a session; returns a summary dict."""
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.io.calibration import read_calibration
 
     src = Path(src)
     exp = exposure_ns(exposure_s, "rosbag")
@@ -131,7 +131,7 @@ def import_rosbag(
     cal, calib_has_axes = None, False
     if calib is not None:
         try:
-            cal = Calibration.from_yaml(calib)
+            cal = read_calibration(calib)
             cam0 = read_cv_yaml(calib, "calibration file")["cam0"]
             calib_has_axes = "T_cam_imu" in cam0 or "T_imu_cam" in cam0  # else camera-only
         except BlurTrackError as exc:

@@ -12,6 +12,7 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.cli import progress as progress_mod
+from blurtrack.io.calibration import write_calibration
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
 
@@ -44,7 +45,7 @@ def test_report_detects_first_and_says_so(
     session: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
     calib = tmp_path / "calib.yaml"
-    load_session(session).initial_calibration().to_yaml(calib)
+    write_calibration(load_session(session).initial_calibration(), calib)
     out = tmp_path / "report"
     argv = ["report", str(session), "--calib", str(calib), "--out", str(out), "--overlays", "1"]
     assert main(argv) == 0
@@ -61,7 +62,7 @@ def test_explicit_missing_table_is_one_line_error(
     session: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
     calib = tmp_path / "calib.yaml"
-    load_session(session).initial_calibration().to_yaml(calib)
+    write_calibration(load_session(session).initial_calibration(), calib)
     argv = ["report", str(session), "--calib", str(calib), "--out", str(tmp_path / "r")]
     assert main([*argv, "--streaks", str(tmp_path / "nope.parquet")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

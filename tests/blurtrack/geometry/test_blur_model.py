@@ -8,11 +8,11 @@ from scipy.spatial.transform import Rotation
 
 from blurtrack.errors import CoverageError, GeometryError
 from blurtrack.geometry.blur_model import BlurModel, _grid, _upsample
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.kernels import distort, relative_rotation, undistort
 from blurtrack.geometry.rotation import so3_exp, so3_log
-from blurtrack.io.calibration import Calibration
 
 CAM = Camera((1280, 720), (1000.0, 1000.0, 639.5, 359.5))
 

@@ -132,9 +132,10 @@ def test_rosbag_export_then_import_round_trip(tmp_path: Path, ros2: bool) -> Non
         by_topic = {summary.channels[c].topic: k for c, k in counts.items()}
         assert by_topic == {"/cam0/image_raw": 3, "/cam0/camera_info": 3, "/imu0": s.imu_t_ns.size}
 
-    from blurtrack.io.calibration import Calibration
+    from blurtrack.geometry.calibration import Calibration
+    from blurtrack.io.calibration import read_calibration, write_calibration
 
-    cams = Calibration.from_yaml(tmp_path / "b.camchain.yaml")  # Kalibr --cams beside the bag
+    cams = read_calibration(tmp_path / "b.camchain.yaml")  # Kalibr --cams beside the bag
     assert cams.camera == s.meta.camera
     imu_yaml = (tmp_path / "b.imu.yaml").read_text()
     assert "rostopic: /imu0" in imu_yaml and "update_rate: 1000.0" in imu_yaml
@@ -152,7 +153,7 @@ def test_rosbag_export_then_import_round_trip(tmp_path: Path, ros2: bool) -> Non
     assert r.meta.imu.axes_known is False  # a bag does not state the axes
     # --calib with a Kalibr camchain that states T_cam_imu: the axes are known
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    Calibration(s.meta.camera, R_cam_imu=R).to_yaml(tmp_path / "k.yaml")
+    write_calibration(Calibration(s.meta.camera, R_cam_imu=R), tmp_path / "k.yaml")
     argv = ["import", "rosbag", str(bag), str(tmp_path / "k"), "--exposure-ms", exp_ms]
     assert main([*argv, "--calib", str(tmp_path / "k.yaml")]) == 0
     k = load_session(tmp_path / "k")

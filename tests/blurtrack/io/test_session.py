@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from blurtrack.errors import ConfigError, SessionError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import read_calibration, write_calibration
 from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter, load_session
 
 META = SessionMeta(
@@ -143,8 +144,8 @@ def test_calibration_yaml_round_trip_and_errors(tmp_path: Path) -> None:
         gyro_bias_radps=np.array([1e-3, 0, -2e-3]),
         sigma={"timeshift_cam_imu": 1e-5},
     )
-    cal.to_yaml(tmp_path / "c.yaml")
-    back = Calibration.from_yaml(tmp_path / "c.yaml")
+    write_calibration(cal, tmp_path / "c.yaml")
+    back = read_calibration(tmp_path / "c.yaml")
     assert back.camera == cal.camera
     np.testing.assert_allclose(back.R_cam_imu, cal.R_cam_imu)
     assert back.timeshift_cam_imu_s == cal.timeshift_cam_imu_s
@@ -154,14 +155,14 @@ def test_calibration_yaml_round_trip_and_errors(tmp_path: Path) -> None:
         assert key in text
     (tmp_path / "bad.yaml").write_text("cam0: {intrinsics: [1, 2]}\n")
     with pytest.raises(ConfigError, match="resolution"):
-        Calibration.from_yaml(tmp_path / "bad.yaml")
+        read_calibration(tmp_path / "bad.yaml")
     bad_rot = text.replace("- [0.0, 1.0, 0.0, 0.0]", "- [0.0, 2.0, 0.0, 0.0]")
     (tmp_path / "rot.yaml").write_text(bad_rot)
     with pytest.raises(ConfigError, match="rotation"):
-        Calibration.from_yaml(tmp_path / "rot.yaml")
+        read_calibration(tmp_path / "rot.yaml")
     (tmp_path / "evil.yaml").write_text("!!python/object/apply:os.system ['true']\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
-        Calibration.from_yaml(tmp_path / "evil.yaml")
+        read_calibration(tmp_path / "evil.yaml")
 
 
 def test_validate_reports_undecodable_frames_and_uncovered_exposures(tmp_path: Path) -> None:

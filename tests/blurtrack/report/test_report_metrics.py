@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.io import streaks as streak_table
-from blurtrack.io.calibration import Calibration
 from blurtrack.report.html import render
 from blurtrack.report.metrics import ReportError, endpoint_errors, per_frame, stats
 

@@ -23,8 +23,9 @@ pytest.importorskip("distributed")
 
 from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict, write_calibration
 from blurtrack.synth.cluster import (
     LOCAL_CONFIG,
     build_on_cluster,
@@ -56,7 +57,7 @@ def make_images(root: Path) -> Path:
 
 def spec(images: Path, count: int = 10) -> DatasetSpec:
     return DatasetSpec(
-        calib=CAL.to_dict(),
+        calib=calibration_to_dict(CAL),
         gyro="synthetic:0.8",
         images=str(images),
         count=count,
@@ -141,7 +142,7 @@ def test_killed_client_resumes(cluster, tmp_path: Path) -> None:
     address, _ = cluster
     images = make_images(tmp_path / "imgs")
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     out = tmp_path / "killed"
     cmd = [
         sys.executable,
@@ -207,7 +208,7 @@ def test_worker_lacking_inputs_and_unreachable_scheduler(
     assert res.made == 10
 
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # nothing listens there once closed

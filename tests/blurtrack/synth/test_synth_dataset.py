@@ -12,8 +12,9 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict, write_calibration
 from blurtrack.synth.dataset import DatasetSpec, build, read_manifest
 from blurtrack.synth.merge import merge
 from blurtrack.synth.triplet import TripletParams, make_triplet, triplet_rng
@@ -35,7 +36,7 @@ def images(tmp_path: Path) -> Path:
 def spec(images: Path, count: int = 5, **kw) -> DatasetSpec:
     params = TripletParams(size=(64, 48), exposure_ms=(10, 20), **kw)
     return DatasetSpec(
-        calib=CAL.to_dict(),
+        calib=calibration_to_dict(CAL),
         gyro="synthetic:0.8",
         images=str(images),
         count=count,
@@ -159,7 +160,7 @@ def test_paper_mode_and_robust_heat_maps(images: Path) -> None:
 
 def test_cli_synth_and_errors(images: Path, tmp_path: Path, capsys) -> None:
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     out = tmp_path / "cli"
     args = [
         "synth",
@@ -221,7 +222,7 @@ def test_sigkill_mid_build_then_resume(images: Path, tmp_path: Path) -> None:
     import time
 
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     out = tmp_path / "killed"
     cmd = [
         sys.executable,
@@ -325,7 +326,7 @@ def test_min_blur_redraws_by_index_and_reports_the_count(images: Path, tmp_path:
 
 def test_cli_min_blur_reports_draws_under_it(images: Path, tmp_path: Path, capsys) -> None:
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     common = ["synth", "--calib", str(cal), "--gyro", "synthetic:0.8", "--images", str(images)]
     common += ["--count", "6", "--size", "64x48", "--exposure-ms", "10:20", "--seed", "11"]
     assert main([*common, "--out", str(tmp_path / "plain")]) == 0

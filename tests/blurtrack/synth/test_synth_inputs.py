@@ -10,9 +10,9 @@ import pytest
 
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from blurtrack.synth import photometry as ph
 from blurtrack.synth.images import camera_for_size, fit_to_size, list_images, load_image, split_of
 from blurtrack.synth.motion import SyntheticSource, TraceSource, open_source

@@ -14,8 +14,9 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.errors import SynthesisError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_to_dict, write_calibration
 from blurtrack.synth.dataset import DatasetSpec, build, read_manifest
 from blurtrack.synth.merge import merge
 from blurtrack.synth.store import dataset_lock
@@ -34,7 +35,7 @@ def make_images(root: Path, shape: tuple[int, int] = (60, 90), seed: int = 0) ->
 
 def spec(images: Path, count: int = 4) -> DatasetSpec:
     return DatasetSpec(
-        calib=CAL.to_dict(),
+        calib=calibration_to_dict(CAL),
         gyro="synthetic:0.8",
         images=str(images),
         count=count,
@@ -86,7 +87,7 @@ def test_two_runs_on_one_dataset_do_not_both_make_it(tmp_path: Path, capsys) -> 
     assert merge(sh)["triplets"] == 4
 
     cal = tmp_path / "cal.yaml"
-    CAL.to_yaml(cal)
+    write_calibration(CAL, cal)
     with dataset_lock(out):
         argv = ["synth", "--calib", str(cal), "--gyro", "synthetic", "--images", str(images)]
         assert main([*argv, "--out", str(out), "--count", "4"]) == 2

@@ -12,8 +12,9 @@ import pytest
 from blurtrack.cli import main
 from blurtrack.errors import CoverageError, SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import write_calibration
 from blurtrack.io.session import SessionMeta, SessionWriter, load_session
 from blurtrack.synth.predict import predict_session
 
@@ -60,7 +61,7 @@ def test_uncovered_frames_refused_or_skipped(tmp_path: Path, capsys) -> None:
     with pytest.raises(SynthesisError, match="aspect"):
         predict_session(s, Calibration(Camera((80, 80), (70.0, 70.0, 39.5, 39.5))), tmp_path)
     cal = tmp_path / "cal.yaml"
-    Calibration(CAM).to_yaml(cal)
+    write_calibration(Calibration(CAM), cal)
     assert main(["predict", str(folder), "--calib", str(cal), "--out", str(tmp_path / "c")]) == 2
     assert "does not cover 2 of 3 frames" in capsys.readouterr().err
     assert (

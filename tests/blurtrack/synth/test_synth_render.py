@@ -10,9 +10,9 @@ from hypothesis import strategies as st
 
 from blurtrack.errors import SynthesisError
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from blurtrack.synth.paper import paper_model, render_paper
 from blurtrack.synth.render import (
     NodeGrid,

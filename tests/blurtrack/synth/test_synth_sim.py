@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from blurtrack.geometry.blur_model import BlurModel
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.session import load_session
 from blurtrack.synth.render import render_blur
 
@@ -73,7 +73,7 @@ def test_synthesis_reproduces_simulated_frame(
     rig = sim_rig.SimRig(p, seed=3, n_frames=2)
     sim_writer.write_session(rig, tmp_path / "s")
     session = load_session(tmp_path / "s")
-    calib = Calibration.from_dict(session.truth["calibration"])
+    calib = calibration_from_dict(session.truth["calibration"])
     model = BlurModel(calib, session.gyro())
     frame = session.truth["frames"][1]
     t_ref = frame["t_ref_ns"] * 1e-9
@@ -112,7 +112,7 @@ def test_predict_heat_maps_point_streak_ends_to_their_dots(
     rig = sim_rig.SimRig(p, seed=5, n_frames=2)
     sim_writer.write_session(rig, tmp_path / "s")
     session = load_session(tmp_path / "s")
-    calib = Calibration.from_dict(session.truth["calibration"])
+    calib = calibration_from_dict(session.truth["calibration"])
     res = predict_session(session, calib, tmp_path / "p", stride=4)
     assert res.skipped == []
     errors = []

@@ -11,8 +11,9 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.errors import ConfigError
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import read_calibration, write_calibration
 from calib.errors import CalibError
 from calib.natural.cli import check_determined
 from calib.uncertainty import UNDETERMINED_FACTOR, WEAK_SIGMA
@@ -57,7 +58,7 @@ def test_deepgyro_recording_is_not_calibrated_from_four_covered_pairs(
     # ... and written where a user can take them: a calibration file marked partial
     partial = out.with_name("calib.partial.yaml")
     assert f"are in {partial}, marked partial" in err[0]
-    cal = Calibration.from_yaml(partial)
+    cal = read_calibration(partial)
     assert cal.partial is not None and "axes" in cal.partial["decided"]
     assert cal.R_cam_imu.tolist() == [[0, -1, 0], [-1, 0, 0], [0, 0, -1]]
     # predict and its overlays take it, labelled as partial
@@ -77,11 +78,11 @@ def test_partial_calibration_round_trips_and_a_fit_has_none(tmp_path: Path) -> N
     cam = Camera((64, 48), (60.0, 60.0, 31.5, 23.5))
     base = Calibration(cam)
     assert base.partial is None and base.partial_label is None
-    base.to_yaml(tmp_path / "fit.yaml")
+    write_calibration(base, tmp_path / "fit.yaml")
     assert "partial" not in (tmp_path / "fit.yaml").read_text()
     part = base.with_(partial={"decided": "axes", "reason": "too short"})
-    part.to_yaml(tmp_path / "p.yaml")
-    back = Calibration.from_yaml(tmp_path / "p.yaml")
+    write_calibration(part, tmp_path / "p.yaml")
+    back = read_calibration(tmp_path / "p.yaml")
     assert back.partial == {"decided": "axes", "reason": "too short"}
     assert back.partial_label == "PARTIAL calibration: axes only (too short)"
     with pytest.raises(ConfigError, match="partial"):

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from blurtrack.io.calibration import Calibration
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.session import load_session
 from calib.errors import CalibError
 from calib.fit import FitOptions, calibrate
@@ -45,7 +46,7 @@ def case(tmp_path_factory, shared_data) -> dict[str, Any]:
     write_session(NaturalRig(preset, 3, 30), out)
     s = load_session(out)
     nat = calibrate_natural(s, OPTS, translation="none", passes=1, scale_prior="consider")
-    truth = Calibration.from_dict(s.truth["calibration"], source="truth.yaml")
+    truth = calibration_from_dict(s.truth["calibration"], source="truth.yaml")
     M = np.array(s.truth["simulator"]["gyro"]["scale_matrix"], float)
     U, _, Vt = np.linalg.svd(M)
     return {

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp
-from blurtrack.io.calibration import Calibration, Camera
 from calib.data import StreakSet
 from calib.grid import GridEvaluator
 from calib.natural.scene import cells_of, cluster_meat, scene_cells, scene_pixels

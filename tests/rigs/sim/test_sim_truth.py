@@ -9,7 +9,7 @@ import pytest
 
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.io import streaks
-from blurtrack.io.calibration import Calibration
+from blurtrack.io.calibration import calibration_from_dict
 from blurtrack.io.session import load_session
 from rigs.sim.preset import get_preset
 from rigs.sim.rig import SimRig
@@ -38,7 +38,7 @@ def realistic_session(tmp_path_factory) -> Path:
 
 def endpoint_errors(session_dir: Path) -> tuple[float, float]:
     s = load_session(session_dir)
-    model = BlurModel(Calibration.from_dict(s.truth["calibration"]), s.gyro())
+    model = BlurModel(calibration_from_dict(s.truth["calibration"]), s.gyro())
     worst_px = worst_ns = 0.0
     for fr in s.truth["frames"]:
         st = fr["streaks"]
@@ -72,7 +72,7 @@ def test_core_model_reproduces_truth_clean(tmp_path: Path) -> None:
 def test_wrong_calibration_does_not_reproduce_truth(realistic_session: Path) -> None:
     # The agreement above is not vacuous: a 10 ms offset error moves endpoints by pixels.
     s = load_session(realistic_session)
-    cal = Calibration.from_dict(s.truth["calibration"])
+    cal = calibration_from_dict(s.truth["calibration"])
     bad = cal.with_(timeshift_cam_imu_s=cal.timeshift_cam_imu_s + 0.01)
     fr = s.truth["frames"][1]
     ref = np.array([x["ref"] for x in fr["streaks"]])
@@ -100,7 +100,7 @@ def test_session_loads_back_with_truth(realistic_session: Path) -> None:
     truth = s.truth
     assert len(s.frames) == 3 and len(truth["frames"]) == 3
     assert s.frames.timestamp_ns.tolist() == [f["timestamp_ns"] for f in truth["frames"]]
-    true_cal = Calibration.from_dict(truth["calibration"])
+    true_cal = calibration_from_dict(truth["calibration"])
     guess = s.initial_calibration()
     # session.yaml holds nominal guesses, not the truth.
     assert guess.camera.intrinsics != true_cal.camera.intrinsics

@@ -15,9 +15,9 @@ from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.separation import pursuit
 from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.io.calibration import Calibration
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 W, H = 480, 360
