@@ -19,13 +19,13 @@ from calib.fitcore import (
     MIN_OUTLIER_PX,
     MIN_STREAKS,
     OUTLIER_SIGMAS,
-    _rayleigh_sigma,
-    _reorient,
+    rayleigh_sigma,
+    reorient,
     scale_check,
 )
 from calib.params import LAYOUT, THETA_NAMES, apply_theta
 from calib.result import CalibResult, ErrorStats, named, sigma_block
-from calib.stages import Coarse, Fine, Mode, Prepared, _track_errors
+from calib.stages import Coarse, Fine, Mode, Prepared, final_track_errors
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ def assemble(
     warnings = [*prep.warnings, *co.warnings, *md.warnings]
     theta, iters, converged = fine.theta, fine.iterations, fine.converged
     rho = fine.rho
-    sig = _rayleigh_sigma(rho[fine.inl])
+    sig = rayleigh_sigma(rho[fine.inl])
     thr = max(OUTLIER_SIGMAS * sig, MIN_OUTLIER_PX)
     out = rho > thr
     unc = uncertainty.estimate(lm.jacobian, lm.residual, lm.weights, fine.fitset.frame, free)
@@ -123,7 +123,7 @@ def assemble(
     warnings.extend(uncertainty.excitation_warnings(w_cam))
 
     if len(prep.test):
-        _, rho_t, _ = _reorient(model, theta, prep.test, thr)
+        _, rho_t, _ = reorient(model, theta, prep.test, thr)
         out_t = rho_t > thr
         holdout, holdout_all = ErrorStats.of(rho_t[~out_t]), ErrorStats.of(rho_t)
     else:
@@ -155,7 +155,7 @@ def assemble(
         status = "warning"
     track_stats: dict = {"residuals": md.mode}
     if md.tracks is not None:
-        rho_tr = _track_errors(md, theta, md.tracks)
+        rho_tr = final_track_errors(md, theta, md.tracks)
         track_stats.update(
             tracks=ErrorStats.of(rho_tr[fine.tinl]),
             n_tracks=len(md.tracks),

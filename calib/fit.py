@@ -44,11 +44,11 @@ from calib.fitcore import (
     FitOptions,
     Progress,
     ProgressFn,
-    _outlier_threshold,
-    _rayleigh_sigma,
-    _reorient,
     check_fit_inputs,
     classify,
+    outlier_threshold,
+    rayleigh_sigma,
+    reorient,
     scale_check,
 )
 from calib.init import InitResult
@@ -70,12 +70,12 @@ __all__ = [
     "FitOptions",
     "Progress",
     "ProgressFn",
-    "_outlier_threshold",
-    "_rayleigh_sigma",
-    "_reorient",
     "calibrate",
     "check_fit_inputs",
     "classify",
+    "outlier_threshold",
+    "rayleigh_sigma",
+    "reorient",
     "scale_check",
 ]
 

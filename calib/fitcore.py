@@ -88,14 +88,14 @@ class FitOptions:
             )
 
 
-def _rayleigh_sigma(rho: np.ndarray) -> float:
+def rayleigh_sigma(rho: np.ndarray) -> float:
     """Per-coordinate sigma from the median 2-D error (Rayleigh median = 1.1774 sigma)."""
     return float(np.median(rho) / 1.1774) if rho.size else 0.0
 
 
-def _outlier_threshold(rho_inliers: np.ndarray) -> float:
+def outlier_threshold(rho_inliers: np.ndarray) -> float:
     """Rejection threshold (px) from the current inliers' errors."""
-    return max(OUTLIER_SIGMAS * _rayleigh_sigma(rho_inliers), MIN_OUTLIER_PX)
+    return max(OUTLIER_SIGMAS * rayleigh_sigma(rho_inliers), MIN_OUTLIER_PX)
 
 
 def classify(
@@ -125,7 +125,7 @@ def _fit_reversed(
     return fits, rf
 
 
-def _reorient(
+def reorient(
     model: ResidualModel,
     theta: np.ndarray,
     streaks: StreakSet,

@@ -25,10 +25,10 @@ from calib.fitcore import (
     FitOptions,
     Progress,
     ProgressFn,
-    _outlier_threshold,
-    _rayleigh_sigma,
-    _reorient,
     check_fit_inputs,
+    outlier_threshold,
+    rayleigh_sigma,
+    reorient,
 )
 from calib.grid import GridEvaluator
 from calib.params import GROUPS, LAYOUT, THETA_NAMES, symmetric_scale_form, theta_from
@@ -288,7 +288,7 @@ class Fine:
     n_agree: int | None = None
 
 
-def _track_errors(md: Mode, theta: np.ndarray, tracks: StreakSet) -> np.ndarray:
+def final_track_errors(md: Mode, theta: np.ndarray, tracks: StreakSet) -> np.ndarray:
     """Track errors ``(N,)`` (px) by the final stage's evaluator (grid: far cheaper than the
     per-streak model over a frame period, and the more accurate)."""
     return np.linalg.norm(md.ev_fine.residual(theta, tracks)[:, :2], axis=1)
@@ -326,15 +326,15 @@ def fine_fit(
         new_inl = inl
         if use_ep:
             rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
-            thr = warm[0] if warm is not None and round_ == 0 else _outlier_threshold(rho[inl])
-            train, rho, flip = _reorient(model, theta, train, thr, rho)
+            thr = warm[0] if warm is not None and round_ == 0 else outlier_threshold(rho[inl])
+            train, rho, flip = reorient(model, theta, train, thr, rho)
             reoriented ^= flip
             new_inl = rho <= thr
             changed += int(np.count_nonzero(new_inl != inl))
         new_tinl = tinl
         if tracks is not None:
-            rho_t = _track_errors(md, theta, tracks)
-            thr_t = warm[1] if warm is not None and round_ == 0 else _outlier_threshold(rho_t[tinl])
+            rho_t = final_track_errors(md, theta, tracks)
+            thr_t = warm[1] if warm is not None and round_ == 0 else outlier_threshold(rho_t[tinl])
             new_tinl = rho_t <= thr_t
             changed += int(np.count_nonzero(new_tinl != tinl))
         if round_ and changed <= 0.002 * (len(train) * use_ep + tinl.size):
@@ -354,7 +354,7 @@ def fine_fit(
             parts.append(tracks.subset(tinl))
             errors.append(rho_t[tinl])
         fitset = parts[0] if len(parts) == 1 else concat(parts)
-        sig_fit = _rayleigh_sigma(np.concatenate(errors))
+        sig_fit = rayleigh_sigma(np.concatenate(errors))
         lm = levenberg_marquardt(
             md.ev_fine,
             fitset,
@@ -376,8 +376,8 @@ def fine_fit(
         rho = np.linalg.norm(model.residual_np(theta, train), axis=1)
     if not use_ep:
         # Endpoint statistics of the training streaks at the track fit (reorientation too).
-        thr = _outlier_threshold(rho)
-        train, rho, flip = _reorient(model, theta, train, thr, rho)
+        thr = outlier_threshold(rho)
+        train, rho, flip = reorient(model, theta, train, thr, rho)
         reoriented ^= flip
         inl = rho <= thr
     return Fine(

@@ -41,19 +41,19 @@ from blurtrack.report.shape import shape_summary
 N_OVERLAYS = 3
 
 
-def _clean(obj: Any) -> Any:
+def json_safe(obj: Any) -> Any:
     """JSON-safe copy: NaN and infinities become ``null``."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
     if isinstance(obj, np.integer):
         return int(obj)
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_safe(obj.tolist())
     return obj
 
 
@@ -244,7 +244,7 @@ def build_report(
     if progress is not None:
         progress(total, total)
 
-    summary = _clean(
+    summary = json_safe(
         {
             "n_streaks": len(table),
             "n_frames": int(table["frame"].nunique()),

@@ -18,7 +18,7 @@ import pandas as pd
 
 from blurtrack.report.shape import shape_section
 
-_STYLE = """
+REPORT_CSS = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;padding:0 1em;color:#222}
 .tw{overflow-x:auto}
 table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;padding:3px 8px;
@@ -88,7 +88,7 @@ def fmt_fixed(v: float | None, dec: int | None) -> str:
     return f"{v:.{dec}f}" if dec is not None else f"{v:.6g}"
 
 
-def _table(head: list[str], rows: list[list[str]]) -> str:
+def html_table(head: list[str], rows: list[list[str]]) -> str:
     """Cells are already escaped HTML (``<td>`` content, or a whole ``<td ...>`` cell)."""
     h = "".join(f"<th>{html.escape(c)}</th>" for c in head)
     body = "".join(
@@ -106,7 +106,7 @@ def stats_table(rows: dict[str, dict[str, Any]], first: str) -> str:
         [html.escape(k)] + [fmt_px(r.get(c)) for c in cols + [c for c, _ in extra]]
         for k, r in rows.items()
     ]
-    return _table(head, body)
+    return html_table(head, body)
 
 
 def fit_table(fit: dict[str, Any]) -> str:
@@ -137,7 +137,7 @@ def fit_table(fit: dict[str, Any]) -> str:
                 f"<td class='bad'>{zc}</td>" if z is not None and abs(z) > 3 else zc,
             ]
         rows.append(row)
-    return _table(head, rows)
+    return html_table(head, rows)
 
 
 def png_size(png: bytes) -> tuple[int, int] | None:
@@ -148,7 +148,7 @@ def png_size(png: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _figure(title: str, png: bytes) -> str:
+def html_figure(title: str, png: bytes) -> str:
     b64 = base64.b64encode(png).decode("ascii")
     size = png_size(png)
     dims = f" width='{size[0] // 2}' height='{size[1] // 2}'" if size else ""
@@ -156,7 +156,7 @@ def _figure(title: str, png: bytes) -> str:
     return f"<h3>{t}</h3><img alt='{t}'{dims} src='data:image/png;base64,{b64}'>"
 
 
-def _fit_section(fit: dict[str, Any]) -> list[str]:
+def fit_section_html(fit: dict[str, Any]) -> list[str]:
     parts = [
         f"<h2>Fit</h2><p>status: <b>{html.escape(str(fit.get('status')))}</b>, "
         f"iterations {html.escape(str(fit.get('iterations')))}, outliers "
@@ -214,7 +214,7 @@ def render(
     parts = [
         "<!doctype html><html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
-        f"<title>BlurTrack endpoint-error report</title><style>{_STYLE}</style></head><body>",
+        f"<title>BlurTrack endpoint-error report</title><style>{REPORT_CSS}</style></head><body>",
         "<h1>BlurTrack endpoint-error report</h1>",
         f"<p>{summary['n_streaks']} streaks in {summary['n_frames']} frames"
         + (f"; {n_used} unflagged streaks the gyro covers are evaluated" if n_used else "")
@@ -232,12 +232,12 @@ def render(
     )
     fit = summary.get("fit") or {}
     if fit.get("values"):
-        parts.extend(_fit_section(fit))
+        parts.extend(fit_section_html(fit))
     if summary.get("flagged"):
         parts.extend(_flag_section(summary["flagged"], int(summary["n_streaks"])))
     parts.extend(shape_section(summary.get("shape_consistency")))
     for title, png in figs:
-        parts.append(_figure(title, png))
+        parts.append(html_figure(title, png))
     ba = frame_stats[frame_stats["variant"].isin(["before", "after"])]
     if len(ba):
         piv = ba.pivot_table(index="frame", columns="variant", values="mean_px")
@@ -246,7 +246,7 @@ def render(
         parts.append(
             "<details><summary><b>Per-frame mean endpoint error</b> "
             f"({len(rows)} frames)</summary>"
-            + _table(["frame"] + [f"{c} (px)" for c in cols], rows)
+            + html_table(["frame"] + [f"{c} (px)" for c in cols], rows)
             + "</details>"
         )
     parts.append("</body></html>")

@@ -40,7 +40,7 @@ from blurtrack.io.calibration import calibration_to_dict
 from blurtrack.io.session import Session
 from blurtrack.io.yamlio import write_text_atomic
 from blurtrack.report import figures
-from blurtrack.report.html import _STYLE, _figure, _fit_section, _table, stats_table
+from blurtrack.report.html import REPORT_CSS, fit_section_html, html_figure, html_table, stats_table
 from blurtrack.report.metrics import ReportError, stats
 
 #: Fewest tracks of a pair whose rotation is registered.
@@ -187,14 +187,14 @@ def axis_table(axes: dict[str, Any]) -> str:
         ]
         for i, c in enumerate(cands, start=1)
     ]
-    return _table(["rank", "R_cam_imu (rows)", "shift (ms)", "score (px)", "/ winner"], rows)
+    return html_table(["rank", "R_cam_imu (rows)", "shift (ms)", "score (px)", "/ winner"], rows)
 
 
 def _html(summary: dict[str, Any], figs: list[tuple[str, bytes]]) -> str:
     nat = summary["natural"]
     parts = [
         "<!doctype html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>BlurTrack natural-scene report</title><style>{_STYLE}</style></head><body>",
+        f"<title>BlurTrack natural-scene report</title><style>{REPORT_CSS}</style></head><body>",
         "<h1>BlurTrack natural-scene report</h1>",
         f"<p>{nat['n_tracks']} feature tracks in {nat['n_pairs']} frame pairs. Track error: "
         "distance between where a feature was tracked in the next frame and where the "
@@ -231,9 +231,9 @@ def _html(summary: dict[str, Any], figs: list[tuple[str, bytes]]) -> str:
     )
     fit = summary.get("fit") or {}
     if fit.get("values"):
-        parts.extend(_fit_section(fit))
+        parts.extend(fit_section_html(fit))
     for title, png in figs:
-        parts.append(_figure(title, png))
+        parts.append(html_figure(title, png))
     parts.append("</body></html>")
     return "\n".join(parts)
 
@@ -248,7 +248,7 @@ def build_natural_report(
 ) -> dict[str, Any]:
     """Write ``report.html``, ``summary.json``, ``track_errors.csv`` and
     ``pair_rotations.csv`` into ``out_dir``; returns the summary."""
-    from blurtrack.report.build import _clean
+    from blurtrack.report.build import json_safe
 
     n = len(session.frames)
     if n < 2:
@@ -292,7 +292,7 @@ def build_natural_report(
         ),
         ("Registered and gyro rotations per frame pair", agreement_plot(pairs)),
     ]
-    summary = _clean(
+    summary = json_safe(
         {
             "target": "natural",
             "natural": {

@@ -165,7 +165,7 @@ class TranslationFit:
     cost: float
 
 
-class _Problem:
+class MotionProblem:
     def __init__(
         self,
         model: ResidualModel,
@@ -227,7 +227,7 @@ class _Problem:
         return epipolar_residual(self.predicted(theta), self.streaks.end, Ep, self.centre, self.f)
 
 
-def _weights(r: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, float]:
+def cauchy_weights(r: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, float]:
     """Robust weights (Cauchy, outliers zero) and the robust sigma of ``r``."""
     a = np.abs(r[usable])
     s = max(1.4826 * float(np.median(a)) if a.size else 1.0, 1e-6)
@@ -255,7 +255,7 @@ def fit_translation(
 ) -> TranslationFit:
     """Robust LM of the epipolar residuals over ``theta[fit_idx]`` from ``theta0``; with
     ``travel`` the epipoles follow the gyro from one direction of travel per segment."""
-    pb = _Problem(model, streaks, np.asarray(centre, float), float(f), travel)
+    pb = MotionProblem(model, streaks, np.asarray(centre, float), float(f), travel)
     if np.count_nonzero(pb.usable) < 2 * len(fit_idx) + 3 * pb.n_pairs:
         raise CalibError(
             "too few feature tracks to model the camera's translation: "
@@ -265,7 +265,7 @@ def fit_translation(
     w = pb.usable.astype(float)
     E = pb.epipoles(theta, w)
     r = pb.residual(theta, E)
-    w, _ = _weights(r, pb.usable)
+    w, _ = cauchy_weights(r, pb.usable)
     lam, iterations, converged = 1e-3, 0, False
     names = [THETA_NAMES[i] for i in fit_idx]
     J = np.zeros((len(r), len(fit_idx)))
@@ -304,7 +304,7 @@ def fit_translation(
         if not accepted:
             converged = True
             break
-        w, _ = _weights(r, pb.usable)
+        w, _ = cauchy_weights(r, pb.usable)
         if np.all(np.abs(dx) <= 1e-6 * np.sqrt(np.diag(np.linalg.pinv(A)) + 1e-30) + 1e-12):
             converged = True
             break
@@ -336,7 +336,7 @@ def mean_squares(
     epipolar side uses the ``travel`` model by default: free per-pair epipoles also absorb
     part of any rotation misfit (an unfitted gyro scale error), which raised the ratio of a
     far scene to 7 over 10 s of video."""
-    pb = _Problem(model, streaks, np.asarray(centre, float), float(f), travel)
+    pb = MotionProblem(model, streaks, np.asarray(centre, float), float(f), travel)
     r2 = np.sum(model.residual_np(theta, streaks) ** 2, axis=1)
     E = pb.epipoles(theta, pb.usable.astype(float))
     re = pb.residual(theta, E) ** 2

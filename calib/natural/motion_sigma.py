@@ -27,7 +27,7 @@ which the fit re-estimates at every step (variable projection). Its sigma theref
    ``P`` from :data:`calib.natural.sigma.GYRO_SCALE_SIGMA`; a scale matrix given in
    session.yaml counts as known.
 
-Jacobians are forward differences of the fit's own numpy residual (``_Problem.residual``).
+Jacobians are forward differences of the fit's own numpy residual (``MotionProblem.residual``).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from calib.natural.sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES
 from calib.params import LAYOUT, THETA_NAMES
 
 if TYPE_CHECKING:
-    from calib.natural.motion import _Problem
+    from calib.natural.motion import MotionProblem
 
 #: Forward-difference step of a nuisance direction (unit vector, radians).
 D_STEP = 1e-6
@@ -61,7 +61,7 @@ def _tangents(d: np.ndarray) -> np.ndarray:
 
 
 def full_jacobian(
-    pb: _Problem, theta: np.ndarray, E: np.ndarray, names: tuple[str, ...], r0: np.ndarray
+    pb: MotionProblem, theta: np.ndarray, E: np.ndarray, names: tuple[str, ...], r0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(J_θ (N, k), J_d (N, 2G))``: forward differences of the epipolar residuals over the
     named parameters (nuisances held) and over each nuisance direction's two tangents."""
@@ -100,7 +100,7 @@ def _jackknife(J: np.ndarray, w: np.ndarray, r: np.ndarray, cluster: np.ndarray)
 
 
 def translation_sigma(
-    pb: _Problem,
+    pb: MotionProblem,
     theta: np.ndarray,
     E: np.ndarray,
     fit_idx: tuple[int, ...],

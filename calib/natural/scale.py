@@ -40,7 +40,7 @@ import numpy as np
 from blurtrack.geometry.gyro import GyroTrace
 from calib.data import StreakSet, holdout_mask, relative_gyro
 from calib.errors import CalibError
-from calib.fitcore import FINE_DELTA_SIGMAS, FitOptions, _outlier_threshold, _rayleigh_sigma
+from calib.fitcore import FINE_DELTA_SIGMAS, FitOptions, outlier_threshold, rayleigh_sigma
 from calib.grid import GridEvaluator
 from calib.natural.scene import SCENE_CELL_PX, SCENE_MIN_CELLS, cluster_meat, scene_cells
 from calib.natural.sigma import BLOCK_PAIRS, GYRO_SCALE_SIGMA, SCALE_NAMES, gyro_scale_known
@@ -107,7 +107,7 @@ def map_fit(
     scene-cell cluster of each streak (:mod:`calib.natural.scene`), a third sandwich where
     the inliers span at least :data:`calib.natural.scene.SCENE_MIN_CELLS` cells.
 
-    The inliers are those within the fit's outlier threshold (:func:`_outlier_threshold`,
+    The inliers are those within the fit's outlier threshold (:func:`outlier_threshold`,
     from the errors at ``theta0``); the robust loss is the final stage's pseudo-Huber."""
     if sigma_prior <= 0:
         raise CalibError(f"gyro scale prior sigma must be positive, got {sigma_prior}")
@@ -115,11 +115,11 @@ def map_fit(
     fr = list(free)
     theta0 = np.asarray(theta0, float)
     rho0 = np.linalg.norm(ev.residual(theta0, streaks)[:, :2], axis=1)
-    inl = rho0 <= _outlier_threshold(rho0)
-    thr = _outlier_threshold(rho0[inl])
+    inl = rho0 <= outlier_threshold(rho0)
+    thr = outlier_threshold(rho0[inl])
     inl = rho0 <= thr
     fitset = streaks.subset(inl)
-    sig = max(_rayleigh_sigma(rho0[inl]), MODEL_FLOOR_PX)
+    sig = max(rayleigh_sigma(rho0[inl]), MODEL_FLOOR_PX)
     delta = max(FINE_DELTA_SIGMAS * sig, 1e-3)
     r0 = ev.residual(theta0, fitset)[:, :2]
     w0 = huber_weights(np.linalg.norm(r0, axis=1), delta)

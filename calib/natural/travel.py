@@ -27,9 +27,9 @@ from calib.fitcore import FitOptions
 from calib.natural.motion import (
     AUTO_MODEL,
     AUTO_RATIO,
+    MotionProblem,
     TranslationFit,
-    _Problem,
-    _weights,
+    cauchy_weights,
     fit_translation,
     mean_squares,
     prefers_translation,
@@ -78,13 +78,13 @@ def predict_held_out(
 ) -> HeldOut:
     """Held-out tracks predicted by ``theta``: their own nuisance translation (per pair or
     per travel segment) refitted at ``theta`` with robust weights, the calibration held."""
-    pb = _Problem(model, streaks, centre, f, travel)
+    pb = MotionProblem(model, streaks, centre, f, travel)
     w = pb.usable.astype(float)
     r = np.zeros(len(streaks))
     for _ in range(HOLDOUT_ROUNDS):
         E = pb.epipoles(theta, w)
         r = pb.residual(theta, E)
-        w, _ = _weights(r, pb.usable)
+        w, _ = cauchy_weights(r, pb.usable)
     return HeldOut(r, w > 0, pb.usable)
 
 
@@ -164,8 +164,8 @@ def refit_with_translation(
     if heading:
         info["starts_tried"] = "axis search only (the axes were decided by the common heading)"
     info["epipoles"] = best.epipoles.tolist()
-    pb = _Problem(model, fitted_on, centre, float(f), travel)
-    w, _ = _weights(best.residual_px, pb.usable)
+    pb = MotionProblem(model, fitted_on, centre, float(f), travel)
+    w, _ = cauchy_weights(best.residual_px, pb.usable)
     scale_known = gyro_scale_known(base)
     sigma, sigma_info = translation_sigma(pb, best.theta, best.epipoles, fit_idx, w, scale_known)
     r = np.abs(best.residual_px)

@@ -13,7 +13,7 @@ import pytest
 from blurtrack.io.session import load_session
 from calib.fit import FitOptions
 from calib.natural.cli import NATURAL_FIT
-from calib.natural.motion import _Problem, _weights
+from calib.natural.motion import MotionProblem, cauchy_weights
 from calib.natural.motion_sigma import translation_sigma
 from calib.natural.pipeline import calibrate_natural
 from calib.natural.travel import residual_model
@@ -38,10 +38,10 @@ def fitted(tmp_path_factory, shared_data) -> dict[str, Any]:
     nat = calibrate_natural(sess, opts, translation="travel")
     res = nat.result
     model, centre, f = residual_model(res.initial, nat.streaks, sess.gyro(), opts)
-    pb = _Problem(model, nat.streaks, centre, f, travel=True)
+    pb = MotionProblem(model, nat.streaks, centre, f, travel=True)
     theta = np.array([res.values[n] for n in THETA_NAMES])
     E = np.array(nat.translation["epipoles"])
-    w, _ = _weights(pb.residual(theta, E), pb.usable)
+    w, _ = cauchy_weights(pb.residual(theta, E), pb.usable)
     return {
         "nat": nat,
         "truth": truth_values(sess, res.initial),
