@@ -2,8 +2,9 @@
 
 The stage modules (this package imports none of them):
 
-- :mod:`calib.axes.search`: the candidates, each frame pair's image rotation, the scored
-  search over the 24 permutations and its refusals.
+- :mod:`calib.axes.rotations`: each frame pair's rotation measured from the images alone.
+- :mod:`calib.axes.search`: the candidates, the scored search over the 24 permutations
+  against the gyro, and its refusals.
 - :mod:`calib.axes.laser`: the search on laser-dot streak time midpoints.
 - :mod:`calib.axes.translation`: a pair's rotation under forward translation (a zoom about
   the focus of expansion).

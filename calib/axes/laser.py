@@ -29,17 +29,15 @@ import numpy as np
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from blurtrack.geometry.kernels import Mat3, matmul3, project_c, so3_exp_c, transpose3
+from calib.axes.rotations import MIN_PAIRS, MIN_POINTS
 from calib.axes.search import (
     COARSE_STEP_S,
-    MIN_PAIRS,
-    MIN_POINTS,
     AxisSearch,
-    AxisSearchError,
     proper_axis_permutations,
     ranked,
     scan_candidates,
 )
-from calib.errors import CalibError
+from calib.errors import AxisSearchError, CalibError
 
 #: Midpoints scored per candidate (a deterministic subsample beyond that).
 MAX_POINTS = 1500

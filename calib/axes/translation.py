@@ -1,6 +1,6 @@
 """Inter-frame rotations with the camera's forward translation as a nuisance, chosen by the data.
 
-:func:`calib.axes.search.fit_rotation` assumes a far scene: bearings turn by one rotation between
+:func:`calib.axes.rotations.fit_rotation` assumes a far scene: bearings turn by one rotation between
 frames. Filmed from a moving vehicle, near points also slide away from the focus of
 expansion: at 720p a plane 8 m away, 0.1 m closer per frame, moves points 1.25 % of their
 distance from it (8 px at the image edge), which the pure-rotation fit cannot explain and
@@ -12,7 +12,7 @@ Per frame pair :func:`fit_rotation_translating` fits two models to the same bear
 * rotation after a zoom about the principal point, ``b ≈ R · n((1 + s) x_a, (1 + s) y_a, 1)``
   (``x_a, y_a`` normalised coordinates, ``n`` normalisation): forward travel along the
   optical axis towards points at similar depths, ``s ≈ travel / depth``; ``s`` by a linear
-  fit refined by three rotation fits, ``R`` by :func:`calib.axes.search.fit_rotation`.
+  fit refined by three rotation fits, ``R`` by :func:`calib.axes.rotations.fit_rotation`.
 
 The zoom model is taken only when the rotation-only median residual exceeds
 :data:`MIN_RESIDUAL_FRACTION` of the inlier gate *and* :data:`RESIDUAL_RATIO` times the zoom
@@ -36,14 +36,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.axes.search import fit_rotation
+from calib.axes.rotations import fit_rotation
 
 #: Rotation-only median residual / zoom-model median residual above which a pair is
 #: translating.
 RESIDUAL_RATIO = 1.5
 #: Rotation-only median residual, as a fraction of the inlier gate, below which a pair is
 #: never called translating (0.5 px of the 2 px gate of
-#: :func:`calib.axes.search.rotations_from_pairs`).
+#: :func:`calib.axes.rotations.rotations_from_pairs`).
 MIN_RESIDUAL_FRACTION = 0.25
 #: Largest zoom considered per frame pair (8 % of the distance from the principal point).
 ZOOM_RANGE = 0.08

@@ -1,7 +1,7 @@
 """Feature tracking of a natural-scene session with each frame pair's image rotation measured
 on the thread that tracked it.
 
-The axis search needs every pair's rotation (:func:`calib.axes.search.pair_rotation`), which
+The axis search needs every pair's rotation (:func:`calib.axes.rotations.pair_rotation`), which
 depends only on the pair's own tracks. Measured inside :func:`blurtrack.features.pairs.map_pairs`'s
 work on a pair, its numpy work (which holds the GIL) overlaps the other thread's decoding and
 Lucas–Kanade (which do not), instead of running on one core after tracking (0.9 s for 10 s of
@@ -26,7 +26,7 @@ from blurtrack.features.tracks import (
     tracks_of_pairs,
 )
 from blurtrack.geometry.calibration import Calibration
-from calib.axes.search import PairRotation, pair_rotation
+from calib.axes.rotations import PairRotation, pair_rotation
 from calib.axes.translation import fit_rotation_translating
 
 
@@ -41,7 +41,7 @@ def track_and_rotate(
     meanwhile: Sequence[Callable[[], object]] = (),
 ) -> tuple[FeatureTracks, list[PairRotation | None]]:
     """Tracks of every consecutive frame pair and each pair's rotation (``None`` where too few
-    points; gather them with :func:`calib.axes.search.collect_rotations`), translation a
+    points; gather them with :func:`calib.axes.rotations.collect_rotations`), translation a
     nuisance where the data need it (:mod:`calib.axes.translation`); times relative to the
     first frame.
 

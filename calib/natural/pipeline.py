@@ -32,17 +32,10 @@ import numpy as np
 from blurtrack.features.tracks import FeatureTracks, TrackParams, to_gray8
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
-from calib.axes.search import (
-    AxisSearch,
-    AxisSearchError,
-    ImageRotations,
-    check_axes,
-    collect_rotations,
-    rotations_from_pairs,
-    search_axes,
-)
+from calib.axes.rotations import ImageRotations, collect_rotations, rotations_from_pairs
+from calib.axes.search import AxisSearch, check_axes, search_axes
 from calib.data import StreakSet, relative_gyro
-from calib.errors import CalibError
+from calib.errors import AxisSearchError, CalibError
 from calib.fit import FitOptions, calibrate
 from calib.natural.blur import corrected_tracks, equal_blur_tracks, subset_tracks
 from calib.natural.pairs import track_and_rotate

@@ -9,15 +9,10 @@ import pytest
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE, GyroTrace
 from calib.axes.heading import epipolar_distance, fit_heading, search_axes_heading
-from calib.axes.search import (
-    AxisSearchError,
-    check_axes,
-    gyro_rotations,
-    proper_axis_permutations,
-    rotations_from_pairs,
-    search_axes,
-)
+from calib.axes.rotations import rotations_from_pairs
+from calib.axes.search import check_axes, gyro_rotations, proper_axis_permutations, search_axes
 from calib.axes.translation import fit_rotation_translating
+from calib.errors import AxisSearchError
 
 CAM = Camera((800, 600), (575.0, 575.0, 400.0, 300.0))
 FPS = 30.0

@@ -13,14 +13,13 @@ from blurtrack.geometry.kernels import Mat3, relative_rotation
 from blurtrack.geometry.rotation import so3_exp, so3_log
 from calib.axes.laser import CellIndex, OrientationTable, carried_px, covered, search_axes_laser
 from calib.axes.search import (
-    AxisSearchError,
     check_axes,
     gyro_rotations,
     nearest_axis_permutation,
     proper_axis_permutations,
 )
 from calib.data import relative_gyro
-from calib.errors import CalibError
+from calib.errors import AxisSearchError, CalibError
 from calib.testing import make_problem
 from calib.tracks import mean_rows
 

@@ -8,14 +8,10 @@ import pytest
 
 from blurtrack.geometry.gyro import GyroTrace
 from blurtrack.geometry.rotation import so3_exp, so3_log
-from calib.axes.search import (
-    AxisSearchError,
-    check_axes,
-    fit_rotation,
-    rotations_from_pairs,
-    search_axes,
-)
+from calib.axes.rotations import fit_rotation, rotations_from_pairs
+from calib.axes.search import check_axes, search_axes
 from calib.axes.translation import fit_rotation_translating, fit_rotation_zoom, zoomed
+from calib.errors import AxisSearchError
 from rigs.sim.preset import NOMINAL_R_CAM_IMU, get_preset
 from rigs.sim.rig import SimRig
 

@@ -11,7 +11,8 @@ import pytest
 
 from blurtrack.features.tracks import FeatureTrackError, TrackParams, track_frames, tracks_of_pairs
 from blurtrack.io.session import load_session
-from calib.axes.search import AxisSearchError, collect_rotations
+from calib.axes.rotations import collect_rotations
+from calib.errors import AxisSearchError
 from calib.natural.pairs import track_and_rotate
 from calib.natural.pipeline import image_rotations
 from rigs.sim.natural import NaturalRig
