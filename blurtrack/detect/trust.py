@@ -20,6 +20,8 @@ file.
   ``END_REACH_PX``) over the streak's brightness there: a dot's erf edge leaves
   ``Phi(-END_GAP_SIGMAS)`` of it, a neighbour's light touching or continuing the end much
   more, and the edge fit of that end (which reads that far) is then not this dot's end.
+  NaN where that window leaves the frame: the end is too near the border to be measured
+  (``reason`` ``clipped``, whatever ``border_margin_px`` says).
 - ``component``: index of the streak's connected component (-1 none), ``shared`` how many of
   the frame's streaks lie on it.
 
@@ -163,6 +165,11 @@ def _end_light(
     )
     vals = sample_image(smooth, pos[..., 0], pos[..., 1])
     light = vals.sum(axis=3).max(axis=2)  # (N, 2) cross-section integral (1 px steps)
+    # An end whose window leaves the frame cannot show its edge: unknown (NaN), ``clipped``.
+    H, W = smooth.shape
+    x, y = pos[..., 0], pos[..., 1]
+    out = ((x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)).any(axis=(2, 3))
+    light = np.where(out, np.nan, light)
     peak = np.array([float(np.max(p)) if len(p) else 0.0 for p in profile])
     ref = np.where(np.isfinite(plateau) & (plateau > 0), plateau, peak[:, None])
     return np.asarray(light / np.maximum(ref, 1e-12))

@@ -45,7 +45,8 @@ FLAGGED_BY = ("clipped", "merged", "crossing", "looped")
 #: The closed set of ``reason`` values, in the order they are tested (the first that applies):
 #:
 #: - ``ok``: ``quality_ok``;
-#: - ``clipped``: an end at the border (the dot entered or left the frame);
+#: - ``clipped``: an end at the border (the dot entered or left the frame), or too near it
+#:   for the light beyond the end to be measured;
 #: - ``extended``: the light of an extended source (a lit window, sign, glare), not a point;
 #: - ``crossing``: crosses another streak; ``looped``: crosses itself;
 #: - ``touching``: wider than the frame's dot (a neighbour alongside: ``merged``);
@@ -183,9 +184,11 @@ def _frame_quality(
         thick = sat & (width > THICK_WIDTH_RATIO * w0)
     flagged = np.logical_or.reduce([flags[c] for c in FLAGGED_BY])
     point = source == "point"
-    lit_end = np.any(end_light > p.end_light_max, axis=1)
+    with np.errstate(invalid="ignore"):
+        lit_end = np.any(end_light > p.end_light_max, axis=1)
+    at_border = flags["clipped"] | np.any(np.isnan(end_light), axis=1)
     dev = np.full(len(v), np.nan)
-    ok = point & ~(flagged | thick | lit_end)
+    ok = point & ~(flagged | thick | lit_end | at_border)
     long_ = short = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
     # dots' curve.
@@ -207,7 +210,7 @@ def _frame_quality(
     reason[flags["looped"]] = "looped"
     reason[flags["crossing"]] = "crossing"
     reason[source == "extended"] = "extended"
-    reason[flags["clipped"]] = "clipped"
+    reason[at_border] = "clipped"
     reason[ok] = "ok"
     return dev, thick, ok, source.astype(object), reason
 
@@ -261,7 +264,7 @@ def add_quality(table: pd.DataFrame, p: SourceParams | None = None) -> pd.DataFr
         light = np.zeros((n, 2))
         for j, c in enumerate(("end_light_start", "end_light_end")):
             if c in out.columns:
-                light[:, j] = np.nan_to_num(out[c].to_numpy(float), nan=0.0)
+                light[:, j] = out[c].to_numpy(float)
         frames = out["frame"].to_numpy()
         order = np.argsort(frames, kind="stable")
         bounds = np.flatnonzero(np.diff(frames[order])) + 1
