@@ -7,6 +7,9 @@ run ``detect_session`` and compare with ``truth.yaml``:
   lie fully inside the frame;
 - start/end resolved correctly, for true streaks longer than 5 px;
 - recall (true inside streaks found) and precision (unclipped detections that are real);
+- trust (issue 45): ok-precision, the share of ``quality_ok`` detections whose both ends lie
+  within 2 px of one true streak's (either orientation), and ok-coverage, the share of true
+  inside streaks such a detection matches;
 - speed: frames/s of the per-frame detection on one core, and the same frames through a plain
   ``cv2.GaussianBlur`` + ``cv2.connectedComponentsWithStats`` pass in the same run (ratio);
 - whole command (``--command``): the wall time of the command a user runs, ``blurtrack detect
@@ -47,6 +50,47 @@ from blurtrack.detect.session import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
 MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
+#: Issue 45's trust gate: a quality_ok detection is right when BOTH its ends lie within this
+#: distance of one true streak's ends (either orientation).
+TRUST_GATE_PX = 2.0
+
+
+def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
+    """ok-precision (share of ``quality_ok`` detections with both ends within
+    :data:`TRUST_GATE_PX` of one true streak's, either orientation), ok-coverage (share of
+    true inside streaks that such a detection matches) and the counts behind them."""
+    ok = table["quality_ok"].to_numpy(bool) if "quality_ok" in table.columns else None
+    n_ok = n_right = n_inside = n_covered = 0
+    for fr in truth["frames"]:
+        S, E, inside, _ = _truth_arrays(fr)
+        n_inside += int(inside.sum())
+        sel = (table["frame"] == fr["index"]).to_numpy().copy()
+        if ok is not None:
+            sel &= ok
+        d = table[sel]
+        n_ok += len(d)
+        if len(d) == 0 or len(S) == 0:
+            continue
+        s = d[["start_x", "start_y"]].to_numpy(float)
+        e = d[["end_x", "end_y"]].to_numpy(float)
+        same = np.maximum(
+            np.linalg.norm(s[:, None] - S[None], axis=2),
+            np.linalg.norm(e[:, None] - E[None], axis=2),
+        )
+        swap = np.maximum(
+            np.linalg.norm(s[:, None] - E[None], axis=2),
+            np.linalg.norm(e[:, None] - S[None], axis=2),
+        )
+        hit = np.minimum(same, swap) <= TRUST_GATE_PX
+        n_right += int(hit.any(axis=1).sum())
+        n_covered += int((hit.any(axis=0) & inside).sum())
+    return {
+        "ok_precision": n_right / max(n_ok, 1),
+        "ok_coverage": n_covered / max(n_inside, 1),
+        "ok_detections": n_ok,
+        "ok_wrong": n_ok - n_right,
+        "_trust_counts": (n_right, n_ok, n_covered, n_inside),
+    }
 
 
 def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
@@ -265,6 +309,11 @@ def run_one(
     res = detect_session(session, params, gyro=gyro)
     wall = time.perf_counter() - t0
     out = evaluate(res.table, session.truth or {"frames": []})
+    out.update(trust(res.table, session.truth or {"frames": []}))
+    if "source" in res.table.columns:
+        out["source"] = {str(k): int(v) for k, v in res.table["source"].value_counts().items()}
+    if "reason" in res.table.columns:
+        out["reason"] = {str(k): int(v) for k, v in res.table["reason"].value_counts().items()}
     # The same measures over the subsets a consumer would keep (flags, quality column).
     for name, keep in (("not_faint", ~res.table["faint"]), ("quality_ok", res.table["quality_ok"])):
         sub = evaluate(res.table[keep], session.truth or {"frames": []})
@@ -336,6 +385,7 @@ def main() -> int:
         one = run_one(args.session, args.gyro, args.repeat, params)
         one.pop("_errors", None)
         one.pop("_counts", None)
+        one.pop("_trust_counts", None)
         results["runs"].append({"session": str(args.session), **one})
     else:
         args.work.mkdir(parents=True, exist_ok=True)
@@ -357,6 +407,10 @@ def main() -> int:
                                     "orientation_correct",
                                     "recall_inside",
                                     "precision_unclipped",
+                                    "ok_precision",
+                                    "ok_coverage",
+                                    "ok_detections",
+                                    "ok_wrong",
                                     "time_ratio",
                                     "detect_fps",
                                     "not_faint_precision_unclipped",
@@ -397,9 +451,19 @@ def main() -> int:
                 "precision_unclipped": float(c[4] / max(c[5], 1)),
                 "endpoints": int(err.size),
             }
+            t = np.sum([r["_trust_counts"] for r in rs], axis=0)
+            summary[preset]["pooled"].update(
+                {
+                    "ok_precision": float(t[0] / max(t[1], 1)),
+                    "ok_coverage": float(t[2] / max(t[3], 1)),
+                    "ok_detections": int(t[1]),
+                    "ok_wrong": int(t[1] - t[0]),
+                }
+            )
         for r in results["runs"]:
             r.pop("_errors", None)
             r.pop("_counts", None)
+            r.pop("_trust_counts", None)
         results["median_over_seeds"] = summary
     print(json.dumps(results, indent=2))
     return 0

@@ -59,6 +59,31 @@ def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
     return np.asarray(np.median(v, axis=0))
 
 
+#: Centre-line colours (BGR) of the source overlay, by ``source``.
+SOURCE_COLOURS = {"point": (80, 220, 80), "extended": (220, 80, 220), "undetermined": (0, 165, 255)}
+
+
+def source_overlay(img: np.ndarray, table, path: Path, scale: float = 0.6) -> None:
+    """The photo darkened, each detection's centre line coloured by ``source`` (a white
+    ring at both ends of the ``quality_ok`` ones) and a legend with the counts."""
+    base = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    pic = cv2.resize((0.6 * base).astype(np.uint8), None, fx=scale, fy=scale)
+    for _, r in table.iterrows():
+        pts = np.round(np.asarray(list(r.centerline), float) * scale).astype(np.int32)
+        cv2.polylines(pic, [pts.reshape(-1, 1, 2)], False, SOURCE_COLOURS[r.source], 2)
+        if r.quality_ok:
+            for x, y in (pts[0], pts[-1]):
+                cv2.circle(pic, (int(x), int(y)), 5, (255, 255, 255), 1)
+    counts = table.source.value_counts()
+    rows = [(f"{s}: {int(counts.get(s, 0))}", c) for s, c in SOURCE_COLOURS.items()]
+    rows.append((f"quality_ok (white rings): {int(table.quality_ok.sum())}", (255, 255, 255)))
+    cv2.rectangle(pic, (4, 4), (300, 12 + 20 * len(rows)), (0, 0, 0), -1)
+    for k, (text, colour) in enumerate(rows):
+        cv2.putText(pic, text, (10, 22 + 20 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), pic, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+
+
 def measure(path: Path, overlay: Path | None) -> dict:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     fs = detect_frame(img)
@@ -72,6 +97,8 @@ def measure(path: Path, overlay: Path | None) -> dict:
         "image": path.name,
         "streaks": len(table),
         "quality_ok": int(table.quality_ok.sum()),
+        "source": {k: int(v) for k, v in table.source.value_counts().items()},
+        "reason": {k: int(v) for k, v in table.reason.value_counts().items()},
         "measured": len(ok),
         "flags": {c: int(table[c].sum()) for c in ("clipped", "saturated", "merged", "looped")},
     }
@@ -109,6 +136,9 @@ def measure(path: Path, overlay: Path | None) -> dict:
         out["overlay"] = (
             str(overlay.relative_to(ROOT)) if overlay.is_relative_to(ROOT) else str(overlay)
         )
+        src = overlay.with_name(overlay.name.replace("_overlay", "_source"))
+        source_overlay(img, table, src)
+        out["source_overlay"] = str(src.relative_to(ROOT)) if src.is_relative_to(ROOT) else str(src)
     return out
 
 

@@ -180,20 +180,23 @@ def streaks_from_table(
 ) -> StreakSet:
     """A :class:`StreakSet` from a validated streak table and the session's frame table.
 
-    ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). Streaks
-    flagged clipped, saturated or merged are left out when ``drop_flagged``, and so are those
-    whose ``quality_ok`` is false where the table has that column (counted in
-    ``dropped_quality``). ``centre_k > 0``
+    ``frames`` has ``timestamp_ns`` and ``exposure_ns`` columns (``Session.frames``). When
+    ``drop_flagged``, streaks flagged clipped or merged are left out, and so are those whose
+    ``quality_ok`` is false where the table has that column (counted in ``dropped_quality``;
+    a saturated core whose ends are measured well stays ``quality_ok``), or, in older tables
+    without it, those flagged saturated. ``centre_k > 0``
     also resamples each row's ``centerline`` to that many interior points (:func:`centre_points`).
     """
     df = table
     dropped_quality = 0
     if drop_flagged and len(df):
-        df = df[~(df["clipped"] | df["saturated"] | df["merged"])]
+        df = df[~(df["clipped"] | df["merged"])]
         if "quality_ok" in df.columns:
             ok = df["quality_ok"].astype(bool)
             dropped_quality = int((~ok).sum())
             df = df[ok]
+        else:
+            df = df[~df["saturated"]]
     if len(frames) == 0:
         raise CalibError("the session has no frames")
     ts = frames["timestamp_ns"].to_numpy(np.int64)

@@ -22,6 +22,7 @@ from blurtrack.detect.lines.skeleton import trace_paths
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.anchored import anchored
 from blurtrack.detect.separation.separate import separate
+from blurtrack.detect.trust import Evidence, assess
 
 #: Flag columns, in table order.
 FLAG_NAMES: tuple[str, ...] = ("clipped", "saturated", "crossing", "merged", "looped", "faint")
@@ -57,7 +58,10 @@ class FrameStreaks:
     #: The streaks' ``(shape_deviation_px, thick_saturated, quality_ok)``
     #: (:func:`blurtrack.detect.separation.quality.frame_quality`; independent of which end is A),
     #: where the frame's worker computed them; None: the table computes them.
-    quality: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    quality: tuple[np.ndarray, ...] | None = None
+    #: Point light or extended source, light beyond the ends (:mod:`blurtrack.detect.trust`),
+    #: measured on the frame's image; None: not measured (every streak ``undetermined``).
+    evidence: Evidence | None = None
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])
@@ -89,6 +93,8 @@ class FrameStreaks:
         for i in flip.tolist():
             self.points[i] = self.points[i][::-1]
             self.profile[i] = self.profile[i][::-1]
+        if self.evidence is not None:
+            self.evidence.end_light[flip] = self.evidence.end_light[flip, ::-1]
 
 
 def _pack(arrays: list[np.ndarray]) -> Any:
@@ -297,6 +303,17 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         "looped": m.looped,
         "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
     }
+    evidence = assess(
+        prep.smooth,
+        comps,
+        threshold,
+        m.points,
+        m.profile,
+        m.plateau,
+        width,
+        sigma_c,
+        p.source,
+    )
     return FrameStreaks(
         shape=(H, W),
         end_a=m.end_a,
@@ -314,4 +331,5 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         hot_pixels=prep.hot_pixels,
         short=m.short,
         saturated_fraction=sat_frac,
+        evidence=evidence,
     )

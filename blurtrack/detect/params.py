@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +11,46 @@ import yaml
 
 from blurtrack.errors import ConfigError
 from blurtrack.io.atomic import write_text_atomic
+
+
+@dataclass(frozen=True)
+class SourceParams:
+    """Point light or extended source, and trustworthy ends (:mod:`blurtrack.detect.trust`).
+
+    Every value is a ratio to the frame's own measured point spread or brightness, never a
+    pixel count.
+
+    - ``point_width_ratio``: a point light's cross-section sigma is the PSF's; up to this many
+      PSF sigmas is still one (the frame's widths scatter around their median by ~10 %, and
+      two dots overlapping side by side measure 1.5x: the ``merged`` flag's limit).
+    - ``extended_width_ratio``: wider than this many PSF sigmas is an extended source (twice
+      the PSF: no single dot, nor two dots half a PSF apart, measure that wide).
+    - ``point_fill``: a point light's component lights at most this times the area its
+      streaks would light as PSF-wide lines (crossings only lower the ratio; the margin
+      covers the rounding of lit half-widths to whole pixels on short streaks).
+    - ``extended_fill``: a lit region above this times that area is an extended source.
+    - ``end_light_max``: light beyond an end (a cross-section integral 3 to 6 sigmas plus
+      3 px out) above this fraction of the streak's brightness at that end means a
+      neighbour's light reaches the end: the end is not trusted.
+    """
+
+    point_width_ratio: float = 1.5
+    extended_width_ratio: float = 2.0
+    point_fill: float = 1.5
+    extended_fill: float = 3.0
+    end_light_max: float = 0.2
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"detect source.{f.name} must be positive, got {v!r}")
+        if not self.point_width_ratio <= self.extended_width_ratio:
+            raise ConfigError(
+                "detect source.point_width_ratio must not exceed extended_width_ratio"
+            )
+        if not self.point_fill <= self.extended_fill:
+            raise ConfigError("detect source.point_fill must not exceed extended_fill")
 
 
 @dataclass(frozen=True)
@@ -39,6 +79,8 @@ class DetectParams:
     - ``gyro_template``: in a session with a gyro, a second pass on frames of hairpin
       streaks with the gyro's predicted curve as the template
       (:mod:`blurtrack.detect.gyro.gyropass`).
+    - ``source``: point light or extended source, trustworthy ends (:class:`SourceParams`;
+      YAML: a nested mapping).
     """
 
     smooth_sigma_px: float = 1.0
@@ -55,6 +97,7 @@ class DetectParams:
     artefact_gap_px: int = 12
     separate: bool = True
     gyro_template: bool = True
+    source: SourceParams = field(default_factory=SourceParams)
 
     def __post_init__(self) -> None:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
@@ -86,6 +129,8 @@ class DetectParams:
             )
         if int(self.max_streaks) != self.max_streaks or self.max_streaks < 1:
             raise ConfigError("detect parameter max_streaks must be a positive integer")
+        if not isinstance(self.source, SourceParams):
+            raise ConfigError(f"detect parameter source must be a mapping: {self.source!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -98,6 +143,19 @@ class DetectParams:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown detect parameter(s): {', '.join(unknown)}")
+        data = dict(data)
+        if "source" in data:
+            src = data["source"]
+            if not isinstance(src, dict):
+                raise ConfigError("detect parameter source must be a mapping")
+            known_src = {f.name for f in fields(SourceParams)}
+            unknown_src = sorted(set(src) - known_src)
+            if unknown_src:
+                raise ConfigError(f"unknown detect source parameter(s): {', '.join(unknown_src)}")
+            try:
+                data["source"] = SourceParams(**src)
+            except TypeError as exc:
+                raise ConfigError(f"invalid detect source parameters: {exc}") from exc
         try:
             return cls(**data)
         except TypeError as exc:  # wrong value types surface here

@@ -26,9 +26,10 @@ from blurtrack.detect.orientation import (
     gyro_cues_batch,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.separation.quality import frame_quality
-from blurtrack.detect.table import build_table, frame_columns
+from blurtrack.detect.separation.quality import REASONS, frame_quality
+from blurtrack.detect.table import TABLE_VERSION, build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
+from blurtrack.detect.trust import SOURCES
 from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
@@ -65,7 +66,7 @@ def detect_frames(
 
     def one(i: int) -> FrameStreaks:
         fs = detect_frame(session.read_image(i), params)
-        fs.quality = frame_quality(fs)  # a per-frame stage: here, in parallel
+        fs.quality = frame_quality(fs, params.source)  # a per-frame stage: here, in parallel
         return fs
 
     # Small chunks: the results come back in order, the first ones early.
@@ -367,7 +368,10 @@ def detect_session(
             for c in ("clipped", "saturated", "merged", "crossing", "looped", "faint")
         },
         "hot_pixels": int(sum(fs.hot_pixels for fs in found)),
+        "table_version": TABLE_VERSION,
         "quality_ok": int(table["quality_ok"].sum()),
+        "source": {s: int((table["source"] == s).sum()) for s in SOURCES},
+        "reasons": {r: int((table["reason"] == r).sum()) for r in REASONS},
         "thick_saturated": int(table["thick_saturated"].sum()),
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),

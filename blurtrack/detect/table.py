@@ -6,9 +6,12 @@ signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-s
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
 ``mid_y`` (time midpoint: where the dot was at mid-exposure), ``llr_gyro``,
 ``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
-``shape_deviation_px``, ``thick_saturated``, ``quality_ok``
-(:mod:`blurtrack.detect.separation.quality`). The column ``merged`` of the core schema means "merged
-with or crossing another streak".
+``end_light_start``/``end_light_end`` (light just beyond each end over the streak's
+brightness there, :mod:`blurtrack.detect.trust`), ``shape_deviation_px``,
+``thick_saturated``, ``quality_ok``, ``source`` (``point``, ``extended``, ``undetermined``)
+and ``reason`` (why not ``quality_ok``, or ``ok``) (:mod:`blurtrack.detect.separation.quality`).
+The summary beside the table names its :data:`TABLE_VERSION` (``table_version``). The
+column ``merged`` of the core schema means "merged with or crossing another streak".
 
 In the table :func:`build_table` returns, a ``centerline`` cell is an ``(n, 2)`` float64 array
 and a ``profile`` cell an ``(n,)`` one (views of one rounded array per frame: no per-value
@@ -28,7 +31,7 @@ import pandas as pd
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.lines.ragged import split_at
 from blurtrack.detect.orientation import Orientation
-from blurtrack.detect.separation.quality import add_quality
+from blurtrack.detect.separation.quality import QUALITY_COLUMNS, add_quality
 from blurtrack.io import atomic, streaks
 
 EXTRA_COLUMNS: dict[str, str] = {
@@ -43,10 +46,19 @@ EXTRA_COLUMNS: dict[str, str] = {
     "llr_gyro": "float64",
     "llr_profile": "float64",
     "llr_continuity": "float64",
+    "end_light_start": "float64",
+    "end_light_end": "float64",
     "shape_deviation_px": "float64",
     "thick_saturated": "bool",
     "quality_ok": "bool",
+    "source": "object",
+    "reason": "object",
 }
+#: Version of the detection table's columns: 2 added ``source``, ``reason``,
+#: ``end_light_start`` and ``end_light_end`` (and ``quality_ok`` became precision-first);
+#: in the summary beside the table (``table_version``; the Parquet file stays the very file
+#: ``DataFrame.to_parquet`` writes).
+TABLE_VERSION = 2
 
 
 def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
@@ -60,10 +72,6 @@ def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
     for i, cell in enumerate(split_at(flat, np.cumsum([len(a) for a in arrays])[:-1])):
         out[i] = cell
     return out
-
-
-#: The columns of :func:`blurtrack.detect.separation.quality.add_quality`, in its order.
-QUALITY_COLUMNS = ("shape_deviation_px", "thick_saturated", "quality_ok")
 
 
 def frame_columns(
@@ -101,8 +109,12 @@ def frame_columns(
     # Evidence for the recorded orientation (the LLRs were for the unswapped end A).
     signed = np.where(ori.swap[:, None], -ori.llr, ori.llr) if N else np.zeros((0, 3))
     data["llr_gyro"], data["llr_profile"], data["llr_continuity"] = signed.T
+    if fs.evidence is not None:  # oriented with the streaks (FrameStreaks.reverse)
+        data["end_light_start"], data["end_light_end"] = fs.evidence.end_light.T
+        data["source"] = list(fs.evidence.source)
     if fs.quality is not None:  # computed by the frame's worker (the same definition)
-        data.update(zip(QUALITY_COLUMNS, fs.quality, strict=True))
+        for name, col in zip(QUALITY_COLUMNS, fs.quality, strict=True):
+            data[name] = list(col) if col.dtype == object else col
     return data
 
 
@@ -132,13 +144,26 @@ def build_table(parts: Sequence[pd.DataFrame | Mapping[str, Any]]) -> pd.DataFra
         for c, dt in EXTRA_COLUMNS.items():
             df[c] = pd.Series(dtype=dt)
         return df
+    # Image evidence where every frame measured it (else the table has none: undetermined).
+    if not all("source" in p for p in parts):
+        parts = [
+            p.drop(columns=["source", "end_light_start", "end_light_end"], errors="ignore")
+            if isinstance(p, pd.DataFrame)
+            else {
+                k: v
+                for k, v in p.items()
+                if k not in ("source", "end_light_start", "end_light_end")
+            }
+            for p in parts
+        ]
     # The quality columns where every frame's worker computed them, else here for all.
     have = all(isinstance(p, Mapping) and QUALITY_COLUMNS[0] in p for p in parts)
     if not have:
+        drop = [c for c in QUALITY_COLUMNS if c != "source"]
         parts = [
-            p.drop(columns=list(QUALITY_COLUMNS), errors="ignore")
+            p.drop(columns=drop, errors="ignore")
             if isinstance(p, pd.DataFrame)
-            else {k: v for k, v in p.items() if k not in QUALITY_COLUMNS}
+            else {k: v for k, v in p.items() if k not in drop}
             for p in parts
         ]
     if all(isinstance(p, Mapping) for p in parts):

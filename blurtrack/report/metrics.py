@@ -50,19 +50,22 @@ MOTION_VARIANTS = (
 )
 
 
-#: Detector flags whose streaks calibration leaves out (:func:`calib.data.streaks_from_table`);
-#: the report lists them separately and keeps them out of every statistic and figure.
+#: Detector flags whose streaks calibration leaves out of tables without ``quality_ok``
+#: (:func:`calib.data.streaks_from_table`); the report lists them separately and keeps them
+#: out of every statistic and figure.
 EXCLUDED_FLAGS: tuple[str, ...] = ("clipped", "saturated", "merged")
 
 
 def flagged_mask(table: pd.DataFrame) -> np.ndarray:
-    """``(N,)`` bool: the streak carries one of :data:`EXCLUDED_FLAGS`, or (tables that have
-    the column) is not ``quality_ok``, which calibration leaves out too."""
+    """``(N,)`` bool: the streak is clipped, merged or (tables that have the column) not
+    ``quality_ok``, or, in older tables without it, saturated: as calibration decides (a
+    saturated core whose ends are measured well stays ``quality_ok``)."""
     m = np.zeros(len(table), dtype=bool)
+    has_ok = "quality_ok" in table.columns
     for f in EXCLUDED_FLAGS:
-        if f in table.columns:
+        if f in table.columns and not (has_ok and f == "saturated"):
             m |= table[f].to_numpy(bool)
-    if "quality_ok" in table.columns:
+    if has_ok:
         m |= ~table["quality_ok"].to_numpy(bool)
     return m
 

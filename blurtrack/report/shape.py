@@ -41,6 +41,10 @@ def shape_summary(table: pd.DataFrame) -> dict[str, Any] | None:
     if ok is not None:
         overall["quality_ok"] = int(ok.sum())
         overall["kept"] = _dist(dev[ok])
+    for col in ("source", "reason"):  # detection tables of version 2 and later
+        if col in table.columns:
+            counts = table[col].astype(str).value_counts()
+            overall[col] = {str(k): int(v) for k, v in counts.items()}
     frames = []
     for f, d in table.groupby("frame", sort=True):
         row = {
@@ -87,6 +91,10 @@ def shape_section(shape: dict[str, Any] | None) -> list[str]:
         + "</p>",
         f"<table><tr><th>streaks</th><th>n</th>{head}</tr>{''.join(rows)}</table>",
     ]
+    for col, what in (("source", "Source"), ("reason", "Reason")):
+        if col in o:
+            line = ", ".join(f"{k} {v}" for k, v in sorted(o[col].items()))
+            parts.append(f"<p>{what} (<code>{col}</code>): {line}.</p>")
     body = "".join(
         f"<tr><td>{int(r['frame'])}</td><td>{int(r['n_streaks'])}</td><td>{r['n']}</td>"
         + "".join(f"<td>{_px(r[k])}</td>" for k in qs)

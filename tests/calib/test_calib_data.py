@@ -36,12 +36,14 @@ def _table(n: int, rng: np.random.Generator) -> tuple[pd.DataFrame, pd.DataFrame
 def test_streaks_not_quality_ok_are_left_out_and_counted() -> None:
     rng = np.random.default_rng(3)
     table, frames = _table(200, rng)
-    flagged = (table.clipped | table.saturated | table.merged).to_numpy()
+    flagged = (table.clipped | table.merged).to_numpy()
     table["quality_ok"] = rng.random(len(table)) < 0.7
     s = streaks_from_table(table, frames)
     kept = ~flagged & table["quality_ok"].to_numpy()
     assert np.array_equal(s.streak_id, table["streak_id"].to_numpy()[kept])
-    # Counted: only those that no other dropped flag already removed.
+    # A saturated core alone does not leave a quality_ok streak out (issue 45) ...
+    assert np.any(table.saturated.to_numpy() & kept)
+    # ... and counted: only those that no other dropped flag already removed.
     assert s.dropped_quality == int(np.sum(~flagged & ~table["quality_ok"].to_numpy())) > 0
 
 

@@ -23,6 +23,7 @@ from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.separate import _mosaic, _overlaps
 from blurtrack.detect.separation.templates import Placement
+from blurtrack.detect.trust import assess
 
 #: A placement's line is kept from its first to its last point above a quarter of its peak
 #: profile, but at most this times its median
@@ -260,6 +261,22 @@ def as_streaks(
         return np.concatenate([old, new[name]]) if n_new else old
 
     short = fs.short if len(fs.short) == len(fs) else np.zeros(len(fs), bool)
+    points = [fs.points[i] for i in k] + (list(new["points"]) if n_new else [])
+    profile = [fs.profile[i] for i in k] + (list(new["profile"]) if n_new else [])
+    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
+    width = cat("width_px")
+    # Measured again over the new set: the neighbours of the old streaks have changed.
+    evidence = assess(
+        prep.smooth,
+        comps,
+        threshold,
+        points,
+        profile,
+        cat("plateau"),
+        width,
+        fs.sigma_c_px,
+        p.source,
+    )
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),
@@ -267,10 +284,10 @@ def as_streaks(
         time_mid=cat("time_mid"),
         plateau=cat("plateau"),
         length_px=cat("length_px"),
-        width_px=cat("width_px"),
+        width_px=width,
         snr=cat("snr"),
-        points=[fs.points[i] for i in k] + (list(new["points"]) if n_new else []),
-        profile=[fs.profile[i] for i in k] + (list(new["profile"]) if n_new else []),
+        points=points,
+        profile=profile,
         flags={
             f: np.concatenate([fs.flags[f][k], new["flags"][f]]) if n_new else fs.flags[f][k]
             for f in FLAG_NAMES
@@ -280,4 +297,5 @@ def as_streaks(
         hot_pixels=fs.hot_pixels,
         short=np.concatenate([short[k], new["short"]]) if n_new else short[k],
         saturated_fraction=fs.saturated_fraction,
+        evidence=evidence,
     )

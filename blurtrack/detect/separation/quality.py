@@ -14,17 +14,26 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   :data:`MIN_REFERENCE` streaks can vote.
 - ``thick_saturated``: saturated and wider than :data:`THICK_WIDTH_RATIO` x the frame's dot
   width: a blown-out core whose centre line and ends are unreliable.
-- ``quality_ok``: none of ``clipped``, ``merged``, ``crossing``, ``looped``,
-  ``thick_saturated``, and a shape within ``max(SHAPE_TOL_PX, SHAPE_TOL_REL |c|)`` of the
-  consensus (where it is known).
+- ``source``: ``point``, ``extended`` or ``undetermined``, from the frame's image
+  (:mod:`blurtrack.detect.trust`); a table without that evidence is ``undetermined``.
+- ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is
+  ``point``, none of ``clipped``, ``merged``, ``crossing``, ``looped``, ``thick_saturated``,
+  no neighbour's light just beyond an end, and a shape within
+  ``max(SHAPE_TOL_PX, SHAPE_TOL_REL |c|)`` of the consensus (where it is known). A saturated
+  core alone does not disqualify: its ends are measured on the unclipped profile.
+- ``reason``: why (the first that applies, in the order of :data:`REASONS`), ``ok`` when
+  ``quality_ok``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from blurtrack.detect.params import SourceParams
 
 if TYPE_CHECKING:  # the table's type only: detection itself does not need pandas
     import pandas as pd
@@ -33,6 +42,30 @@ if TYPE_CHECKING:  # the table's type only: detection itself does not need panda
 
 #: Flags that keep a streak out of the shape consensus (and out of ``quality_ok``).
 FLAGGED_BY = ("clipped", "merged", "crossing", "looped")
+#: The closed set of ``reason`` values, in the order they are tested (the first that applies):
+#:
+#: - ``ok``: ``quality_ok``;
+#: - ``clipped``: an end at the border (the dot entered or left the frame), or too near it
+#:   for the light beyond the end to be measured;
+#: - ``extended``: the light of an extended source (a lit window, sign, glare), not a point;
+#: - ``crossing``: crosses another streak; ``looped``: crosses itself;
+#: - ``touching``: wider than the frame's dot (a neighbour alongside: ``merged``);
+#: - ``chained``: a neighbour's light continues it beyond an end, or it is far longer than
+#:   the frame's consensus streak (two dots' streaks end to end);
+#: - ``fragment``: far shorter than the consensus (a part of a streak);
+#: - ``ends_unsure``: a blown-out core wider than the dot (``thick_saturated``), a shape that
+#:   is neither (a hook, a wrong end), or a source that is neither point nor extended.
+REASONS = (
+    "ok",
+    "clipped",
+    "extended",
+    "crossing",
+    "looped",
+    "touching",
+    "chained",
+    "fragment",
+    "ends_unsure",
+)
 #: Fewest unflagged streaks in a frame for a shape consensus.
 MIN_REFERENCE = 5
 #: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
@@ -127,58 +160,126 @@ def shape_tolerance(c: np.ndarray) -> np.ndarray:
     return np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
 
 
+#: Columns :func:`add_quality` adds, in order (``frame_quality`` returns them in this order).
+QUALITY_COLUMNS = ("shape_deviation_px", "thick_saturated", "quality_ok", "source", "reason")
+
+
 def _frame_quality(
-    v: np.ndarray, mid: np.ndarray, flagged: np.ndarray, width: np.ndarray, sat: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shape deviation, ``thick_saturated`` and ``quality_ok`` of one frame's streaks from
-    their start-to-end vectors, time midpoints, flags, widths and saturation."""
+    v: np.ndarray,
+    mid: np.ndarray,
+    flags: dict[str, np.ndarray],
+    width: np.ndarray,
+    source: np.ndarray,
+    end_light: np.ndarray,
+    p: SourceParams,
+) -> tuple[np.ndarray, ...]:
+    """The :data:`QUALITY_COLUMNS` of one frame's streaks from their start-to-end vectors,
+    time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
+    ``looped``), widths, sources and end light."""
+    sat = flags["saturated"]
     ref_w = width[~sat & np.isfinite(width)]
     ref_w = ref_w if ref_w.size else width[np.isfinite(width)]
     w0 = float(np.median(ref_w)) if ref_w.size else np.nan
     with np.errstate(invalid="ignore"):
         thick = sat & (width > THICK_WIDTH_RATIO * w0)
+    flagged = np.logical_or.reduce([flags[c] for c in FLAGGED_BY])
+    point = source == "point"
+    with np.errstate(invalid="ignore"):
+        lit_end = np.any(end_light > p.end_light_max, axis=1)
+    at_border = flags["clipped"] | np.any(np.isnan(end_light), axis=1)
     dev = np.full(len(v), np.nan)
-    ok = ~(flagged | thick)
-    field = consensus_field(v, mid, ok)
+    ok = point & ~(flagged | thick | lit_end | at_border)
+    long_ = short = bent = np.zeros(len(v), bool)
+    # The consensus from point lights only: an extended source's lines say nothing of the
+    # dots' curve.
+    field = consensus_field(v, mid, point & ~(flagged | thick))
     if field is not None:
         dev = field.dev
-        ok = ok & (dev <= shape_tolerance(field.c))
-    return dev, thick, ok
+        tol = shape_tolerance(field.c)
+        bent = dev > tol
+        c_len = np.hypot(*field.c.T)
+        length = np.hypot(*v.T)
+        long_ = bent & (length > c_len + tol)
+        short = bent & (length < c_len - tol)
+        ok &= ~bent
+    reason = np.full(len(v), "ends_unsure", object)
+    # Assigned from the last to the first, so that the first that applies stays.
+    reason[short] = "fragment"
+    reason[lit_end | long_] = "chained"
+    reason[flags["merged"] & ~flags["crossing"]] = "touching"
+    reason[flags["looped"]] = "looped"
+    reason[flags["crossing"]] = "crossing"
+    reason[source == "extended"] = "extended"
+    reason[at_border] = "clipped"
+    reason[ok] = "ok"
+    return dev, thick, ok, source.astype(object), reason
 
 
-def frame_quality(fs: FrameStreaks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`add_quality`'s three columns for one frame's streaks, from the frame itself
+def _flags(get: Callable[[str], np.ndarray]) -> dict[str, np.ndarray]:
+    return {c: get(c) for c in (*FLAGGED_BY, "saturated")}
+
+
+def frame_quality(fs: FrameStreaks, p: SourceParams | None = None) -> tuple[np.ndarray, ...]:
+    """:func:`add_quality`'s columns for one frame's streaks, from the frame itself
     (the frame's worker computes them: frames are independent). They do not depend on which
     end is A: the consensus takes each vector's sign from the dominant direction and the
     deviation is the nearer of ``|v - c|`` and ``|v + c|``, so the table's values after
     orientation are these."""
-    flagged = np.logical_or.reduce([fs.flags[c] for c in FLAGGED_BY])
+    n = len(fs)
+    ev = fs.evidence
+    source = ev.source if ev is not None else np.full(n, "undetermined", object)
+    light = ev.end_light if ev is not None else np.zeros((n, 2))
+    flags = _flags(lambda c: fs.flags[c])
     return _frame_quality(
-        fs.end_b - fs.end_a, fs.time_mid, flagged, fs.width_px, fs.flags["saturated"]
+        fs.end_b - fs.end_a, fs.time_mid, flags, fs.width_px, source, light, p or SourceParams()
     )
 
 
-def add_quality(table: pd.DataFrame) -> pd.DataFrame:
-    """``table`` with ``shape_deviation_px``, ``thick_saturated`` and ``quality_ok`` columns."""
+def add_quality(table: pd.DataFrame, p: SourceParams | None = None) -> pd.DataFrame:
+    """``table`` with the :data:`QUALITY_COLUMNS`. The image evidence comes from the
+    table's ``source``, ``end_light_start`` and ``end_light_end`` columns; without a
+    ``source`` column every streak is ``undetermined`` (and none ``quality_ok``). The
+    ``merged`` column there is ``merged`` or ``crossing`` (the table's definition)."""
     out = table.copy()
     n = len(out)
-    dev, thick, ok = np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool)
+    cols: list[np.ndarray] = [
+        np.full(n, np.nan),
+        np.zeros(n, bool),
+        np.zeros(n, bool),
+        np.full(n, "undetermined", object),
+        np.full(n, "ends_unsure", object),
+    ]
     if n:
         # The columns as arrays once; the frames are then slices of them (no per-frame
         # DataFrame indexing, which cost more than the fits).
         v = out[["end_x", "end_y"]].to_numpy(float) - out[["start_x", "start_y"]].to_numpy(float)
         mid = out[["mid_x", "mid_y"]].to_numpy(float)
-        flagged = np.logical_or.reduce([out[c].to_numpy(bool) for c in FLAGGED_BY])
+        flags = _flags(lambda c: out[c].to_numpy(bool))
         width = out["width_px"].to_numpy(float)
-        sat = out["saturated"].to_numpy(bool)
+        source = (
+            out["source"].to_numpy(object)
+            if "source" in out.columns
+            else np.full(n, "undetermined", object)
+        )
+        light = np.zeros((n, 2))
+        for j, c in enumerate(("end_light_start", "end_light_end")):
+            if c in out.columns:
+                light[:, j] = out[c].to_numpy(float)
         frames = out["frame"].to_numpy()
         order = np.argsort(frames, kind="stable")
         bounds = np.flatnonzero(np.diff(frames[order])) + 1
         for rows in np.split(order, bounds):
-            dev[rows], thick[rows], ok[rows] = _frame_quality(
-                v[rows], mid[rows], flagged[rows], width[rows], sat[rows]
+            res = _frame_quality(
+                v[rows],
+                mid[rows],
+                {k: f[rows] for k, f in flags.items()},
+                width[rows],
+                source[rows],
+                light[rows],
+                p or SourceParams(),
             )
-    out["shape_deviation_px"] = dev
-    out["thick_saturated"] = thick
-    out["quality_ok"] = ok
+            for col, r in zip(cols, res, strict=True):
+                col[rows] = r
+    for name, col in zip(QUALITY_COLUMNS, cols, strict=True):
+        out[name] = col
     return out

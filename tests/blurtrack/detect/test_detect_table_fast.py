@@ -109,8 +109,13 @@ def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
         w0 = float(np.median(ref)) if ref.size else np.nan
         with np.errstate(invalid="ignore"):
             th = sat & (width > quality.THICK_WIDTH_RATIO * w0)
-        good = ~(flagged | th)
+        point = (d["source"] == "point").to_numpy(bool)
+        light = d[["end_light_start", "end_light_end"]].to_numpy(float)
+        with np.errstate(invalid="ignore"):
+            lit = (light > quality.SourceParams().end_light_max).any(axis=1)
+        good = ~(flagged | th) & point
         field = quality.consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), good)
+        good &= ~(lit | np.isnan(light).any(axis=1))
         if field is not None:
             dev[rows] = field.dev
             good = good & (field.dev <= quality.shape_tolerance(field.c))
@@ -141,7 +146,7 @@ def test_workers_quality_is_the_tables_whatever_the_orientation(tmp_path: Path) 
 
 
 def test_quality_columns_equal_the_per_frame_definition(table: pd.DataFrame) -> None:
-    base = table.drop(columns=["shape_deviation_px", "thick_saturated", "quality_ok"])
+    base = table.drop(columns=["shape_deviation_px", "thick_saturated", "quality_ok", "reason"])
     fast = quality.add_quality(base)
     ref = _quality_reference(base)
     assert np.isfinite(fast["shape_deviation_px"]).sum() > 10

@@ -65,6 +65,12 @@ def test_all_zero_gyro_leaves_the_time_shift_undetermined(
     assert res.summary["gyro_timeshift_status"] == "undetermined"
     assert res.summary["gyro_timeshift_s"] is None
     assert len(res.table) > 0 and np.all(res.table.llr_gyro == 0)
+    # No confident gyro evidence, and every streak's trust still from the image alone.
+    from blurtrack.detect.separation.quality import REASONS
+
+    assert set(res.table.reason) <= set(REASONS)
+    assert res.summary["table_version"] == 2
+    assert not np.any(res.table.orientation_source == "gyro")
     assert main(["detect", str(folder), "--out", str(tmp_path / "z.parquet")]) == 0
     assert "camera-IMU time shift: undetermined" in capsys.readouterr().out
 

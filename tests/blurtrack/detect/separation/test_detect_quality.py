@@ -32,6 +32,7 @@ def _frame(n: int = 12, seed: int = 0) -> pd.DataFrame:
             "looped": False,
             "saturated": False,
             "width_px": 1.8,
+            "source": "point",
         }
     )
 
@@ -49,6 +50,30 @@ def test_consistent_shapes_are_ok_and_an_odd_one_is_not() -> None:
     assert dev[3] > 20
     assert not q.quality_ok[3] and not q.quality_ok[5] and q.thick_saturated[5]
     assert q.quality_ok.sum() == len(d) - 2
+    assert q.reason[3] == "chained" and q.reason[5] == "ends_unsure"
+    assert set(q.reason.drop(index=[3, 5])) == {"ok"}
+
+
+def test_a_saturated_core_alone_is_not_disqualifying() -> None:
+    d = _frame()
+    d.loc[[2, 4], "saturated"] = True  # as wide as the others: its ends are measured well
+    q = add_quality(d)
+    assert q.quality_ok.all() and set(q.reason) == {"ok"}
+
+
+def test_without_image_evidence_nothing_is_ok() -> None:
+    """A table without the ``source`` column (built without the image): every streak is
+    ``undetermined`` and none ``quality_ok``; an extended one neither (negative control: the
+    same frame with point sources is ok, test above)."""
+    d = _frame().drop(columns=["source"])
+    q = add_quality(d)
+    assert not q.quality_ok.any() and set(q.source) == {"undetermined"}
+    assert set(q.reason) == {"ends_unsure"}
+    e = _frame()
+    e.loc[[1, 7], "source"] = "extended"
+    q = add_quality(e)
+    assert q.reason[1] == q.reason[7] == "extended" and not q.quality_ok[[1, 7]].any()
+    assert q.quality_ok.sum() == len(e) - 2
 
 
 def test_too_few_streaks_give_no_consensus_and_flags_decide() -> None:

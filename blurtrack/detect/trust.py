@@ -1,0 +1,230 @@
+"""Measured evidence that a detection is one whole point-light streak with trustworthy ends.
+
+Everything is measured against the frame's own point spread: ``psf``, the frame's
+cross-section sigma in the smoothed image (:attr:`blurtrack.detect.frame.FrameStreaks.sigma_c_px`,
+the median of the streaks' measured widths), so no threshold is a pixel count fitted to one
+file.
+
+- ``width_ratio``: the streak's measured cross-section sigma (saturated streaks: from the
+  flanks of the clipped cross-sections) over ``psf``. A point light's cross-section is the PSF
+  all along (ratio 1).
+- ``fill``: the lit area (pixels above the segmentation threshold) of the streak's connected
+  component over the area its streaks would light if each were a point light: at every
+  centre-line point a Gaussian cross-section of sigma ``psf`` carrying the measured
+  cross-section integral lights ``2 h`` pixels, ``h = psf sqrt(2 ln(a / threshold))`` with
+  ``a`` its peak (saturated profiles are unclipped before, so a blown-out light's wider lit
+  region is expected), plus a disc of radius ``h`` at each end. A lit window, a screen, a
+  sign's strokes or ground glare light far more than that.
+- ``end_light``: ``(N, 2)`` light just beyond each end (the cross-section integral, maximum over
+  the steps from ``END_GAP_SIGMAS`` sigmas out to ``END_REACH_SIGMAS`` sigmas plus
+  ``END_REACH_PX``) over the streak's brightness there: a dot's erf edge leaves
+  ``Phi(-END_GAP_SIGMAS)`` of it, a neighbour's light touching or continuing the end much
+  more, and the edge fit of that end (which reads that far) is then not this dot's end.
+  NaN where that window leaves the frame: the end is too near the border to be measured
+  (``reason`` ``clipped``, whatever ``border_margin_px`` says).
+- ``component``: index of the streak's connected component (-1 none), ``shared`` how many of
+  the frame's streaks lie on it.
+
+:func:`classify_source` turns these into ``point``, ``extended`` or ``undetermined``
+(thresholds in :class:`blurtrack.detect.params.SourceParams`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from blurtrack.detect.lines.sampling import sample_image
+from blurtrack.detect.lines.segment import Components
+from blurtrack.detect.params import SourceParams
+
+#: The closed set of ``source`` values.
+SOURCES = ("point", "extended", "undetermined")
+
+#: The end-light window starts this many sigmas beyond the end (half-level point), where a
+#: dot's own erf edge has fallen to Phi(-3) = 0.13 % of its plateau.
+END_GAP_SIGMAS = 3.0
+#: ... and reaches this many sigmas plus END_REACH_PX further: the edge fit reads the profile
+#: 3 sigma + 3 px beyond the end (docs/detection.md, "refine"), so light there moves the end.
+END_REACH_SIGMAS = 3.0
+END_REACH_PX = 3.0
+#: Half-width of the end-light cross-section integral, in sigmas: +-2 sigma holds 95 % of a
+#: Gaussian cross-section.
+END_HALF_SIGMAS = 2.0
+#: Centre-line points on each side of an end that give its outward direction (~1 px apart).
+TANGENT_POINTS = 3
+
+
+@dataclass
+class Evidence:
+    """Per-streak measurements (one row per streak, see the module docstring)."""
+
+    width_ratio: np.ndarray
+    fill: np.ndarray
+    end_light: np.ndarray
+    component: np.ndarray
+    shared: np.ndarray
+    source: np.ndarray  # object array of SOURCES
+
+    def __len__(self) -> int:
+        return int(self.width_ratio.size)
+
+    @staticmethod
+    def empty() -> Evidence:
+        z = np.zeros(0)
+        return Evidence(
+            z,
+            z.copy(),
+            np.zeros((0, 2)),
+            np.zeros(0, np.int64),
+            np.zeros(0, np.int64),
+            np.zeros(0, object),
+        )
+
+    def take(self, rows: np.ndarray) -> Evidence:
+        return Evidence(
+            self.width_ratio[rows],
+            self.fill[rows],
+            self.end_light[rows],
+            self.component[rows],
+            self.shared[rows],
+            self.source[rows],
+        )
+
+
+def _component_of(points: list[np.ndarray], comps: Components) -> np.ndarray:
+    """``(N,)`` index into ``comps`` of the component under each streak's middle point (-1:
+    none, e.g. an artefact the filter dropped or a point off the lit pixels)."""
+    n = len(points)
+    out = np.full(n, -1, np.int64)
+    if n == 0 or comps.ids.size == 0:
+        return out
+    H, W = comps.labels.shape
+    mids = np.array([p[len(p) // 2] for p in points], float).reshape(-1, 2)
+    x = np.clip(np.rint(mids[:, 0]).astype(np.int64), 0, W - 1)
+    y = np.clip(np.rint(mids[:, 1]).astype(np.int64), 0, H - 1)
+    lab = comps.labels[y, x].astype(np.int64)
+    lut = np.full(int(comps.labels.max()) + 1, -1, np.int64)
+    lut[comps.ids.astype(np.int64)] = np.arange(comps.ids.size)
+    return lut[lab]
+
+
+def _expected_area(profile: list[np.ndarray], psf: float, threshold: float) -> np.ndarray:
+    """``(N,)`` pixels a point light with these profiles would light above ``threshold``."""
+    out = np.zeros(len(profile))
+    if not profile:
+        return out
+    norm = np.sqrt(2.0 * np.pi) * psf  # cross-section integral of a unit-peak Gaussian
+    for i, pr in enumerate(profile):
+        a = np.asarray(pr, float) / norm
+        h = psf * np.sqrt(2.0 * np.log(np.maximum(a / threshold, 1.0)))
+        caps = np.pi * (h[0] ** 2 + h[-1] ** 2) / 2.0 if h.size else 0.0
+        out[i] = float(2.0 * h.sum() + caps)
+    return out
+
+
+def _end_frames(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(N, 2, 2)`` ends and ``(N, 2, 2)`` outward unit tangents (end A, end B)."""
+    n = len(points)
+    ends = np.zeros((n, 2, 2))
+    tang = np.zeros((n, 2, 2))
+    for i, p in enumerate(points):
+        p = np.asarray(p, float)
+        k = min(TANGENT_POINTS, len(p) - 1)
+        ends[i, 0], ends[i, 1] = p[0], p[-1]
+        if k >= 1:
+            tang[i, 0] = p[0] - p[k]
+            tang[i, 1] = p[-1] - p[-1 - k]
+    nrm = np.linalg.norm(tang, axis=2, keepdims=True)
+    tang = np.where(nrm > 1e-9, tang / np.maximum(nrm, 1e-9), [1.0, 0.0])
+    return ends, tang
+
+
+def _end_light(
+    smooth: np.ndarray,
+    points: list[np.ndarray],
+    plateau: np.ndarray,
+    profile: list[np.ndarray],
+    psf: float,
+) -> np.ndarray:
+    """``(N, 2)`` light beyond each end over the streak's brightness at that end."""
+    n = len(points)
+    if n == 0:
+        return np.zeros((0, 2))
+    ends, tang = _end_frames(points)
+    d = np.arange(END_GAP_SIGMAS * psf, (END_GAP_SIGMAS + END_REACH_SIGMAS) * psf + END_REACH_PX)
+    half = int(np.ceil(END_HALF_SIGMAS * psf))
+    k = np.arange(-half, half + 1, dtype=float)
+    nrm = np.stack([-tang[..., 1], tang[..., 0]], axis=-1)
+    # (N, 2, D, K) sample positions
+    pos = (
+        ends[:, :, None, None, :]
+        + d[None, None, :, None, None] * tang[:, :, None, None, :]
+        + k[None, None, None, :, None] * nrm[:, :, None, None, :]
+    )
+    vals = sample_image(smooth, pos[..., 0], pos[..., 1])
+    light = vals.sum(axis=3).max(axis=2)  # (N, 2) cross-section integral (1 px steps)
+    # An end whose window leaves the frame cannot show its edge: unknown (NaN), ``clipped``.
+    H, W = smooth.shape
+    x, y = pos[..., 0], pos[..., 1]
+    out = ((x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)).any(axis=(2, 3))
+    light = np.where(out, np.nan, light)
+    peak = np.array([float(np.max(p)) if len(p) else 0.0 for p in profile])
+    ref = np.where(np.isfinite(plateau) & (plateau > 0), plateau, peak[:, None])
+    return np.asarray(light / np.maximum(ref, 1e-12))
+
+
+def classify_source(width_ratio: np.ndarray, fill: np.ndarray, p: SourceParams) -> np.ndarray:
+    """``(N,)`` object array of ``point``, ``extended`` or ``undetermined``: extended where the
+    streak is far wider than the PSF or its lit region far larger than a point light's;
+    point where both are within a point light's spread; undetermined otherwise (and where a
+    measurement is missing)."""
+    wr = np.where(np.isfinite(width_ratio), width_ratio, np.inf)
+    fl = np.where(np.isfinite(fill), fill, np.inf)
+    out = np.full(wr.size, "undetermined", object)
+    out[(wr <= p.point_width_ratio) & (fl <= p.point_fill)] = "point"
+    ext = (np.isfinite(width_ratio) & (width_ratio > p.extended_width_ratio)) | (
+        np.isfinite(fill) & (fill > p.extended_fill)
+    )
+    out[ext] = "extended"
+    return out
+
+
+def assess(
+    smooth: np.ndarray,
+    comps: Components,
+    threshold: float,
+    points: list[np.ndarray],
+    profile: list[np.ndarray],
+    plateau: np.ndarray,
+    width_px: np.ndarray,
+    psf: float,
+    p: SourceParams,
+) -> Evidence:
+    """The :class:`Evidence` of a frame's streaks (``points``, ``profile``, ``plateau``,
+    ``width_px`` as in :class:`~blurtrack.detect.frame.FrameStreaks`) on its smoothed image
+    ``smooth``, components ``comps`` (thresholded at ``threshold``) and cross-section sigma
+    ``psf``."""
+    n = len(points)
+    if n == 0:
+        return Evidence.empty()
+    comp = _component_of(points, comps)
+    has = comp >= 0
+    C = comps.ids.size
+    shared = np.zeros(n, np.int64)
+    fill = np.full(n, np.nan)
+    if has.any():
+        counts = np.bincount(comp[has], minlength=C)
+        shared[has] = counts[comp[has]]
+        expected = np.bincount(
+            comp[has],
+            _expected_area([profile[i] for i in np.flatnonzero(has)], psf, threshold),
+            minlength=C,
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = comps.areas / expected
+        fill[has] = ratio[comp[has]]
+    width_ratio = np.asarray(width_px, float) / psf
+    light = _end_light(smooth, points, np.asarray(plateau, float), profile, psf)
+    return Evidence(width_ratio, fill, light, comp, shared, classify_source(width_ratio, fill, p))
