@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks
-from blurtrack.io.guard import add_force_arg, check_output
+from blurtrack.io.guard import add_force_arg, check_output, output_lock
 from calib.output import write_results, write_summary
 from calib.params import DEFAULT_FIT
 from calib.truth import truth_values
@@ -103,12 +103,7 @@ def register(subparsers: Any) -> None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from calib.centreline import CENTRE_POINTS
-    from calib.data import streaks_from_table
-    from calib.fit import FitOptions, calibrate, check_fit_inputs
-    from calib.natural.cli import is_natural, laser_axes, run_natural
-    from calib.params import theta_from
-    from calib.result import named
+    from calib.natural.cli import is_natural, run_natural
 
     stem = Path(args.out).stem
     check_output(
@@ -127,8 +122,20 @@ def run_calibrate(args: argparse.Namespace) -> int:
             )
         ],
     )
-    if is_natural(args):
-        return run_natural(args, _print_table)
+    with output_lock(args.out):  # two runs never write one calibration
+        if is_natural(args):
+            return run_natural(args, _print_table)
+        return _calibrate_laser(args)
+
+
+def _calibrate_laser(args: argparse.Namespace) -> int:
+    from calib.centreline import CENTRE_POINTS
+    from calib.data import streaks_from_table
+    from calib.fit import FitOptions, calibrate, check_fit_inputs
+    from calib.natural.cli import laser_axes
+    from calib.params import theta_from
+    from calib.result import named
+
     if args.mask:
         from calib.errors import CalibError
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,6 +79,17 @@ def checkpoint_path(out_dir: str | Path, name: str = "last") -> Path:
 RUN_FILES = ("config.yaml", "train_log.csv", "checkpoints", "tensorboard", "summary.json")
 
 
+def check_training_size(config: RunConfig) -> None:
+    """Refuse absurd network widths/depths, batches and crops before anything is allocated
+    (:func:`blurtrack.io.bounds.check_training_size`: above half of this machine's memory)."""
+    from blurtrack.io import bounds
+
+    kw = config.model.resolved_kwargs()
+    c, r = kw.get("base_channels", 32), kw.get("num_res", 8)
+    if isinstance(c, int) and isinstance(r, int) and c > 0 and r >= 0:  # else the net refuses
+        bounds.check_training_size(c, r, config.train.batch_size, config.data.crop)
+
+
 def _refuse_existing_run(out_dir: Path) -> None:
     found = [name for name in RUN_FILES if (out_dir / name).exists()]
     if found:
@@ -129,6 +141,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
 
     if resume is None and not force and rank == 0:
         _refuse_existing_run(out_dir)
+    check_training_size(config)
     torch.manual_seed(tc.seed)
     model = build_model(config.model.name, config.model.preset, **config.model.kwargs)
     if tc.init_from is not None:
@@ -230,7 +243,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
     bar = tqdm(
         total=tc.steps,
         initial=start,
-        disable=not tc.progress or rank != 0,
+        disable=not tc.progress or rank != 0 or not sys.stderr.isatty(),  # terminals only
         desc=f"train {config.model.name}",
         unit="step",
         dynamic_ncols=True,

@@ -203,6 +203,14 @@ def run_command(program: str, args: argparse.Namespace) -> int:
     except BlurTrackError as exc:
         print(f"{program} {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a disk that cannot take a write, met outside the atomic writer
+        from blurtrack.io.atomic import DISK_ERRNOS, output_error
+
+        if exc.errno not in DISK_ERRNOS:
+            raise
+        where = exc.filename if exc.filename is not None else "the output"
+        print(f"{program} {args.command}: error: {output_error(where, exc)}", file=sys.stderr)
+        return 2
     except ModuleNotFoundError as exc:
         message = missing_extra_message(exc)
         if message is None:
