@@ -147,8 +147,7 @@ def _calibrate_laser(args: argparse.Namespace) -> int:
     if streaks.dropped_quality:
         print(
             f"calibrate: left out {streaks.dropped_quality} streaks that detection marked "
-            "not quality_ok",
-            file=sys.stderr,
+            "not quality_ok"
         )
     initial = session.initial_calibration()
     options = FitOptions(
@@ -179,7 +178,12 @@ def _calibrate_laser(args: argparse.Namespace) -> int:
 
 
 def _render_progress(p: Any) -> None:
-    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
+    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`),
+    on a terminal only: in logs and pipes stderr holds nothing but a failure's one line."""
+    from blurtrack.cli.progress import enabled
+
+    if not enabled():
+        return
 
     what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
     print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -62,9 +61,8 @@ def _detect_first(session: Any, path: Path, quiet: bool) -> Any:
 
     print(
         f"no streak table at {path}: detecting the streaks first "
-        f"(as `blurtrack detect {session.folder}`)",
-        file=sys.stderr,
-    )
+        f"(as `blurtrack detect {session.folder}`)"
+    )  # stdout: stderr holds only the one line of a failure
     result = detect_to_table(session, path, quiet=quiet)
     summary = dict(result.summary, session=str(session.folder), table=str(path))
     write_json_atomic(summary_path, summary)

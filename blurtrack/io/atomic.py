@@ -42,8 +42,9 @@ class OutputError(BlurTrackError, OSError):
 def output_error(path: str | os.PathLike[str], exc: OSError, what: str = "write") -> OutputError:
     """One-line :class:`OutputError` for an ``OSError`` met while writing ``path``."""
     reason = exc.strerror or str(exc) or type(exc).__name__
+    short = exc.errno is None and "written" in str(exc)  # numpy: "N requested and M written"
     if exc.errno in (errno_mod.ENOSPC, errno_mod.EDQUOT) or (
-        exc.errno is None and _disk_full(Path(path).parent)
+        exc.errno is None and (short or _disk_full(Path(path).parent))
     ):
         reason = "no space left on the device"  # numpy reports short writes without errno
     elif exc.errno == errno_mod.EFBIG:

@@ -204,6 +204,8 @@ def write_files(root: Path, files: dict[str, bytes | np.ndarray], tag: str) -> N
     for rel, data in files.items():
         try:
             write_atomic(root / rel, data, tag)
+        except BlurTrackError:
+            raise  # the atomic writer's one line (OutputError) names the path and the reason
         except OSError as exc:
             raise SynthesisError(f"cannot write {root / rel}: {exc.strerror or exc}") from None
 

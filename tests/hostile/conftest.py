@@ -156,7 +156,7 @@ class World:
         self.root = root
         self.S = root / "S"
         self.S2 = root / "S2"
-        write_synthetic_session(self.S, n_frames=3, resolution=(160, 120), grid=(4, 3))
+        write_synthetic_session(self.S, n_frames=12, resolution=(160, 120), grid=(5, 4))
         write_synthetic_session(self.S2, n_frames=3, resolution=(160, 120), grid=(4, 3), seed=1)
         session = load_session(self.S)
         streak_table.write(streak_table.from_truth(session.truth), self.S / "streaks.parquet")
