@@ -51,6 +51,13 @@ def _train(args: argparse.Namespace) -> int:
 
         if dist.is_initialized():  # joined under torchrun: leave the group cleanly
             dist.destroy_process_group()
+    if res.broken_checkpoints:
+        names = ", ".join(p.name for p in res.broken_checkpoints)
+        print(
+            f"gamd train: passed over {len(res.broken_checkpoints)} zero-byte, truncated or "
+            f"undecodable checkpoint(s) ({names}); resumed from {res.resumed_from} and "
+            "trained the steps after it again"
+        )
     if res.checkpoint is not None:
         tail = res.losses[-10:]
         mean = sum(tail) / len(tail) if tail else float("nan")
