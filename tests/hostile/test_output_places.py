@@ -134,3 +134,21 @@ def test_detect_with_a_real_derived_folder_succeeds(world: World, tmp_path: Path
     assert (s / "derived" / "streaks.summary.json").is_file()
     after = tree_hashes(s)
     assert {k: after[k] for k in recorded} == recorded
+
+
+@pytest.mark.parametrize("command", ["predict", "report", "gamd deblur"])
+def test_other_writers_into_derived_refuse_a_link(
+    world: World, tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    """Whatever writes into ``SESSION/derived/`` goes through the same guard."""
+    s = _session_copy(world, tmp_path)
+    (tmp_path / "elsewhere").mkdir()
+    (s / "derived").symlink_to(tmp_path / "elsewhere", target_is_directory=True)
+    out = s / "derived" / "x"
+    if command == "gamd deblur":
+        rc = _gamd(["deblur", str(s), "--out", str(out)])
+    else:
+        rc = main([command, str(s), "--calib", str(world.calib), "--out", str(out)])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 2 and len(err) == 1 and "is a link" in err[0], err
+    assert os.listdir(tmp_path / "elsewhere") == []
