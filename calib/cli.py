@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from blurtrack.cli.sources import add_streak_source_args, load_session_and_streaks
-from blurtrack.io.guard import add_force_arg, check_output
+from blurtrack.io.guard import add_force_arg, check_output, output_lock
 from calib.output import write_results, write_summary
 from calib.params import DEFAULT_FIT
 from calib.truth import truth_values
@@ -103,12 +103,7 @@ def register(subparsers: Any) -> None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from calib.centreline import CENTRE_POINTS
-    from calib.data import streaks_from_table
-    from calib.fit import FitOptions, calibrate, check_fit_inputs
-    from calib.natural.cli import is_natural, laser_axes, run_natural
-    from calib.params import theta_from
-    from calib.result import named
+    from calib.natural.cli import is_natural, run_natural
 
     stem = Path(args.out).stem
     check_output(
@@ -127,8 +122,20 @@ def run_calibrate(args: argparse.Namespace) -> int:
             )
         ],
     )
-    if is_natural(args):
-        return run_natural(args, _print_table)
+    with output_lock(args.out):  # two runs never write one calibration
+        if is_natural(args):
+            return run_natural(args, _print_table)
+        return _calibrate_laser(args)
+
+
+def _calibrate_laser(args: argparse.Namespace) -> int:
+    from calib.centreline import CENTRE_POINTS
+    from calib.data import streaks_from_table
+    from calib.fit import FitOptions, calibrate, check_fit_inputs
+    from calib.natural.cli import laser_axes
+    from calib.params import theta_from
+    from calib.result import named
+
     if args.mask:
         from calib.errors import CalibError
 
@@ -140,8 +147,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if streaks.dropped_quality:
         print(
             f"calibrate: left out {streaks.dropped_quality} streaks that detection marked "
-            "not quality_ok",
-            file=sys.stderr,
+            "not quality_ok"
         )
     initial = session.initial_calibration()
     options = FitOptions(
@@ -172,7 +178,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
 
 def _render_progress(p: Any) -> None:
-    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`)."""
+    """One line per stage start and LM iteration on stderr (:class:`calib.fit.Progress`),
+    on a terminal only: in logs and pipes stderr holds nothing but a failure's one line."""
+    from blurtrack.cli.progress import enabled
+
+    if not enabled():
+        return
 
     what = "starts" if p.iteration == 0 else f"iteration {p.iteration}, cost {p.cost:.6g}"
     print(f"calibrate: {p.stage}: {what} ({p.elapsed_s:.1f} s)", file=sys.stderr, flush=True)

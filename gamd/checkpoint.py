@@ -24,9 +24,12 @@ FORMAT = "gamd-checkpoint/1"
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     """Write ``state`` (plus the format tag) to ``path`` atomically."""
+    import io
+
     path = Path(path)
-    with atomic.atomic_path(path) as tmp:
-        torch.save({"format": FORMAT, **state}, tmp)
+    buf = io.BytesIO()  # torch's own file writer turns a full disk into a RuntimeError
+    torch.save({"format": FORMAT, **state}, buf)
+    atomic.write_bytes_atomic(path, buf.getvalue())
     return path
 
 

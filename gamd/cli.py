@@ -13,12 +13,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from blurtrack.io.atomic import write_json_atomic
-from blurtrack.io.guard import add_force_arg, check_output
+from blurtrack.io.guard import add_force_arg, check_output, output_lock
 
 
 def _train(args: argparse.Namespace) -> int:
     from gamd.config import RunConfig
-    from gamd.train import train
+    from gamd.train import check_training_size, train
 
     config = RunConfig.from_yaml(args.config)
     overrides = {}
@@ -34,13 +34,30 @@ def _train(args: argparse.Namespace) -> int:
         overrides["device"] = args.device
     if overrides:
         config = replace(config, train=replace(config.train, **overrides))
+    out_dir = config.train.out_dir
+    check_output(
+        out_dir,
+        folder=True,
+        force=True,  # train itself refuses an earlier run without --resume or --force
+        inputs=[args.config, None if args.resume in (None, "auto") else args.resume],
+        input_folders=[config.data.root],
+    )
+    check_training_size(config)
     try:
-        res = train(config, resume=args.resume, force=args.force)
+        with output_lock(out_dir):  # two runs never train into one folder
+            res = train(config, resume=args.resume, force=args.force)
     finally:
         import torch.distributed as dist
 
         if dist.is_initialized():  # joined under torchrun: leave the group cleanly
             dist.destroy_process_group()
+    if res.broken_checkpoints:
+        names = ", ".join(p.name for p in res.broken_checkpoints)
+        print(
+            f"gamd train: passed over {len(res.broken_checkpoints)} zero-byte, truncated or "
+            f"undecodable checkpoint(s) ({names}); resumed from {res.resumed_from} and "
+            "trained the steps after it again"
+        )
     if res.checkpoint is not None:
         tail = res.losses[-10:]
         mean = sum(tail) / len(tail) if tail else float("nan")
@@ -81,7 +98,7 @@ def _eval(args: argparse.Namespace) -> int:
     from gamd.evaluate import evaluate, gain_table, summary_table
 
     _check_limit(args.limit)
-    check_output(args.out, folder=True, force=args.force)
+    check_output(args.out, folder=True, force=args.force, input_folders=[args.data, args.heat_root])
     ckpt = _checkpoint(args)
     model, config, step = load_model(ckpt)
     options = config.data.restore_options()
@@ -121,7 +138,7 @@ def _deblur(args: argparse.Namespace) -> int:
     from gamd.infer import deblur_session
 
     _check_limit(args.limit)
-    check_output(args.out, folder=True, force=args.force)
+    check_output(args.out, folder=True, force=args.force, input_folders=[args.heat])
     s = deblur_session(
         _checkpoint(args),
         args.session,

@@ -214,7 +214,9 @@ class RunConfig:
         try:
             d = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            raise GamdConfigError(f"{path}: invalid YAML: {exc}") from exc
+            from blurtrack.io.yamlio import yaml_error_line
+
+            raise GamdConfigError(f"{path}: invalid YAML: {yaml_error_line(exc)}") from None
         return cls.from_dict(d)
 
     def to_yaml(self, path: str | Path) -> None:

@@ -15,6 +15,7 @@ import csv
 import io
 import itertools
 import math
+import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -188,7 +189,8 @@ def evaluate(
     model.eval()
     rows = []
     count = len(dataset) if limit is None else min(limit, len(dataset))
-    for i in tqdm(range(count), disable=not progress, desc="eval", unit="img"):
+    bar_on = progress and sys.stderr.isatty()  # bars on a terminal only, never in logs
+    for i in tqdm(range(count), disable=not bar_on, desc="eval", unit="img"):
         item = dataset.full(i)
         has_heat = dataset.triplets[i].heat is not None
         pred = restore(model, item["blur"], item["heat"], options, work=work)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,9 @@ class TrainResult:
     losses: list[float] = field(default_factory=list)
     checkpoint: Path | None = None
     seconds: float = 0.0
+    #: ``--resume auto``: the checkpoint resumed from and the broken ones passed over.
+    resumed_from: Path | None = None
+    broken_checkpoints: tuple[Path, ...] = ()
     model: DeblurNet | None = field(default=None, repr=False)
 
 
@@ -76,6 +80,39 @@ def checkpoint_path(out_dir: str | Path, name: str = "last") -> Path:
 
 
 RUN_FILES = ("config.yaml", "train_log.csv", "checkpoints", "tensorboard", "summary.json")
+
+
+def check_training_size(config: RunConfig) -> None:
+    """Refuse absurd network widths/depths, batches and crops before anything is allocated
+    (:func:`blurtrack.io.bounds.check_training_size`: above half of this machine's memory)."""
+    from blurtrack.io import bounds
+
+    kw = config.model.resolved_kwargs()
+    c, r = kw.get("base_channels", 32), kw.get("num_res", 8)
+    if isinstance(c, int) and isinstance(r, int) and c > 0 and r >= 0:  # else the net refuses
+        bounds.check_training_size(c, r, config.train.batch_size, config.data.crop)
+
+
+def _auto_resume(out_dir: Path) -> tuple[Path | None, dict | None, tuple[Path, ...]]:
+    """``--resume auto``: the newest complete checkpoint of ``out_dir`` (``last.pt``, else the
+    newest ``step_*.pt``), its state, and the broken ones passed over (zero-byte, truncated,
+    undecodable). No checkpoint at all: ``(None, None, ())``; only broken ones: refused."""
+    folder = checkpoint_path(out_dir).parent
+    candidates = [checkpoint_path(out_dir), *sorted(folder.glob("step_*.pt"), reverse=True)]
+    broken: list[Path] = []
+    for path in candidates:
+        if not path.is_file():
+            continue
+        try:
+            return path, load_checkpoint(path), tuple(broken)
+        except CheckpointError:
+            broken.append(path)
+    if broken:
+        raise CheckpointError(
+            f"--resume auto: no complete checkpoint in {folder} ({len(broken)} zero-byte, "
+            "truncated or undecodable); --force starts over"
+        )
+    return None, None, ()
 
 
 def _refuse_existing_run(out_dir: Path) -> None:
@@ -129,6 +166,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
 
     if resume is None and not force and rank == 0:
         _refuse_existing_run(out_dir)
+    check_training_size(config)
     torch.manual_seed(tc.seed)
     model = build_model(config.model.name, config.model.preset, **config.model.kwargs)
     if tc.init_from is not None:
@@ -159,10 +197,12 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
     scheduler = build_scheduler(optimizer, tc)
 
     start = 0
+    broken: tuple[Path, ...] = ()
+    state = None
     if resume == "auto":
-        resume = checkpoint_path(out_dir) if checkpoint_path(out_dir).is_file() else None
+        resume, state, broken = _auto_resume(out_dir)
     if resume is not None:
-        state = load_checkpoint(resume)
+        state = load_checkpoint(resume) if state is None else state
         if state["config"].get("model") != config.model.to_dict():
             raise CheckpointError(
                 f"{resume}: checkpoint was trained with model "
@@ -230,7 +270,7 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
     bar = tqdm(
         total=tc.steps,
         initial=start,
-        disable=not tc.progress or rank != 0,
+        disable=not tc.progress or rank != 0 or not sys.stderr.isatty(),  # terminals only
         desc=f"train {config.model.name}",
         unit="step",
         dynamic_ncols=True,
@@ -296,4 +336,6 @@ def train(config: RunConfig, resume: str | Path | None = None, force: bool = Fal
         checkpoint=last_ckpt,
         seconds=time.perf_counter() - t0,
         model=model,
+        resumed_from=None if resume is None else Path(resume),
+        broken_checkpoints=broken,
     )

@@ -191,10 +191,19 @@ def quiet_stdout() -> None:
 
 def run_command(program: str, args: argparse.Namespace) -> int:
     """Run a parsed command and turn its failures into exit codes, for ``blurtrack`` and
-    ``gamd`` alike: a :class:`BlurTrackError` or a missing optional package is one line on
-    stderr and exit 2, Ctrl-C exit 130, a closed stdout pipe (``| head``) a quiet 141."""
+    ``gamd`` alike: a :class:`BlurTrackError`, a disk that cannot take a write or a missing
+    optional package is one line on stderr and exit 2 (Python warnings met on the way are
+    dropped; after a success they are shown), Ctrl-C exit 130, a closed stdout pipe
+    (``| head``) a quiet 141."""
+    import warnings
+
     try:
-        code = int(args.func(args) or 0)
+        # Python warnings (numpy RuntimeWarnings, torch's) are held back while the command
+        # runs: shown after a success, dropped after a failure, whose stderr is one line.
+        with warnings.catch_warnings(record=True) as held:
+            code = int(args.func(args) or 0)
+        for w in held:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         sys.stdout.flush()  # a closed pipe (``| head``) shows here, not at interpreter exit
         return code
     except BrokenPipeError:
@@ -202,6 +211,14 @@ def run_command(program: str, args: argparse.Namespace) -> int:
         return 141  # 128 + SIGPIPE, as for any pipeline writer whose reader went away
     except BlurTrackError as exc:
         print(f"{program} {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a disk that cannot take a write, met outside the atomic writer
+        from blurtrack.io.atomic import DISK_ERRNOS, output_error
+
+        if exc.errno not in DISK_ERRNOS:
+            raise
+        where = exc.filename if exc.filename is not None else "the output"
+        print(f"{program} {args.command}: error: {output_error(where, exc)}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:
         message = missing_extra_message(exc)

@@ -63,13 +63,13 @@ def _step(title: str, fn: Callable[[], int]) -> None:
 def run(args: argparse.Namespace) -> int:
     from blurtrack.cli import main as bt
     from blurtrack.errors import BlurTrackError
+    from blurtrack.io.guard import check_new_folder
 
     out: Path = args.out
     data: Path = args.data
     if not data.is_dir():
         raise BlurTrackError(f"shared data not found at {data} (use --data)")
-    if out.exists() and any(out.iterdir()):
-        raise BlurTrackError(f"{out} is not empty: remove it or choose another --out")
+    check_new_folder(out, "--out")  # the one guard: not in a recording, new or empty
     out.mkdir(parents=True, exist_ok=True)
     sim = out / "sim"
     t_start = time.perf_counter()

@@ -135,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
         args.out = Path(args.session) / "streaks.parquet"
     summary_path = detect_summary_path(args.out, Path(args.session))
     check_output(args.out, force=args.force, inputs=[args.params], siblings=[summary_path.name])
+    # where the summary goes into SESSION/derived/: a real folder of the session, not a link
+    check_output(summary_path, force=True, inputs=[args.params], what="the detection summary")
     if args.overlay is not None:
         check_output(args.overlay, force=args.force, what="--overlay")
     session = load_session(args.session)

@@ -89,6 +89,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from blurtrack.io.atomic import atomic_dir
+    from blurtrack.io.bounds import check_simulate_size
     from blurtrack.io.guard import check_new_folder
     from rigs.sim.preset import SimPreset, get_preset
     from rigs.sim.rig import SimRig
@@ -107,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if changes:
         preset = preset.replace(**changes)
     out = check_new_folder(args.out)
+    check_simulate_size(preset.width, preset.height, args.workers)
     rig: SimRig
     if args.target == "natural":
         from rigs.sim.natural import NaturalRig

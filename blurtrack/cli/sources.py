@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -54,15 +53,19 @@ def _detect_first(session: Any, path: Path, quiet: bool) -> Any:
     """Run ``blurtrack detect`` (default parameters) into the session's ``streaks.parquet``."""
     from blurtrack.cli.detect import detect_summary_path, detect_to_table
     from blurtrack.io.atomic import write_json_atomic
+    from blurtrack.io.guard import check_output
+
+    summary_path = detect_summary_path(path, session.folder)
+    check_output(path, force=True, what="the streak table")  # the guard's place checks
+    check_output(summary_path, force=True, what="the detection summary")
 
     print(
         f"no streak table at {path}: detecting the streaks first "
-        f"(as `blurtrack detect {session.folder}`)",
-        file=sys.stderr,
-    )
+        f"(as `blurtrack detect {session.folder}`)"
+    )  # stdout: stderr holds only the one line of a failure
     result = detect_to_table(session, path, quiet=quiet)
     summary = dict(result.summary, session=str(session.folder), table=str(path))
-    write_json_atomic(detect_summary_path(path, session.folder), summary)
+    write_json_atomic(summary_path, summary)
     print(
         f"detect: {result.summary['streaks']} streaks in {result.summary['frames']} frames "
         f"-> {path}"

@@ -202,7 +202,8 @@ def spec_from_args(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from blurtrack.errors import SynthesisError
     from blurtrack.io.atomic import write_json_atomic
-    from blurtrack.synth.dataset import build, parse_shard
+    from blurtrack.io.guard import check_output
+    from blurtrack.synth.dataset import build, check_synth_size, parse_shard
 
     if args.workers < 1:
         raise SynthesisError("--workers must be >= 1")
@@ -210,7 +211,15 @@ def run(args: argparse.Namespace) -> int:
         raise SynthesisError("--workers and --cluster exclude each other (local:N for N cores)")
     if args.shared_fs and args.cluster is None:
         raise SynthesisError("--shared-fs applies to --cluster builds only")
+    check_output(
+        args.out,
+        folder=True,
+        force=True,  # an earlier build of the same spec is resumed, another one refused
+        inputs=[args.calib],
+        input_folders=[args.images],
+    )
     spec = spec_from_args(args)
+    check_synth_size(spec.params, args.workers if args.cluster is None else 1)
     shard = parse_shard(args.shard)
     with Progress("synth", "triplet", args.quiet) as bar:
         if args.cluster is None:
@@ -248,6 +257,13 @@ def run(args: argparse.Namespace) -> int:
         + (f" ({rate:.2f} triplets/s)" if rate else "")
         + f" -> {args.out}"
     )
+    if result.remade_broken:
+        shown = ", ".join(str(i) for i in result.remade_broken[:10])
+        more = ", ..." if len(result.remade_broken) > 10 else ""
+        print(
+            f"synth: made {len(result.remade_broken)} finished triplet(s) again whose files were "
+            f"zero-byte, truncated or undecodable: {shown}{more}"
+        )
     if spec.params.min_blur_px:
         drawn = result.made + result.under_min_blur
         print(
@@ -264,8 +280,10 @@ def run(args: argparse.Namespace) -> int:
 
 def run_merge(args: argparse.Namespace) -> int:
     from blurtrack.io.atomic import write_json_atomic
+    from blurtrack.io.guard import check_output
     from blurtrack.synth.merge import merge
 
+    check_output(args.dataset, folder=True, force=True, input_folders=args.shards)
     summary = {"command": "synth-merge", **merge(args.dataset, args.shards, args.allow_missing)}
     write_json_atomic(Path(args.dataset) / "summary.json", summary)
     print(

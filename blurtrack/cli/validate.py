@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -32,4 +33,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  warning: {w}")
     for e in rep.errors:
         print(f"  error: {e}")
+    if not rep.ok:  # the one line on stderr of every command that fails
+        print(
+            f"blurtrack validate: {len(rep.errors)} error(s) in {args.session} (listed on stdout)",
+            file=sys.stderr,
+        )
     return 0 if rep.ok else 1

@@ -42,11 +42,23 @@ class OutputError(BlurTrackError, OSError):
 def output_error(path: str | os.PathLike[str], exc: OSError, what: str = "write") -> OutputError:
     """One-line :class:`OutputError` for an ``OSError`` met while writing ``path``."""
     reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.errno == errno_mod.ENOSPC or (exc.errno is None and _disk_full(Path(path).parent)):
+    short = exc.errno is None and "written" in str(exc)  # numpy: "N requested and M written"
+    if exc.errno in (errno_mod.ENOSPC, errno_mod.EDQUOT) or (
+        exc.errno is None and (short or _disk_full(Path(path).parent))
+    ):
         reason = "no space left on the device"  # numpy reports short writes without errno
+    elif exc.errno == errno_mod.EFBIG:
+        reason = "no space left for it: the file size limit (ulimit -f) was reached"
+    elif exc.errno == errno_mod.EROFS:
+        reason = "the file system is read-only"
     err = OutputError(f"cannot {what} {os.fsdecode(path)!r}: {reason}")
     err.errno = exc.errno
     return err
+
+
+#: ``errno`` values only a write meets: a full disk, a quota or file size limit, a read-only
+#: file system.
+DISK_ERRNOS = frozenset({errno_mod.ENOSPC, errno_mod.EDQUOT, errno_mod.EFBIG, errno_mod.EROFS})
 
 
 def _disk_full(folder: Path) -> bool:
@@ -151,6 +163,39 @@ def atomic_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise output_error(target, exc) from None
         raise
+    _fsync_dir(target.parent)
+
+
+@contextmanager
+def atomic_new(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a path that does not exist yet, inside a hidden temporary folder beside ``path``;
+    on a clean exit rename what the body made there (a file or a folder) to ``path``.
+
+    For writers that insist on creating their output themselves (``rosbags`` refuses an
+    existing file or folder). ``path`` must not exist (or, for a folder, be empty). On any
+    exception the temporary folder is removed; ``OSError`` becomes :class:`OutputError`.
+    """
+    import shutil
+
+    target = Path(path)
+    _make_parent(target)
+    tmp = target.with_name(temp_name(target.name, "new"))
+    try:
+        tmp.mkdir(0o777)
+    except OSError as exc:
+        raise output_error(target, exc, "create the folder") from None
+    try:
+        made = tmp / target.name
+        yield made
+        os.replace(made, target)
+    except BaseException as exc:
+        err = output_error(target, exc) if isinstance(exc, OSError) else None
+        shutil.rmtree(tmp, ignore_errors=True)
+        if err is not None and not isinstance(exc, OutputError):
+            raise err from None
+        raise
+    with suppress(OSError):
+        tmp.rmdir()
     _fsync_dir(target.parent)
 
 

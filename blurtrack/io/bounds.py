@@ -127,6 +127,17 @@ def memory_bytes() -> int:
         return 0
 
 
+def check_memory(need_bytes: float, what: str, sizes: str, hint: str) -> None:
+    """Refuse work that needs more than half of this machine's memory, before allocating it
+    (:class:`BoundsError` naming the sizes, the estimate and the bound)."""
+    have = memory_bytes()
+    if have and need_bytes > have // 2:
+        raise BoundsError(
+            f"{what}: {sizes} need about {need_bytes / 2**30:.3g} GiB, more than half of this "
+            f"machine's {have / 2**30:.1f} GiB; {hint}"
+        )
+
+
 def check_prediction_size(
     width: int, height: int, stride: int, samples: int, what: str = "predict"
 ) -> None:
@@ -139,11 +150,79 @@ def check_prediction_size(
             "per pixel"
         )
     pixels = -(-int(width) // int(stride)) * -(-int(height) // int(stride))
-    need = pixels * int(samples) * PREDICT_BYTES_PER_SAMPLE
-    have = memory_bytes()
-    if have and need > have // 2:
-        raise BoundsError(
-            f"{what}: {pixels} pixels x {samples} samples need about {need / 2**30:.1f} GiB per "
-            f"frame, more than half of this machine's {have / 2**30:.1f} GiB; raise --stride "
-            "or lower --samples"
-        )
+    check_memory(
+        pixels * int(samples) * PREDICT_BYTES_PER_SAMPLE,
+        what,
+        f"{pixels} pixels x {samples} samples per frame",
+        "raise --stride or lower --samples",
+    )
+
+
+#: Bytes ``synth`` holds per output pixel while it makes one triplet (the sharp photo in linear
+#: float, the blur accumulator, warp grids, heat maps and their PNG/npy encodings: a generous
+#: upper bound), per worker process.
+SYNTH_BYTES_PER_PIXEL = 256
+
+
+def check_synth_size(width: int, height: int, workers: int, what: str = "synth") -> None:
+    """Refuse a triplet size whose work in ``workers`` processes needs more than half of this
+    machine's memory (:data:`SYNTH_BYTES_PER_PIXEL` per pixel and worker)."""
+    pixels = int(width) * int(height)
+    check_memory(
+        pixels * SYNTH_BYTES_PER_PIXEL * max(1, int(workers)),
+        what,
+        f"{int(width)}x{int(height)} px triplets in {max(1, int(workers))} worker(s)",
+        "lower --size or --workers",
+    )
+
+
+#: Bytes ``simulate`` holds per pixel of a frame while it renders it (float64 accumulators of
+#: the exposure's sub-steps, noise and the encoded frame: a generous upper bound), per worker.
+SIMULATE_BYTES_PER_PIXEL = 64
+
+
+def check_simulate_size(width: int, height: int, workers: int, what: str = "simulate") -> None:
+    """Refuse a frame size whose rendering in ``workers`` processes needs more than half of
+    this machine's memory (:data:`SIMULATE_BYTES_PER_PIXEL` per pixel and worker)."""
+    check_memory(
+        int(width) * int(height) * SIMULATE_BYTES_PER_PIXEL * max(1, int(workers)),
+        what,
+        f"{int(width)}x{int(height)} px frames in {max(1, int(workers))} worker(s)",
+        "lower the preset's width/height or --workers",
+    )
+
+
+#: Training memory estimate of the GAMD family (gamd.nets): activations kept for the backward
+#: pass, float32, per crop pixel and base channel: the three pyramid levels carry c, 2c at 1/4
+#: of the pixels and 4c at 1/16 (1.75 c per full-resolution pixel), in about 6 maps per
+#: residual unit (Rconv and decoder stacks, conv-ReLU-conv) plus 24 for the encoder, the heat
+#: and image inputs, FFMs and decoder heads.
+TRAIN_MAPS_PER_RES_UNIT = 6
+TRAIN_MAPS_FIXED = 24
+#: Bytes per network weight while training: the weight, its gradient and Adam's two moments.
+TRAIN_BYTES_PER_WEIGHT = 16
+
+
+def training_memory_bytes(base_channels: int, num_res: int, batch: int, crop: int | None) -> int:
+    """Estimated memory (bytes) of training a GAMD-family network (see the constants above);
+    ``crop`` ``None`` (whole images): the weights only."""
+    c, r = int(base_channels), int(num_res)
+    maps = TRAIN_MAPS_PER_RES_UNIT * r + TRAIN_MAPS_FIXED
+    weights = 9 * (4 * c) ** 2 * maps  # 3x3 convolutions at the widest level bound the rest
+    need = weights * TRAIN_BYTES_PER_WEIGHT
+    if crop is not None:
+        need += int(batch) * int(crop) ** 2 * c * 7 // 4 * maps * 4
+    return need
+
+
+def check_training_size(
+    base_channels: int, num_res: int, batch: int, crop: int | None, what: str = "gamd train"
+) -> None:
+    """Refuse a network width/depth, batch and crop whose training needs more than half of this
+    machine's memory (:func:`training_memory_bytes`), before the network is built."""
+    check_memory(
+        training_memory_bytes(base_channels, num_res, batch, crop),
+        what,
+        f"base_channels {base_channels}, num_res {num_res}, batch {batch}, crop {crop}",
+        "lower model base_channels/num_res or data.crop/train.batch_size",
+    )

@@ -122,8 +122,19 @@ def export_rosbag(
     """
     if stamp not in ("start", "middle"):
         raise ExportError(f"stamp must be 'start' or 'middle', got {stamp!r}")
+    from blurtrack.io.atomic import atomic_new
+
     out = Path(out)
-    writer, ts, serialize = _writer(out, ros2, storage)
+    if out.exists():
+        raise ExportError(f"refusing to overwrite {out}")
+    with atomic_new(out) as part:  # a full disk or Ctrl-C leaves no half bag at ``out``
+        return _export(session, out, part, ros2, storage, stamp, progress)
+
+
+def _export(
+    session: Session, out: Path, part: Path, ros2: bool, storage: str, stamp: str, progress: Any
+) -> dict[str, Any]:
+    writer, ts, serialize = _writer(part, ros2, storage)
     cam = session.meta.camera
     img_type, imu_type = "sensor_msgs/msg/Image", "sensor_msgs/msg/Imu"
     offsets = np.zeros(len(session.frames), np.int64)

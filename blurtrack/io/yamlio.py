@@ -27,8 +27,19 @@ def read_yaml(path: str | Path, what: str = "YAML file") -> Any:
         with p.open("r", encoding="utf-8") as f:
             return yaml.load(f, Loader=_LOADER)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"{what} {p} is not valid YAML: {first}") from None
+        raise ConfigError(f"{what} {p} is not valid YAML: {yaml_error_line(exc)}") from None
+
+
+def yaml_error_line(exc: BaseException) -> str:
+    """A YAML parser's error in one line: its problem and where (PyYAML's own message spans
+    several lines with a source excerpt and a ``^`` marker, which must not reach stderr)."""
+    problem = getattr(exc, "problem", None)
+    mark = getattr(exc, "problem_mark", None)
+    if problem:
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        return f"{problem}{where}"
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def write_yaml(path: str | Path, data: Any) -> None:

@@ -13,8 +13,9 @@ Triplet ``i`` is fully determined by ``(spec, i)``: its image is ``images[perm[i
 seeded permutation, its randomness comes from ``SeedSequence([seed, i])``. Files are written to a
 hidden temporary name and renamed into place, and the manifest line is appended (and fsynced)
 only after all files are in place, so a killed build leaves only finished triplets under
-final names; a rerun skips every triplet whose manifest line and files exist
-(:mod:`blurtrack.synth.store`). Shard ``I/N`` builds the indices ``i % N == I`` into
+final names; a rerun skips every triplet whose manifest line and files exist and are complete
+(zero-byte, truncated or undecodable files are made again and reported;
+:mod:`blurtrack.synth.store`). Shard ``I/N`` builds the indices ``i % N == I`` into
 ``manifest-shardI.jsonl``; shards are combined by :func:`blurtrack.synth.merge.merge`. The
 same build runs on a Dask cluster through :mod:`blurtrack.synth.cluster`, which shares
 :func:`open_build` and :class:`Renderer` with this module.
@@ -203,6 +204,8 @@ def write_files(root: Path, files: dict[str, bytes | np.ndarray], tag: str) -> N
     for rel, data in files.items():
         try:
             write_atomic(root / rel, data, tag)
+        except BlurTrackError:
+            raise  # the atomic writer's one line (OutputError) names the path and the reason
         except OSError as exc:
             raise SynthesisError(f"cannot write {root / rel}: {exc.strerror or exc}") from None
 
@@ -240,6 +243,8 @@ class BuildResult:
     under_min_blur: int = 0
     under_min_blur_total: int = 0
     min_blur_px: float = 0.0
+    #: Finished triplets whose files were zero-byte, truncated or undecodable: made again.
+    remade_broken: tuple[int, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         rate = self.made / self.elapsed_s if self.elapsed_s > 0 else None
@@ -255,6 +260,7 @@ class BuildResult:
             "manifest": self.manifest.name,
             "bezier_fit_within_0.5px_min": self.fit_share_min,
             "bezier_fit_within_0.5px_mean": self.fit_share_mean,
+            "remade_broken": list(self.remade_broken),
         }
 
 
@@ -295,6 +301,7 @@ class BuildRun:
     fits: list[float] = field(default_factory=list)
     under: int = 0
     under_before: int = 0
+    broken: tuple[int, ...] = ()
 
     def start(self) -> None:
         """Report the work about to start (``progress(0, jobs left)``)."""
@@ -321,6 +328,7 @@ class BuildRun:
             self.under,
             self.under_before + self.under,
             float(self.spec.params.min_blur_px),
+            self.broken,
         )
 
 
@@ -356,12 +364,14 @@ def open_build(
         mine = [j for j in plan(spec, images, source.tag) if j.index % n == k]
         manifest = root / name
         records = {**read_manifest(root / "manifest.jsonl"), **read_manifest(manifest, True)}
-        done = finished(root, records, spec.count, spec.group, spec.extras)
+        broken: set[int] = set()
+        done = finished(root, records, spec.count, spec.group, spec.extras, broken)
         todo = [j for j in mine if j.index not in done]
         tag = f"s{k}of{n}"
         remove_temporaries(root, tag)  # this shard's leftovers of a killed run
         writer = ManifestWriter(manifest)
         run = BuildRun(spec, root, tag, identity, mine, todo, manifest, progress, writer, t0)
+        run.broken = tuple(sorted(j.index for j in mine if j.index in broken))
         run.under_before = sum(
             int(records[j.index].get("draws_under_min_blur", 0)) for j in mine if j.index in done
         )
@@ -387,6 +397,7 @@ def build(
     check_png_level(png_level)
     if not 1 <= workers <= MAX_WORKERS:
         raise SynthesisError(f"workers must be in [1, {MAX_WORKERS}], got {workers}")
+    check_synth_size(spec.params, workers)
     with open_build(spec, out, shard, progress) as run:
         run.start()
         if workers <= 1 or len(run.todo) <= 1:
@@ -408,6 +419,18 @@ def build(
                 for rec in pool.imap_unordered(_work, run.todo):
                     run.record(rec)
     return run.result()
+
+
+def check_synth_size(params: TripletParams, workers: int) -> None:
+    """Refuse triplet sizes and heat-map sampling whose work would need more than half of this
+    machine's memory, before anything is allocated (:mod:`blurtrack.io.bounds`)."""
+    from blurtrack.io import bounds
+
+    w, h = params.size
+    if w < 1 or h < 1:
+        raise SynthesisError(f"--size must be positive, got {w}x{h}")
+    bounds.check_synth_size(w, h, workers)
+    bounds.check_prediction_size(w, h, max(1, params.heat_stride), params.heat_n_t, "synth")
 
 
 def check_png_level(level: int) -> None:

@@ -120,11 +120,52 @@ def expected_files(rec: dict[str, Any], count: int, group: int, extras: bool) ->
     return {k: f"{split}/{name}/{k}/{stem}{ext}" for k, ext in kinds}
 
 
+#: The last 12 bytes of every complete PNG: the empty IEND chunk and its CRC.
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def intact(path: Path) -> bool:
+    """Whether a dataset file is complete: a PNG with its signature and its final IEND chunk,
+    an ``.npy`` whose header parses and whose size is exactly header plus data. Zero-byte,
+    truncated and undecodable files are not (read: the header and the last bytes only)."""
+    try:
+        size = os.stat(path).st_size
+        if size == 0:
+            return False
+        with open(path, "rb") as f:
+            if path.suffix == ".png":
+                head = f.read(8)
+                f.seek(max(0, size - 12))
+                return head == _PNG_SIGNATURE and f.read(12) == _PNG_END
+            if path.suffix == ".npy":
+                major, _ = np.lib.format.read_magic(f)
+                read_header = (
+                    np.lib.format.read_array_header_1_0
+                    if major == 1
+                    else np.lib.format.read_array_header_2_0
+                )
+                shape, _, dtype = read_header(f)
+                if dtype.hasobject:
+                    return False
+                return size == f.tell() + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    except (OSError, ValueError, TypeError, SyntaxError):
+        return False
+    return True
+
+
 def finished(
-    root: Path, records: dict[int, dict[str, Any]], count: int, group: int, extras: bool
+    root: Path,
+    records: dict[int, dict[str, Any]],
+    count: int,
+    group: int,
+    extras: bool,
+    broken: set[int] | None = None,
 ) -> set[int]:
     """Indices whose record names exactly its own files and whose files exist in ``root`` as
-    plain files (not links) in folders that resolve inside ``root``."""
+    plain files (not links) in folders that resolve inside ``root``, each complete
+    (:func:`intact`). Records whose files exist but are not all complete (zero-byte, truncated,
+    undecodable) are added to ``broken`` when given: their triplets are made again."""
     base = root.resolve()
     dir_inside: dict[str, bool] = {}
 
@@ -141,7 +182,10 @@ def finished(
     for i, rec in records.items():
         want = expected_files(rec, count, group, extras)
         if want and rec.get("files") == want and all(plain_file(r) for r in want.values()):
-            done.add(i)
+            if all(intact(root / r) for r in want.values()):
+                done.add(i)
+            elif broken is not None:
+                broken.add(i)
     return done
 
 
@@ -150,13 +194,22 @@ def _flock(path: Path, shared: bool, root: Path) -> int:
     try:
         fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
     except OSError as exc:
+        try:
+            text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+        except OSError:
+            text = ""
         os.close(fd)
         if exc.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+            who = f" (pid {text})" if text.isdigit() else ""
             raise SynthesisError(
-                f"{root} is in use by another synth or synth-merge run; wait for it to end "
-                f"(a killed run releases it) or use another --out"
+                f"{root} is being written by another run{who} (synth or synth-merge); wait for "
+                "it to end (a killed run releases it) or use another --out"
             ) from None
         raise SynthesisError(f"cannot lock {path}: {exc.strerror}") from None
+    if not shared:  # the owner's pid, for the message of a run refused
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     return fd
 
 
@@ -170,7 +223,10 @@ def dataset_lock(root: Path, manifest: str | None = None) -> Iterator[None]:
             fds.append(_flock(root / f".{manifest}.lock", False, root))
         yield
     finally:
-        for fd in fds:
+        for k, fd in enumerate(fds):
+            if k > 0 or manifest is None:  # an exclusive lock: clear its owner's pid
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, 0)
             os.close(fd)
 
 

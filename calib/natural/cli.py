@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -108,8 +107,7 @@ def laser_axes(
     if streaks.mid is None:
         print(
             "warning: the streak table has no time midpoints: axis search skipped, "
-            "session.yaml's T_cam_imu kept",
-            file=sys.stderr,
+            "session.yaml's T_cam_imu kept"
         )
         return None, initial
     from calib.axes.laser import search_axes_laser

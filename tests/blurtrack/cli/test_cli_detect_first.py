@@ -50,12 +50,12 @@ def test_report_detects_first_and_says_so(
     argv = ["report", str(session), "--calib", str(calib), "--out", str(out), "--overlays", "1"]
     assert main(argv) == 0
     cap = capsys.readouterr()
-    assert "no streak table" in cap.err and "detecting" in cap.err
+    assert "no streak table" in cap.out and "detecting" in cap.out
     assert (session / "streaks.parquet").is_file()
     assert (out / "report.html").is_file()
     # a second report reads the table it left behind, without detecting again
     assert main([*argv, "--overlays", "0", "--force"]) == 0
-    assert "detecting" not in capsys.readouterr().err
+    assert "detecting" not in capsys.readouterr().out
 
 
 def test_explicit_missing_table_is_one_line_error(

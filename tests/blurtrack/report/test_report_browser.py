@@ -8,6 +8,7 @@ itself when it runs as root with apt-get), driven by the ``playwright`` package 
 
 from __future__ import annotations
 
+import html.parser
 import os
 import shutil
 import subprocess
@@ -83,3 +84,103 @@ def test_report_in_headless_chromium(built_report: dict[str, Any], tmp_path: Pat
     external = [u for u in requests if u != page_path.as_uri() and not u.startswith("data:")]
     assert not external, f"network requests: {external}"
     assert shot.stat().st_size > 50_000
+
+
+#: Where Debian's package puts the browser; PATH is searched too.
+CHROMIUM = "/usr/bin/chromium"
+
+
+def _chromium_or_skip() -> str:
+    path = CHROMIUM if os.access(CHROMIUM, os.X_OK) else shutil.which("chromium")
+    if path is None:
+        pytest.skip(f"chromium is not installed ({CHROMIUM} absent, none on PATH)")
+    return path
+
+
+def _headless(exe: str, *args: str) -> subprocess.CompletedProcess[str]:
+    base = [exe, "--headless", "--disable-gpu", "--no-sandbox", "--hide-scrollbars"]
+    return subprocess.run([*base, *args], capture_output=True, text=True, timeout=180, check=False)
+
+
+class _Images(html.parser.HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.srcs: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        if tag == "img":
+            self.srcs.append(dict(attrs).get("src") or "")
+
+
+def _decodes(data: bytes) -> bool:
+    import cv2
+    import numpy as np
+
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) is not None
+
+
+def test_report_screenshot_with_the_chromium_command(tmp_path: Path) -> None:
+    """``blurtrack report`` on a small simulated session, rendered by the plain Chromium
+    command (docs/report.md): the screenshot is a 1280x2000 PNG that is not blank, every
+    ``<img>`` source resolves (inline ``data:`` or a file beside the page) to a decodable
+    image, and in the browser no image is broken."""
+    import base64
+    import urllib.parse
+
+    import cv2
+    import numpy as np
+
+    from blurtrack.cli import main
+    from blurtrack.io import streaks as streak_table
+    from blurtrack.io.session import load_session
+    from blurtrack.testing.mini_session import write_synthetic_session
+
+    exe = _chromium_or_skip()
+    s = tmp_path / "S"
+    write_synthetic_session(s, n_frames=6, resolution=(160, 120), grid=(5, 4), seed=3)
+    session = load_session(s)
+    streak_table.write(streak_table.from_truth(session.truth), s / "streaks.parquet")
+    calib = tmp_path / "calib.yaml"
+    session.initial_calibration().to_yaml(calib)
+    out = tmp_path / "report"
+    assert (
+        main(["report", str(s), "--calib", str(calib), "--out", str(out), "--overlays", "1"]) == 0
+    )
+    page = out / "report.html"
+
+    # every <img> source resolves, inline or as a file beside the page
+    parser = _Images()
+    parser.feed(page.read_text(encoding="utf-8"))
+    assert len(parser.srcs) >= 5
+    for src in parser.srcs:
+        if src.startswith("data:"):
+            head, _, payload = src.partition(",")
+            assert head.endswith(";base64") and _decodes(base64.b64decode(payload)), head
+        else:
+            target = out / urllib.parse.unquote(src)
+            assert target.is_file() and _decodes(target.read_bytes()), src
+
+    shot = tmp_path / "shot.png"
+    r = _headless(exe, f"--screenshot={shot}", "--window-size=1280,2000", page.as_uri())
+    assert shot.is_file(), r.stderr[-2000:]
+    img = cv2.imread(str(shot), cv2.IMREAD_GRAYSCALE)
+    assert img is not None and img.shape == (2000, 1280)
+    ink = float(np.mean(img < 200))  # text, tables, figures on a white page
+    assert img.std() > 10 and 0.01 < ink < 0.9, (img.std(), ink)
+
+    # in the browser itself: no image that failed to load or decode
+    probe = out / "probe.html"
+    script = (
+        "<script>window.addEventListener('load',()=>{const b=[...document.images].filter("
+        "i=>!(i.complete&&i.naturalWidth>0)).length;document.body.dataset.broken=b;"
+        "document.body.dataset.images=document.images.length;});</script></body>"
+    )
+    probe.write_text(page.read_text(encoding="utf-8").replace("</body>", script))
+    r = _headless(exe, "--virtual-time-budget=10000", "--dump-dom", probe.as_uri())
+    assert f'data-images="{len(parser.srcs)}"' in r.stdout, r.stdout[-500:]
+    assert 'data-broken="0"' in r.stdout, r.stdout[-500:]
+    # negative control: the same probe sees a missing image
+    broken = out / "broken.html"
+    broken.write_text(f"<html><body><img src='missing.png' alt='x'>{script}</html>")
+    r = _headless(exe, "--virtual-time-budget=10000", "--dump-dom", broken.as_uri())
+    assert 'data-broken="1"' in r.stdout, r.stdout[-500:]

@@ -62,7 +62,7 @@ def test_two_runs_on_one_dataset_do_not_both_make_it(tmp_path: Path, capsys) -> 
     def second_run(done: int, total: int) -> None:
         if done == 1 and not tried:  # while the first run holds the dataset
             for shard in ((0, 1), (0, 2), (1, 2)):
-                with pytest.raises(SynthesisError, match="in use by another synth"):
+                with pytest.raises(SynthesisError, match="being written by another run"):
                     build(spec(images), out, shard)
                 tried.append(f"{shard}")
 
@@ -79,7 +79,7 @@ def test_two_runs_on_one_dataset_do_not_both_make_it(tmp_path: Path, capsys) -> 
             tried.append("shard1")
             assert build(spec(images), sh, (1, 2)).made == 2  # the other shard: allowed
             for shard in ((0, 2), (0, 1)):
-                with pytest.raises(SynthesisError, match="in use"):
+                with pytest.raises(SynthesisError, match="being written by another run"):
                     build(spec(images), sh, shard)
 
     assert build(spec(images), sh, (0, 2), progress=during_shard0).made == 2
@@ -93,7 +93,7 @@ def test_two_runs_on_one_dataset_do_not_both_make_it(tmp_path: Path, capsys) -> 
         assert main([*argv, "--out", str(out), "--count", "4"]) == 2
         assert main(["synth-merge", str(out)]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == 2 and all("is in use by another synth" in e for e in err)
+    assert len(err) == 2 and all("is being written by another run" in e for e in err)
 
 
 def test_resume_refuses_changed_photos(tmp_path: Path, capsys) -> None:
