@@ -11,6 +11,7 @@ import yaml
 
 from blurtrack.errors import ConfigError
 from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.yamlio import yaml_error_line
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,10 @@ class DetectParams:
     def from_yaml(cls, path: str | Path) -> DetectParams:
         try:
             data = yaml.safe_load(Path(path).read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ConfigError(f"cannot read detect parameters {path}: {exc}") from exc
+        except OSError as exc:
+            raise ConfigError(f"cannot read detect parameters {path}: {exc.strerror}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(
+                f"detect parameters {path} are not valid YAML: {yaml_error_line(exc)}"
+            ) from None
         return cls.from_dict(data or {})

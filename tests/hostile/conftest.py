@@ -150,6 +150,7 @@ class World:
         import yaml
 
         from blurtrack.io import streaks as streak_table
+        from blurtrack.io.calibration import write_calibration
         from blurtrack.io.session import load_session
         from blurtrack.testing.mini_session import write_synthetic_session
 
@@ -161,7 +162,7 @@ class World:
         session = load_session(self.S)
         streak_table.write(streak_table.from_truth(session.truth), self.S / "streaks.parquet")
         self.calib = root / "calib.yaml"
-        session.initial_calibration().to_yaml(self.calib)
+        write_calibration(session.initial_calibration(), self.calib)
         rng = np.random.default_rng(0)
         self.images = root / "photos"
         for rel in ("train/a.png", "train/b.png", "test/c.png"):

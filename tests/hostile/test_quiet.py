@@ -80,6 +80,7 @@ CASES: list[tuple[str, str, str, str]] = [
     ("detect missing", "detect {T}/nope --out {T}/t.parquet", "", "not found"),
     ("detect --frames", "detect {S} --frames x:y --out {T}/t.parquet", "", "A:B"),
     ("detect garbage frame", "detect {S} --out {T}/t.parquet --workers 1", "garbage frame", ""),
+    ("detect bad params", "detect {S} --params {T}/bad.yaml --out {T}/t.pq", "bad yaml", "YAML"),
     ("detect out in cam0", "detect {S} --out {S}/cam0/t.parquet", "", "recorded"),
     ("calibrate --fit", "calibrate {S} --out {T}/c.yaml --fit fx,zoom", "", "zoom"),
     ("calibrate out in session", "calibrate {S} --out {S}/c.yaml", "", "inside"),

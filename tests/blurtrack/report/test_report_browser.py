@@ -132,6 +132,7 @@ def test_report_screenshot_with_the_chromium_command(tmp_path: Path) -> None:
 
     from blurtrack.cli import main
     from blurtrack.io import streaks as streak_table
+    from blurtrack.io.calibration import write_calibration
     from blurtrack.io.session import load_session
     from blurtrack.testing.mini_session import write_synthetic_session
 
@@ -141,7 +142,7 @@ def test_report_screenshot_with_the_chromium_command(tmp_path: Path) -> None:
     session = load_session(s)
     streak_table.write(streak_table.from_truth(session.truth), s / "streaks.parquet")
     calib = tmp_path / "calib.yaml"
-    session.initial_calibration().to_yaml(calib)
+    write_calibration(session.initial_calibration(), calib)
     out = tmp_path / "report"
     assert (
         main(["report", str(s), "--calib", str(calib), "--out", str(out), "--overlays", "1"]) == 0
