@@ -139,7 +139,7 @@ SPOT_FRACTION = 0.2
 SPOT_MIN_PX = 20.0
 
 
-def _near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
+def near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
     """``(N,)``: an end within ``m_px`` of the border."""
     e = np.stack([a, b], axis=1)
     near = (e[..., 0] < m_px) | (e[..., 0] > W - 1 - m_px) | (e[..., 1] < m_px)
@@ -266,7 +266,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             comps,
             m,
             folded,
-            _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
             np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * sigma_c),
             p.smooth_sigma_px,
         )
@@ -276,7 +276,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
             # Every dot draws about the same curve: a spot far shorter than the local
             # consensus inside the frame is a remnant (of a chain, a blob), not a dot's streak.
             c = np.hypot(*sep.field.at(m.time_mid).T)
-            inside = ~_near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
+            inside = ~near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
             m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
             if sep.refs is not None and sep.good is not None and len(m):
                 m, _ = anchored(
@@ -286,7 +286,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
                     sat_comp,
                     comps,
                     m,
-                    _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+                    near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
                     sep.refs,
                     sep.good,
                     sep.field,
@@ -296,7 +296,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
     width = m.width_px
     flags = {
-        "clipped": _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+        "clipped": near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
         "saturated": m.saturated,
         "crossing": m.crossing,
         "merged": np.isfinite(width) & (width > MERGED_WIDTH * sigma_c),

@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, _near_border
+from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, near_border
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.separation.separate import _mosaic, _overlaps
+from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaic
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import assess
 
@@ -93,13 +93,13 @@ def _measure_once(
     clip: bool,
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
     """Per placement index, its streak measured on the mosaic of ``flat`` (the placements,
-    hairpins as their two arms ``arm_of``; :func:`_mosaic` with ``clip``), frame coordinates,
-    placements not measured whole absent; and the cross-section sigmas used."""
+    hairpins as their two arms ``arm_of``; :func:`placement_mosaic` with ``clip``), frame
+    coordinates, placements not measured whole absent; and the cross-section sigmas used."""
     sig_s, sig_r, smooth_sigma = sig
     pad = int(np.ceil(6.0 * sig_s)) + 8
-    mos_s, mos_r, lines, back = _mosaic(prep.smooth, prep.signal, flat, pad, clip)
+    mos_s, mos_r, lines, back = placement_mosaic(prep.smooth, prep.signal, flat, pad, clip)
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
-    whole_cross = _overlaps(placements)
+    whole_cross = overlapping_placements(placements)
     cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
     ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
     m = measure_lines(
@@ -235,7 +235,7 @@ def as_streaks(
     else:
         n_new = len(m)
         flags = {
-            "clipped": _near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            "clipped": near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
             "saturated": m.saturated,
             "crossing": m.crossing,
             "merged": np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * fs.sigma_c_px),

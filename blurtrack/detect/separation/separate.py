@@ -87,7 +87,7 @@ class Separation:
     good: np.ndarray | None = None
 
 
-def _overlaps(pl: list[Placement]) -> np.ndarray:
+def overlapping_placements(pl: list[Placement]) -> np.ndarray:
     """``(P,)`` bool: the placement's support shares more than :data:`OVERLAP_FRACTION` of
     its pixels with another placement's."""
     P = len(pl)
@@ -111,7 +111,7 @@ def _overlaps(pl: list[Placement]) -> np.ndarray:
     return flag
 
 
-def _mosaic(
+def placement_mosaic(
     smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int, clip: bool = False
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Each placement's own image (frame minus the other placements' templates; with
@@ -353,11 +353,11 @@ def separate(
     if not placements:
         return done(None, None)
     pad = int(np.ceil(6.0 * first.sigma_c)) + 8
-    mos_s, mos_r, lines, back = _mosaic(smooth, signal, placements, pad)
+    mos_s, mos_r, lines, back = placement_mosaic(smooth, signal, placements, pad)
     ls = LineSet(
         lines=lines,
         owner=[p.comp for p in placements],
-        crossing=_overlaps(placements).tolist(),
+        crossing=overlapping_placements(placements).tolist(),
         looped=[False] * len(placements),
     )
     m = measure_lines(
