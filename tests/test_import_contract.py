@@ -190,3 +190,33 @@ def test_no_import_cycles_function_level_imports_included() -> None:
     assert cycles(module_graph(FIRST_PARTY)) == []
     # negative control: the checker sees a loop closed by a function-level import
     assert cycles({"calib.a": {"calib.b"}, "calib.b": {"calib.a"}}) == [["calib.a", "calib.b"]]
+
+
+def private_imports(path: Path) -> list[str]:
+    """``module._name`` for every private name ``path`` imports from a first-party module
+    (lazy imports included): a helper used across modules is public and named."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            if node.module.split(".")[0] not in FIRST_PARTY:
+                continue
+            found += [
+                f"{node.module}.{a.name}"
+                for a in node.names
+                if a.name.startswith("_") and not a.name.startswith("__")
+            ]
+    return found
+
+
+def test_no_private_name_is_imported_across_library_modules(tmp_path: Path) -> None:
+    """docs/conventions.md: what another module needs is public (tests may reach inside)."""
+    hits = {
+        str(p.relative_to(REPO)): private_imports(p)
+        for pkg in FIRST_PARTY
+        for p in sorted((REPO / pkg).rglob("*.py"))
+    }
+    assert {k: v for k, v in hits.items() if v} == {}
+    # negative control: a lazy import of a private helper is seen
+    bad = tmp_path / "m.py"
+    bad.write_text("def f():\n    from calib.fitcore import _helper\n    return _helper\n")
+    assert private_imports(bad) == ["calib.fitcore._helper"]
