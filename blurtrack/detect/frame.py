@@ -62,6 +62,9 @@ class FrameStreaks:
     #: Point light or extended source, light beyond the ends (:mod:`blurtrack.detect.trust`),
     #: measured on the frame's image; None: not measured (every streak ``undetermined``).
     evidence: Evidence | None = None
+    #: ``(N,)`` the streaks the gyro-template pass measured along its predicted curve (a
+    #: hairpin as its two arms); empty: none (:mod:`blurtrack.detect.gyro.gyrotrust`).
+    along_curve: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])

@@ -33,6 +33,12 @@ class SourceParams:
     - ``end_light_max``: light beyond an end (a cross-section integral 3 to 6 sigmas plus
       3 px out) above this fraction of the streak's brightness at that end means a
       neighbour's light reaches the end: the end is not trusted.
+    - ``gyro_vector_tol_px``, ``hairpin_depth_px`` (with a gyro,
+      :mod:`blurtrack.detect.gyro.gyrotrust`): the two share the contract's 2 px end gate.
+      The measured start-to-end vector may be off the frame's similarity-fitted gyro
+      prediction by three quarters of it (an end ``e`` px off moves the vector ``e``); the
+      predicted start or end may lie inside the path's extremities (a hairpin: the visible
+      ends are the turns) by the quarter left.
     """
 
     point_width_ratio: float = 1.5
@@ -40,6 +46,8 @@ class SourceParams:
     point_fill: float = 1.5
     extended_fill: float = 3.0
     end_light_max: float = 0.2
+    gyro_vector_tol_px: float = 1.5
+    hairpin_depth_px: float = 0.5
 
     def __post_init__(self) -> None:
         for f in fields(self):

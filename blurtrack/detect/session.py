@@ -14,6 +14,7 @@ import pandas as pd
 from blurtrack.allocator import keep_heap
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
@@ -240,6 +241,7 @@ def detect_session(
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
+    gyro_checked = 0
     template_pass = TemplatePass()  # empty where the pass does not run
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
@@ -301,6 +303,10 @@ def detect_session(
                 )
         if cues is None:
             cues = _gyro_llrs(found, timings, covered, model, sigma_rel)
+        if found_shift:
+            # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
+            # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
+            gyro_checked = check_frames(found, timings, covered, model, p.source)
         for k, llr in zip(covered, cues, strict=True):
             if llr is None:
                 if gyro == "on":
@@ -372,6 +378,7 @@ def detect_session(
         "quality_ok": int(table["quality_ok"].sum()),
         "source": {s: int((table["source"] == s).sum()) for s in SOURCES},
         "reasons": {r: int((table["reason"] == r).sum()) for r in REASONS},
+        "gyro_trust_frames": gyro_checked,
         "thick_saturated": int(table["thick_saturated"].sum()),
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),

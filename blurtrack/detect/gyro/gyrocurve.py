@@ -45,23 +45,31 @@ class Curves:
 
 
 def predict_curves(
-    model: Any, ref: np.ndarray, frame_t_s: float, exposure_s: float, samples: int = CURVE_SAMPLES
+    model: Any,
+    ref: np.ndarray,
+    frame_t_s: float | np.ndarray,
+    exposure_s: float | np.ndarray,
+    samples: int = CURVE_SAMPLES,
 ) -> Curves:
     """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure (one model call
-    per shutter iteration). ``model``: a :class:`blurtrack.geometry.blur_model.BlurModel`
-    covering the frame (:class:`~blurtrack.errors.CoverageError` otherwise)."""
+    per shutter iteration). ``frame_t_s``, ``exposure_s``: the frame's (or ``(N,)``, one per
+    dot: the streaks of many frames in one call). ``model``: a
+    :class:`blurtrack.geometry.blur_model.BlurModel` covering the frames
+    (:class:`~blurtrack.errors.CoverageError` otherwise)."""
     cam = model.camera
     H = float(cam.height)
     ref = np.asarray(ref, float).reshape(-1, 2)
     n = ref.shape[0]
-    tau = np.linspace(0.0, 1.0, samples)
-    row_t = frame_t_s + cam.readout_s * np.clip(ref[:, 1], 0, H - 1) / H
-    t_ref = row_t + 0.5 * exposure_s
-    t = row_t[:, None] + exposure_s * tau[None, :]
+    ft = np.broadcast_to(np.asarray(frame_t_s, float), (n,))[:, None]
+    ex = np.broadcast_to(np.asarray(exposure_s, float), (n,))[:, None]
+    tau = np.linspace(0.0, 1.0, samples)[None, :]
+    row_t = ft[:, 0] + cam.readout_s * np.clip(ref[:, 1], 0, H - 1) / H
+    t_ref = row_t + 0.5 * ex[:, 0]
+    t = row_t[:, None] + ex * tau
     pos = np.broadcast_to(ref[:, None, :], (n, samples, 2))
     for _ in range(SHUTTER_ITERATIONS + 1):
         pos = model.point_track(ref, t_ref, t)
-        t = frame_t_s + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + exposure_s * tau
+        t = ft + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + ex * tau
     return Curves(np.asarray(pos, float), ref)
 
 

@@ -261,6 +261,7 @@ def as_streaks(
         return np.concatenate([old, new[name]]) if n_new else old
 
     short = fs.short if len(fs.short) == len(fs) else np.zeros(len(fs), bool)
+    along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
     points = [fs.points[i] for i in k] + (list(new["points"]) if n_new else [])
     profile = [fs.profile[i] for i in k] + (list(new["profile"]) if n_new else [])
     threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
@@ -298,4 +299,5 @@ def as_streaks(
         short=np.concatenate([short[k], new["short"]]) if n_new else short[k],
         saturated_fraction=fs.saturated_fraction,
         evidence=evidence,
+        along_curve=np.concatenate([along[k], np.ones(n_new, bool)]) if n_new else along[k],
     )

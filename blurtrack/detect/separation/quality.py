@@ -53,6 +53,9 @@ FLAGGED_BY = ("clipped", "merged", "crossing", "looped")
 #: - ``chained``: a neighbour's light continues it beyond an end, or it is far longer than
 #:   the frame's consensus streak (two dots' streaks end to end);
 #: - ``fragment``: far shorter than the consensus (a part of a streak);
+#: - ``hairpin``: (with a gyro) the predicted path doubles back beyond its start or end, so
+#:   the visible ends are turns, not the ends (:mod:`blurtrack.detect.gyro.gyrotrust`);
+#: - ``gyro_mismatch``: (with a gyro) the start-to-end vector is off the gyro's prediction;
 #: - ``ends_unsure``: a blown-out core wider than the dot (``thick_saturated``), a shape that
 #:   is neither (a hook, a wrong end), or a source that is neither point nor extended.
 REASONS = (
@@ -64,6 +67,8 @@ REASONS = (
     "touching",
     "chained",
     "fragment",
+    "hairpin",
+    "gyro_mismatch",
     "ends_unsure",
 )
 #: Fewest unflagged streaks in a frame for a shape consensus.

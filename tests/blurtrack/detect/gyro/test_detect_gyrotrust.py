@@ -1,0 +1,139 @@
+"""The gyro's check of quality_ok ends (blurtrack.detect.gyro.gyrotrust) on exactly rendered
+frames: a shake that turns shortly before the end of the exposure draws streaks whose visible
+end is the turn, not the end (a shallow hairpin the image cannot see); a shake that does not
+turn (the negative control) keeps its quality_ok streaks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blurtrack.detect import DetectParams, detect_frame
+from blurtrack.detect.gyro.gyrocurve import predict_curves
+from blurtrack.detect.gyro.gyrotrust import apply_check, check_frame, hairpin_depth, vector_residual
+from blurtrack.detect.separation.quality import REASONS, frame_quality
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.geometry.camera import Camera
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.testing.streak_frames import quantise, render_streaks
+
+W, H = 480, 360
+F = 400.0
+T0, EXP = 0.05, 0.04
+#: The dot's excursion scale (px): x(tau) = REACH_PX sin(pi tau / (2 TURN)) over the exposure.
+REACH_PX = 24.0
+#: Issue 45's end gate (px).
+GATE_PX = 2.0
+
+
+def _model(turn: float) -> BlurModel:
+    """A rotation about y whose rate ``cos(pi tau / (2 turn))`` reaches zero at ``tau = turn``
+    of the exposure (``turn >= 1``: no reversal), no rolling shutter."""
+    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2), readout_s=0.0)
+    t = np.arange(0.0, 0.2, 1e-4)
+    tau = (t - T0) / EXP
+    wy = REACH_PX * np.pi / (2.0 * turn * F * EXP) * np.cos(np.pi * tau / (2.0 * turn))
+    omega = np.stack([0.0 * t, wy, 0.0 * t], axis=1)
+    calib = Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0)
+    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+
+
+def _depth(turn: float) -> float:
+    """Analytic depth of the end inside the turn: ``REACH (1 - sin(pi / (2 turn)))``."""
+    return REACH_PX * (1.0 - np.sin(np.pi / (2.0 * turn))) if turn < 1.0 else 0.0
+
+
+def _frame(model: BlurModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Twelve dots on a 4 x 3 grid: the image and the true starts and ends."""
+    dots = np.stack(np.meshgrid(80.0 + 100.0 * np.arange(4), 80.0 + 100.0 * np.arange(3)), -1)
+    dots = dots.reshape(-1, 2)
+    times = T0 + EXP * np.linspace(0.0, 1.0, 1200)
+    tracks = model.point_track(dots, np.full(len(dots), T0 + EXP / 2), times)
+    image = render_streaks(
+        (H, W),
+        [tracks[i] for i in range(len(dots))],
+        flux_per_px=0.6,
+        sigma_px=1.3,
+        noise=0.004,
+        seed=5,
+    )
+    return quantise(image), tracks[:, 0], tracks[:, -1]
+
+
+def _wrong(fs, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """``(N,)`` whether a detection's ends are not both within the gate of one true streak."""
+    a, b = fs.end_a[:, None], fs.end_b[:, None]
+    same = np.maximum(np.hypot(*(a - starts).T).T, np.hypot(*(b - ends).T).T)
+    swap = np.maximum(np.hypot(*(a - ends).T).T, np.hypot(*(b - starts).T).T)
+    return np.asarray(np.minimum(same, swap).min(axis=1) > GATE_PX)
+
+
+def _checked(turn: float):
+    model = _model(turn)
+    image, starts, ends = _frame(model)
+    p = DetectParams()
+    fs = detect_frame(image, p)
+    fs.quality = frame_quality(fs, p.source)
+    curves = predict_curves(model, fs.time_mid, T0, EXP, 33).pts
+    check = check_frame(fs, curves, np.asarray(fs.quality[2], bool))
+    ok, reason = apply_check(fs, check, p.source)
+    return fs, check, ok, reason, _wrong(fs, starts, ends)
+
+
+def test_hairpin_depth_of_simple_paths() -> None:
+    s = np.linspace(0.0, 1.0, 41)[:, None]
+    straight = np.hstack([10.0 * s, 2.0 * s])
+    out_back = np.hstack([np.where(s < 0.8, 12.5 * s, 10.0 - 2.5 * (s - 0.8) / 0.2), 0 * s])
+    loop = np.hstack([np.sin(np.pi * s) * 6.0, 0 * s])  # out and back to the start
+    d = hairpin_depth(np.stack([straight, out_back, loop]))
+    assert d == pytest.approx([0.0, 2.5, 0.0], abs=1e-9)
+
+
+def test_the_vector_residual_sees_an_end_off_through_a_common_similarity() -> None:
+    rng = np.random.default_rng(3)
+    p = rng.normal(0.0, 15.0, (40, 2))
+    z = 1.03 * np.exp(1j * np.deg2rad(2.0))  # the initial calibration's scale and roll
+    zm = z * (p[:, 0] + 1j * p[:, 1])
+    m = np.stack([zm.real, zm.imag], axis=1) + rng.normal(0.0, 0.15, (40, 2))
+    m[::2] *= -1.0  # orientation-free
+    m[7] += [2.5, 0.0]  # one end 2.5 px off
+    r = vector_residual(m, p, np.ones(40, bool))
+    assert r[7] > 2.0
+    assert np.all(np.delete(r, 7) < 1.0)
+    assert np.all(np.isnan(vector_residual(m[:4], p[:4], np.ones(4, bool))))
+
+
+def test_shallow_hairpins_lose_quality_ok() -> None:
+    turn = 0.75  # the dot turns at 3/4 of the exposure: its end lies inside the turn
+    fs, check, ok, reason, wrong = _checked(turn)
+    first_ok = np.asarray(fs.quality[2], bool)
+    # The image alone trusts streaks whose visible end is the turn, beyond the 2 px gate.
+    assert (first_ok & wrong).sum() >= 6
+    inside = ~fs.flags["clipped"]
+    assert np.median(check.depth[inside]) == pytest.approx(_depth(turn), abs=0.3)
+    assert not np.any(ok & wrong)
+    assert set(reason[first_ok & ~ok]) == {"hairpin"}
+    assert set(reason) <= set(REASONS)
+
+
+def test_straight_blur_keeps_its_quality_ok() -> None:
+    # Negative control: the same shake without a turn (the rate reaches zero at the end).
+    fs, check, ok, _, _ = _checked(1.0)
+    first_ok = np.asarray(fs.quality[2], bool)
+    assert first_ok.sum() >= 10
+    assert np.array_equal(ok, first_ok)
+    assert np.all(check.depth < 0.1)
+    assert np.nanmax(check.residual[first_ok]) < 1.0
+
+
+def test_streaks_measured_along_the_curve_keep_quality_ok() -> None:
+    # The gyro-template pass measured these along the predicted curve: the depth no longer
+    # says their ends are unsure.
+    fs, check, _, _, _ = _checked(0.75)
+    fs.along_curve = np.ones(len(fs), bool)
+    ok, _ = apply_check(fs, check, DetectParams().source)
+    first_ok = np.asarray(fs.quality[2], bool)
+    assert np.array_equal(
+        ok, first_ok & ~(check.residual > DetectParams().source.gyro_vector_tol_px)
+    )
