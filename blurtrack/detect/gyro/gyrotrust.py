@@ -6,15 +6,22 @@ predicts each one's start-to-end vector and the curve between
 (:func:`blurtrack.detect.gyro.gyrocurve.predict_curves`, at the streak's measured time
 midpoint). Two things follow, checked on the streaks the image found ``quality_ok``:
 
-- ``gyro_mismatch``: the measured start-to-end vector against the predicted one. The session's
-  initial calibration (focal length, ``R_cam_imu``, gyro scale) makes the prediction wrong by
-  a rotation and scale common to the frame, so a similarity ``m = z p`` is fitted robustly per
-  frame (orientation-free, over the frame's ``quality_ok`` streaks; :data:`MIN_VOTERS` at
-  least, else the frame is not checked) and the residual ``|m - z p|`` tested. The vector is
-  the difference of the two ends, so an end ``e`` px off moves it by ``e``: a residual above
-  ``source.gyro_vector_tol_px`` means an end is off by about that much. A frame whose streaks
-  are all off alike (a blur every streak shares) is absorbed by the fit: that is left to the
-  image measures.
+- ``gyro_mismatch``: the measured start-to-end vector against the predicted one, after the
+  frame's correction of the session's initial calibration, derived to first order in its
+  errors: the focal length and a roll of ``R_cam_imu`` scale and turn the predicted vector
+  (``z p``, ``z`` complex); a tilt of ``R_cam_imu`` (the rotation differs by ``d x omega``),
+  a principal point off (about the optical axis: a shift common to the frame) and the gyro's
+  time offset (the exposure's rotation differs by the rate change over it times the offset)
+  add a small rotation ``w0`` seen through the camera's motion field ``B(x)`` (the image
+  motion of a unit rotation about each camera axis at the time midpoint ``x``); the readout
+  error moves each row's window by an offset proportional to the row, so ``w1 row``. So
+  ``m = z p + B(x) (w0 + w1 row)``, 8 unknowns, fitted robustly per frame (orientation-free,
+  over the frame's ``quality_ok`` streaks; the similarity alone where fewer than
+  :data:`FIELD_VOTERS` vote, none below :data:`MIN_VOTERS`), and the residual tested. The
+  vector is the difference of the two ends, so an end ``e`` px off moves it by ``e``: a
+  residual above ``source.gyro_vector_tol_px`` means an end is off by about that much. A frame
+  whose streaks are all off alike (a blur every streak shares) is absorbed by the fit: that is
+  left to the image measures.
 - ``hairpin``: where the shake turns within the exposure, the dot's path doubles back, and the
   streak's visible extremities are its turning points, not its start and end: the depth of the
   predicted start and end inside the predicted path's extremities along the chord
@@ -49,6 +56,9 @@ from blurtrack.errors import CoverageError
 PATH_SAMPLES = 33
 #: Fewest ``quality_ok`` streaks in a frame for its similarity fit (as the shape consensus).
 MIN_VOTERS = 5
+#: Fewest voters for the frame's full correction (8 unknowns, 2 equations a streak: 4 streaks
+#: determine it; three times that, so that one bad end cannot steer it), else the similarity.
+FIELD_VOTERS = 12
 #: Robust rounds of the similarity fit, dropping residuals over 3x their median (>= 0.5 px).
 FIT_ROUNDS = 4
 #: Streaks per batched model call (bounds the temporaries: samples x streaks points).
@@ -128,21 +138,51 @@ def hairpin_depth(pts: np.ndarray) -> np.ndarray:
     return np.asarray(np.maximum(d0, d1))
 
 
-def vector_residual(m: np.ndarray, p: np.ndarray, voters: np.ndarray) -> np.ndarray:
-    """``(N,)`` ``|m - z p|`` (orientation-free: ``p``'s sign nearest ``m``) after the robust
-    similarity ``z`` fitted over ``voters``; NaN when fewer than :data:`MIN_VOTERS` vote."""
+def _correction_basis(ps: np.ndarray, mid: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """``(N, 2, 8)``: the x and y rows of the frame's correction of the predicted vectors
+    ``ps`` at time midpoints ``mid`` (camera matrix ``K``), see :func:`vector_residual`."""
+    f = float(K[0, 0])
+    x = mid[:, 0] - float(K[0, 2])
+    y = mid[:, 1] - float(K[1, 2])
+    # The image motion of a small rotation about the camera's x, y, z axes (per radian).
+    bx = np.stack([x * y / f, -(f + x * x / f), y], axis=1)
+    by = np.stack([f + y * y / f, -x * y / f, -x], axis=1)
+    row = (y / max(2.0 * float(K[1, 2]), 1.0))[:, None]  # the row, -1/2..1/2 of the frame
+    ex = np.column_stack([ps[:, 0], -ps[:, 1], bx, bx * row])
+    ey = np.column_stack([ps[:, 1], ps[:, 0], by, by * row])
+    return np.stack([ex, ey], axis=1)
+
+
+def vector_residual(
+    m: np.ndarray,
+    p: np.ndarray,
+    voters: np.ndarray,
+    mid: np.ndarray | None = None,
+    K: np.ndarray | None = None,
+) -> np.ndarray:
+    """``(N,)`` residual of the measured vectors ``m`` (orientation-free: ``p``'s sign nearest
+    ``m``) after the frame's correction of the predicted ``p``, fitted robustly over
+    ``voters``: with the time midpoints ``mid`` and camera matrix ``K`` and at least
+    :data:`FIELD_VOTERS` voters ``m = z p + B(x) (w0 + w1 row)`` (module docstring), else the
+    similarity ``m = z p``; NaN when fewer than :data:`MIN_VOTERS` vote."""
     n = m.shape[0]
     if int(voters.sum()) < MIN_VOTERS:
         return np.full(n, np.nan)
     sign = np.where(np.sum(m * p, axis=1) < 0, -1.0, 1.0)
-    zm = m[:, 0] + 1j * m[:, 1]
-    zp = (p[:, 0] + 1j * p[:, 1]) * sign
+    ps = p * sign[:, None]
+    if mid is not None and K is not None and int(voters.sum()) >= FIELD_VOTERS:
+        E = _correction_basis(ps, mid, K)
+    else:  # the similarity m = z p alone
+        E = np.stack(
+            [np.column_stack([ps[:, 0], -ps[:, 1]]), np.column_stack([ps[:, 1], ps[:, 0]])],
+            axis=1,
+        )
     use = voters.copy()
     r = np.zeros(n)
     for _ in range(FIT_ROUNDS):
-        den = float(np.sum(np.abs(zp[use]) ** 2))
-        z = complex(np.sum(np.conj(zp[use]) * zm[use])) / den if den > 0 else 1.0
-        r = np.abs(zm - z * zp)
+        A = E[use].reshape(-1, E.shape[2])
+        coef = np.linalg.lstsq(A, m[use].reshape(-1), rcond=None)[0]
+        r = np.hypot(*(m - E @ coef).T)
         cut = max(3.0 * float(np.median(r[use])), 0.5)
         new = voters & (r <= cut)
         if int(new.sum()) < MIN_VOTERS:
@@ -151,12 +191,15 @@ def vector_residual(m: np.ndarray, p: np.ndarray, voters: np.ndarray) -> np.ndar
     return np.asarray(r)
 
 
-def check_frame(fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray) -> GyroCheck:
+def check_frame(
+    fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray, K: np.ndarray | None = None
+) -> GyroCheck:
     """The :class:`GyroCheck` of one frame's streaks against their predicted ``curves``, the
-    similarity fitted over the streaks ``ok``."""
+    frame's correction fitted over the streaks ``ok`` (``K``: the camera matrix of the
+    prediction; None: a similarity only)."""
     m = fs.end_b - fs.end_a
     p = curves[:, -1] - curves[:, 0]
-    return GyroCheck(vector_residual(m, p, ok), hairpin_depth(curves))
+    return GyroCheck(vector_residual(m, p, ok, fs.time_mid, K), hairpin_depth(curves))
 
 
 def apply_check(
@@ -196,7 +239,7 @@ def check_frames(
         if c is None or fs.quality is None:
             continue
         ok0 = np.asarray(fs.quality[2], bool)
-        chk = check_frame(fs, c, ok0)
+        chk = check_frame(fs, c, ok0, np.asarray(model.camera.K, float))
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
         ok, reason = apply_check(fs, chk, p)

@@ -104,6 +104,55 @@ def test_the_vector_residual_sees_an_end_off_through_a_common_similarity() -> No
     assert np.all(np.isnan(vector_residual(m[:4], p[:4], np.ones(4, bool))))
 
 
+def _shake_model(R_cam_imu: np.ndarray, f: float, cx: float, cy: float) -> BlurModel:
+    """A strong three-axis shake (pan, tilt and roll) seen through a calibration."""
+    cam = Camera(resolution=(W, H), intrinsics=(f, f, cx, cy), readout_s=0.0)
+    t = np.arange(0.0, 0.2, 1e-4)
+    omega = np.stack([0.9 + 0.0 * t, 0.6 + 0.0 * t, 2.5 + 0.0 * t], axis=1)  # rad/s
+    calib = Calibration(camera=cam, R_cam_imu=R_cam_imu, timeshift_cam_imu_s=0.0)
+    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+
+
+def _rot(axis: np.ndarray, deg: float) -> np.ndarray:
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    th = np.deg2rad(deg)
+    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
+
+
+def test_the_vector_residual_absorbs_a_calibration_error_that_varies_over_the_frame() -> None:
+    # Truth from the model: the dots' vectors through the true calibration (m) and through an
+    # initial one whose axes are tilted 1 degree, focal length 2 % and principal point 8 px
+    # off (p). Their difference varies over the frame (roll: the vector turns with position),
+    # so one similarity leaves residuals above the tolerance on whole streaks; the frame's
+    # position-dependent correction does not. Negative control: one end moved 2.5 px.
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    true = _shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
+    init = _shake_model(_rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8)
+    m_pts = predict_curves(true, ref, T0, EXP, 9).pts
+    p_pts = predict_curves(init, ref, T0, EXP, 9).pts
+    m = m_pts[:, -1] - m_pts[:, 0]
+    p = p_pts[:, -1] - p_pts[:, 0]
+    voters = np.ones(len(m), bool)
+    tol = DetectParams().source.gyro_vector_tol_px
+    similarity = vector_residual(m, p, voters)
+    assert np.max(similarity) > tol  # the old fit rejects right streaks
+    r = vector_residual(m, p, voters, ref, init.camera.K)
+    assert np.all(r < 0.5 * tol)
+    bad = m.copy()
+    bad[11] += [0.0, 2.5]
+    r = vector_residual(bad, p, voters, ref, init.camera.K)
+    assert r[11] > tol
+    assert np.all(np.delete(r, 11) < 0.5 * tol)
+    # Fewer voters than the field needs: the similarity (the same as without midpoints).
+    few = np.zeros(len(m), bool)
+    few[:10] = True
+    assert vector_residual(m, p, few, ref, init.camera.K) == pytest.approx(
+        vector_residual(m, p, few)
+    )
+
+
 def test_shallow_hairpins_lose_quality_ok() -> None:
     turn = 0.75  # the dot turns at 3/4 of the exposure: its end lies inside the turn
     fs, check, ok, reason, wrong = _checked(turn)
