@@ -10,10 +10,14 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   the optical axis and perspective change the vector linearly across the frame, to first
   order) fitted robustly (three rounds, dropping residuals over 3 x their median) to the
   frame's unflagged streaks, each vector's sign chosen to agree with the dominant direction so
-  that a wrong start/end does not count as a shape error; NaN when fewer than
+  that a wrong start/end does not count as a shape error (and, where a strong roll turns the
+  vectors across the frame, from neighbour to neighbour and then against the fitted field,
+  whichever field more streaks agree with); NaN when fewer than
   :data:`MIN_REFERENCE` streaks can vote.
 - ``thick_saturated``: saturated and wider than :data:`THICK_WIDTH_RATIO` x the frame's dot
-  width: a blown-out core whose centre line and ends are unreliable.
+  width (the median of its unsaturated streaks', or of all where fewer than
+  :data:`MIN_REFERENCE` are unsaturated): a blown-out core whose centre line and ends are
+  unreliable.
 - ``source``: ``point``, ``extended`` or ``undetermined``, from the frame's image
   (:mod:`blurtrack.detect.trust`); a table without that evidence is ``undetermined``.
 - ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is
@@ -73,6 +77,8 @@ REASONS = (
 )
 #: Fewest unflagged streaks in a frame for a shape consensus.
 MIN_REFERENCE = 5
+#: Rounds of re-choosing each vector's sign against the fitted field (and refitting).
+RESIGN_ROUNDS = 3
 #: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
 THICK_WIDTH_RATIO = 2.0
 #: Shape tolerance of ``quality_ok``: absolute (px) and relative to the consensus length.
@@ -117,13 +123,45 @@ def _robust_affine(
     return coef, use
 
 
-def consensus_field(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> Consensus | None:
+def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.ndarray:
+    """``(N, 1)`` signs of the vectors ``v`` that make each voter agree with its nearest
+    signed voter (a minimum spanning tree over the time midpoints ``mid``, grown from the
+    first voter); the other streaks agree with their nearest voter."""
+    idx = np.flatnonzero(voters)
+    sign = np.ones(len(v))
+    d2 = np.sum((mid[idx][:, None] - mid[idx][None]) ** 2, axis=2)
+    inside = np.zeros(idx.size, bool)
+    inside[0] = True
+    best = d2[0].copy()
+    parent = np.zeros(idx.size, np.int64)
+    for _ in range(idx.size - 1):
+        k = int(np.argmin(np.where(inside, np.inf, best)))
+        inside[k] = True
+        j = idx[parent[k]]
+        sign[idx[k]] = -sign[j] if float(v[idx[k]] @ v[j]) < 0 else sign[j]
+        closer = d2[k] < best
+        parent[closer] = k
+        best = np.minimum(best, d2[k])
+    rest = np.flatnonzero(~voters)
+    if rest.size:
+        j = idx[np.argmin(np.sum((mid[rest][:, None] - mid[idx][None]) ** 2, axis=2), axis=1)]
+        sign[rest] = np.where(np.sum(v[rest] * v[j], axis=1) < 0, -sign[j], sign[j])
+    return sign[:, None]
+
+
+def consensus_field(
+    v: np.ndarray, mid: np.ndarray, voters: np.ndarray, resign: bool = False
+) -> Consensus | None:
     """The frame's consensus start-to-end vector at every streak, orientation-free.
 
     Args:
         v: ``(N, 2)`` start-to-end (or A-to-B) vectors.
         mid: ``(N, 2)`` time midpoints.
         voters: ``(N,)`` bool, the streaks that may vote.
+        resign: also start from signs propagated between neighbours and re-choose each
+            vector's sign against the fitted field (:data:`RESIGN_ROUNDS`): a strong roll
+            turns the vectors across the frame, so one axis's sign splits the field. The
+            quality flags use it; separation keeps the dominant axis's signs.
     Returns:
         The field, or None when fewer than :data:`MIN_REFERENCE` streaks vote.
     """
@@ -143,16 +181,34 @@ def consensus_field(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> Conse
     # the frame. The start whose field more voters agree with (within the tolerance) wins.
     med = np.median(vs[voters], axis=0)
     near = np.hypot(*(vs - med).T) <= 2.0 * max(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*med))
-    tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*vs.T))
+    tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*v.T))
 
-    def agreeing(coef: np.ndarray) -> int:
-        return int(np.sum(voters & (np.hypot(*(vs - X @ coef).T) <= tol)))
+    def agreeing(coef: np.ndarray) -> int:  # orientation-free
+        c = X @ coef
+        dev = np.minimum(np.hypot(*(v - c).T), np.hypot(*(v + c).T))
+        return int(np.sum(voters & (dev <= tol)))
 
-    coef, use = _robust_affine(X, vs, voters, voters)
+    starts = [(sign, voters)]
     if int(np.sum(voters & near)) >= MIN_REFERENCE:
-        coef2, use2 = _robust_affine(X, vs, voters, voters & near)
-        if agreeing(coef2) > agreeing(coef):
-            coef, use = coef2, use2
+        starts.append((sign, voters & near))
+    # A strong roll turns the vectors across the frame, so one axis's sign splits the field:
+    # (resign) a third start takes each voter's sign from its nearest signed neighbour.
+    if resign:
+        starts.append((_propagated_signs(v, mid, voters), voters))
+    best: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+    for sg, start in starts:
+        coef, use = _robust_affine(X, v * sg, voters, start)
+        for _ in range(RESIGN_ROUNDS if resign else 0):  # signs re-chosen against the field
+            new_sg = np.where(np.sum(v * (X @ coef), axis=1) < 0, -1.0, 1.0)[:, None]
+            if np.array_equal(new_sg, sg):
+                break
+            sg = new_sg
+            coef, use = _robust_affine(X, v * sg, voters, use)
+        score = agreeing(coef)
+        if best is None or score > best[0]:
+            best = (score, coef, use, sg)
+    assert best is not None
+    _, coef, use, sign = best
     c = (X @ coef) * sign
     dev_plus = np.hypot(*(v - c).T)
     dev_minus = np.hypot(*(v + c).T)
@@ -182,8 +238,11 @@ def _frame_quality(
     time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
     ``looped``), widths, sources and end light."""
     sat = flags["saturated"]
+    # The dot's width from the unsaturated streaks, where enough of them say it (a frame of
+    # saturated streaks but one or two faint ones would call every streak thick): else from
+    # all (a saturated width is measured on the clipped cross-section's flanks).
     ref_w = width[~sat & np.isfinite(width)]
-    ref_w = ref_w if ref_w.size else width[np.isfinite(width)]
+    ref_w = ref_w if ref_w.size >= MIN_REFERENCE else width[np.isfinite(width)]
     w0 = float(np.median(ref_w)) if ref_w.size else np.nan
     with np.errstate(invalid="ignore"):
         thick = sat & (width > THICK_WIDTH_RATIO * w0)
@@ -197,7 +256,7 @@ def _frame_quality(
     long_ = short = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
     # dots' curve.
-    field = consensus_field(v, mid, point & ~(flagged | thick))
+    field = consensus_field(v, mid, point & ~(flagged | thick), resign=True)
     if field is not None:
         dev = field.dev
         tol = shape_tolerance(field.c)

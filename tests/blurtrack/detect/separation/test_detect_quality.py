@@ -89,3 +89,67 @@ def test_usable_falls_back_to_flags_for_older_tables() -> None:
     assert streaks.usable(d).tolist() == [True, False, False]
     d["quality_ok"] = [False, False, True]
     assert streaks.usable(d).tolist() == [False, False, True]
+
+
+def _roll_frame(n: int = 40, seed: int = 1) -> pd.DataFrame:
+    """A strong roll about a point inside the frame: the vectors point every way (derived:
+    ``v = omega x (mid - centre)``), each start/end swapped at random."""
+    d = _frame(n, seed)
+    mid = d[["mid_x", "mid_y"]].to_numpy(float)
+    r = mid - 320.0
+    v = 0.12 * np.column_stack([-r[:, 1], r[:, 0]])
+    v[np.random.default_rng(seed).random(n) < 0.5] *= -1
+    d[["start_x", "start_y"]] = mid - v / 2
+    d[["end_x", "end_y"]] = mid + v / 2
+    return d
+
+
+def test_a_strong_roll_keeps_its_streaks_ok() -> None:
+    d = _roll_frame()
+    q = add_quality(d)
+    assert np.all(q["shape_deviation_px"].to_numpy() < 1e-6)
+    assert q.quality_ok.all()
+    # Negative control: one end 8 px off along the streak (a neighbour's light): not ok.
+    v = d.loc[7, ["end_x", "end_y"]].to_numpy(float) - d.loc[7, ["start_x", "start_y"]].to_numpy(
+        float
+    )
+    d.loc[7, ["end_x", "end_y"]] += 8.0 * v / np.hypot(*v)
+    q = add_quality(d)
+    assert not q.quality_ok[7] and q.reason[7] == "chained"
+    assert q.quality_ok.drop(index=7).all()
+
+
+def test_one_axis_signs_split_a_strong_roll() -> None:
+    # The control for the re-signing: with the dominant axis's signs only (what separation
+    # uses) the same field is not found.
+    from blurtrack.detect.separation.quality import consensus_field
+
+    d = _roll_frame()
+    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+    mid = d[["mid_x", "mid_y"]].to_numpy(float)
+    voters = np.ones(len(d), bool)
+    old = consensus_field(v, mid, voters)
+    new = consensus_field(v, mid, voters, resign=True)
+    assert old is not None and new is not None
+    assert np.max(old.dev) > 3.0 and np.max(new.dev) < 1e-6
+
+
+def test_a_saturated_frame_measures_the_dot_width_on_all_its_streaks() -> None:
+    # Every streak saturated (width measured on the flanks, 2.0) but two faint ones (1.0):
+    # two widths do not say the dot's width, so none is thick.
+    d = _frame(14)
+    d["saturated"] = True
+    d["width_px"] = 2.0
+    d.loc[[0, 1], ["saturated", "width_px"]] = [False, 1.0]
+    q = add_quality(d)
+    assert not q.thick_saturated.any() and q.quality_ok.all()
+    # Negative controls: a blown-out core twice as wide as the frame's streaks is thick; and
+    # with five unsaturated widths (1.0) to go by, every 2.1 px saturated streak is.
+    d.loc[6, "width_px"] = 5.0
+    q = add_quality(d)
+    assert q.thick_saturated[6] and q.reason[6] == "ends_unsure"
+    assert q.thick_saturated.sum() == 1
+    d.loc[[0, 1, 2, 3, 4], ["saturated", "width_px"]] = [False, 1.0]
+    d.loc[d.saturated, "width_px"] = 2.1
+    q = add_quality(d)
+    assert q.thick_saturated[d.saturated.to_numpy()].all()
