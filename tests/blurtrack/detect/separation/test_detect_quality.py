@@ -132,4 +132,3 @@ def test_one_axis_signs_split_a_strong_roll() -> None:
     new = consensus_field(v, mid, voters, resign=True)
     assert old is not None and new is not None
     assert np.max(old.dev) > 3.0 and np.max(new.dev) < 1e-6
-
