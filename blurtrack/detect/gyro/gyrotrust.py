@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -56,9 +56,15 @@ from blurtrack.errors import CoverageError
 PATH_SAMPLES = 33
 #: Fewest ``quality_ok`` streaks in a frame for its similarity fit (as the shape consensus).
 MIN_VOTERS = 5
-#: Fewest voters for the frame's full correction (8 unknowns, 2 equations a streak: 4 streaks
-#: determine it; three times that, so that one bad end cannot steer it), else the similarity.
-FIELD_VOTERS = 12
+#: The calibration parameters of the session's fit and the step of each finite difference:
+#: focal length (relative), principal point (px), ``R_cam_imu`` (rad about each axis), time
+#: offset and readout (s), gyro bias (rad/s about each axis). Each step moves a dot ~1-10 px
+#: over an exposure (f ~1000 px, rates ~1 rad/s, 10-50 ms): far above the predictions'
+#: rounding, and where the prediction is still linear (its curvature costs ~step^2).
+CALIBRATION_STEPS = {"focal": 0.01, "pp": 5.0, "axes": 0.01, "time": 1e-3, "bias": 0.01}
+#: Fewest session voters per fitted parameter (11 unknowns, 2 equations a streak: three
+#: streaks for each unknown, so that no frame's streaks alone can steer the fit).
+SESSION_VOTERS_PER_PARAMETER = 3
 #: Robust rounds of the similarity fit, dropping residuals over 3x their median (>= 0.5 px).
 FIT_ROUNDS = 4
 #: Streaks per batched model call (bounds the temporaries: samples x streaks points).
@@ -138,51 +144,21 @@ def hairpin_depth(pts: np.ndarray) -> np.ndarray:
     return np.asarray(np.maximum(d0, d1))
 
 
-def _correction_basis(ps: np.ndarray, mid: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """``(N, 2, 8)``: the x and y rows of the frame's correction of the predicted vectors
-    ``ps`` at time midpoints ``mid`` (camera matrix ``K``), see :func:`vector_residual`."""
-    f = float(K[0, 0])
-    x = mid[:, 0] - float(K[0, 2])
-    y = mid[:, 1] - float(K[1, 2])
-    # The image motion of a small rotation about the camera's x, y, z axes (per radian).
-    bx = np.stack([x * y / f, -(f + x * x / f), y], axis=1)
-    by = np.stack([f + y * y / f, -x * y / f, -x], axis=1)
-    row = (y / max(2.0 * float(K[1, 2]), 1.0))[:, None]  # the row, -1/2..1/2 of the frame
-    ex = np.column_stack([ps[:, 0], -ps[:, 1], bx, bx * row])
-    ey = np.column_stack([ps[:, 1], ps[:, 0], by, by * row])
-    return np.stack([ex, ey], axis=1)
-
-
-def vector_residual(
-    m: np.ndarray,
-    p: np.ndarray,
-    voters: np.ndarray,
-    mid: np.ndarray | None = None,
-    K: np.ndarray | None = None,
-) -> np.ndarray:
-    """``(N,)`` residual of the measured vectors ``m`` (orientation-free: ``p``'s sign nearest
-    ``m``) after the frame's correction of the predicted ``p``, fitted robustly over
-    ``voters``: with the time midpoints ``mid`` and camera matrix ``K`` and at least
-    :data:`FIELD_VOTERS` voters ``m = z p + B(x) (w0 + w1 row)`` (module docstring), else the
-    similarity ``m = z p``; NaN when fewer than :data:`MIN_VOTERS` vote."""
+def vector_residual(m: np.ndarray, p: np.ndarray, voters: np.ndarray) -> np.ndarray:
+    """``(N,)`` ``|m - z p|`` (orientation-free: ``p``'s sign nearest ``m``) after the robust
+    similarity ``z`` fitted over ``voters``; NaN when fewer than :data:`MIN_VOTERS` vote."""
     n = m.shape[0]
     if int(voters.sum()) < MIN_VOTERS:
         return np.full(n, np.nan)
     sign = np.where(np.sum(m * p, axis=1) < 0, -1.0, 1.0)
-    ps = p * sign[:, None]
-    if mid is not None and K is not None and int(voters.sum()) >= FIELD_VOTERS:
-        E = _correction_basis(ps, mid, K)
-    else:  # the similarity m = z p alone
-        E = np.stack(
-            [np.column_stack([ps[:, 0], -ps[:, 1]]), np.column_stack([ps[:, 1], ps[:, 0]])],
-            axis=1,
-        )
+    zm = m[:, 0] + 1j * m[:, 1]
+    zp = (p[:, 0] + 1j * p[:, 1]) * sign
     use = voters.copy()
     r = np.zeros(n)
     for _ in range(FIT_ROUNDS):
-        A = E[use].reshape(-1, E.shape[2])
-        coef = np.linalg.lstsq(A, m[use].reshape(-1), rcond=None)[0]
-        r = np.hypot(*(m - E @ coef).T)
+        den = float(np.sum(np.abs(zp[use]) ** 2))
+        z = complex(np.sum(np.conj(zp[use]) * zm[use])) / den if den > 0 else 1.0
+        r = np.abs(zm - z * zp)
         cut = max(3.0 * float(np.median(r[use])), 0.5)
         new = voters & (r <= cut)
         if int(new.sum()) < MIN_VOTERS:
@@ -191,15 +167,71 @@ def vector_residual(
     return np.asarray(r)
 
 
-def check_frame(
-    fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray, K: np.ndarray | None = None
-) -> GyroCheck:
+def _rotation(v: np.ndarray) -> np.ndarray:
+    """The rotation matrix of rotation vector ``v`` (rad)."""
+    th = float(np.linalg.norm(v))
+    if th == 0.0:
+        return np.eye(3)
+    a = v / th
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.asarray(np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K)
+
+
+def perturbed_models(model: Any) -> list[Any]:
+    """``model`` with each calibration parameter of :data:`CALIBRATION_STEPS` moved by its
+    step, in that order (the columns of the prediction's Jacobian)."""
+    c = model.calib
+    fx, fy, cx, cy = c.camera.intrinsics
+    bias = np.asarray(c.gyro_bias_radps, float)
+    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
+    calibs = [
+        c.with_(intrinsics=(fx * (1.0 + fs), fy * (1.0 + fs), cx, cy)),
+        c.with_(intrinsics=(fx, fy, cx + pp, cy)),
+        c.with_(intrinsics=(fx, fy, cx, cy + pp)),
+        *(c.with_(R_cam_imu=_rotation(ang * ax) @ c.R_cam_imu) for ax in np.eye(3)),
+        c.with_(timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt),
+        c.with_(readout_s=c.camera.readout_s + dt),
+        *(c.with_(gyro_bias_radps=bias + rate * ax) for ax in np.eye(3)),
+    ]
+    # The model's gyro is already resampled: no second resampling.
+    return [replace(model, calib=k, gyro_upsample=1) for k in calibs]
+
+
+def session_residual(
+    m: np.ndarray, p: np.ndarray, J: np.ndarray, voters: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(N,)`` ``|m - p - J d|`` (orientation-free: ``m``'s sign nearest ``p + J d``) after the
+    calibration error ``d`` fitted robustly over ``voters`` (the first-order change of the
+    predicted vectors ``p`` with the calibration: ``J (N, 2, P)``), and ``d``. NaN residuals
+    when fewer than :data:`SESSION_VOTERS_PER_PARAMETER` x ``P`` vote."""
+    n, P = m.shape[0], J.shape[2]
+    if int(voters.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
+        return np.full(n, np.nan), np.zeros(P)
+    q = p.copy()  # the corrected prediction; each measured vector's sign is the nearer to it
+    use = voters.copy()
+    d = np.zeros(P)
+    r = np.hypot(*m.T)
+    for _ in range(FIT_ROUNDS + 1):
+        sign = np.where(np.sum(m * q, axis=1) < 0, -1.0, 1.0)
+        y = m * sign[:, None] - p
+        d = np.linalg.lstsq(J[use].reshape(-1, P), y[use].reshape(-1), rcond=None)[0]
+        q = p + J @ d
+        r = np.minimum(np.hypot(*(m - q).T), np.hypot(*(m + q).T))
+        cut = max(3.0 * float(np.median(r[use])), 0.5)
+        new = voters & (r <= cut)
+        if int(new.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
+            break
+        use = new
+    return np.asarray(r), np.asarray(d)
+
+
+def check_frame(fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray) -> GyroCheck:
     """The :class:`GyroCheck` of one frame's streaks against their predicted ``curves``, the
-    frame's correction fitted over the streaks ``ok`` (``K``: the camera matrix of the
-    prediction; None: a similarity only)."""
+    frame's similarity fitted over the streaks ``ok`` (the fallback of :func:`check_frames`
+    where the session's fit does not apply)."""
     m = fs.end_b - fs.end_a
     p = curves[:, -1] - curves[:, 0]
-    return GyroCheck(vector_residual(m, p, ok, fs.time_mid, K), hairpin_depth(curves))
+    return GyroCheck(vector_residual(m, p, ok), hairpin_depth(curves))
 
 
 def apply_check(
@@ -229,17 +261,36 @@ def check_frames(
     p: SourceParams,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
-    frames were checked (those with a prediction and enough ``quality_ok`` streaks)."""
-    sub = [frames[k] for k in covered if frames[k].quality is not None]
-    curves = predicted_curves(
-        sub, [timings[k] for k in covered if frames[k].quality is not None], model
-    )
+    frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
+    vectors are tested against the session's fit (:func:`session_residual`) where every
+    perturbed model predicts the frame, else against the frame's similarity."""
+    keep = [k for k in covered if frames[k].quality is not None]
+    sub = [frames[k] for k in keep]
+    tim = [timings[k] for k in keep]
+    curves = predicted_curves(sub, tim, model)
+    moved = [predicted_curves(sub, tim, m) for m in perturbed_models(model)]
+    joint = [c is not None and all(mv[j] is not None for mv in moved) for j, c in enumerate(curves)]
+    parts: dict[int, tuple[np.ndarray, ...]] = {}
+    for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
+        if joint[j] and c is not None and fs.quality is not None:
+            pv = c[:, -1] - c[:, 0]
+            J = np.stack([mv[j][:, -1] - mv[j][:, 0] - pv for mv in moved], axis=2)  # type: ignore[index]
+            parts[j] = (fs.end_b - fs.end_a, pv, J, np.asarray(fs.quality[2], bool))
+    session: dict[int, np.ndarray] = {}
+    if parts:
+        cat = [np.concatenate([v[i] for v in parts.values()]) for i in range(4)]
+        r, _ = session_residual(*cat)
+        if not np.all(np.isnan(r)):
+            bounds = np.cumsum([len(v[0]) for v in parts.values()])[:-1]
+            session = dict(zip(parts, np.split(r, bounds), strict=True))
     checked = 0
-    for fs, c in zip(sub, curves, strict=True):
+    for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
         if c is None or fs.quality is None:
             continue
         ok0 = np.asarray(fs.quality[2], bool)
-        chk = check_frame(fs, c, ok0, np.asarray(model.camera.K, float))
+        chk = check_frame(fs, c, ok0)
+        if j in session:
+            chk = GyroCheck(session[j], chk.depth)
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
         ok, reason = apply_check(fs, chk, p)

@@ -10,7 +10,14 @@ import pytest
 
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrotrust import apply_check, check_frame, hairpin_depth, vector_residual
+from blurtrack.detect.gyro.gyrotrust import (
+    apply_check,
+    check_frame,
+    hairpin_depth,
+    perturbed_models,
+    session_residual,
+    vector_residual,
+)
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
@@ -120,37 +127,42 @@ def _rot(axis: np.ndarray, deg: float) -> np.ndarray:
     return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
 
 
-def test_the_vector_residual_absorbs_a_calibration_error_that_varies_over_the_frame() -> None:
+def test_the_session_fit_absorbs_a_calibration_error_that_varies_over_the_frame() -> None:
     # Truth from the model: the dots' vectors through the true calibration (m) and through an
     # initial one whose axes are tilted 1 degree, focal length 2 % and principal point 8 px
-    # off (p). Their difference varies over the frame (roll: the vector turns with position),
-    # so one similarity leaves residuals above the tolerance on whole streaks; the frame's
-    # position-dependent correction does not. Negative control: one end moved 2.5 px.
+    # off (p). Their difference varies over the frame (a strong roll), so one similarity
+    # leaves residuals above the tolerance on whole streaks; the calibration's first-order
+    # fit (the Jacobian from the perturbed models) does not. Negative control: one end 2.5 px
+    # off stands out.
     gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
     ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
     true = _shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
     init = _shake_model(_rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8)
-    m_pts = predict_curves(true, ref, T0, EXP, 9).pts
-    p_pts = predict_curves(init, ref, T0, EXP, 9).pts
-    m = m_pts[:, -1] - m_pts[:, 0]
-    p = p_pts[:, -1] - p_pts[:, 0]
+
+    def vectors(model: BlurModel) -> np.ndarray:
+        pts = predict_curves(model, ref, T0, EXP, 9).pts
+        return np.asarray(pts[:, -1] - pts[:, 0])
+
+    m, p = vectors(true), vectors(init)
+    J = np.stack([vectors(k) - p for k in perturbed_models(init)], axis=2)
+    assert J.shape == (len(m), 2, 11)
     voters = np.ones(len(m), bool)
     tol = DetectParams().source.gyro_vector_tol_px
-    similarity = vector_residual(m, p, voters)
-    assert np.max(similarity) > tol  # the old fit rejects right streaks
-    r = vector_residual(m, p, voters, ref, init.camera.K)
+    assert np.max(vector_residual(m, p, voters)) > tol  # a similarity rejects right streaks
+    flip = m.copy()
+    flip[::3] *= -1.0  # orientation-free
+    r, d = session_residual(flip, p, J, voters)
     assert np.all(r < 0.5 * tol)
+    assert abs(d[0] * 0.01 - (1.0 / 1.02 - 1.0)) < 0.01  # the focal length, to first order
     bad = m.copy()
     bad[11] += [0.0, 2.5]
-    r = vector_residual(bad, p, voters, ref, init.camera.K)
+    r, _ = session_residual(bad, p, J, voters)
     assert r[11] > tol
     assert np.all(np.delete(r, 11) < 0.5 * tol)
-    # Fewer voters than the field needs: the similarity (the same as without midpoints).
+    # Too few voters for the 11 unknowns: no fit.
     few = np.zeros(len(m), bool)
-    few[:10] = True
-    assert vector_residual(m, p, few, ref, init.camera.K) == pytest.approx(
-        vector_residual(m, p, few)
-    )
+    few[:32] = True
+    assert np.all(np.isnan(session_residual(m, p, J, few)[0]))
 
 
 def test_shallow_hairpins_lose_quality_ok() -> None:
