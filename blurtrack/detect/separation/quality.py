@@ -15,7 +15,9 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   whichever field more streaks agree with); NaN when fewer than
   :data:`MIN_REFERENCE` streaks can vote.
 - ``thick_saturated``: saturated and wider than :data:`THICK_WIDTH_RATIO` x the frame's dot
-  width: a blown-out core whose centre line and ends are unreliable.
+  width (the median of its unsaturated streaks', or of all where fewer than
+  :data:`MIN_REFERENCE` are unsaturated): a blown-out core whose centre line and ends are
+  unreliable.
 - ``source``: ``point``, ``extended`` or ``undetermined``, from the frame's image
   (:mod:`blurtrack.detect.trust`); a table without that evidence is ``undetermined``.
 - ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is
@@ -236,8 +238,11 @@ def _frame_quality(
     time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
     ``looped``), widths, sources and end light."""
     sat = flags["saturated"]
+    # The dot's width from the unsaturated streaks, where enough of them say it (a frame of
+    # saturated streaks but one or two faint ones would call every streak thick): else from
+    # all (a saturated width is measured on the clipped cross-section's flanks).
     ref_w = width[~sat & np.isfinite(width)]
-    ref_w = ref_w if ref_w.size else width[np.isfinite(width)]
+    ref_w = ref_w if ref_w.size >= MIN_REFERENCE else width[np.isfinite(width)]
     w0 = float(np.median(ref_w)) if ref_w.size else np.nan
     with np.errstate(invalid="ignore"):
         thick = sat & (width > THICK_WIDTH_RATIO * w0)

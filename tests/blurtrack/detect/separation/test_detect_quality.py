@@ -132,3 +132,24 @@ def test_one_axis_signs_split_a_strong_roll() -> None:
     new = consensus_field(v, mid, voters, resign=True)
     assert old is not None and new is not None
     assert np.max(old.dev) > 3.0 and np.max(new.dev) < 1e-6
+
+
+def test_a_saturated_frame_measures_the_dot_width_on_all_its_streaks() -> None:
+    # Every streak saturated (width measured on the flanks, 2.0) but two faint ones (1.0):
+    # two widths do not say the dot's width, so none is thick.
+    d = _frame(14)
+    d["saturated"] = True
+    d["width_px"] = 2.0
+    d.loc[[0, 1], ["saturated", "width_px"]] = [False, 1.0]
+    q = add_quality(d)
+    assert not q.thick_saturated.any() and q.quality_ok.all()
+    # Negative controls: a blown-out core twice as wide as the frame's streaks is thick; and
+    # with five unsaturated widths (1.0) to go by, every 2.1 px saturated streak is.
+    d.loc[6, "width_px"] = 5.0
+    q = add_quality(d)
+    assert q.thick_saturated[6] and q.reason[6] == "ends_unsure"
+    assert q.thick_saturated.sum() == 1
+    d.loc[[0, 1, 2, 3, 4], ["saturated", "width_px"]] = [False, 1.0]
+    d.loc[d.saturated, "width_px"] = 2.1
+    q = add_quality(d)
+    assert q.thick_saturated[d.saturated.to_numpy()].all()
