@@ -35,10 +35,10 @@ class SourceParams:
       neighbour's light reaches the end: the end is not trusted.
     - ``gyro_vector_tol_px``, ``hairpin_depth_px`` (with a gyro,
       :mod:`blurtrack.detect.gyro.gyrotrust`): the two share the contract's 2 px end gate.
-      The measured start-to-end vector may be off the frame's similarity-fitted gyro
-      prediction by three quarters of it (an end ``e`` px off moves the vector ``e``); the
-      predicted start or end may lie inside the path's extremities (a hairpin: the visible
-      ends are the turns) by the quarter left.
+      The measured start-to-end vector may be off the gyro's prediction (corrected by the
+      session's fitted first-order calibration error) by three quarters of it (an end ``e``
+      px off moves the vector ``e``); the predicted start or end may lie inside the path's
+      extremities (a hairpin: the visible ends are the turns) by the quarter left.
     """
 
     point_width_ratio: float = 1.5

@@ -7,21 +7,20 @@ predicts each one's start-to-end vector and the curve between
 midpoint). Two things follow, checked on the streaks the image found ``quality_ok``:
 
 - ``gyro_mismatch``: the measured start-to-end vector against the predicted one, after the
-  frame's correction of the session's initial calibration, derived to first order in its
-  errors: the focal length and a roll of ``R_cam_imu`` scale and turn the predicted vector
-  (``z p``, ``z`` complex); a tilt of ``R_cam_imu`` (the rotation differs by ``d x omega``),
-  a principal point off (about the optical axis: a shift common to the frame) and the gyro's
-  time offset (the exposure's rotation differs by the rate change over it times the offset)
-  add a small rotation ``w0`` seen through the camera's motion field ``B(x)`` (the image
-  motion of a unit rotation about each camera axis at the time midpoint ``x``); the readout
-  error moves each row's window by an offset proportional to the row, so ``w1 row``. So
-  ``m = z p + B(x) (w0 + w1 row)``, 8 unknowns, fitted robustly per frame (orientation-free,
-  over the frame's ``quality_ok`` streaks; the similarity alone where fewer than
-  :data:`FIELD_VOTERS` vote, none below :data:`MIN_VOTERS`), and the residual tested. The
-  vector is the difference of the two ends, so an end ``e`` px off moves it by ``e``: a
-  residual above ``source.gyro_vector_tol_px`` means an end is off by about that much. A frame
-  whose streaks are all off alike (a blur every streak shares) is absorbed by the fit: that is
-  left to the image measures.
+  session's calibration error fitted to first order: the initial calibration's focal length,
+  principal point, ``R_cam_imu`` (three angles), time offset, readout and gyro bias (three
+  rates) are the session's, the same for every frame, so the predicted vectors ``p`` of all
+  the checked frames change with them by ``J d`` (``J``: the prediction's Jacobian, by finite
+  differences over models perturbed by :data:`CALIBRATION_STEPS`; ``d``: the error). ``d`` is
+  fitted robustly, orientation-free, over the ``quality_ok`` streaks of every checked frame
+  (:func:`session_residual`; at least :data:`SESSION_VOTERS_PER_PARAMETER` per unknown) and
+  the residual ``|m - p - J d|`` tested. The vector is the difference of the two ends, so an
+  end ``e`` px off moves it by ``e``: a residual above ``source.gyro_vector_tol_px`` means an
+  end is off by about that much. Eleven unknowns for the whole session cannot absorb a bias
+  that one frame's streaks share (saturated ends 2-3 px long in one frame), which a fit per
+  frame does. Where a perturbed model does not cover a frame, or the session has too few
+  voters, the frame's own similarity ``m = z p`` (:func:`vector_residual`,
+  :data:`MIN_VOTERS` at least, else not checked) is the fallback.
 - ``hairpin``: where the shake turns within the exposure, the dot's path doubles back, and the
   streak's visible extremities are its turning points, not its start and end: the depth of the
   predicted start and end inside the predicted path's extremities along the chord
