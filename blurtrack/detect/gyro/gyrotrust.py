@@ -273,7 +273,8 @@ def check_frames(
     for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
         if joint[j] and c is not None and fs.quality is not None:
             pv = c[:, -1] - c[:, 0]
-            J = np.stack([mv[j][:, -1] - mv[j][:, 0] - pv for mv in moved], axis=2)  # type: ignore[index]
+            ends = [e for e in (mv[j] for mv in moved) if e is not None]  # all, by joint
+            J = np.stack([e[:, -1] - e[:, 0] - pv for e in ends], axis=2)
             parts[j] = (fs.end_b - fs.end_a, pv, J, np.asarray(fs.quality[2], bool))
     session: dict[int, np.ndarray] = {}
     if parts:
