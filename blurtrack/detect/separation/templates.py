@@ -42,11 +42,11 @@ class Placement:
 def finish(
     box: tuple[int, int, int, int],
     sm: np.ndarray,
-    raw: np.ndarray,
+    raw: np.ndarray | None,
     sup: np.ndarray,
     pts: np.ndarray,
 ) -> Template:
-    """A template padded by :data:`HALO_PX` of zeros, with its halo."""
+    """A template padded by :data:`HALO_PX` of zeros, with its halo (``raw`` None: zero)."""
     m = HALO_PX
     x, y, w, h = box
 
@@ -55,7 +55,8 @@ def finish(
         out[m:-m, m:-m] = a
         return out
 
-    sm, raw, sup = pad(sm), pad(raw), pad(sup)
+    sm, sup = pad(sm), pad(sup)
+    raw = np.zeros_like(sm) if raw is None else pad(raw)
     halo = cv2.dilate(sup, _HALO_DISK) - sup
     return Template(
         (x - m, y - m, w + 2 * m, h + 2 * m),
