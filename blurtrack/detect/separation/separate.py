@@ -131,12 +131,12 @@ def placement_mosaics(
 ) -> list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]]:
     """:func:`placement_mosaic` once per entry of ``clips``, the own images built once.
 
-    Each neighbour's template is warped to its sub-pixel place once, onto its own tile of
-    ``(h + 1, w + 1)`` px (as :func:`blurtrack.detect.separation.refit.refit` paints it), and
-    subtracted from every placement's own image it reaches at an integer offset: the same
-    values as warping it onto each own image's whole box (a translation's fractional part
-    and hence its interpolation weights do not depend on the integer part), at a fraction
-    of the pixels."""
+    Each neighbour's template is warped to its sub-pixel place and scaled by its amplitude
+    once, onto its own tile of ``(h + 1, w + 1)`` px (as
+    :func:`blurtrack.detect.separation.refit.refit` paints it), and subtracted from every
+    placement's own image it reaches at an integer offset: the same values as warping it
+    onto each own image's whole box (a translation's fractional part and hence its
+    interpolation weights do not depend on the integer part), at a fraction of the pixels."""
     H, W = smooth.shape
     boxes = []
     for p in pl:
@@ -168,6 +168,7 @@ def placement_mosaics(
     )
     np.fill_diagonal(meet, False)
     placed: dict[int, tuple[int, int, np.ndarray, np.ndarray]] = {}  # warped neighbour tiles
+    shifts = [(float(p.shift[0]), float(p.shift[1])) for p in pl]
     for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
         fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
         own_s = np.zeros((bh, bw), np.float32)
@@ -178,7 +179,7 @@ def placement_mosaics(
         for j in np.flatnonzero(meet[k]).tolist():
             q = pl[j]
             qx, qy, qw, qh = q.tpl.box
-            dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
+            dx, dy = qx + shifts[j][0] - ox, qy + shifts[j][1] - oy
             if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
                 continue
             if j not in placed:
@@ -190,8 +191,8 @@ def placement_mosaics(
             a1, b1 = min(u0 + t_s.shape[1], bw), min(v0 + t_s.shape[0], bh)
             if a1 <= a0 or b1 <= b0:
                 continue
-            own_s[b0:b1, a0:a1] -= q.amp * t_s[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
-            own_r[b0:b1, a0:a1] -= q.amp * t_r[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
+            own_s[b0:b1, a0:a1] -= t_s[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
+            own_r[b0:b1, a0:a1] -= t_r[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
         for clip, (mos_s, mos_r) in zip(clips, mosaics, strict=True):
             mos_s[ty : ty + bh, tx : tx + bw] = np.maximum(own_s, 0.0) if clip else own_s
             mos_r[ty : ty + bh, tx : tx + bw] = np.maximum(own_r, 0.0) if clip else own_r
@@ -201,14 +202,14 @@ def placement_mosaics(
 
 
 def _placed_tile(q: Placement) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Placement ``q``'s smoothed and raw templates (not yet times its amplitude) at its
-    sub-pixel place: the frame's integer origin ``bx, by`` of the ``(h + 1, w + 1)`` tiles."""
+    """Placement ``q``'s smoothed and raw templates times its amplitude at its sub-pixel
+    place: the frame's integer origin ``bx, by`` of the ``(h + 1, w + 1)`` tiles."""
     qx, qy, qw, qh = q.tpl.box
     X, Y = qx + q.shift[0], qy + q.shift[1]
     bx, by = int(np.floor(X)), int(np.floor(Y))
     fx, fy = X - bx, Y - by
-    t_s = warp(q.tpl.smooth, fx, fy, qw + 1, qh + 1)
-    t_r = warp(q.tpl.raw, fx, fy, qw + 1, qh + 1)
+    t_s = q.amp * warp(q.tpl.smooth, fx, fy, qw + 1, qh + 1)
+    t_r = q.amp * warp(q.tpl.raw, fx, fy, qw + 1, qh + 1)
     return bx, by, t_s, t_r
 
 
