@@ -11,6 +11,7 @@ included: a dot that slows down and turns (a hairpin) is brighter at its tip.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,8 +95,12 @@ def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> 
     cu = np.concatenate([iu, iu + 1, iu, iu + 1])
     cv = np.concatenate([iv, iv, iv + 1, iv + 1])
     k = np.concatenate([gu * gv, fu * gv, gu * fv, fu * fv]) * (1.0 / len(pts))
-    ok = (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
-    img = np.bincount(cv[ok] * w + cu[ok], k[ok], h * w).astype(np.float64, copy=False)
+    if iu.min() >= 0 and iu.max() + 1 < w and iv.min() >= 0 and iv.max() + 1 < h:
+        flat = cv * w + cu  # every corner on the grid (a template's own box): no selection
+    else:
+        ok = (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
+        flat, k = cv[ok] * w + cu[ok], k[ok]
+    img = np.bincount(flat, k, h * w).astype(np.float64, copy=False)
     img = img.reshape(h, w)
     s = float(np.sqrt(max(sigma * sigma - 1.0 / 6.0, 0.09)))
     return np.asarray(cv2.GaussianBlur(img, (0, 0), s, borderType=cv2.BORDER_CONSTANT))
@@ -116,8 +121,9 @@ def curve_template(
     itself, the coarse centre line that the measurement refines. ``with_raw=False`` leaves
     the unsmoothed image zero (a template only to be correlated: half the work)."""
     pad = int(np.ceil(3.0 * max(sigma_smooth, sigma_raw))) + 2
-    x0, y0 = (np.floor(pts.min(axis=0)).astype(int) - pad).tolist()
-    x1, y1 = (np.ceil(pts.max(axis=0)).astype(int) + pad + 1).tolist()
+    lo, hi = pts.min(axis=0).tolist(), pts.max(axis=0).tolist()
+    x0, y0 = math.floor(lo[0]) - pad, math.floor(lo[1]) - pad
+    x1, y1 = math.ceil(hi[0]) + pad + 1, math.ceil(hi[1]) + pad + 1
     w, h = x1 - x0, y1 - y0
     sm = _render(pts, sigma_smooth, x0, y0, w, h)
     sup = sm > SUPPORT_LEVEL * sm.max()
@@ -127,8 +133,9 @@ def curve_template(
     if ceiling is not None:
         # The amplitude whose clipped template still holds ``light`` (a few fixed-point steps:
         # the clipped sum is increasing and concave in the amplitude).
+        buf = np.empty_like(vals)
         for _ in range(6):
-            got = float(np.sum(np.minimum(a * vals, ceiling)))
+            got = float(np.minimum(np.multiply(a, vals, out=buf), ceiling, out=buf).sum())
             if got <= 0 or abs(got - light) < 1e-3 * light:
                 break
             a *= light / got
@@ -140,9 +147,7 @@ def curve_template(
             np.minimum(out, ceiling, out=out)
         return np.where(sup, out, 0.0).astype(np.float32)
 
-    raw = (
-        scaled(_render(pts, sigma_raw, x0, y0, w, h)) if with_raw else np.zeros((h, w), np.float32)
-    )
+    raw = scaled(_render(pts, sigma_raw, x0, y0, w, h)) if with_raw else None
     return finish((x0, y0, w, h), scaled(sm), raw, sup.astype(np.float32), np.asarray(pts, float))
 
 

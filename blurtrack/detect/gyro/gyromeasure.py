@@ -21,7 +21,7 @@ from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaic
+from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaics
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import assess
 
@@ -90,14 +90,14 @@ def _measure_once(
     arm_of: list[tuple[int, int]],
     sig: tuple[float, float, float],
     sat_comp: np.ndarray | None,
-    clip: bool,
+    mosaic: tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray],
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
-    """Per placement index, its streak measured on the mosaic of ``flat`` (the placements,
-    hairpins as their two arms ``arm_of``; :func:`placement_mosaic` with ``clip``), frame
-    coordinates, placements not measured whole absent; and the cross-section sigmas used."""
+    """Per placement index, its streak measured on ``mosaic``, the mosaic of ``flat`` (the
+    placements, hairpins as their two arms ``arm_of``;
+    :func:`~blurtrack.detect.separation.separate.placement_mosaics`), frame coordinates,
+    placements not measured whole absent; and the cross-section sigmas used."""
     sig_s, sig_r, smooth_sigma = sig
-    pad = int(np.ceil(6.0 * sig_s)) + 8
-    mos_s, mos_r, lines, back = placement_mosaic(prep.smooth, prep.signal, flat, pad, clip)
+    mos_s, mos_r, lines, back = mosaic
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
     whole_cross = overlapping_placements(placements)
     cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
@@ -171,9 +171,15 @@ def measure_placements(
             flat.append(q)
             arm_of.append((j, -1))
     sig = (sig_s, sig_r, smooth_sigma)
-    found, sigma_c, sigma_raw = _measure_once(prep, placements, flat, arm_of, sig, sat_comp, False)
+    # The plain and the clipped mosaic in one pass (the neighbours' templates warped once).
+    pad = int(np.ceil(6.0 * sig_s)) + 8
+    clips = (False, True) if CLIP_CHOICE else (False,)
+    mosaics = placement_mosaics(prep.smooth, prep.signal, flat, pad, clips)
+    found, sigma_c, sigma_raw = _measure_once(
+        prep, placements, flat, arm_of, sig, sat_comp, mosaics[0]
+    )
     if CLIP_CHOICE:
-        clipped = _measure_once(prep, placements, flat, arm_of, sig, sat_comp, True)[0]
+        clipped = _measure_once(prep, placements, flat, arm_of, sig, sat_comp, mosaics[1])[0]
         for j, c in clipped.items():
             o = found.get(j)
             s, e = placed_ends[j]

@@ -83,7 +83,7 @@ from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.refit import model_image, refit
 from blurtrack.detect.separation.separate import HALO_MAX, RESIDUAL_MAX
-from blurtrack.detect.separation.templates import HALO_PX, Placement, Template
+from blurtrack.detect.separation.templates import HALO_PX, InsideNorms, Placement, Template
 from blurtrack.errors import CoverageError
 
 #: Samples of the gate's predicted curves (odd: its middle sample is the mid-exposure one, as
@@ -142,19 +142,22 @@ def _sweep(
     comps: Components,
     comp_of_label: np.ndarray,
     frame: tuple[int, int, int, int] | None,
+    norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray]:
     """Up to :data:`SWEEPS` more pursuits of every candidate's template over the light the
     placements so far (jointly refitted) leave, each followed by the joint refit of all:
-    the placements and the residual."""
+    the placements and the residual (``norms``: the norms of
+    :func:`~blurtrack.detect.separation.templates.inside_norm2` over ``frame``,
+    remembered over the pursuits and refits of the frame)."""
     for _ in range(SWEEPS):
         if not placements:
             break
         more: list[Placement] = []
         for c, tpl in templates.items():
-            more += pursue(residual, comps, c, tpl, comp_of_label, HALO_MAX, frame)
+            more += pursue(residual, comps, c, tpl, comp_of_label, HALO_MAX, frame, norms)
         if not more:
             break
-        placements, model_img = refit(light, placements + more, frame)
+        placements, model_img = refit(light, placements + more, frame, norms)
         if model_img is not None:
             residual = np.maximum(light - model_img, 0.0)
     return placements, residual
@@ -346,24 +349,25 @@ def refine_frame(
     order = np.flatnonzero(cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     templates: dict[int, Template] = {}  # each pursued candidate's shape
+    norms = InsideNorms(in_frame)  # the sweeps pursue and refit over the same regions again
     for c in order.tolist():
         tpl, score = best_shape(light, comps_p, c, pts[c] + P, make, in_frame)
         if tpl is None or score < SHAPE_SCORE_MIN:
             continue
         tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
         templates[c] = tpl
-        placements += pursue(residual, comps_p, c, tpl, comp_of_label, HALO_MAX, in_frame)
+        placements += pursue(residual, comps_p, c, tpl, comp_of_label, HALO_MAX, in_frame, norms)
     n_cand = int(cand.sum())
     if not placements:
         return fs, FrameOutcome("refused", n_cand)
-    placements, model_img = refit(light, placements, in_frame)
+    placements, model_img = refit(light, placements, in_frame, norms)
     if model_img is not None or SWEEPS:
         # (Where the refit moved nothing the sweep starts from the placements' sub-pixel
         # templates, as the refit paints them, not the pursuit's integer ones.)
         model_img = model_image(light, placements) if model_img is None else model_img
         residual = np.maximum(light - model_img, 0.0)
     placements, residual = _sweep(
-        light, residual, placements, templates, comps_p, comp_of_label, in_frame
+        light, residual, placements, templates, comps_p, comp_of_label, in_frame, norms
     )
     vals = comps.values[pix_cand]
     res = residual[comps_p.ys[pix_cand], comps_p.xs[pix_cand]].astype(np.float64)

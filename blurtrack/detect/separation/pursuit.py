@@ -18,6 +18,7 @@ from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.templates import (
     HALO_PX,
     INSIDE_MIN,
+    InsideNorms,
     Placement,
     Template,
     inside_norm2,
@@ -60,6 +61,7 @@ def pursue(
     comp_of_label: np.ndarray,
     halo_max: float,
     frame: tuple[int, int, int, int] | None = None,
+    norms: InsideNorms | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
@@ -69,7 +71,8 @@ def pursue(
     ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.separation.templates.inside_norm2`): a placement
     reaching past the border is scored and scaled by its template's part inside the frame
     (a streak leaving the frame), and needs at least
-    :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of its template inside."""
+    :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of its template inside.
+    ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``)."""
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box
@@ -83,7 +86,9 @@ def pursue(
     out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))
     sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
-    n2 = inside_norm2(frame, (x0, y0, x1, y1), tpl.smooth)  # the same region every round
+    # The same region every round.
+    box = (x0, y0, x1, y1)
+    n2 = inside_norm2(frame, box, tpl.smooth) if norms is None else norms(box, tpl.smooth)
     for _ in range(MAX_ROUNDS):
         # The matched filter's peaks are the candidates; the normalised score and the halo
         # are evaluated at those few positions only.

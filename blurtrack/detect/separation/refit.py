@@ -20,7 +20,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blurtrack.detect.separation.templates import INSIDE_MIN, Placement, inside_norm2, warp
+from blurtrack.detect.separation.templates import (
+    INSIDE_MIN,
+    InsideNorms,
+    Placement,
+    inside_norm2,
+    warp,
+)
 
 #: Coordinate-descent rounds over the overlapping placements.
 ROUNDS = 3
@@ -108,13 +114,17 @@ def _peak(num: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 
 def refit(
-    light: np.ndarray, pl: list[Placement], frame: tuple[int, int, int, int] | None = None
+    light: np.ndarray,
+    pl: list[Placement],
+    frame: tuple[int, int, int, int] | None = None,
+    norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray | None]:
     """Coordinate descent of the placements whose templates meet another's on ``light``
     (the candidates' light, float32, frame coordinates; ``frame``: for a ``light`` padded
     with zeros beyond the frame, the frame's pixels in it, and a placement reaching past the border
     is scaled by its template's part inside, see
-    :func:`blurtrack.detect.separation.templates.inside_norm2`).
+    :func:`blurtrack.detect.separation.templates.inside_norm2`; ``norms``: those norms
+    remembered over calls, its ``frame`` being ``frame``).
 
     Returns the placements (moved and re-scaled where that fits better; the others as they
     were) and the model image ``sum amp * template`` of all of them (None when no
@@ -146,7 +156,12 @@ def refit(
             _paint(model, tiles[k], -1.0)
             rest = light[y0:y1, x0:x1] - model[y0:y1, x0:x1]
             num = cv2.matchTemplate(rest, p.tpl.smooth, cv2.TM_CCORR)
-            n2 = inside_norm2(frame, (x0, y0, x1, y1), p.tpl.smooth)
+            box = (x0, y0, x1, y1)
+            n2 = (
+                inside_norm2(frame, box, p.tpl.smooth)
+                if norms is None
+                else norms(box, p.tpl.smooth)
+            )
             pick = num if n2 is None else np.where(n2 >= INSIDE_MIN * p.tpl.norm2, num, -np.inf)
             iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(pick)), pick.shape))
             amp = float(num[iy, ix]) / (p.tpl.norm2 if n2 is None else float(n2[iy, ix]))

@@ -119,6 +119,24 @@ def placement_mosaic(
     and where the background-subtracted frame itself is below zero) tiled into one mosaic;
     returns the smoothed and raw mosaics, the placed lines in mosaic coordinates and per
     placement the offset from mosaic back to frame coordinates."""
+    return placement_mosaics(smooth, signal, pl, pad, (clip,))[0]
+
+
+def placement_mosaics(
+    smooth: np.ndarray,
+    signal: np.ndarray,
+    pl: list[Placement],
+    pad: int,
+    clips: tuple[bool, ...] = (False, True),
+) -> list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]]:
+    """:func:`placement_mosaic` once per entry of ``clips``, the own images built once.
+
+    Each neighbour's template is warped to its sub-pixel place and scaled by its amplitude
+    once, onto its own tile of ``(h + 1, w + 1)`` px (as
+    :func:`blurtrack.detect.separation.refit.refit` paints it), and subtracted from every
+    placement's own image it reaches at an integer offset: the same values as warping it
+    onto each own image's whole box (a translation's fractional part and hence its
+    interpolation weights do not depend on the integer part), at a fraction of the pixels."""
     H, W = smooth.shape
     boxes = []
     for p in pl:
@@ -134,8 +152,10 @@ def placement_mosaic(
         tiles.append((cx, cy))
         cx += b[2] + pad
         row_h = max(row_h, b[3])
-    mos_s = np.zeros((cy + row_h, width), np.float32)
-    mos_r = np.zeros_like(mos_s)
+    mosaics = [
+        (np.zeros((cy + row_h, width), np.float32), np.zeros((cy + row_h, width), np.float32))
+        for _ in clips
+    ]
     lines: list[np.ndarray] = []
     back = np.zeros((len(pl), 2))
     # Which templates reach into which placement's box (the others cannot matter there).
@@ -147,6 +167,8 @@ def placement_mosaic(
         np.maximum(org[:, None], t_org[None]) < np.minimum(end[:, None], t_end[None]), axis=2
     )
     np.fill_diagonal(meet, False)
+    placed: dict[int, tuple[int, int, np.ndarray, np.ndarray]] = {}  # warped neighbour tiles
+    shifts = [(float(p.shift[0]), float(p.shift[1])) for p in pl]
     for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
         fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
         own_s = np.zeros((bh, bw), np.float32)
@@ -157,19 +179,38 @@ def placement_mosaic(
         for j in np.flatnonzero(meet[k]).tolist():
             q = pl[j]
             qx, qy, qw, qh = q.tpl.box
-            dx, dy = qx + q.shift[0] - ox, qy + q.shift[1] - oy
+            dx, dy = qx + shifts[j][0] - ox, qy + shifts[j][1] - oy
             if dx >= bw or dy >= bh or dx + qw <= 0 or dy + qh <= 0:
                 continue
-            own_s -= q.amp * warp(q.tpl.smooth, dx, dy, bw, bh)
-            own_r -= q.amp * warp(q.tpl.raw, dx, dy, bw, bh)
-        if clip:
-            np.maximum(own_s, 0.0, out=own_s)
-            np.maximum(own_r, 0.0, out=own_r)
-        mos_s[ty : ty + bh, tx : tx + bw] = own_s
-        mos_r[ty : ty + bh, tx : tx + bw] = own_r
+            if j not in placed:
+                placed[j] = _placed_tile(q)
+            bx, by, t_s, t_r = placed[j]
+            # The tile's part inside the own image (origin ``bx - ox, by - oy`` there).
+            u0, v0 = bx - ox, by - oy
+            a0, b0 = max(u0, 0), max(v0, 0)
+            a1, b1 = min(u0 + t_s.shape[1], bw), min(v0 + t_s.shape[0], bh)
+            if a1 <= a0 or b1 <= b0:
+                continue
+            own_s[b0:b1, a0:a1] -= t_s[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
+            own_r[b0:b1, a0:a1] -= t_r[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
+        for clip, (mos_s, mos_r) in zip(clips, mosaics, strict=True):
+            mos_s[ty : ty + bh, tx : tx + bw] = np.maximum(own_s, 0.0) if clip else own_s
+            mos_r[ty : ty + bh, tx : tx + bw] = np.maximum(own_r, 0.0) if clip else own_r
         back[k] = (ox - tx, oy - ty)
         lines.append(p.tpl.points + p.shift - back[k])
-    return mos_s, mos_r, lines, back
+    return [(mos_s, mos_r, lines, back) for mos_s, mos_r in mosaics]
+
+
+def _placed_tile(q: Placement) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """Placement ``q``'s smoothed and raw templates times its amplitude at its sub-pixel
+    place: the frame's integer origin ``bx, by`` of the ``(h + 1, w + 1)`` tiles."""
+    qx, qy, qw, qh = q.tpl.box
+    X, Y = qx + q.shift[0], qy + q.shift[1]
+    bx, by = int(np.floor(X)), int(np.floor(Y))
+    fx, fy = X - bx, Y - by
+    t_s = q.amp * warp(q.tpl.smooth, fx, fy, qw + 1, qh + 1)
+    t_r = q.amp * warp(q.tpl.raw, fx, fy, qw + 1, qh + 1)
+    return bx, by, t_s, t_r
 
 
 def separate(

@@ -5,6 +5,7 @@ and scaling, and placements of them."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -42,11 +43,11 @@ class Placement:
 def finish(
     box: tuple[int, int, int, int],
     sm: np.ndarray,
-    raw: np.ndarray,
+    raw: np.ndarray | None,
     sup: np.ndarray,
     pts: np.ndarray,
 ) -> Template:
-    """A template padded by :data:`HALO_PX` of zeros, with its halo."""
+    """A template padded by :data:`HALO_PX` of zeros, with its halo (``raw`` None: zero)."""
     m = HALO_PX
     x, y, w, h = box
 
@@ -55,7 +56,8 @@ def finish(
         out[m:-m, m:-m] = a
         return out
 
-    sm, raw, sup = pad(sm), pad(raw), pad(sup)
+    sm, sup = pad(sm), pad(sup)
+    raw = np.zeros_like(sm) if raw is None else pad(raw)
     halo = cv2.dilate(sup, _HALO_DISK) - sup
     return Template(
         (x - m, y - m, w + 2 * m, h + 2 * m),
@@ -130,3 +132,25 @@ def inside_norm2(
     S[1:, 1:] = sq.cumsum(axis=0).cumsum(axis=1)
     n2 = S[np.ix_(r1, c1)] - S[np.ix_(r0, c1)] - S[np.ix_(r1, c0)] + S[np.ix_(r0, c0)]
     return np.asarray(np.maximum(n2, 0.0), np.float32)
+
+
+class InsideNorms:
+    """:func:`inside_norm2` over one padded image (``frame``), remembered per template image
+    and region: the gyro pass pursues and refits the same templates over the same regions
+    again (its sweeps; hard, 12 frames: 1 083 of 2 346 pursuits' and 3 022 of 6 675 refit
+    steps' norms were repeats)."""
+
+    def __init__(self, frame: tuple[int, int, int, int] | None) -> None:
+        self.frame = frame
+        # (id of the template image, region) -> (that image, its norms); the image is kept
+        # so that its id names it as long as the entry lives.
+        self._memo: dict[tuple[int, tuple[int, int, int, int]], tuple[np.ndarray, Any]] = {}
+
+    def __call__(self, region: tuple[int, int, int, int], sm: np.ndarray) -> np.ndarray | None:
+        """:func:`inside_norm2` ``(self.frame, region, sm)``."""
+        key = (id(sm), region)
+        hit = self._memo.get(key)
+        if hit is None or hit[0] is not sm:
+            hit = (sm, inside_norm2(self.frame, region, sm))
+            self._memo[key] = hit
+        return hit[1]
