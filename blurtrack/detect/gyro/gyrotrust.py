@@ -79,10 +79,14 @@ class GyroCheck:
 
 
 def predicted_curves(
-    frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming], model: Any
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    samples: int = PATH_SAMPLES,
 ) -> list[np.ndarray | None]:
-    """``(N, PATH_SAMPLES, 2)`` predicted curves of each frame's streaks at their time
-    midpoints (None where the gyro falls short), batched over frames."""
+    """``(N, samples, 2)`` predicted curves of each frame's streaks at their time midpoints
+    (None where the gyro falls short), batched over frames. Every sample is predicted on its
+    own, so ``samples=2`` gives the same two ends as the whole path at a fraction of the cost."""
     out: list[np.ndarray | None] = [None] * len(frames)
     todo = [k for k, fs in enumerate(frames) if len(fs)]
     start = 0
@@ -99,7 +103,7 @@ def predicted_curves(
         ft = np.concatenate([np.full(len(frames[k]), timings[k].t_s) for k in group])
         ex = np.concatenate([np.full(len(frames[k]), timings[k].exposure_s) for k in group])
         try:
-            pts = predict_curves(model, ref, ft, ex, PATH_SAMPLES).pts
+            pts = predict_curves(model, ref, ft, ex, samples).pts
         except CoverageError:
             if len(group) == 1:
                 continue
@@ -110,7 +114,7 @@ def predicted_curves(
                         frames[k].time_mid,
                         timings[k].t_s,
                         timings[k].exposure_s,
-                        PATH_SAMPLES,
+                        samples,
                     ).pts
             continue
         bounds = np.cumsum([len(frames[k]) for k in group])[:-1]
@@ -267,7 +271,8 @@ def check_frames(
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
     curves = predicted_curves(sub, tim, model)
-    moved = [predicted_curves(sub, tim, m) for m in perturbed_models(model)]
+    # the fit needs only each perturbed path's start-to-end vector: its two ends
+    moved = [predicted_curves(sub, tim, m, samples=2) for m in perturbed_models(model)]
     joint = [c is not None and all(mv[j] is not None for mv in moved) for j, c in enumerate(curves)]
     parts: dict[int, tuple[np.ndarray, ...]] = {}
     for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
