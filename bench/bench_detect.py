@@ -55,6 +55,20 @@ MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
 TRUST_GATE_PX = 2.0
 
 
+def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """``(n, m)`` px: the farther of the two ends of detections ``s, e (n, 2)`` from those of
+    true streaks ``S, E (m, 2)``, in whichever orientation fits better."""
+    same = np.maximum(
+        np.linalg.norm(s[:, None] - S[None], axis=2),
+        np.linalg.norm(e[:, None] - E[None], axis=2),
+    )
+    swap = np.maximum(
+        np.linalg.norm(s[:, None] - E[None], axis=2),
+        np.linalg.norm(e[:, None] - S[None], axis=2),
+    )
+    return np.minimum(same, swap)
+
+
 def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
     """ok-precision (share of ``quality_ok`` detections with both ends within
     :data:`TRUST_GATE_PX` of one true streak's, either orientation), ok-coverage (share of
@@ -62,7 +76,7 @@ def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
     ok = table["quality_ok"].to_numpy(bool) if "quality_ok" in table.columns else None
     n_ok = n_right = n_inside = n_covered = 0
     for fr in truth["frames"]:
-        S, E, inside, _ = _truth_arrays(fr)
+        S, E, inside, _ = truth_arrays(fr)
         n_inside += int(inside.sum())
         sel = (table["frame"] == fr["index"]).to_numpy().copy()
         if ok is not None:
@@ -73,15 +87,7 @@ def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
             continue
         s = d[["start_x", "start_y"]].to_numpy(float)
         e = d[["end_x", "end_y"]].to_numpy(float)
-        same = np.maximum(
-            np.linalg.norm(s[:, None] - S[None], axis=2),
-            np.linalg.norm(e[:, None] - E[None], axis=2),
-        )
-        swap = np.maximum(
-            np.linalg.norm(s[:, None] - E[None], axis=2),
-            np.linalg.norm(e[:, None] - S[None], axis=2),
-        )
-        hit = np.minimum(same, swap) <= TRUST_GATE_PX
+        hit = worse_end_distance(s, e, S, E) <= TRUST_GATE_PX
         n_right += int(hit.any(axis=1).sum())
         n_covered += int((hit.any(axis=0) & inside).sum())
     return {
@@ -113,7 +119,7 @@ def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
     return folder
 
 
-def _truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def truth_arrays(frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     st = frame.get("streaks") or []
     S = np.array([s["start"] for s in st], float).reshape(-1, 2)
     E = np.array([s["end"] for s in st], float).reshape(-1, 2)
@@ -150,7 +156,7 @@ def evaluate(table, truth: dict[str, Any]) -> dict[str, Any]:
     n_inside = n_found = 0
     n_det_unclipped = n_det_real = 0
     for fr in truth["frames"]:
-        S, E, inside, length = _truth_arrays(fr)
+        S, E, inside, length = truth_arrays(fr)
         d = table[table["frame"] == fr["index"]]
         s = d[["start_x", "start_y"]].to_numpy(float)
         e = d[["end_x", "end_y"]].to_numpy(float)
@@ -228,7 +234,7 @@ def speed(frames: list[np.ndarray], params: DetectParams, repeat: int) -> dict[s
     }
 
 
-def _baseline_files(paths: list[Path]) -> None:
+def baseline_files(paths: list[Path]) -> None:
     """The baseline over image files: decode, smooth, threshold, label (one core)."""
     for path in paths:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -259,7 +265,7 @@ def command_speed(
     cpu: dict[str, list[float]] = {k: [] for k in times}
     for _ in range(repeat):  # interleaved, so that machine load affects all alike
         t0, c0 = time.perf_counter(), time.process_time()
-        _baseline_files(paths)
+        baseline_files(paths)
         times["baseline"].append(time.perf_counter() - t0)
         cpu["baseline"].append(time.process_time() - c0)
         for name, (root, extra) in variants.items():

@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_detect import _truth_arrays, match  # noqa: E402
+from bench_detect import match, truth_arrays  # noqa: E402
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
@@ -149,7 +149,7 @@ def pair(
         return out
     out["corrected"] = _stats(np.linalg.norm(q[has] - true_k, axis=1))
     # Frame k's missed true inside dots, and whether a corrected seed lies on them.
-    S, E, inside, _ = _truth_arrays(frames[k])
+    S, E, inside, _ = truth_arrays(frames[k])
     a = own_k[["start_x", "start_y"]].to_numpy()
     b = own_k[["end_x", "end_y"]].to_numpy()
     _, _, cols, _ = match(a, b, S, E)

@@ -32,14 +32,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_detect import evaluate, simulate, trust  # noqa: E402
+from bench_detect import baseline_files, evaluate, simulate, trust  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.session import detect_session  # noqa: E402
@@ -57,14 +56,9 @@ VARIANTS: dict[str, tuple[DetectParams, dict[str, Any]]] = {
 
 
 def baseline_cpu_s(session: Any) -> float:
-    """CPU seconds of decode + blur + threshold + connected components over the frames."""
-    paths = [session.image_path(i) for i in range(len(session.frames))]
+    """CPU seconds of :func:`bench_detect.baseline_files` over the session's frames."""
     t0 = time.process_time()
-    for p in paths:
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        g = cv2.GaussianBlur(img, (0, 0), 1.0)
-        _, bw = cv2.threshold(g, float(np.median(g)) + 10.0, 255, cv2.THRESH_BINARY)
-        cv2.connectedComponentsWithStats(bw.astype(np.uint8), connectivity=8)
+    baseline_files([session.image_path(i) for i in range(len(session.frames))])
     return time.process_time() - t0
 
 

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_detect import _truth_arrays, match  # noqa: E402
+from bench_detect import match, truth_arrays  # noqa: E402
 
 import blurtrack.detect.gyro.refinepass as refinepass  # noqa: E402
 from blurtrack.detect import DetectParams  # noqa: E402
@@ -76,7 +76,7 @@ def classify(folder: Path, params: DetectParams | None = None) -> dict[str, Any]
     for k, fr in enumerate(truth["frames"]):
         st = fr.get("streaks") or []
         fstat = status[k] if k < len(status) else "uncovered"
-        S, E, inside, L = _truth_arrays(fr)
+        S, E, inside, L = truth_arrays(fr)
         lines = [np.asarray(s["centerline"], float).reshape(-1, 2) for s in st]
         d = table[table["frame"] == fr["index"]]
         s = d[["start_x", "start_y"]].to_numpy(float)

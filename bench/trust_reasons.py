@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_detect import TRUST_GATE_PX, _truth_arrays, simulate  # noqa: E402
+from bench_detect import TRUST_GATE_PX, simulate, truth_arrays, worse_end_distance  # noqa: E402
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
@@ -51,22 +51,14 @@ def truth_columns(table: pd.DataFrame, truth: dict[str, Any]) -> tuple[pd.DataFr
     frames = out["frame"].to_numpy()
     n_inside = 0
     for fr in truth["frames"]:
-        S, E, inside, _ = _truth_arrays(fr)
+        S, E, inside, _ = truth_arrays(fr)
         n_inside += int(inside.sum())
         rows = np.flatnonzero(frames == fr["index"])
         if rows.size == 0 or len(S) == 0:
             continue
         s = out[["start_x", "start_y"]].to_numpy(float)[rows]
         e = out[["end_x", "end_y"]].to_numpy(float)[rows]
-        same = np.maximum(
-            np.linalg.norm(s[:, None] - S[None], axis=2),
-            np.linalg.norm(e[:, None] - E[None], axis=2),
-        )
-        swap = np.maximum(
-            np.linalg.norm(s[:, None] - E[None], axis=2),
-            np.linalg.norm(e[:, None] - S[None], axis=2),
-        )
-        d = np.minimum(same, swap)
+        d = worse_end_distance(s, e, S, E)
         j = np.argmin(d, axis=1)
         err[rows] = d[np.arange(rows.size), j]
         tid[rows] = np.where(inside[j], j, -1)

@@ -146,21 +146,9 @@ class DetectParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DetectParams:
-        if not isinstance(data, dict):
-            raise ConfigError("detect parameters must be a mapping")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"unknown detect parameter(s): {', '.join(unknown)}")
-        data = dict(data)
+        data = dict(_checked_keys(data, cls, "detect parameter"))
         if "source" in data:
-            src = data["source"]
-            if not isinstance(src, dict):
-                raise ConfigError("detect parameter source must be a mapping")
-            known_src = {f.name for f in fields(SourceParams)}
-            unknown_src = sorted(set(src) - known_src)
-            if unknown_src:
-                raise ConfigError(f"unknown detect source parameter(s): {', '.join(unknown_src)}")
+            src = _checked_keys(data["source"], SourceParams, "detect source parameter")
             try:
                 data["source"] = SourceParams(**src)
             except TypeError as exc:
@@ -184,3 +172,14 @@ class DetectParams:
                 f"detect parameters {path} are not valid YAML: {yaml_error_line(exc)}"
             ) from None
         return cls.from_dict(data or {})
+
+
+def _checked_keys(data: Any, cls: type, what: str) -> dict[str, Any]:
+    """``data`` as a mapping holding only ``cls``'s field names; else one-line ConfigError
+    (``what``: e.g. "detect parameter", named in the message)."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{what}s must be a mapping")
+    unknown = sorted(set(data) - {f.name for f in fields(cls)})
+    if unknown:
+        raise ConfigError(f"unknown {what}(s): {', '.join(unknown)}")
+    return data

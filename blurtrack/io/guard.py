@@ -65,29 +65,27 @@ def _resolve(path: Path) -> Path:
         return Path(os.path.abspath(path))
 
 
-def session_root(path: str | os.PathLike[str]) -> Path | None:
-    """The nearest folder at or above ``path`` (resolved) that holds a ``session.yaml``."""
-    p = _resolve(Path(path))
-    for folder in (p, *p.parents):
+def _first_session(folders: Iterable[Path]) -> Path | None:
+    """The first of ``folders`` that holds a ``session.yaml`` (unreadable ones passed over)."""
+    for folder in folders:
         try:
             if (folder / "session.yaml").is_file():
                 return folder
         except OSError:
             continue
     return None
+
+
+def session_root(path: str | os.PathLike[str]) -> Path | None:
+    """The nearest folder at or above ``path`` (resolved) that holds a ``session.yaml``."""
+    p = _resolve(Path(path))
+    return _first_session((p, *p.parents))
 
 
 def _literal_session(out: Path) -> Path | None:
     """The nearest folder holding a ``session.yaml`` on the output's path *as written* (links
     not resolved), the folder itself excluded."""
-    lit = Path(os.path.abspath(out))
-    for folder in lit.parents:
-        try:
-            if (folder / "session.yaml").is_file():
-                return folder
-        except OSError:
-            continue
-    return None
+    return _first_session(Path(os.path.abspath(out)).parents)
 
 
 def _check_links(out: Path, name: str, what: str) -> None:
