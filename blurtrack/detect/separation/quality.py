@@ -233,10 +233,14 @@ def _frame_quality(
     source: np.ndarray,
     end_light: np.ndarray,
     p: SourceParams,
-) -> tuple[np.ndarray, ...]:
+    short: np.ndarray | None = None,
+) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
     """The :data:`QUALITY_COLUMNS` of one frame's streaks from their start-to-end vectors,
     time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
-    ``looped``), widths, sources and end light."""
+    ``looped``), widths, sources and end light, and ``(N,)`` which streaks not
+    ``quality_ok`` have exactly one doubt (:func:`one_doubt`). ``short``: ``(N,)`` the
+    streaks whose ends came from the profile's moments, not an edge fit each
+    (:class:`~blurtrack.detect.lines.endpoints.EdgeFit`); None: all of them."""
     sat = flags["saturated"]
     # The dot's width from the unsaturated streaks, where enough of them say it (a frame of
     # saturated streaks but one or two faint ones would call every streak thick): else from
@@ -253,7 +257,7 @@ def _frame_quality(
     at_border = flags["clipped"] | np.any(np.isnan(end_light), axis=1)
     dev = np.full(len(v), np.nan)
     ok = point & ~(flagged | thick | lit_end | at_border)
-    long_ = short = bent = np.zeros(len(v), bool)
+    long_ = short_ = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
     # dots' curve.
     field = consensus_field(v, mid, point & ~(flagged | thick), resign=True)
@@ -264,11 +268,20 @@ def _frame_quality(
         c_len = np.hypot(*field.c.T)
         length = np.hypot(*v.T)
         long_ = bent & (length > c_len + tol)
-        short = bent & (length < c_len - tol)
+        short_ = bent & (length < c_len - tol)
         ok &= ~bent
+    # A neighbour's light beyond an end moves that end's edge fit only, but the moments of a
+    # short streak's whole profile: both its ends (a doubt against each).
+    moments = np.ones(len(v), bool) if short is None else np.asarray(short, bool)
+    with np.errstate(invalid="ignore"):
+        lit = end_light > p.end_light_max
+    single = ~ok & one_doubt(
+        point & ~(at_border | flags["looped"] | flags["merged"] | short_),
+        [flags["crossing"], *lit.T, *(lit & moments[:, None]).T, thick, bent],
+    )
     reason = np.full(len(v), "ends_unsure", object)
     # Assigned from the last to the first, so that the first that applies stays.
-    reason[short] = "fragment"
+    reason[short_] = "fragment"
     reason[lit_end | long_] = "chained"
     reason[flags["merged"] & ~flags["crossing"]] = "touching"
     reason[flags["looped"]] = "looped"
@@ -276,15 +289,31 @@ def _frame_quality(
     reason[source == "extended"] = "extended"
     reason[at_border] = "clipped"
     reason[ok] = "ok"
-    return dev, thick, ok, source.astype(object), reason
+    return (dev, thick, ok, source.astype(object), reason), single
+
+
+def one_doubt(eligible: np.ndarray, doubts: list[np.ndarray]) -> np.ndarray:
+    """``(N,)`` the ``eligible`` streaks (a point light away from the border, neither looped,
+    touching nor a fragment) against which exactly one of the ``doubts`` (``(N,)`` bools: a
+    crossing in the middle, a lit end (each end one doubt; two where the ends came from
+    the moments of the whole profile), a blown-out core, a shape off the frame's
+    consensus) speaks. The image alone cannot tell whether such a streak's ends
+    are right; an independent measure of its start-to-end vector (the gyro's,
+    :func:`blurtrack.detect.gyro.gyrotrust.apply_check`) can lift one doubt, never two."""
+    with np.errstate(invalid="ignore"):
+        count = np.sum([np.asarray(d, bool) for d in doubts], axis=0)
+    return np.asarray(eligible & (count == 1))
 
 
 def _flags(get: Callable[[str], np.ndarray]) -> dict[str, np.ndarray]:
     return {c: get(c) for c in (*FLAGGED_BY, "saturated")}
 
 
-def frame_quality(fs: FrameStreaks, p: SourceParams | None = None) -> tuple[np.ndarray, ...]:
-    """:func:`add_quality`'s columns for one frame's streaks, from the frame itself
+def frame_quality(
+    fs: FrameStreaks, p: SourceParams | None = None
+) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+    """:func:`add_quality`'s columns for one frame's streaks, and which of them have exactly
+    one doubt (:func:`one_doubt`), from the frame itself
     (the frame's worker computes them: frames are independent). They do not depend on which
     end is A: the consensus takes each vector's sign from the dominant direction and the
     deviation is the nearer of ``|v - c|`` and ``|v + c|``, so the table's values after
@@ -294,8 +323,16 @@ def frame_quality(fs: FrameStreaks, p: SourceParams | None = None) -> tuple[np.n
     source = ev.source if ev is not None else np.full(n, "undetermined", object)
     light = ev.end_light if ev is not None else np.zeros((n, 2))
     flags = _flags(lambda c: fs.flags[c])
+    short = fs.short if len(fs.short) == n else None
     return _frame_quality(
-        fs.end_b - fs.end_a, fs.time_mid, flags, fs.width_px, source, light, p or SourceParams()
+        fs.end_b - fs.end_a,
+        fs.time_mid,
+        flags,
+        fs.width_px,
+        source,
+        light,
+        p or SourceParams(),
+        short,
     )
 
 
@@ -342,7 +379,7 @@ def add_quality(table: pd.DataFrame, p: SourceParams | None = None) -> pd.DataFr
                 light[rows],
                 p or SourceParams(),
             )
-            for col, r in zip(cols, res, strict=True):
+            for col, r in zip(cols, res[0], strict=True):
                 col[rows] = r
     for name, col in zip(QUALITY_COLUMNS, cols, strict=True):
         out[name] = col

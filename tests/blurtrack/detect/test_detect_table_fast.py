@@ -136,13 +136,15 @@ def test_workers_quality_is_the_tables_whatever_the_orientation(tmp_path: Path) 
         np.testing.assert_array_equal(res.table[c].to_numpy(), ref[c].to_numpy())
     # The frame's columns do not depend on which end is A (half the streaks reversed) ...
     fs = res.frames[0]
-    before = quality.frame_quality(fs)
+    before, single = quality.frame_quality(fs)
     fs.reverse(np.arange(len(fs)) % 2 == 0)
-    for a, b in zip(before, quality.frame_quality(fs), strict=True):
+    after, single_after = quality.frame_quality(fs)
+    for a, b in zip(before, after, strict=True):
         np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(single, single_after)
     # ... but on its shapes (negative control: one streak's end moved).
     fs.end_b[1] += [25.0, 0.0]
-    assert quality.frame_quality(fs)[0][1] > before[0][1] + 10
+    assert quality.frame_quality(fs)[0][0][1] > before[0][1] + 10
 
 
 def test_quality_columns_equal_the_per_frame_definition(table: pd.DataFrame) -> None:

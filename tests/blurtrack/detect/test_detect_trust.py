@@ -62,7 +62,7 @@ def _in_box(fs: FrameStreaks, box: tuple[int, int, int, int], pad: float = 6.0) 
 
 def _columns(fs: FrameStreaks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``quality_ok``, ``source`` and ``reason`` of a frame's streaks."""
-    _, _, ok, source, reason = frame_quality(fs)
+    (_, _, ok, source, reason), _ = frame_quality(fs)
     return ok, source, reason
 
 

@@ -11,6 +11,7 @@ import pytest
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
+    GyroCheck,
     apply_check,
     check_frame,
     hairpin_depth,
@@ -34,13 +35,14 @@ REACH_PX = 24.0
 GATE_PX = 2.0
 
 
-def _model(turn: float) -> BlurModel:
+def _model(turn: float, reach_px: float = REACH_PX) -> BlurModel:
     """A rotation about y whose rate ``cos(pi tau / (2 turn))`` reaches zero at ``tau = turn``
-    of the exposure (``turn >= 1``: no reversal), no rolling shutter."""
+    of the exposure (``turn >= 1``: no reversal), no rolling shutter; ``reach_px``: the
+    excursion scale."""
     cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2), readout_s=0.0)
     t = np.arange(0.0, 0.2, 1e-4)
     tau = (t - T0) / EXP
-    wy = REACH_PX * np.pi / (2.0 * turn * F * EXP) * np.cos(np.pi * tau / (2.0 * turn))
+    wy = reach_px * np.pi / (2.0 * turn * F * EXP) * np.cos(np.pi * tau / (2.0 * turn))
     omega = np.stack([0.0 * t, wy, 0.0 * t], axis=1)
     calib = Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0)
     return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
@@ -51,15 +53,24 @@ def _depth(turn: float) -> float:
     return REACH_PX * (1.0 - np.sin(np.pi / (2.0 * turn))) if turn < 1.0 else 0.0
 
 
-def _frame(model: BlurModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Twelve dots on a 4 x 3 grid: the image and the true starts and ends."""
+def _frame(
+    model: BlurModel, spot_gap_px: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Twelve dots on a 4 x 3 grid: the image and the true starts and ends. ``spot_gap_px``:
+    also a still light (a round spot) that far beyond the end of the 2nd and 7th streaks."""
     dots = np.stack(np.meshgrid(80.0 + 100.0 * np.arange(4), 80.0 + 100.0 * np.arange(3)), -1)
     dots = dots.reshape(-1, 2)
     times = T0 + EXP * np.linspace(0.0, 1.0, 1200)
     tracks = model.point_track(dots, np.full(len(dots), T0 + EXP / 2), times)
+    spots = []
+    if spot_gap_px is not None:
+        for i in (1, 6):
+            u = tracks[i][-1] - tracks[i][0]
+            u /= np.linalg.norm(u)
+            spots.append(tracks[i][-1] + u * spot_gap_px + u * np.linspace(0.0, 0.5, 50)[:, None])
     image = render_streaks(
         (H, W),
-        [tracks[i] for i in range(len(dots))],
+        [*(tracks[i] for i in range(len(dots))), *spots],
         flux_per_px=0.6,
         sigma_px=1.3,
         noise=0.004,
@@ -76,12 +87,12 @@ def _wrong(fs, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     return np.asarray(np.minimum(same, swap).min(axis=1) > GATE_PX)
 
 
-def _checked(turn: float):
-    model = _model(turn)
-    image, starts, ends = _frame(model)
+def _checked(turn: float, reach_px: float = REACH_PX, spot_gap_px: float | None = None):
+    model = _model(turn, reach_px)
+    image, starts, ends = _frame(model, spot_gap_px)
     p = DetectParams()
     fs = detect_frame(image, p)
-    fs.quality = frame_quality(fs, p.source)
+    fs.quality, fs.one_doubt = frame_quality(fs, p.source)
     curves = predict_curves(model, fs.time_mid, T0, EXP, 33).pts
     check = check_frame(fs, curves, np.asarray(fs.quality[2], bool))
     ok, reason = apply_check(fs, check, p.source)
@@ -198,3 +209,49 @@ def test_streaks_measured_along_the_curve_keep_quality_ok() -> None:
     assert np.array_equal(
         ok, first_ok & ~(check.residual > DetectParams().source.gyro_vector_tol_px)
     )
+
+
+@pytest.mark.parametrize("gap_px", [5.0, 6.0, 8.0])
+def test_the_gyro_confirms_a_lit_end_where_each_end_was_fitted_on_its_own(gap_px) -> None:
+    # 35 px streaks (an edge fit at each end) with a still light just beyond two of their
+    # ends: the image flags them chained (a neighbour's light might pull the end); the gyro
+    # measures their start-to-end vector right, so the ends are: confirmed, and right.
+    fs, _, ok, reason, wrong = _checked(3.0, reach_px=70.0, spot_gap_px=gap_px)
+    first = np.asarray(fs.quality[4], object)
+    lit = (first == "chained") & fs.one_doubt
+    assert lit.sum() >= 2 and not fs.short[lit].any()
+    assert np.all(ok[lit]) and set(reason[lit]) == {"ok"}
+    assert not np.any(ok & wrong)
+
+
+@pytest.mark.parametrize("gap_px", [6.0, 7.0])
+def test_a_short_streaks_lit_end_is_not_confirmed(gap_px) -> None:
+    # Negative control: 12 px streaks, whose ends come from the moments of the whole
+    # profile: the still light beyond one end pulls both ends (by over 2 px) while the
+    # start-to-end vector stays right, so the gyro cannot see it: the doubt is not lifted.
+    fs, check, ok, _, wrong = _checked(3.0, spot_gap_px=gap_px)
+    first = np.asarray(fs.quality[4], object)
+    pulled = (first == "chained") & wrong & fs.short
+    assert pulled.any()
+    assert np.all(check.residual[pulled] <= DetectParams().source.gyro_vector_tol_px)
+    assert not np.any(fs.one_doubt[pulled]) and not np.any(ok[pulled])
+    assert not np.any(ok & wrong & ~np.asarray(fs.quality[2], bool))
+
+
+def test_only_streaks_with_one_doubt_and_a_fitting_vector_are_confirmed() -> None:
+    fs, _, _, _, _ = _checked(1.0)
+    n = len(fs)
+    q = list(fs.quality)
+    q[2] = np.zeros(n, bool)
+    q[4] = np.full(n, "chained", object)
+    fs.quality = tuple(q)
+    fs.one_doubt = np.arange(n) != 3  # streak 3: two doubts
+    residual = np.full(n, 0.3)
+    residual[1], residual[2] = 2.5, np.nan  # off; not checked
+    depth = np.zeros(n)
+    depth[4] = 1.0  # the gyro says the path turns beyond an end
+    ok, reason = apply_check(fs, GyroCheck(residual, depth), DetectParams().source)
+    expect = np.ones(n, bool)
+    expect[[1, 2, 3, 4]] = False
+    assert np.array_equal(ok, expect)
+    assert set(reason[~expect]) == {"chained"} and set(reason[expect]) == {"ok"}

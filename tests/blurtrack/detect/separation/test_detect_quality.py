@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from blurtrack.detect.separation.quality import add_quality
+from blurtrack.detect.separation.quality import add_quality, one_doubt
 from blurtrack.io import streaks
 
 
@@ -153,3 +153,11 @@ def test_a_saturated_frame_measures_the_dot_width_on_all_its_streaks() -> None:
     d.loc[d.saturated, "width_px"] = 2.1
     q = add_quality(d)
     assert q.thick_saturated[d.saturated.to_numpy()].all()
+
+
+def test_one_doubt_counts_each_doubt_of_an_eligible_streak() -> None:
+    eligible = np.array([True, True, True, True, False])
+    crossing = np.array([True, False, True, False, True])
+    lit = np.array([False, True, True, False, False])
+    assert one_doubt(eligible, [crossing, lit]).tolist() == [True, True, False, False, False]
+    assert not one_doubt(eligible, [np.zeros(5, bool)]).any()  # no doubt: nothing to lift
