@@ -16,11 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, near_border
+from blurtrack.detect.context import FrameContext
+from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaics
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import assess
@@ -84,36 +84,24 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
 
 
 def _measure_once(
-    prep: Any,
+    ctx: FrameContext,
     placements: list[Placement],
     flat: list[Placement],
     arm_of: list[tuple[int, int]],
-    sig: tuple[float, float, float],
-    sat_comp: np.ndarray | None,
+    sig: tuple[float, float],
     mosaic: tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray],
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
     """Per placement index, its streak measured on ``mosaic``, the mosaic of ``flat`` (the
     placements, hairpins as their two arms ``arm_of``;
     :func:`~blurtrack.detect.separation.separate.placement_mosaics`), frame coordinates,
     placements not measured whole absent; and the cross-section sigmas used."""
-    sig_s, sig_r, smooth_sigma = sig
+    sig_s, sig_r = sig
     mos_s, mos_r, lines, back = mosaic
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
     whole_cross = overlapping_placements(placements)
     cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
     ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
-    m = measure_lines(
-        mos_s,
-        mos_r,
-        prep.saturation,
-        sat_comp,
-        ls,
-        sig_s,
-        False,
-        smooth_sigma,
-        sig_r,
-        LIT_MEDIAN_FACTOR,
-    )
+    m = measure_lines(ctx.on(mos_s, mos_r), ls, sig_s, False, sig_r, LIT_MEDIAN_FACTOR)
     off = back[m.src]
     m.end_a, m.end_b, m.time_mid = m.end_a + off, m.end_b + off, m.time_mid + off
     m.points = [q + o for q, o in zip(m.points, off, strict=True)]
@@ -136,13 +124,11 @@ def _measure_once(
 
 
 def measure_placements(
-    prep: Any,
+    ctx: FrameContext,
     placements: list[Placement],
     placed_ends: np.ndarray,
     sig_s: float,
     sig_r: float,
-    smooth_sigma: float,
-    sat_comp: np.ndarray | None,
 ) -> Measured:
     """Each placement measured on its own image by :func:`measure_lines`, frame coordinates;
     ``src`` indexes ``placements``. A hairpin is measured as its two arms (each on its own
@@ -170,16 +156,14 @@ def measure_placements(
         else:
             flat.append(q)
             arm_of.append((j, -1))
-    sig = (sig_s, sig_r, smooth_sigma)
+    sig = (sig_s, sig_r)
     # The plain and the clipped mosaic in one pass (the neighbours' templates warped once).
     pad = int(np.ceil(6.0 * sig_s)) + 8
     clips = (False, True) if CLIP_CHOICE else (False,)
-    mosaics = placement_mosaics(prep.smooth, prep.signal, flat, pad, clips)
-    found, sigma_c, sigma_raw = _measure_once(
-        prep, placements, flat, arm_of, sig, sat_comp, mosaics[0]
-    )
+    mosaics = placement_mosaics(ctx.smooth, ctx.signal, flat, pad, clips)
+    found, sigma_c, sigma_raw = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[0])
     if CLIP_CHOICE:
-        clipped = _measure_once(prep, placements, flat, arm_of, sig, sat_comp, mosaics[1])[0]
+        clipped = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[1])[0]
         for j, c in clipped.items():
             o = found.get(j)
             s, e = placed_ends[j]
@@ -228,12 +212,11 @@ _FIELDS = (
 
 
 def as_streaks(
-    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, comps: Components, prep: Any, p: Any
+    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, ctx: FrameContext
 ) -> FrameStreaks:
     """The template pass's frame: rows ``keep`` of the first pass's ``fs`` followed by the
-    measured streaks ``m`` (flags as the first pass sets them; ``comps`` the frame's
-    components, ``prep`` the prepared frame, ``p`` the detection parameters)."""
-    H, W = fs.shape
+    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``."""
+    comps, p = ctx.comps, ctx.params
     k = np.flatnonzero(keep)
     if m is None or len(m) == 0:
         new: dict[str, Any] = {}
@@ -241,12 +224,12 @@ def as_streaks(
     else:
         n_new = len(m)
         flags = {
-            "clipped": near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            "clipped": ctx.clipped(m.end_a, m.end_b),
             "saturated": m.saturated,
             "crossing": m.crossing,
-            "merged": np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * fs.sigma_c_px),
+            "merged": ctx.merged(m.width_px, fs.sigma_c_px),
             "looped": m.looped,
-            "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
+            "faint": comps.peaks[m.own] < p.faint_snr * ctx.noise_smooth,
         }
         new = {
             "end_a": m.end_a,
@@ -255,7 +238,7 @@ def as_streaks(
             "plateau": m.plateau,
             "length_px": m.length_px,
             "width_px": m.width_px,
-            "snr": comps.peaks[m.own] / prep.noise_smooth,
+            "snr": comps.peaks[m.own] / ctx.noise_smooth,
             "short": m.short,
             "flags": flags,
             "points": m.points,
@@ -270,20 +253,9 @@ def as_streaks(
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
     points = [fs.points[i] for i in k] + (list(new["points"]) if n_new else [])
     profile = [fs.profile[i] for i in k] + (list(new["profile"]) if n_new else [])
-    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     width = cat("width_px")
     # Measured again over the new set: the neighbours of the old streaks have changed.
-    evidence = assess(
-        prep.smooth,
-        comps,
-        threshold,
-        points,
-        profile,
-        cat("plateau"),
-        width,
-        fs.sigma_c_px,
-        p.source,
-    )
+    evidence = assess(ctx, points, profile, cat("plateau"), width, fs.sigma_c_px)
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),

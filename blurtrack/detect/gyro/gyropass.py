@@ -66,6 +66,7 @@ from typing import Any
 
 import numpy as np
 
+from blurtrack.detect.context import frame_context
 from blurtrack.detect.frame import (
     SPOT_FRACTION,
     SPOT_MIN_PX,
@@ -77,7 +78,7 @@ from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
-from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.pursuit import pursue
@@ -266,11 +267,11 @@ def refine_frame(
         return fs, FrameOutcome("skipped")
     if callable(image):
         image = image()
-    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
-    H, W = prep.smooth.shape
-    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
-    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
+    ctx = frame_context(
+        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
+    )
+    H, W = ctx.shape
+    comps = ctx.comps
     C = comps.ids.size
     if C == 0:
         return fs, FrameOutcome("skipped")
@@ -320,7 +321,7 @@ def refine_frame(
     sig_s = fs.sigma_c_px if sigma_c is None else float(sigma_c)
     sig_r = float(np.sqrt(max(sig_s**2 - p.smooth_sigma_px**2, 0.25)))
     dot_light = _dot_light(lw, border, n_lines)
-    ceiling = prep.saturation if prep.saturated.any() else None
+    ceiling = ctx.saturation if ctx.sat_comp is not None else None
 
     def make(curve: np.ndarray, with_raw: bool = False) -> Template:
         return curve_template(curve, sig_s, sig_r, dot_light, ceiling, with_raw)
@@ -380,13 +381,10 @@ def refine_frame(
     ]
     if not placements:
         return fs, FrameOutcome("refused", n_cand)
-    sat_comp = None
-    if prep.saturated.any():
-        sat_comp = np.maximum.reduceat(prep.saturated[comps.ys, comps.xs], comps.starts)
     # Each measured line against its placement's curve: the image must confirm the shape.
     # A placed curve reaching past the border is cut there (its line ends at the border).
     placed_ends = np.array([cut_at_border(q.tpl.points + q.shift, W, H) for q in placements])
-    m = measure_placements(prep, placements, placed_ends, sig_s, sig_r, p.smooth_sigma_px, sat_comp)
+    m = measure_placements(ctx, placements, placed_ends, sig_s, sig_r)
     ps, pe = placed_ends[m.src, 0].reshape(-1, 2), placed_ends[m.src, 1].reshape(-1, 2)
     mis_new = mismatch(m.end_a, m.end_b, ps, pe)
     good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own])
@@ -424,5 +422,5 @@ def refine_frame(
     long_pred = pred_arc >= SPOT_MIN_PX
     keep_old &= ~(long_pred & (fs.length_px < SPOT_FRACTION * pred_arc))
     keep_old &= ~(long_pred & (fs.length_px > CHAIN_FACTOR * pred_arc))
-    out = as_streaks(fs, keep_old, m, comps, prep, p)
+    out = as_streaks(fs, keep_old, m, ctx)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))

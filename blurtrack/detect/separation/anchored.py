@@ -22,8 +22,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.quality import Consensus, shape_tolerance
 from blurtrack.detect.separation.templates import Template, similar, template
 
@@ -63,21 +63,13 @@ def _place(
 
 
 def anchored(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    m: Measured,
-    clipped: np.ndarray,
-    refs: Measured,
-    good: np.ndarray,
-    field: Consensus,
-    smooth_sigma: float,
+    ctx: FrameContext, m: Measured, refs: Measured, good: np.ndarray, field: Consensus
 ) -> tuple[Measured, int]:
     """The streaks ``m`` with their fragments replaced by anchored placements (see the module
-    text), and how many were replaced. ``clipped``: ``(N,)`` streaks near the border (never
-    fragments); ``refs``/``good``: the whole-component references and those that agree."""
+    text), and how many were replaced. Streaks near the border are never fragments;
+    ``refs``/``good``: the whole-component references and those that agree with ``field``."""
+    smooth, signal, comps = ctx.smooth, ctx.signal, ctx.comps
+    clipped = ctx.clipped(m.end_a, m.end_b)
     c = field.at(m.time_mid)
     L = np.hypot(*c.T)
     v = m.end_b - m.end_a
@@ -87,7 +79,7 @@ def anchored(
     ref_idx = np.flatnonzero(good)
     if not frag.any() or ref_idx.size == 0:
         return m, 0
-    H, W = smooth.shape
+    H, W = ctx.shape
     bases: dict[int, Template] = {}
     found: list[tuple[int, Measured]] = []
     for i in np.flatnonzero(frag).tolist():
@@ -122,9 +114,7 @@ def anchored(
         iy, ix, _, _ = hit
         line = tpl.points - [tpl.box[0], tpl.box[1]] + [ix, iy]
         ls = LineSet([line], [int(m.own[i])], [False], [False])
-        got = measure_lines(
-            xs, xr, saturation, sat_comp, ls, m.sigma_c, False, smooth_sigma, m.sigma_raw
-        )
+        got = measure_lines(ctx.on(xs, xr), ls, m.sigma_c, False, m.sigma_raw)
         if len(got) != 1:
             continue
         w = got.end_b[0] - got.end_a[0]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.quality import MIN_REFERENCE, Consensus, consensus_field
@@ -99,19 +100,13 @@ def skeleton_path(mask: np.ndarray) -> np.ndarray:
 
 
 def component_references(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    sigma_c: float,
-    sigma_raw: float,
-    smooth_sigma: float,
+    ctx: FrameContext, sigma_c: float, sigma_raw: float
 ) -> tuple[Measured, Consensus] | None:
     """The modal components' joined lines, measured on the frame, and the consensus field of
     their start-to-end vectors (None: fewer than :data:`MIN_REFERENCE` of them); ``sigma_c``,
     ``sigma_raw``: the first pass's cross-section sigmas (smoothed, raw)."""
-    H, W = smooth.shape
+    comps = ctx.comps
+    H, W = ctx.shape
     x, y, w, h = comps.boxes.T
     away = (x > 0) & (y > 0) & (x + w < W) & (y + h < H)
     modal = modal_components(comps, away)
@@ -129,9 +124,7 @@ def component_references(
         return None
     n = len(lines)
     ls = LineSet(lines, owner, [False] * n, [False] * n)
-    m = measure_lines(
-        smooth, signal, saturation, sat_comp, ls, sigma_c, False, smooth_sigma, sigma_raw
-    )
+    m = measure_lines(ctx, ls, sigma_c, False, sigma_raw)
     if len(m) < MIN_REFERENCE:
         return None
     field = consensus_field(m.end_b - m.end_a, m.time_mid, np.ones(len(m), bool))

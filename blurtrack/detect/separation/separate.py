@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.modal import component_references
 from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.quality import (
@@ -213,31 +213,21 @@ def _placed_tile(q: Placement) -> tuple[int, int, np.ndarray, np.ndarray]:
     return bx, by, t_s, t_r
 
 
-def separate(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    first: Measured,
-    folded: np.ndarray,
-    clipped: np.ndarray,
-    merged: np.ndarray,
-    smooth_sigma: float,
-) -> Separation:
+def separate(ctx: FrameContext, first: Measured, folded: np.ndarray) -> Separation:
     """Template separation of the first pass's doubtful components (see the module text).
 
     Args:
-        smooth, signal, saturation: the prepared frame.
-        sat_comp: per component, whether it has saturated pixels (None: none has).
-        comps: the components; ``folded`` ``(C,)`` those the skeleton tracer took.
-        first: the first pass's streaks; ``clipped``/``merged`` ``(N,)`` their flags.
-        smooth_sigma: the pre-smoothing sigma.
+        ctx: the frame.
+        first: the first pass's streaks.
+        folded: ``(C,)`` bool, the components the skeleton tracer took.
     Returns:
         The separated streaks (frame coordinates; None when nothing was separated), the
         ``(C,)`` bool mask of the components they replace, and the frame's consensus field
         (None without enough voters).
     """
+    smooth, signal, comps = ctx.smooth, ctx.signal, ctx.comps
+    clipped = ctx.clipped(first.end_a, first.end_b)
+    merged = ctx.merged(first.width_px, first.sigma_c)
     C = comps.ids.size
     v = first.end_b - first.end_a
     n_lines = np.bincount(first.own, minlength=C)
@@ -251,16 +241,7 @@ def separate(
         good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c))
     if field is None or int(good.sum()) < MIN_REFERENCE:
         # Too few whole first-pass lines: references from whole components instead.
-        alt = component_references(
-            smooth,
-            signal,
-            saturation,
-            sat_comp,
-            comps,
-            first.sigma_c,
-            first.sigma_raw,
-            smooth_sigma,
-        )
+        alt = component_references(ctx, first.sigma_c, first.sigma_raw)
         if alt is None:
             return Separation(None, None, field)
         # Whole components are references by their shape; their lines only need to agree.
@@ -401,9 +382,7 @@ def separate(
         crossing=overlapping_placements(placements).tolist(),
         looped=[False] * len(placements),
     )
-    m = measure_lines(
-        mos_s, mos_r, saturation, sat_comp, ls, first.sigma_c, False, smooth_sigma, first.sigma_raw
-    )
+    m = measure_lines(ctx.on(mos_s, mos_r), ls, first.sigma_c, False, first.sigma_raw)
     off = back[m.src]
     m.end_a = m.end_a + off
     m.end_b = m.end_b + off

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from blurtrack.detect import DetectParams, detect_frame
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.segment import Components, find_components
 from blurtrack.detect.separation.modal import component_references, modal_components, skeleton_path
@@ -35,11 +36,16 @@ def _frame(extra: list[np.ndarray] | None = None) -> tuple[np.ndarray, list[np.n
     return quantise(image), curves
 
 
-def _components(image: np.ndarray) -> tuple[Components, object]:
+def _components(image: np.ndarray) -> tuple[Components, FrameContext]:
+    """The frame's components (artefacts kept) and its context (saturation ignored)."""
     p = DetectParams()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    return find_components(prep.smooth, thr, p.min_area_px, p.max_streaks), prep
+    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
+    ctx = FrameContext(
+        prep.smooth, prep.signal, prep.saturation, None, comps, thr, prep.noise_smooth, p
+    )
+    return comps, ctx
 
 
 def _whole(end_a: np.ndarray, end_b: np.ndarray, curves: list[np.ndarray], tol: float) -> int:
@@ -107,9 +113,9 @@ def test_skeleton_path_runs_from_end_to_end_in_order() -> None:
 
 def test_component_references_are_whole_where_the_first_pass_cuts_the_foot() -> None:
     image, curves = _frame()
-    comps, prep = _components(image)
+    _, ctx = _components(image)
     sc = float(np.sqrt(SIGMA**2 + DetectParams().smooth_sigma_px ** 2 + 1.0 / 12.0))
-    out = component_references(prep.smooth, prep.signal, prep.saturation, None, comps, sc, sc, 1.0)
+    out = component_references(ctx, sc, sc)
     assert out is not None
     m, field = out
     assert _whole(m.end_a, m.end_b, curves, 1.5) >= 14
@@ -128,10 +134,8 @@ def test_real_string_lights_come_out_whole(shared_data) -> None:
     import cv2
 
     image = cv2.imread(str(shared_data / "real" / "light-streaks" / "night2.jpg"))
-    comps, prep = _components(image)
-    out = component_references(
-        prep.smooth, prep.signal, prep.saturation, None, comps, 2.0, 2.0, 1.0
-    )
+    _, ctx = _components(image)
+    out = component_references(ctx, 2.0, 2.0)
     assert out is not None
     m, field = out
     v = (m.end_b - m.end_a)[field.use]
