@@ -117,7 +117,7 @@ def measure(path: Path, overlay: Path | None) -> dict:
         u = table[~table.clipped]
         vu = u[["end_x", "end_y"]].to_numpy() - u[["start_x", "start_y"]].to_numpy()
         dev = np.minimum(np.hypot(*(vu - ref).T), np.hypot(*(vu + ref).T))
-        whole = dev <= shape_tolerance(ref[None])[0]
+        whole = dev <= shape_tolerance(ref[None], DetectParams().quality)[0]
         out.update(
             whole_reference_vector_px=[float(ref[0]), float(ref[1])],
             whole_streaks=int(whole.sum()),

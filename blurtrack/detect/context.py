@@ -12,9 +12,6 @@ from blurtrack.detect.image import PreparedFrame
 from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
 from blurtrack.detect.params import DetectParams
 
-#: Streaks wider than this times the frame's cross-section sigma are ``merged``.
-MERGED_WIDTH = 1.5
-
 
 def near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
     """``(N,)``: an end within ``m_px`` of the border of a ``W`` x ``H`` px frame."""
@@ -77,9 +74,10 @@ class FrameContext:
         return near_border(end_a, end_b, W, H, self.params.border_margin_px)
 
     def merged(self, width_px: np.ndarray, sigma_c_px: float) -> np.ndarray:
-        """``(N,)`` bool: streaks wider than :data:`MERGED_WIDTH` times the cross-section
-        sigma ``sigma_c_px`` (``width_px``: ``(N,)``, NaN where not measured)."""
-        return np.isfinite(width_px) & (width_px > MERGED_WIDTH * sigma_c_px)
+        """``(N,)`` bool: streaks wider than ``params.quality.merged_width`` times the
+        cross-section sigma ``sigma_c_px`` (``width_px``: ``(N,)``, NaN where not measured)."""
+        limit = self.params.quality.merged_width * sigma_c_px
+        return np.isfinite(width_px) & (width_px > limit)
 
 
 def frame_context(prep: PreparedFrame, params: DetectParams) -> FrameContext:

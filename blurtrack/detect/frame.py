@@ -128,12 +128,6 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
     return False
 
 
-#: Unclipped streaks shorter than this fraction of the local consensus length are dropped...
-SPOT_FRACTION = 0.2
-#: ... where that consensus is at least this long (px): short streaks vary more.
-SPOT_MIN_PX = 20.0
-
-
 def _first_lines(
     comps: Components, polylines: list[np.ndarray], folded: np.ndarray, spur: float
 ) -> LineSet:
@@ -252,7 +246,8 @@ def _separated(ctx: FrameContext, m: Measured, folded: np.ndarray) -> Measured:
     # inside the frame is a remnant (of a chain, a blob), not a dot's streak.
     c = np.hypot(*sep.field.at(m.time_mid).T)
     inside = ~ctx.clipped(m.end_a, m.end_b)
-    m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
+    sp = ctx.params.separation
+    m = _combine(m, ~(inside & (c >= sp.spot_min_px) & (m.length_px < sp.spot_fraction * c)))
     if sep.refs is not None and sep.good is not None and len(m):
         m, _ = anchored(ctx, m, sep.refs, sep.good, sep.field)
     return m

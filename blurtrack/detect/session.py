@@ -67,7 +67,7 @@ def detect_frames(
 
     def one(i: int) -> FrameStreaks:
         fs = detect_frame(session.read_image(i), params)
-        fs.quality = frame_quality(fs, params.source)  # a per-frame stage: here, in parallel
+        fs.quality = frame_quality(fs, params)  # a per-frame stage: here, in parallel
         return fs
 
     # Small chunks: the results come back in order, the first ones early.

@@ -25,24 +25,6 @@ from blurtrack.detect.separation.separate import overlapping_placements, placeme
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import assess
 
-#: A placement's line is kept from its first to its last point above a quarter of its peak
-#: profile, but at most this times its median
-#: (:func:`blurtrack.detect.lines.centreline.refine_lines`; 2 and 4 measured worse): the placed
-#: curve runs along the whole streak, whose bright hook can be several times its tail. (The
-#: first pass keeps the peak: the same factor there moved ``phone``'s ends into the blooming,
-#: 1.43 -> 1.55 px on its optics test frame.)
-LIT_MEDIAN_FACTOR = 3.0
-#: Placements whose curve's chord is under this fraction of its arc are measured as two arms.
-ARMS_CHORD = 0.8
-#: Each placement is measured with the neighbours' templates subtracted as they are and
-#: with the difference clipped at zero, and keeps the line nearer its placed curve
-#: (:func:`measure_placements`). Either alone, on `hard` seeds 1-5 (recall / precision):
-#: clipped alone 97.51 / 98.68, 91.33 / 94.85, 89.12 / 93.21, 84.88 / 91.48, 97.68 / 99.10 %
-#: against 97.73 / 98.86, 92.14 / 94.85, 89.16 / 92.52, 84.17 / 90.85, 97.72 / 99.19 % as they
-#: are; the choice: 97.87 / 98.77, 92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10 %
-#: (session 2026-12-04, third). False: as they are only.
-CLIP_CHOICE = True
-
 
 def _end_mismatch(d: dict[str, Any], s: np.ndarray, e: np.ndarray) -> float:
     """Orientation-free mean distance of a measured streak's ends from ``s, e``."""
@@ -98,10 +80,11 @@ def _measure_once(
     sig_s, sig_r = sig
     mos_s, mos_r, lines, back = mosaic
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
-    whole_cross = overlapping_placements(placements)
+    whole_cross = overlapping_placements(placements, ctx.params.separation.overlap_fraction)
     cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
     ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
-    m = measure_lines(ctx.on(mos_s, mos_r), ls, sig_s, False, sig_r, LIT_MEDIAN_FACTOR)
+    lit_median_factor = ctx.params.gyro_pass.lit_median_factor
+    m = measure_lines(ctx.on(mos_s, mos_r), ls, sig_s, False, sig_r, lit_median_factor)
     off = back[m.src]
     m.end_a, m.end_b, m.time_mid = m.end_a + off, m.end_b + off, m.time_mid + off
     m.points = [q + o for q, o in zip(m.points, off, strict=True)]
@@ -137,11 +120,12 @@ def measure_placements(
 
     Each placement is measured on two own images, the frame minus the neighbours' templates
     as it is and with that difference clipped at zero (where the neighbours' templates cover
-    more than the light, :data:`CLIP_CHOICE`), and keeps the line whose ends lie nearer its
+    more than the light, ``gyro_pass.clip_choice``), and keeps the line whose ends lie nearer its
     placed curve's ``placed_ends`` ``(P, 2, 2)`` (start, end; either orientation). Both lines
     are the image's; the prior chooses between two segmentations of the light, as it does
     when it places the templates.
     """
+    gp = ctx.params.gyro_pass
     flat: list[Placement] = []
     arm_of: list[tuple[int, int]] = []
     for j, q in enumerate(placements):
@@ -149,7 +133,7 @@ def measure_placements(
         k = turn_index(pts)
         chord = float(np.hypot(*(pts[-1] - pts[0])))
         arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
-        if 3 <= k <= len(pts) - 4 and chord < ARMS_CHORD * arc:
+        if 3 <= k <= len(pts) - 4 and chord < gp.arms_chord * arc:
             a1, a2 = arm_templates(q.tpl, sig_s, sig_r)
             flat += [Placement(a1, q.shift, q.amp, q.comp), Placement(a2, q.shift, q.amp, q.comp)]
             arm_of += [(j, 0), (j, 1)]
@@ -159,10 +143,10 @@ def measure_placements(
     sig = (sig_s, sig_r)
     # The plain and the clipped mosaic in one pass (the neighbours' templates warped once).
     pad = int(np.ceil(6.0 * sig_s)) + 8
-    clips = (False, True) if CLIP_CHOICE else (False,)
+    clips = (False, True) if gp.clip_choice else (False,)
     mosaics = placement_mosaics(ctx.smooth, ctx.signal, flat, pad, clips)
     found, sigma_c, sigma_raw = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[0])
-    if CLIP_CHOICE:
+    if gp.clip_choice:
         clipped = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[1])[0]
         for j, c in clipped.items():
             o = found.get(j)
@@ -196,6 +180,7 @@ def measure_placements(
     )
 
 
+#: The per-streak fields of :class:`Measured` that one placement's measurement carries.
 _FIELDS = (
     "end_a",
     "end_b",

@@ -79,8 +79,9 @@ def measure_lines(
     smooth, signal, saturation, sat_comp = ctx.smooth, ctx.signal, ctx.saturation, ctx.sat_comp
     smooth_sigma = ctx.smooth_sigma_px
     ceiling = saturation if sat_comp is not None and sat_comp.any() else None
-    ref = refine_lines(smooth, ls.lines, sigma_c, ceiling, lit_median_factor)
-    ref, parent = split_at_gaps(ref)
+    lp = ctx.params.lines
+    ref = refine_lines(smooth, ls.lines, sigma_c, lp, ceiling, lit_median_factor)
+    ref, parent = split_at_gaps(ref, lp)
     owner = np.asarray(ls.owner, np.int64)[parent]
     crossing = np.asarray(ls.crossing, bool)[parent]
     looped = np.asarray(ls.looped, bool)[parent]

@@ -81,7 +81,7 @@ def _checked(turn: float):
     image, starts, ends = _frame(model)
     p = DetectParams()
     fs = detect_frame(image, p)
-    fs.quality = frame_quality(fs, p.source)
+    fs.quality = frame_quality(fs, p)
     curves = predict_curves(model, fs.time_mid, T0, EXP, 33).pts
     check = check_frame(fs, curves, np.asarray(fs.quality[2], bool))
     ok, reason = apply_check(fs, check, p.source)

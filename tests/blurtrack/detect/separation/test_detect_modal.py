@@ -9,6 +9,7 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.segment import Components, find_components
+from blurtrack.detect.params import SeparationParams
 from blurtrack.detect.separation.modal import component_references, modal_components, skeleton_path
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
@@ -72,7 +73,9 @@ def test_modal_cluster_is_the_isolated_streaks() -> None:
     comps, _ = _components(image)
     H, W = SHAPE
     x, y, w, h = comps.boxes.T
-    modal = modal_components(comps, (x > 0) & (y > 0) & (x + w < W) & (y + h < H))
+    modal = modal_components(
+        comps, (x > 0) & (y > 0) & (x + w < W) & (y + h < H), SeparationParams()
+    )
     centre = np.stack([x + w / 2, y + h / 2], axis=1)[modal]
     truth = np.array([c.mean(axis=0) for c in curves])
     # Exactly the isolated ones: each member lies on one of them, each of them is a member.
@@ -83,7 +86,7 @@ def test_modal_cluster_is_the_isolated_streaks() -> None:
     # cluster is not made of them.
     away = np.ones(comps.ids.size, bool)
     away[np.flatnonzero(modal)] = False
-    rest = modal_components(comps, away)
+    rest = modal_components(comps, away, SeparationParams())
     assert not np.any(rest & modal)
 
 

@@ -125,8 +125,11 @@ def _collapse(m, i: int) -> None:  # type: ignore[no-untyped-def]
     m.points[i] = np.stack([m.end_a[i], m.end_b[i]])
 
 
-def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def test_a_collapsed_line_is_measured_again_with_the_template() -> None:
+    from dataclasses import replace
+
     import blurtrack.detect.separation.separate as sep
+    from blurtrack.detect.params import SeparationParams
 
     image, curves = _frame()
     ctx, folded, m = _first_pass(image)
@@ -136,10 +139,7 @@ def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> No
     _collapse(m, i)
     c = int(m.own[i])
 
-    def run() -> sep.Separation:
-        return sep.separate(ctx, m, folded)
-
-    out = run()
+    out = sep.separate(ctx, m, folded)
     assert out.replaced is not None and out.replaced[c] and out.streaks is not None
     rows = np.flatnonzero(out.streaks.own == c)
     assert rows.size == 1
@@ -149,6 +149,6 @@ def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> No
     assert err < 1.0
     # Negative control: without the stub rule the collapsed line stands (one plain line in
     # a component of a reference's area).
-    monkeypatch.setattr(sep, "STUB_FRACTION", 0.0)
-    again = run()
+    no_stubs = DetectParams(separation=SeparationParams(stub_fraction=0.0))
+    again = sep.separate(replace(ctx, params=no_stubs), m, folded)
     assert again.replaced is None or not again.replaced[c]
