@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from real_streaks import DATA, whole_reference  # noqa: E402
 
-from blurtrack.detect import detect_frame  # noqa: E402
+from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
 from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.separation.quality import shape_tolerance  # noqa: E402
 from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
@@ -73,7 +73,10 @@ def classify(name: str) -> dict:
         length, whole = float(np.median(np.hypot(*v[ok].T))), np.zeros(len(t), bool)
         tol = np.inf
     else:
-        length, tol = float(np.hypot(*ref)), float(shape_tolerance(ref[None])[0])
+        length, tol = (
+            float(np.hypot(*ref)),
+            float(shape_tolerance(ref[None], DetectParams().quality)[0]),
+        )
         dev = np.minimum(np.hypot(*(v - ref).T), np.hypot(*(v + ref).T))
         whole = dev <= tol
     r = np.hypot(*v.T) / length

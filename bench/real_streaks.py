@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.detect.context import frame_context  # noqa: E402
 from blurtrack.detect.image import prepare_frame  # noqa: E402
-from blurtrack.detect.lines.segment import drop_artefacts, find_components  # noqa: E402
 from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks  # noqa: E402
 from blurtrack.detect.separation.modal import component_references  # noqa: E402
@@ -42,14 +42,10 @@ def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
     """Median start-to-end vector of the photo's whole isolated lights (the modal cluster of
     components, measured along their skeletons), dominant direction; None without one."""
     p = DetectParams()
-    prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
-    thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
-    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
-    sat = np.maximum.reduceat(prep.saturated[comps.ys, comps.xs], comps.starts)
-    out = component_references(
-        prep.smooth, prep.signal, prep.saturation, sat, comps, sigma_c, sigma_c, p.smooth_sigma_px
+    ctx = frame_context(
+        prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
     )
+    out = component_references(ctx, sigma_c, sigma_c)
     if out is None:
         return None
     m, field = out
@@ -121,7 +117,7 @@ def measure(path: Path, overlay: Path | None) -> dict:
         u = table[~table.clipped]
         vu = u[["end_x", "end_y"]].to_numpy() - u[["start_x", "start_y"]].to_numpy()
         dev = np.minimum(np.hypot(*(vu - ref).T), np.hypot(*(vu + ref).T))
-        whole = dev <= shape_tolerance(ref[None])[0]
+        whole = dev <= shape_tolerance(ref[None], DetectParams().quality)[0]
         out.update(
             whole_reference_vector_px=[float(ref[0]), float(ref[1])],
             whole_streaks=int(whole.sum()),

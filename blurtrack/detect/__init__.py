@@ -1,6 +1,7 @@
 """Laser-dot streak detection: from frames to measured blur trajectories (docs/detection.md).
 
 Modules: :mod:`~blurtrack.detect.image` (frame preparation, background, hot pixels),
+:mod:`~blurtrack.detect.context` (the frame context every stage takes),
 :mod:`~blurtrack.detect.lines.segment` (components, coarse centre lines),
 :mod:`~blurtrack.detect.lines.skeleton` (folded, crossing and looped streaks),
 :mod:`~blurtrack.detect.lines.centreline` and :mod:`~blurtrack.detect.lines.ragged` (batched

@@ -8,16 +8,12 @@ from typing import Any
 import numpy as np
 
 from blurtrack.allocator import keep_heap
+from blurtrack.detect.context import FrameContext, frame_context
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.lines.measure import LineSet, measure_lines
+from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.measure import combine as _combine
 from blurtrack.detect.lines.ragged import Ragged, split_at
-from blurtrack.detect.lines.segment import (
-    Components,
-    axis_polylines,
-    drop_artefacts,
-    find_components,
-)
+from blurtrack.detect.lines.segment import Components, axis_polylines
 from blurtrack.detect.lines.skeleton import trace_paths
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.anchored import anchored
@@ -136,23 +132,6 @@ def _self_crossing(points: np.ndarray, min_arc_px: float) -> bool:
     return False
 
 
-#: Streaks wider than this times the frame's cross-section sigma are ``merged``.
-MERGED_WIDTH = 1.5
-
-
-#: Unclipped streaks shorter than this fraction of the local consensus length are dropped...
-SPOT_FRACTION = 0.2
-#: ... where that consensus is at least this long (px): short streaks vary more.
-SPOT_MIN_PX = 20.0
-
-
-def near_border(a: np.ndarray, b: np.ndarray, W: int, H: int, m_px: float) -> np.ndarray:
-    """``(N,)``: an end within ``m_px`` of the border."""
-    e = np.stack([a, b], axis=1)
-    near = (e[..., 0] < m_px) | (e[..., 0] > W - 1 - m_px) | (e[..., 1] < m_px)
-    return np.asarray((near | (e[..., 1] > H - 1 - m_px)).any(axis=1))
-
-
 def _first_lines(
     comps: Components, polylines: list[np.ndarray], folded: np.ndarray, spur: float
 ) -> LineSet:
@@ -188,14 +167,6 @@ def _first_lines(
             ls.looped.append(path.self_crossing)
     ls.lines = lines
     return ls
-
-
-def _saturated_components(comps: Components, saturated: np.ndarray) -> np.ndarray:
-    """``(N,)`` bool: which kept components contain saturated pixels (from their pixel
-    lists: a saturated pixel is bright enough to lie in a component)."""
-    if comps.ids.size == 0:
-        return np.zeros(0, bool)
-    return np.maximum.reduceat(saturated[comps.ys, comps.xs], comps.starts)
 
 
 def _empty(
@@ -234,108 +205,89 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     p = params or DetectParams()
     keep_heap()  # once per process: no page faults for per-frame buffers
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
-    H, W = prep.signal.shape
-    sat_frac = float(np.count_nonzero(prep.saturated)) / (H * W)
+    ctx = frame_context(prep, p)
+    sat_frac = float(np.count_nonzero(prep.saturated)) / (ctx.shape[0] * ctx.shape[1])
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
     sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
-    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
-    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
-    if comps.ids.size == 0:
-        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
-    polylines, folded = axis_polylines(prep.smooth, comps, sigma_c)
+    if ctx.comps.ids.size == 0:
+        return _empty(ctx.shape, sigma_c, prep.noise, prep.hot_pixels, sat_frac)
+    m, folded = _first_pass(ctx, sigma_c)
+    if p.separate and len(m):
+        m = _separated(ctx, m, folded)
+    if len(m) == 0:
+        return _empty(ctx.shape, m.sigma_c, prep.noise, prep.hot_pixels, sat_frac)
+    return _frame_streaks(ctx, m, prep.noise, prep.hot_pixels, sat_frac)
+
+
+def _first_pass(ctx: FrameContext, sigma_c: float) -> tuple[Measured, np.ndarray]:
+    """The first pass: each component's coarse line(s) measured on the frame (``sigma_c``:
+    the guess of the cross-section sigma; measured unless ``psf_sigma_px`` is fixed), and
+    the ``(C,)`` bool components whose lines the skeleton tracer took (folded)."""
+    comps = ctx.comps
+    polylines, folded = axis_polylines(ctx.smooth, comps, sigma_c)
     ls = _first_lines(comps, polylines, folded, 2.0 * sigma_c + 3.0)
-    sat_comp = _saturated_components(comps, prep.saturated) if prep.saturated.any() else None
-    m = measure_lines(
-        prep.smooth,
-        prep.signal,
-        prep.saturation,
-        sat_comp,
-        ls,
-        sigma_c,
-        p.psf_sigma_px is None,
-        p.smooth_sigma_px,
-    )
-    sigma_c = m.sigma_c
+    m = measure_lines(ctx, ls, sigma_c, ctx.params.psf_sigma_px is None)
     m.looped = np.array(
         [
-            lp or (folded[o] and _self_crossing(pts, 4.0 * sigma_c))
+            lp or (folded[o] and _self_crossing(pts, 4.0 * m.sigma_c))
             for lp, o, pts in zip(m.looped.tolist(), m.own.tolist(), m.points, strict=True)
         ],
         bool,
     )
-    if p.separate and len(m):
-        sep = separate(
-            prep.smooth,
-            prep.signal,
-            prep.saturation,
-            sat_comp,
-            comps,
-            m,
-            folded,
-            near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
-            np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * sigma_c),
-            p.smooth_sigma_px,
-        )
-        if sep.streaks is not None and sep.replaced is not None:
-            m = _combine(m, ~sep.replaced[m.own], sep.streaks)
-        if sep.field is not None:
-            # Every dot draws about the same curve: a spot far shorter than the local
-            # consensus inside the frame is a remnant (of a chain, a blob), not a dot's streak.
-            c = np.hypot(*sep.field.at(m.time_mid).T)
-            inside = ~near_border(m.end_a, m.end_b, W, H, p.border_margin_px)
-            m = _combine(m, ~(inside & (c >= SPOT_MIN_PX) & (m.length_px < SPOT_FRACTION * c)))
-            if sep.refs is not None and sep.good is not None and len(m):
-                m, _ = anchored(
-                    prep.smooth,
-                    prep.signal,
-                    prep.saturation,
-                    sat_comp,
-                    comps,
-                    m,
-                    near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
-                    sep.refs,
-                    sep.good,
-                    sep.field,
-                    p.smooth_sigma_px,
-                )
-    if len(m) == 0:
-        return _empty((H, W), sigma_c, prep.noise, prep.hot_pixels, sat_frac)
+    return m, folded
+
+
+def _separated(ctx: FrameContext, m: Measured, folded: np.ndarray) -> Measured:
+    """Template separation (:func:`~blurtrack.detect.separation.separate.separate`), the
+    remnant spots dropped, and with whole-component references the anchored placements on
+    fragments (:func:`~blurtrack.detect.separation.anchored.anchored`)."""
+    sep = separate(ctx, m, folded)
+    if sep.streaks is not None and sep.replaced is not None:
+        m = _combine(m, ~sep.replaced[m.own], sep.streaks)
+    if sep.field is None:
+        return m
+    # Every dot draws about the same curve: a spot far shorter than the local consensus
+    # inside the frame is a remnant (of a chain, a blob), not a dot's streak.
+    c = np.hypot(*sep.field.at(m.time_mid).T)
+    inside = ~ctx.clipped(m.end_a, m.end_b)
+    sp = ctx.params.separation
+    m = _combine(m, ~(inside & (c >= sp.spot_min_px) & (m.length_px < sp.spot_fraction * c)))
+    if sep.refs is not None and sep.good is not None and len(m):
+        m, _ = anchored(ctx, m, sep.refs, sep.good, sep.field)
+    return m
+
+
+def _frame_streaks(
+    ctx: FrameContext, m: Measured, noise: float, hot_pixels: int, sat_frac: float
+) -> FrameStreaks:
+    """The frame's measured streaks with their flags and evidence (``noise``, ``hot_pixels``,
+    ``sat_frac``: as :class:`FrameStreaks` reports them)."""
+    p, comps, sigma_c = ctx.params, ctx.comps, m.sigma_c
     width = m.width_px
     flags = {
-        "clipped": near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+        "clipped": ctx.clipped(m.end_a, m.end_b),
         "saturated": m.saturated,
         "crossing": m.crossing,
-        "merged": np.isfinite(width) & (width > MERGED_WIDTH * sigma_c),
+        "merged": ctx.merged(width, sigma_c),
         "looped": m.looped,
-        "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
+        "faint": comps.peaks[m.own] < p.faint_snr * ctx.noise_smooth,
     }
-    evidence = assess(
-        prep.smooth,
-        comps,
-        threshold,
-        m.points,
-        m.profile,
-        m.plateau,
-        width,
-        sigma_c,
-        p.source,
-    )
+    evidence = assess(ctx, m.points, m.profile, m.plateau, width, sigma_c)
     return FrameStreaks(
-        shape=(H, W),
+        shape=ctx.shape,
         end_a=m.end_a,
         end_b=m.end_b,
         time_mid=m.time_mid,
         plateau=m.plateau,
         length_px=m.length_px,
         width_px=width,
-        snr=comps.peaks[m.own] / prep.noise_smooth,
+        snr=comps.peaks[m.own] / ctx.noise_smooth,
         points=m.points,
         profile=m.profile,
         flags=flags,
         sigma_c_px=sigma_c,
-        noise=prep.noise,
-        hot_pixels=prep.hot_pixels,
+        noise=noise,
+        hot_pixels=hot_pixels,
         short=m.short,
         saturated_fraction=sat_frac,
         evidence=evidence,

@@ -9,11 +9,12 @@ import numpy as np
 
 from blurtrack.errors import DetectionError
 
-_BOX = np.ones((3, 3), np.uint8)
-#: Block size (px) of the background map.
+_BOX = np.ones((3, 3), np.uint8)  # the 8-neighbourhood (and centre) for local maxima
+#: Block size (px) of the background map: large against a streak's width (the trimmed mean per
+#: block sees past the streaks), small against vignetting and ambient gradients.
 BACKGROUND_BLOCK_PX = 32
-_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])  # the 8-neighbour ring
-_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
+_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])  # the 8-neighbour ring (row offsets)
+_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])  # ... (column offsets)
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,24 @@ from typing import Any
 
 import yaml
 
+from blurtrack.detect.paramsections import (
+    GyroPassParams,
+    LinesParams,
+    QualityParams,
+    SeparationParams,
+)
 from blurtrack.errors import ConfigError
 from blurtrack.io.atomic import write_text_atomic
 from blurtrack.io.yamlio import yaml_error_line
+
+__all__ = [
+    "DetectParams",
+    "GyroPassParams",
+    "LinesParams",
+    "QualityParams",
+    "SeparationParams",
+    "SourceParams",
+]
 
 
 @dataclass(frozen=True)
@@ -88,8 +103,11 @@ class DetectParams:
     - ``gyro_template``: in a session with a gyro, a second pass on frames of hairpin
       streaks with the gyro's predicted curve as the template
       (:mod:`blurtrack.detect.gyro.gyropass`).
-    - ``source``: point light or extended source, trustworthy ends (:class:`SourceParams`;
-      YAML: a nested mapping).
+    - ``source``: point light or extended source, trustworthy ends (:class:`SourceParams`).
+    - ``lines``, ``separation``, ``quality``, ``gyro_pass``: each stage's tuning
+      (:mod:`blurtrack.detect.paramsections`).
+
+    In YAML every section is a nested mapping (any of its keys may be left out).
     """
 
     smooth_sigma_px: float = 1.0
@@ -107,6 +125,10 @@ class DetectParams:
     separate: bool = True
     gyro_template: bool = True
     source: SourceParams = field(default_factory=SourceParams)
+    lines: LinesParams = field(default_factory=LinesParams)
+    separation: SeparationParams = field(default_factory=SeparationParams)
+    quality: QualityParams = field(default_factory=QualityParams)
+    gyro_pass: GyroPassParams = field(default_factory=GyroPassParams)
 
     def __post_init__(self) -> None:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
@@ -138,8 +160,11 @@ class DetectParams:
             )
         if int(self.max_streaks) != self.max_streaks or self.max_streaks < 1:
             raise ConfigError("detect parameter max_streaks must be a positive integer")
-        if not isinstance(self.source, SourceParams):
-            raise ConfigError(f"detect parameter source must be a mapping: {self.source!r}")
+        for name, kind in _sections().items():
+            if not isinstance(getattr(self, name), kind):
+                raise ConfigError(
+                    f"detect parameter {name} must be a mapping: {getattr(self, name)!r}"
+                )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -147,12 +172,13 @@ class DetectParams:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DetectParams:
         data = dict(_checked_keys(data, cls, "detect parameter"))
-        if "source" in data:
-            src = _checked_keys(data["source"], SourceParams, "detect source parameter")
-            try:
-                data["source"] = SourceParams(**src)
-            except TypeError as exc:
-                raise ConfigError(f"invalid detect source parameters: {exc}") from exc
+        for name, kind in _sections().items():
+            if name in data:
+                sec = _checked_keys(data[name], kind, f"detect {name} parameter")
+                try:
+                    data[name] = kind(**sec)
+                except TypeError as exc:
+                    raise ConfigError(f"invalid detect {name} parameters: {exc}") from exc
         try:
             return cls(**data)
         except TypeError as exc:  # wrong value types surface here
@@ -172,6 +198,17 @@ class DetectParams:
                 f"detect parameters {path} are not valid YAML: {yaml_error_line(exc)}"
             ) from None
         return cls.from_dict(data or {})
+
+
+def _sections() -> dict[str, type]:
+    """The nested sections of :class:`DetectParams`: YAML key -> dataclass."""
+    return {
+        "source": SourceParams,
+        "lines": LinesParams,
+        "separation": SeparationParams,
+        "quality": QualityParams,
+        "gyro_pass": GyroPassParams,
+    }
 
 
 def _checked_keys(data: Any, cls: type, what: str) -> dict[str, Any]:

@@ -68,7 +68,7 @@ def detect_frames(
     def one(i: int) -> FrameStreaks:
         fs = detect_frame(session.read_image(i), params)
         # a per-frame stage: here, in parallel
-        fs.quality, fs.one_doubt = frame_quality(fs, params.source)
+        fs.quality, fs.one_doubt = frame_quality(fs, params)
         return fs
 
     # Small chunks: the results come back in order, the first ones early.

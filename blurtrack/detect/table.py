@@ -34,6 +34,7 @@ from blurtrack.detect.orientation import Orientation
 from blurtrack.detect.separation.quality import QUALITY_COLUMNS, add_quality
 from blurtrack.io import atomic, streaks
 
+#: Columns of the table beyond those of :mod:`blurtrack.io.streaks`, with their dtypes.
 EXTRA_COLUMNS: dict[str, str] = {
     "crossing": "bool",
     "looped": "bool",

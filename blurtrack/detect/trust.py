@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.sampling import sample_image
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.params import SourceParams
@@ -192,20 +193,18 @@ def classify_source(width_ratio: np.ndarray, fill: np.ndarray, p: SourceParams) 
 
 
 def assess(
-    smooth: np.ndarray,
-    comps: Components,
-    threshold: float,
+    ctx: FrameContext,
     points: list[np.ndarray],
     profile: list[np.ndarray],
     plateau: np.ndarray,
     width_px: np.ndarray,
     psf: float,
-    p: SourceParams,
 ) -> Evidence:
     """The :class:`Evidence` of a frame's streaks (``points``, ``profile``, ``plateau``,
-    ``width_px`` as in :class:`~blurtrack.detect.frame.FrameStreaks`) on its smoothed image
-    ``smooth``, components ``comps`` (thresholded at ``threshold``) and cross-section sigma
-    ``psf``."""
+    ``width_px`` as in :class:`~blurtrack.detect.frame.FrameStreaks`) on the frame ``ctx``
+    (its smoothed image, components, threshold and ``params.source``) with cross-section
+    sigma ``psf``."""
+    smooth, comps, threshold, p = ctx.smooth, ctx.comps, ctx.threshold, ctx.params.source
     n = len(points)
     if n == 0:
         return Evidence.empty()

@@ -9,22 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
-#: A frame keeps its first pass unless this fraction of its measured placements is
-#: confirmed in components replaced whole (see :func:`accepted`; 0.5 until 2026-12-03).
-ACCEPT_MIN = 0.35
-#: A measured line whose shape (its ends about their centre) matches its placed curve's is
-#: confirmed if its position lies within this times the tolerance (see :func:`confirmed`).
-SHAPE_SHIFT_FACTOR = 2.0
 
-
-def accepted(confirmed: int, measured: int) -> bool:
-    """Whether a frame's placements fit the prior: at least :data:`ACCEPT_MIN` of the
+def accepted(confirmed: int, measured: int, accept_min: float) -> bool:
+    """Whether a frame's placements fit the prior: at least ``accept_min``
+    (``gyro_pass.accept_min``) of the
     ``measured`` placements ``confirmed`` in components replaced whole. A wrong prior (the
     rendered hairpins with the gyro's sign reversed) confirms 3 of 11; frames of long
     collinear chains confirm fewer than plain ones (hard seed 3 frame 6: 66 of 160, every
     other frame of seeds 1-3 0.80 or more), their other placements' lines running along the
     chain and dropped one by one (their components keep their first-pass lines)."""
-    return confirmed >= ACCEPT_MIN * measured
+    return confirmed >= accept_min * measured
 
 
 def cut_at_border(curve: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,15 +53,20 @@ def mismatch(a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.n
 
 
 def confirmed(
-    a: np.ndarray, b: np.ndarray, s: np.ndarray, e: np.ndarray, tol: np.ndarray
+    a: np.ndarray,
+    b: np.ndarray,
+    s: np.ndarray,
+    e: np.ndarray,
+    tol: np.ndarray,
+    shape_shift_factor: float,
 ) -> np.ndarray:
-    """Measured lines ``a, b`` that the placed curves' ends ``s, e`` confirm: within ``tol``
-    (either orientation), or of the same shape (the ends about their centre within ``tol``)
-    within :data:`SHAPE_SHIFT_FACTOR` times ``tol``. Along a collinear chain a placement may
-    sit some px along the line from its dot (the neighbours' light fits it as well), while
-    the line measured on its own image is the dot's (hard seed 3 frame 7: measured ends a
+    """Measured lines ``a, b`` that the placed curves' ends ``s, e`` confirm: within ``tol`` (either
+    orientation), or of the same shape (the ends about their centre within ``tol``) within
+    ``shape_shift_factor`` (``gyro_pass.shape_shift_factor``) times ``tol``. Along a collinear chain
+    a placement may sit some px along the line from its dot (the neighbours' light fits it as well),
+    while the line measured on its own image is the dot's (hard seed 3 frame 7: measured ends a
     median 1.0 px from the truth, the placed ones 7.9 px)."""
     mis = mismatch(a, b, s, e)
     cm, cp = 0.5 * (a + b), 0.5 * (s + e)
     shape = mismatch(a - cm, b - cm, s - cp, e - cp)
-    return np.asarray((mis <= tol) | ((shape <= tol) & (mis <= SHAPE_SHIFT_FACTOR * tol)))
+    return np.asarray((mis <= tol) | ((shape <= tol) & (mis <= shape_shift_factor * tol)))

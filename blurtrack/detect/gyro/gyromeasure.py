@@ -16,32 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.frame import FLAG_NAMES, MERGED_WIDTH, FrameStreaks, near_border
+from blurtrack.detect.context import FrameContext
+from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaics
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import assess
-
-#: A placement's line is kept from its first to its last point above a quarter of its peak
-#: profile, but at most this times its median
-#: (:func:`blurtrack.detect.lines.centreline.refine_lines`; 2 and 4 measured worse): the placed
-#: curve runs along the whole streak, whose bright hook can be several times its tail. (The
-#: first pass keeps the peak: the same factor there moved ``phone``'s ends into the blooming,
-#: 1.43 -> 1.55 px on its optics test frame.)
-LIT_MEDIAN_FACTOR = 3.0
-#: Placements whose curve's chord is under this fraction of its arc are measured as two arms.
-ARMS_CHORD = 0.8
-#: Each placement is measured with the neighbours' templates subtracted as they are and
-#: with the difference clipped at zero, and keeps the line nearer its placed curve
-#: (:func:`measure_placements`). Either alone, on `hard` seeds 1-5 (recall / precision):
-#: clipped alone 97.51 / 98.68, 91.33 / 94.85, 89.12 / 93.21, 84.88 / 91.48, 97.68 / 99.10 %
-#: against 97.73 / 98.86, 92.14 / 94.85, 89.16 / 92.52, 84.17 / 90.85, 97.72 / 99.19 % as they
-#: are; the choice: 97.87 / 98.77, 92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10 %
-#: (session 2026-12-04, third). False: as they are only.
-CLIP_CHOICE = True
 
 
 def _end_mismatch(d: dict[str, Any], s: np.ndarray, e: np.ndarray) -> float:
@@ -84,36 +66,25 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
 
 
 def _measure_once(
-    prep: Any,
+    ctx: FrameContext,
     placements: list[Placement],
     flat: list[Placement],
     arm_of: list[tuple[int, int]],
-    sig: tuple[float, float, float],
-    sat_comp: np.ndarray | None,
+    sig: tuple[float, float],
     mosaic: tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray],
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
     """Per placement index, its streak measured on ``mosaic``, the mosaic of ``flat`` (the
     placements, hairpins as their two arms ``arm_of``;
     :func:`~blurtrack.detect.separation.separate.placement_mosaics`), frame coordinates,
     placements not measured whole absent; and the cross-section sigmas used."""
-    sig_s, sig_r, smooth_sigma = sig
+    sig_s, sig_r = sig
     mos_s, mos_r, lines, back = mosaic
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
-    whole_cross = overlapping_placements(placements)
+    whole_cross = overlapping_placements(placements, ctx.params.separation.overlap_fraction)
     cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
     ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
-    m = measure_lines(
-        mos_s,
-        mos_r,
-        prep.saturation,
-        sat_comp,
-        ls,
-        sig_s,
-        False,
-        smooth_sigma,
-        sig_r,
-        LIT_MEDIAN_FACTOR,
-    )
+    lit_median_factor = ctx.params.gyro_pass.lit_median_factor
+    m = measure_lines(ctx.on(mos_s, mos_r), ls, sig_s, False, sig_r, lit_median_factor)
     off = back[m.src]
     m.end_a, m.end_b, m.time_mid = m.end_a + off, m.end_b + off, m.time_mid + off
     m.points = [q + o for q, o in zip(m.points, off, strict=True)]
@@ -136,13 +107,11 @@ def _measure_once(
 
 
 def measure_placements(
-    prep: Any,
+    ctx: FrameContext,
     placements: list[Placement],
     placed_ends: np.ndarray,
     sig_s: float,
     sig_r: float,
-    smooth_sigma: float,
-    sat_comp: np.ndarray | None,
 ) -> Measured:
     """Each placement measured on its own image by :func:`measure_lines`, frame coordinates;
     ``src`` indexes ``placements``. A hairpin is measured as its two arms (each on its own
@@ -151,11 +120,12 @@ def measure_placements(
 
     Each placement is measured on two own images, the frame minus the neighbours' templates
     as it is and with that difference clipped at zero (where the neighbours' templates cover
-    more than the light, :data:`CLIP_CHOICE`), and keeps the line whose ends lie nearer its
+    more than the light, ``gyro_pass.clip_choice``), and keeps the line whose ends lie nearer its
     placed curve's ``placed_ends`` ``(P, 2, 2)`` (start, end; either orientation). Both lines
     are the image's; the prior chooses between two segmentations of the light, as it does
     when it places the templates.
     """
+    gp = ctx.params.gyro_pass
     flat: list[Placement] = []
     arm_of: list[tuple[int, int]] = []
     for j, q in enumerate(placements):
@@ -163,23 +133,21 @@ def measure_placements(
         k = turn_index(pts)
         chord = float(np.hypot(*(pts[-1] - pts[0])))
         arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
-        if 3 <= k <= len(pts) - 4 and chord < ARMS_CHORD * arc:
+        if 3 <= k <= len(pts) - 4 and chord < gp.arms_chord * arc:
             a1, a2 = arm_templates(q.tpl, sig_s, sig_r)
             flat += [Placement(a1, q.shift, q.amp, q.comp), Placement(a2, q.shift, q.amp, q.comp)]
             arm_of += [(j, 0), (j, 1)]
         else:
             flat.append(q)
             arm_of.append((j, -1))
-    sig = (sig_s, sig_r, smooth_sigma)
+    sig = (sig_s, sig_r)
     # The plain and the clipped mosaic in one pass (the neighbours' templates warped once).
     pad = int(np.ceil(6.0 * sig_s)) + 8
-    clips = (False, True) if CLIP_CHOICE else (False,)
-    mosaics = placement_mosaics(prep.smooth, prep.signal, flat, pad, clips)
-    found, sigma_c, sigma_raw = _measure_once(
-        prep, placements, flat, arm_of, sig, sat_comp, mosaics[0]
-    )
-    if CLIP_CHOICE:
-        clipped = _measure_once(prep, placements, flat, arm_of, sig, sat_comp, mosaics[1])[0]
+    clips = (False, True) if gp.clip_choice else (False,)
+    mosaics = placement_mosaics(ctx.smooth, ctx.signal, flat, pad, clips)
+    found, sigma_c, sigma_raw = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[0])
+    if gp.clip_choice:
+        clipped = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[1])[0]
         for j, c in clipped.items():
             o = found.get(j)
             s, e = placed_ends[j]
@@ -212,6 +180,7 @@ def measure_placements(
     )
 
 
+#: The per-streak fields of :class:`Measured` that one placement's measurement carries.
 _FIELDS = (
     "end_a",
     "end_b",
@@ -228,12 +197,11 @@ _FIELDS = (
 
 
 def as_streaks(
-    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, comps: Components, prep: Any, p: Any
+    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, ctx: FrameContext
 ) -> FrameStreaks:
     """The template pass's frame: rows ``keep`` of the first pass's ``fs`` followed by the
-    measured streaks ``m`` (flags as the first pass sets them; ``comps`` the frame's
-    components, ``prep`` the prepared frame, ``p`` the detection parameters)."""
-    H, W = fs.shape
+    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``."""
+    comps, p = ctx.comps, ctx.params
     k = np.flatnonzero(keep)
     if m is None or len(m) == 0:
         new: dict[str, Any] = {}
@@ -241,12 +209,12 @@ def as_streaks(
     else:
         n_new = len(m)
         flags = {
-            "clipped": near_border(m.end_a, m.end_b, W, H, p.border_margin_px),
+            "clipped": ctx.clipped(m.end_a, m.end_b),
             "saturated": m.saturated,
             "crossing": m.crossing,
-            "merged": np.isfinite(m.width_px) & (m.width_px > MERGED_WIDTH * fs.sigma_c_px),
+            "merged": ctx.merged(m.width_px, fs.sigma_c_px),
             "looped": m.looped,
-            "faint": comps.peaks[m.own] < p.faint_snr * prep.noise_smooth,
+            "faint": comps.peaks[m.own] < p.faint_snr * ctx.noise_smooth,
         }
         new = {
             "end_a": m.end_a,
@@ -255,7 +223,7 @@ def as_streaks(
             "plateau": m.plateau,
             "length_px": m.length_px,
             "width_px": m.width_px,
-            "snr": comps.peaks[m.own] / prep.noise_smooth,
+            "snr": comps.peaks[m.own] / ctx.noise_smooth,
             "short": m.short,
             "flags": flags,
             "points": m.points,
@@ -270,20 +238,9 @@ def as_streaks(
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
     points = [fs.points[i] for i in k] + (list(new["points"]) if n_new else [])
     profile = [fs.profile[i] for i in k] + (list(new["profile"]) if n_new else [])
-    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
     width = cat("width_px")
     # Measured again over the new set: the neighbours of the old streaks have changed.
-    evidence = assess(
-        prep.smooth,
-        comps,
-        threshold,
-        points,
-        profile,
-        cat("plateau"),
-        width,
-        fs.sigma_c_px,
-        p.source,
-    )
+    evidence = assess(ctx, points, profile, cat("plateau"), width, fs.sigma_c_px)
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),

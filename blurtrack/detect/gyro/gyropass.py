@@ -11,13 +11,13 @@ rendered with the frame's cross-section and brightness, is the template.
 
 Frames are refined where the prediction says the first pass cannot be right: *hairpin
 frames* (the median predicted curve at the first-pass midpoints has a chord under
-:data:`HAIRPIN_CHORD` of its arc) and frames where some long first-pass streak misses its
+``gyro_pass.hairpin_chord`` of its arc) and frames where some long first-pass streak misses its
 prediction (either orientation, placed at its time midpoint) by more than
-``TOL_PX + TOL_REL * arc`` (chains and fragments of long streaks). Frames where neither holds
+``tol_px + tol_rel * arc`` (chains and fragments of long streaks). Frames where neither holds
 are returned untouched (``realistic``, ``clean``: bit-identical tables).
 
-1. **Candidates** (at least :data:`MIN_ARC_PX` of predicted arc; components touching the
-   border too, :data:`BORDER_CANDIDATES`): in a
+1. **Candidates** (at least ``gyro_pass.min_arc_px`` of predicted arc; components touching
+   the border too, ``gyro_pass.border_candidates``): in a
    hairpin frame every component whose predicted curve, placed with its light centroid on
    the component's, is a hairpin; elsewhere components that do not have exactly one line
    matching the prediction.
@@ -35,7 +35,7 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    every candidate's template over what the refitted placements leave, each followed by the joint
    refit of all (:func:`_sweep`); components whose light the placements explain are candidates for
    replacement. Where a candidate touches the border the images are padded with zeros beyond the
-   frame and a placement may reach past it (:data:`CLIP_AT_BORDER`: scored and scaled by its
+   frame and a placement may reach past it (``gyro_pass.clip_at_border``: scored and scaled by its
    template's part inside the frame, its placed curve cut at the border,
    :func:`~blurtrack.detect.gyro.gyroconfirm.cut_at_border`): chains into the border hold streaks
    leaving the frame, which no template wholly inside explains.
@@ -46,14 +46,14 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    light is which dot's, which way its line runs), not the endpoints, so calibration from
    these streaks is not circular. (Each placement is measured on two own images, the
    neighbours' templates subtracted as they are and clipped at zero, and keeps the line
-   nearer its placed curve, :data:`~blurtrack.detect.gyro.gyromeasure.CLIP_CHOICE`: a choice
+   nearer its placed curve, ``gyro_pass.clip_choice``: a choice
    between two segmentations, both lines the image's.)
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
    placed curve's (and whose shape does not match it within twice that, :func:`_confirmed`)
    is dropped (its component keeps its first-pass lines), and a component
    keeps its first-pass lines unless the new streaks fit the placed curves better (per
    placement, the nearest old line against the new one); a frame where fewer than
-   :data:`~blurtrack.detect.gyro.gyroconfirm.ACCEPT_MIN` of the measured placements survive keeps
+   ``gyro_pass.accept_min`` of the measured placements survive keeps
    its first pass entirely (a wrong prior, e.g. a gyro of the wrong sign, draws shapes the
    image does not hold; :mod:`blurtrack.detect.gyro.gyroconfirm` holds these checks).
 """
@@ -66,23 +66,19 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.frame import (
-    SPOT_FRACTION,
-    SPOT_MIN_PX,
-    FrameStreaks,
-)
+from blurtrack.detect.context import frame_context
+from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
-from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
+from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.orientation import FrameTiming
-from blurtrack.detect.params import DetectParams
+from blurtrack.detect.params import DetectParams, GyroPassParams, SeparationParams
 from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.refit import model_image, refit
-from blurtrack.detect.separation.separate import HALO_MAX, RESIDUAL_MAX
 from blurtrack.detect.separation.templates import HALO_PX, InsideNorms, Placement, Template
 from blurtrack.errors import CoverageError
 
@@ -90,21 +86,6 @@ from blurtrack.errors import CoverageError
 #: at :data:`~blurtrack.detect.gyro.gyrocurve.CURVE_SAMPLES`; the gate is most of the pass's cost
 #: on frames it lets through to nothing, ``dense``: 13 ms per frame at 65 samples).
 GATE_SAMPLES = 17
-#: Frames whose median predicted chord is under this fraction of the arc are hairpin frames.
-HAIRPIN_CHORD = 0.8
-#: Curves shorter than this (px) are left to the first pass.
-MIN_ARC_PX = 12.0
-#: Endpoint tolerance between a line and the prediction: ``TOL_PX + TOL_REL * arc``.
-TOL_PX = 2.5
-TOL_REL = 0.1
-#: Lowest support-normalised correlation of the best shape (below it: refused).
-SHAPE_SCORE_MIN = 0.8
-#: Other frames are refined where more than this fraction of the long first-pass streaks
-#: miss the prediction.
-BAD_FRACTION = 0.0
-#: In a refined frame, first-pass lines longer than this times their predicted arc are
-#: dropped (chains; 1.6 until 2026-12-03, 1.15 cost hard seed 1 0.27 % of recall).
-CHAIN_FACTOR = 1.25
 #: More pursuits over what the placements leave (:func:`_sweep`). The first pursuit of a
 #: component stops after ``MAX_ROUNDS`` or where its tries fail the halo test, which a
 #: neighbour's still unexplained light fails; once the neighbours are placed and the joint
@@ -112,26 +93,6 @@ CHAIN_FACTOR = 1.25
 #: 44 of the 102 missed dots inside components the pass replaced had no placement within 8 px
 #: (session 2026-12-04, third). 0: none.
 SWEEPS = 2
-#: Components touching the frame's border are candidates too: on frames of long streaks
-#: the chains run into the border (hard seed 3 frame 7: 50 of 65 components, 88 % of the
-#: light), and a placement lies wholly inside the frame (the matched filter's positions).
-BORDER_CANDIDATES = True
-#: Border candidates' placements may reach past the frame's border (the images padded with
-#: zeros, each placement scored and scaled by its template's part inside the frame, its
-#: placed curve cut at the border): chains into the border hold streaks leaving the frame,
-#: which no template wholly inside explains.
-CLIP_AT_BORDER = True
-#: A component is replaced where at least this fraction of its placements was measured.
-MEASURED_MIN = 0.5
-#: Without first-pass lines inside the frame, the typical dot's light is this quantile of the
-#: components' light (chains are brighter; :func:`_dot_light`).
-LIGHT_QUANTILE = 0.4
-#: A replaced component's first-pass lines stay only where they fit its placed curves this
-#: many times better than the new lines (summed end mismatch). The placed curves' ends are
-#: 2 px from the measured ones at the median, 14 px at the 90th percentile, so a comparison
-#: at par kept worse old lines (1.0 until 2026-12-03: hard seed 3 endpoint median 0.304 px;
-#: at 1.5 0.286 px, precision 92.00 -> 92.51 %; seed 2 recall -0.27 %).
-OLD_LINES_MARGIN = 1.5
 
 
 def _sweep(
@@ -141,6 +102,7 @@ def _sweep(
     templates: dict[int, Template],
     comps: Components,
     comp_of_label: np.ndarray,
+    sp: SeparationParams,
     frame: tuple[int, int, int, int] | None,
     norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray]:
@@ -154,10 +116,10 @@ def _sweep(
             break
         more: list[Placement] = []
         for c, tpl in templates.items():
-            more += pursue(residual, comps, c, tpl, comp_of_label, HALO_MAX, frame, norms)
+            more += pursue(residual, comps, c, tpl, comp_of_label, sp, sp.halo_max, frame, norms)
         if not more:
             break
-        placements, model_img = refit(light, placements + more, frame, norms)
+        placements, model_img = refit(light, placements + more, sp, frame, norms)
         if model_img is not None:
             residual = np.maximum(light - model_img, 0.0)
     return placements, residual
@@ -192,17 +154,21 @@ def _line_owner(fs: FrameStreaks, comps: Components) -> np.ndarray:
     return out
 
 
-def _dot_light(lw: np.ndarray, border: np.ndarray, n_lines: np.ndarray) -> float:
+def _dot_light(
+    lw: np.ndarray, border: np.ndarray, n_lines: np.ndarray, light_quantile: float
+) -> float:
     """One dot's light (smoothed image units summed over its pixels): the median over the
     components inside the frame of their light per first-pass line. Every dot spends the
     same exposure, so its light does not depend on its streak's length; a component's light
     alone (the former estimate, its 0.4 quantile) is several dots' where long streaks chain
     (hard seed 2 frame 8: 300 against 155 for the 23 components holding one true streak,
-    so the pursuit saw every dot at amplitude 0.5, under ``AMP_MIN``)."""
+    so the pursuit saw every dot at amplitude 0.5, under ``separation.amp_min``). Without
+    first-pass lines inside the frame: the ``light_quantile`` quantile of the components'
+    light (``gyro_pass.light_quantile``; chains are brighter)."""
     ok = ~border & (n_lines > 0)
     if ok.any():
         return float(np.median(lw[ok] / n_lines[ok]))
-    return float(np.quantile(lw[~border], LIGHT_QUANTILE)) if (~border).any() else 0.0
+    return float(np.quantile(lw[~border], light_quantile)) if (~border).any() else 0.0
 
 
 def _pad_px(curves: np.ndarray, sigma: float) -> int:
@@ -213,11 +179,11 @@ def _pad_px(curves: np.ndarray, sigma: float) -> int:
     return int(np.ceil(1.1 * ext + 3.0 * sigma)) + HALO_PX + 8
 
 
-def gate(fs: FrameStreaks, timing: FrameTiming, model: Any) -> bool | None:
+def gate(fs: FrameStreaks, timing: FrameTiming, model: Any, gp: GyroPassParams) -> bool | None:
     """Whether the pass has work on a frame, from its first-pass streaks alone (one model
     call, no image work): None where it has none (no streak inside the frame, none long, the
     gyro not covering it, or every long streak matching its prediction in a frame that is not
-    a hairpin frame), else whether it is a hairpin frame."""
+    a hairpin frame), else whether it is a hairpin frame. ``gp``: the pass's parameters."""
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
     if not inside.any():
         return None
@@ -229,18 +195,18 @@ def gate(fs: FrameStreaks, timing: FrameTiming, model: Any) -> bool | None:
         )
     except CoverageError:
         return None
-    g_long = curves.arc >= MIN_ARC_PX
+    g_long = curves.arc >= gp.min_arc_px
     if not g_long.any():
         return None
-    hairpin = float(np.median(curves.chord[g_long] / curves.arc[g_long])) < HAIRPIN_CHORD
+    hairpin = float(np.median(curves.chord[g_long] / curves.arc[g_long])) < gp.hairpin_chord
     if not hairpin:
         # Streaks the first pass measured far from the prediction (placed at their time
         # midpoints): chains and fragments of long streaks.
         mid = curves.pts.shape[1] // 2
         g_pts = curves.pts - curves.pts[:, mid, None] + fs.time_mid[inside, None]
         a, b = fs.end_a[inside], fs.end_b[inside]
-        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > TOL_PX + TOL_REL * curves.arc
-        if not float(np.mean(bad[g_long])) > BAD_FRACTION:
+        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > gp.tol_px + gp.tol_rel * curves.arc
+        if not float(np.mean(bad[g_long])) > gp.bad_fraction:
             return None
     return hairpin
 
@@ -260,17 +226,18 @@ def refine_frame(
     ``point_track``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
     the templates and the measurement (None: the frame's, ``fs.sigma_c_px``)."""
     p = params or DetectParams()
+    gp, sp = p.gyro_pass, p.separation
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
-    hairpin = gate(fs, timing, model)
+    hairpin = gate(fs, timing, model, gp)
     if hairpin is None:
         return fs, FrameOutcome("skipped")
     if callable(image):
         image = image()
-    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
-    H, W = prep.smooth.shape
-    threshold = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    comps = find_components(prep.smooth, threshold, p.min_area_px, p.max_streaks)
-    comps = drop_artefacts(comps, p.artefact_ratio, p.artefact_gap_px)
+    ctx = frame_context(
+        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
+    )
+    H, W = ctx.shape
+    comps = ctx.comps
     C = comps.ids.size
     if C == 0:
         return fs, FrameOutcome("skipped")
@@ -296,9 +263,9 @@ def refine_frame(
     pts = curves.pts - curves.pts.mean(axis=1, keepdims=True) + centre[:, None, :]
     arc, chord = curves.arc, curves.chord
     long_ = (
-        (~border | BORDER_CANDIDATES)
-        & (arc >= MIN_ARC_PX)
-        & ((chord < HAIRPIN_CHORD * arc) | (not hairpin))
+        (~border | gp.border_candidates)
+        & (arc >= gp.min_arc_px)
+        & ((chord < gp.hairpin_chord * arc) | (not hairpin))
     )
     # Every long component of a hairpin frame is a candidate: a line that the first pass
     # measured well stays (below: the better of the two against the fitted curve). In other
@@ -306,7 +273,7 @@ def refine_frame(
     cand = long_.copy()
     own = _line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)
-    tol = TOL_PX + TOL_REL * arc
+    tol = gp.tol_px + gp.tol_rel * arc
     if not hairpin:
         ok1 = np.zeros(C, bool)
         one = own >= 0
@@ -319,15 +286,15 @@ def refine_frame(
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
     sig_s = fs.sigma_c_px if sigma_c is None else float(sigma_c)
     sig_r = float(np.sqrt(max(sig_s**2 - p.smooth_sigma_px**2, 0.25)))
-    dot_light = _dot_light(lw, border, n_lines)
-    ceiling = prep.saturation if prep.saturated.any() else None
+    dot_light = _dot_light(lw, border, n_lines, gp.light_quantile)
+    ceiling = ctx.saturation if ctx.sat_comp is not None else None
 
     def make(curve: np.ndarray, with_raw: bool = False) -> Template:
         return curve_template(curve, sig_s, sig_r, dot_light, ceiling, with_raw)
 
     # Border candidates: the images padded with zeros beyond the frame, so that a placement
     # may reach past the border (a streak leaving the frame: its curve cut at the border).
-    P = _pad_px(pts[cand], max(sig_s, sig_r)) if CLIP_AT_BORDER and (cand & border).any() else 0
+    P = _pad_px(pts[cand], max(sig_s, sig_r)) if gp.clip_at_border and (cand & border).any() else 0
     comps_p = comps
     in_frame: tuple[int, int, int, int] | None = None  # the frame in the padded images
     if P:
@@ -351,57 +318,56 @@ def refine_frame(
     templates: dict[int, Template] = {}  # each pursued candidate's shape
     norms = InsideNorms(in_frame)  # the sweeps pursue and refit over the same regions again
     for c in order.tolist():
-        tpl, score = best_shape(light, comps_p, c, pts[c] + P, make, in_frame)
-        if tpl is None or score < SHAPE_SCORE_MIN:
+        tpl, score = best_shape(light, comps_p, c, pts[c] + P, make, sp.inside_min, in_frame)
+        if tpl is None or score < gp.shape_score_min:
             continue
         tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
         templates[c] = tpl
-        placements += pursue(residual, comps_p, c, tpl, comp_of_label, HALO_MAX, in_frame, norms)
+        placements += pursue(
+            residual, comps_p, c, tpl, comp_of_label, sp, sp.halo_max, in_frame, norms
+        )
     n_cand = int(cand.sum())
     if not placements:
         return fs, FrameOutcome("refused", n_cand)
-    placements, model_img = refit(light, placements, in_frame, norms)
+    placements, model_img = refit(light, placements, sp, in_frame, norms)
     if model_img is not None or SWEEPS:
         # (Where the refit moved nothing the sweep starts from the placements' sub-pixel
         # templates, as the refit paints them, not the pursuit's integer ones.)
         model_img = model_image(light, placements) if model_img is None else model_img
         residual = np.maximum(light - model_img, 0.0)
     placements, residual = _sweep(
-        light, residual, placements, templates, comps_p, comp_of_label, in_frame, norms
+        light, residual, placements, templates, comps_p, comp_of_label, sp, in_frame, norms
     )
     vals = comps.values[pix_cand]
     res = residual[comps_p.ys[pix_cand], comps_p.xs[pix_cand]].astype(np.float64)
     before = np.bincount(pix[pix_cand], vals * vals, C)
     after = np.bincount(pix[pix_cand], res * res, C)
-    replaced = cand & (after <= RESIDUAL_MAX * before)
+    replaced = cand & (after <= sp.residual_max * before)
     # Back to frame coordinates (a template's box plus its shift).
     placements = [
         Placement(q.tpl, q.shift - P, q.amp, q.comp) for q in placements if replaced[q.comp]
     ]
     if not placements:
         return fs, FrameOutcome("refused", n_cand)
-    sat_comp = None
-    if prep.saturated.any():
-        sat_comp = np.maximum.reduceat(prep.saturated[comps.ys, comps.xs], comps.starts)
     # Each measured line against its placement's curve: the image must confirm the shape.
     # A placed curve reaching past the border is cut there (its line ends at the border).
     placed_ends = np.array([cut_at_border(q.tpl.points + q.shift, W, H) for q in placements])
-    m = measure_placements(prep, placements, placed_ends, sig_s, sig_r, p.smooth_sigma_px, sat_comp)
+    m = measure_placements(ctx, placements, placed_ends, sig_s, sig_r)
     ps, pe = placed_ends[m.src, 0].reshape(-1, 2), placed_ends[m.src, 1].reshape(-1, 2)
     mis_new = mismatch(m.end_a, m.end_b, ps, pe)
-    good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own])
+    good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own], gp.shape_shift_factor)
     # Components replaced only where every placement of theirs was measured and confirmed.
     n_place = np.bincount([q.comp for q in placements], minlength=C)
     n_good = np.bincount(m.own[good], minlength=C)
     # A placement the measurement could not follow (no line on its own image) loses its dot,
     # not its component's other dots: chains into the border leave some such.
     n_meas = np.bincount(m.own, minlength=C)
-    whole = replaced & (n_good == n_meas) & (n_meas > 0) & (n_meas >= MEASURED_MIN * n_place)
-    if not accepted(int(n_good[whole].sum()), len(m)):
+    whole = replaced & (n_good == n_meas) & (n_meas > 0) & (n_meas >= gp.measured_min * n_place)
+    if not accepted(int(n_good[whole].sum()), len(m), gp.accept_min):
         return fs, FrameOutcome("refused", int(cand.sum()))
     # A component's first-pass lines stay where they fit its placed curves clearly better
-    # (OLD_LINES_MARGIN) than the new streaks: per placement, the nearest of the component's
-    # old lines against its new line.
+    # (gyro_pass.old_lines_margin) than the new streaks: per placement, the nearest of the
+    # component's old lines against its new line.
     has_old = np.flatnonzero(whole[m.own] & (n_lines[m.own] > 0))
     if has_old.size:
         lines = np.flatnonzero(own >= 0)
@@ -413,7 +379,7 @@ def refine_frame(
         comp = m.own[has_old]
         cost_old = np.bincount(comp, old_best, C)
         cost_new = np.bincount(comp, mis_new[has_old], C)
-        whole[comp[OLD_LINES_MARGIN * cost_old[comp] <= cost_new[comp]]] = False
+        whole[comp[gp.old_lines_margin * cost_old[comp] <= cost_new[comp]]] = False
     m = combine(m, whole[m.own] & good)
     keep_old = ~((own >= 0) & whole[np.maximum(own, 0)])
     # A remaining first-pass spot far shorter than its predicted curve is a remnant (of a
@@ -421,8 +387,8 @@ def refine_frame(
     # far longer is a chain of several dots' streaks that the pass could not split.
     pred_arc = np.zeros(len(fs))
     pred_arc[inside] = predict_curves(model, fs.time_mid[inside], timing.t_s, timing.exposure_s).arc
-    long_pred = pred_arc >= SPOT_MIN_PX
-    keep_old &= ~(long_pred & (fs.length_px < SPOT_FRACTION * pred_arc))
-    keep_old &= ~(long_pred & (fs.length_px > CHAIN_FACTOR * pred_arc))
-    out = as_streaks(fs, keep_old, m, comps, prep, p)
+    long_pred = pred_arc >= sp.spot_min_px
+    keep_old &= ~(long_pred & (fs.length_px < sp.spot_fraction * pred_arc))
+    keep_old &= ~(long_pred & (fs.length_px > gp.chain_factor * pred_arc))
+    out = as_streaks(fs, keep_old, m, ctx)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))

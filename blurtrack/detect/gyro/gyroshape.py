@@ -25,7 +25,7 @@ import numpy as np
 
 from blurtrack.detect.gyro.gyrocurve import similar_curve
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.separation.templates import INSIDE_MIN, Template, inside_norm2
+from blurtrack.detect.separation.templates import Template, inside_norm2
 
 #: Shape search (calibration error): rotations (rad) and scales of the predicted curve.
 ROTATIONS_RAD = (-0.06, -0.03, 0.0, 0.03, 0.06)
@@ -44,6 +44,7 @@ def best_shape(
     c: int,
     pts: np.ndarray,
     make: Any,
+    inside_min: float,
     frame: tuple[int, int, int, int] | None = None,
 ) -> tuple[Template | None, float]:
     """The variant of curve ``pts`` (rotated, scaled) whose template explains the light in
@@ -57,7 +58,7 @@ def best_shape(
     ``frame``: for a ``light`` padded with zeros beyond the frame, the frame's pixels in it
     ``(x0, y0, x1, y1)``; a
     placement reaching past the border is normalised by its template's part inside the frame
-    (at least :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of it), so a streak leaving
+    (at least ``inside_min`` of it: ``separation.inside_min``), so a streak leaving
     the frame is matched by its predicted curve cut at the border.
     """
     x, y, w, h = (int(v) for v in comps.boxes[c])
@@ -68,7 +69,7 @@ def best_shape(
         key = (round(r, 9), round(sc, 9))
         if key not in tried:  # the search comes back to its pick: the same trial
             tpl = make(similar_curve(pts, sc * np.exp(1j * r)))
-            tried[key] = _trial(light, (x, y, w, h), tpl, near, frame)
+            tried[key] = _trial(light, (x, y, w, h), tpl, inside_min, near, frame)
         return tried[key]
 
     # The nominal shape over the whole box; the variants (a px or two from it) about its
@@ -102,6 +103,7 @@ def _trial(
     light: np.ndarray,
     box: tuple[int, int, int, int],
     tpl: Template,
+    inside_min: float,
     near: tuple[int, int, float] | None = None,
     frame: tuple[int, int, int, int] | None = None,
 ) -> _Trial:
@@ -143,7 +145,7 @@ def _trial(
     if n2 is None:
         norm: Any = np.sqrt(tpl.norm2)
     else:
-        lit &= n2 >= INSIDE_MIN * tpl.norm2
+        lit &= n2 >= inside_min * tpl.norm2
         norm = np.sqrt(np.maximum(n2, 1e-30))
     if not lit.any():
         return none

@@ -67,7 +67,7 @@ def refine_frames(
         )
         if out is fs:
             return None, what
-        out.quality, out.one_doubt = frame_quality(out, params.source)
+        out.quality, out.one_doubt = frame_quality(out, params)
         return out, what
 
     results = fork_map(one, covered, workers, 1, meanwhile)

@@ -223,7 +223,7 @@ def refine_timeshift(
 
     spread = np.linspace(0, len(covered) - 1, min(MAX_FRAMES, len(covered))).round()
     pick = [covered[int(i)] for i in np.unique(spread)] if covered else []
-    through = [k for k in pick if gate(found[k], timings[k], model) is not None]
+    through = [k for k in pick if gate(found[k], timings[k], model, params.gyro_pass) is not None]
     if not through:
         return result("not needed")
     sel = {k: usable_streaks(found[k]) for k in through}

@@ -24,6 +24,7 @@ import numpy as np
 from blurtrack.detect.lines import ragged
 from blurtrack.detect.lines.ragged import Ragged
 from blurtrack.detect.lines.sampling import sample_image
+from blurtrack.detect.paramsections import LinesParams
 
 #: Sampling passes over the normals: all but the last move the line to the centroids.
 REFINE_PASSES = 2
@@ -117,26 +118,6 @@ def _line_max(values: np.ndarray, r: Ragged) -> np.ndarray:
     return np.repeat(np.maximum.reduceat(values, r.starts), r.sizes)
 
 
-#: With a ``lit_median_factor``, a line's median profile is taken over its points above this
-#: fraction of its peak (not the unlit extensions past the ends).
-MEDIAN_FLOOR = 0.05
-
-
-#: A line's points above this fraction of its lit level (:func:`_lit_level`) are moved onto
-#: the light and bound the line's extent.
-LIT_FRACTION = 0.25
-#: Past a bound the line also keeps, unmoved, a faint tail: points above this fraction of the
-#: lit level contiguous with it (:func:`_faint_tails`), where they reach more than
-#: :data:`TAIL_MIN_PX` further. A dot that speeds up during the exposure draws a bright start
-#: and a tail fading towards its end (``hard`` seed 4 frame 3: isolated streaks cut 10-20 px
-#: short of their ends); shorter runs are the end cap's own blur and are left to the edge fits.
-#: `hard` seeds 1-5 (10 frames), recall / precision %: 97.87 / 98.77, 92.58 / 94.92,
-#: 91.03 / 93.63, 91.46 / 96.07, 97.72 / 99.10 against 97.87 / 98.77, 92.27 / 95.21,
-#: 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10 without (session 2026-12-04, fourth).
-TAIL_FRACTION = 0.1
-TAIL_MIN_PX = 6.0
-
-
 def _faint_tails(strong: np.ndarray, faint: np.ndarray, r: Ragged, min_n: float) -> np.ndarray:
     """Per point ``(M,)``, whether it lies in its line's kept span (what
     :func:`blurtrack.detect.lines.ragged.cut` takes): from the line's first to its last ``strong``
@@ -179,21 +160,24 @@ def _faint_tails(strong: np.ndarray, faint: np.ndarray, r: Ragged, min_n: float)
     return has[line] & (idx >= lo[line]) & (idx <= hi[line])
 
 
-def _lit_level(values: np.ndarray, r: Ragged, factor: float | None = None) -> np.ndarray:
+def _lit_level(
+    values: np.ndarray, r: Ragged, factor: float | None, median_floor: float
+) -> np.ndarray:
     """Per-point lit level of the point's line, ``(M,)``: the line's peak of ``values``, at
-    most ``factor`` times its median (None: the peak). On a line of one level (the peak
+    most ``factor`` times its median over the points above ``median_floor`` of the peak
+    (``factor`` None: the peak). On a line of one level (the peak
     about the median) it is the peak; where a bright hook is several times the rest of the
     streak (``hard`` seed 3 frame 6: hooks 3-5x the tail), a quarter of the peak lies above
     the tail, and cutting there keeps only the hook.
 
     >>> r = Ragged(np.zeros((6, 2)), np.array([6]))
-    >>> _lit_level(np.array([0.0, 8.0, 2.0, 2.0, 2.0, 2.0]), r, 3.0).tolist()[0]
+    >>> _lit_level(np.array([0.0, 8.0, 2.0, 2.0, 2.0, 2.0]), r, 3.0, 0.05).tolist()[0]
     6.0
     """
     peak = _line_max(values, r)
     if factor is None:
         return peak
-    on = np.where(values > MEDIAN_FLOOR * peak, values, np.nan)
+    on = np.where(values > median_floor * peak, values, np.nan)
     med = ragged.row_nanmedian(ragged.to_matrix(on, r.sizes, np.nan))
     return np.minimum(peak, np.repeat(factor * med, r.sizes))
 
@@ -202,6 +186,7 @@ def refine_lines(
     smooth: np.ndarray,
     polylines: list[np.ndarray] | Ragged,
     sigma_c: float,
+    lp: LinesParams,
     ceiling: float | None = None,
     lit_median_factor: float | None = None,
 ) -> RefinedLines:
@@ -211,7 +196,8 @@ def refine_lines(
     get their width from the tails (:func:`tail_sigma`), their top being clipped. The
     moving passes keep each line from its first to its last point above a quarter of its
     lit level (:func:`_lit_level` with ``lit_median_factor``; None: its peak), and the faint
-    tails beyond (:data:`TAIL_FRACTION`, :func:`_faint_tails`)."""
+    tails beyond (``lp.tail_fraction``, ``lp.tail_min_px``, :func:`_faint_tails`); a quarter
+    is ``lp.lit_fraction``."""
     half = int(np.ceil(3.0 * sigma_c)) + 1  # final pass: the whole cross-section integral
     half_move = int(np.ceil(2.0 * sigma_c)) + 1  # earlier passes only need the centroid
     n_ext = int(np.ceil(3.0 * sigma_c)) + 3  # final pass: edges, tails and their baseline
@@ -231,9 +217,9 @@ def refine_lines(
         prof = _row_sums(v)
         # Only points that carry signal (a quarter of their line's lit level) are moved
         # (and kept, on all but the final pass: the unlit rest of the extensions is rebuilt,
-        # faint tails kept unmoved: :data:`TAIL_FRACTION`).
-        level = _lit_level(prof, r, lit_median_factor)
-        lit = prof > LIT_FRACTION * level
+        # faint tails kept unmoved: ``lines.tail_fraction``).
+        level = _lit_level(prof, r, lit_median_factor, lp.median_floor)
+        lit = prof > lp.lit_fraction * level
         # The final pass moves by the centroid of the same central window, without
         # resampling: its profile stays valid to first order under so small a shift.
         shift = _centre_shift(v, half_move, 1.0 if final else h)
@@ -241,7 +227,7 @@ def refine_lines(
         if final:
             break
         # Points lie about 1 px apart (resampled at step 1), so points stand for pixels.
-        keep = _faint_tails(lit, prof > TAIL_FRACTION * level, r, TAIL_MIN_PX)
+        keep = _faint_tails(lit, prof > lp.tail_fraction * level, r, lp.tail_min_px)
         r = ragged.resample(ragged.smooth(ragged.cut(r, keep)))
     sig = cross_section_sigma(v, half)
     if ceiling is not None:

@@ -199,7 +199,7 @@ def _skew_of_slope(beta: np.ndarray) -> np.ndarray:
 
 
 _BETA = np.linspace(1.0, -1.0, 201)  # skewness increases along this table
-_SKEW = _skew_of_slope(_BETA)
+_SKEW = _skew_of_slope(_BETA)  # the skewness at each table slope (inverted by interpolation)
 
 
 def linear_density_segment(

@@ -1,11 +1,12 @@
 """Splitting streaks that touch end to end.
 
-On a dense grid, when a streak is about as long as the grid spacing, one dot's streak can end
-where the next dot's begins: thresholding joins them into one straight-looking component.
-The centre-line profile then dips between the two (two facing erf edges). A line much longer
-than the frame's typical streak whose profile falls below ``GAP_LEVEL`` of its plateau in
-its interior is cut at the dip. (All dots of a frame move nearly alike, so the typical length
-is a good reference; a fast middle part of a single streak also dims it, hence both tests.)
+On a dense grid, when a streak is about as long as the grid spacing, one dot's streak can end where
+the next dot's begins: thresholding joins them into one straight-looking component. The centre-line
+profile then dips between the two (two facing erf edges). A line much longer than the frame's
+typical streak (``lines.long_factor`` times its median lit extent) whose profile falls below
+``lines.gap_level`` of its plateau in its interior is cut at the dip. (All dots of a frame move
+nearly alike, so the typical length is a good reference; a fast middle part of a single streak also
+dims it, hence both tests.)
 """
 
 from __future__ import annotations
@@ -14,14 +15,12 @@ import numpy as np
 
 from blurtrack.detect.lines.centreline import RefinedLines
 from blurtrack.detect.lines.ragged import Ragged, row_nanmedian, to_matrix
-
-GAP_LEVEL = 0.3
-LONG_FACTOR = 1.6
+from blurtrack.detect.paramsections import LinesParams
 
 
-def split_at_gaps(ref: RefinedLines) -> tuple[RefinedLines, np.ndarray]:
-    """Cut lines at interior profile gaps; returns the new lines and, per new line, the index
-    of the line it came from."""
+def split_at_gaps(ref: RefinedLines, lp: LinesParams) -> tuple[RefinedLines, np.ndarray]:
+    """Cut lines at interior profile gaps (``lp.gap_level``, ``lp.long_factor``); returns the
+    new lines and, per new line, the index of the line it came from."""
     lens = ref.lines.sizes
     N = lens.size
     parent = np.arange(N)
@@ -40,10 +39,9 @@ def split_at_gaps(ref: RefinedLines) -> tuple[RefinedLines, np.ndarray]:
     last = A.shape[1] - 1 - np.argmax(lit[:, ::-1], axis=1)
     extent = np.where(has, (last - first) * ref.step, 0.0)
     typical = float(np.median(extent[has])) if np.any(has) else 0.0
-    gap = (
-        valid & (GAP_LEVEL * level[:, None] > A) & (cols > first[:, None]) & (cols < last[:, None])
-    )
-    rows = np.flatnonzero(has & (extent > LONG_FACTOR * typical) & gap.any(axis=1))
+    inner = (cols > first[:, None]) & (cols < last[:, None])
+    gap = valid & (lp.gap_level * level[:, None] > A) & inner
+    rows = np.flatnonzero(has & (extent > lp.long_factor * typical) & gap.any(axis=1))
     if rows.size == 0:
         return ref, parent
     starts = ref.lines.starts

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.centreline import raw_profiles, refine_lines, trim_lines
 from blurtrack.detect.lines.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.lines.gaps import split_at_gaps
@@ -61,27 +62,26 @@ class Measured:
 
 
 def measure_lines(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
+    ctx: FrameContext,
     ls: LineSet,
     sigma_c: float,
     measure_sigma: bool,
-    smooth_sigma: float,
     sigma_raw: float | None = None,
     lit_median_factor: float | None = None,
 ) -> Measured:
-    """Refine, split, fit and trim the lines of ``ls`` on ``smooth`` (and, for lines of
-    saturated components, ``sat_comp[owner]``, the unsmoothed ``signal``).
+    """Refine, split, fit and trim the lines of ``ls`` on ``ctx.smooth`` (and, for lines of
+    saturated components, ``ctx.sat_comp[owner]``, the unsmoothed ``ctx.signal``).
 
     ``sigma_c``: guess of the smoothed cross-section sigma, replaced by the lines' median width
-    when ``measure_sigma``; ``smooth_sigma``: the pre-smoothing sigma; ``sigma_raw``: the
-    unsmoothed sigma of saturated streaks (None: from the unsaturated widths);
-    ``lit_median_factor``: see :func:`blurtrack.detect.lines.centreline.refine_lines`."""
+    when ``measure_sigma``; ``sigma_raw``: the unsmoothed sigma of saturated streaks (None:
+    from the unsaturated widths); ``lit_median_factor``: see
+    :func:`blurtrack.detect.lines.centreline.refine_lines`."""
+    smooth, signal, saturation, sat_comp = ctx.smooth, ctx.signal, ctx.saturation, ctx.sat_comp
+    smooth_sigma = ctx.smooth_sigma_px
     ceiling = saturation if sat_comp is not None and sat_comp.any() else None
-    ref = refine_lines(smooth, ls.lines, sigma_c, ceiling, lit_median_factor)
-    ref, parent = split_at_gaps(ref)
+    lp = ctx.params.lines
+    ref = refine_lines(smooth, ls.lines, sigma_c, lp, ceiling, lit_median_factor)
+    ref, parent = split_at_gaps(ref, lp)
     owner = np.asarray(ls.owner, np.int64)[parent]
     crossing = np.asarray(ls.crossing, bool)[parent]
     looped = np.asarray(ls.looped, bool)[parent]

@@ -34,7 +34,7 @@ import numpy as np
 
 from blurtrack.detect.lines.normal import normal_cdf_given_exp as _phi
 
-_SQRT_2PI = np.sqrt(2.0 * np.pi)
+_SQRT_2PI = np.sqrt(2.0 * np.pi)  # the Gaussian's normalisation
 
 #: Shortest segment (in blur sigmas) whose density curvature is fitted.
 QUADRATIC_MIN_SIGMAS = 5.0
@@ -86,7 +86,7 @@ class _State:
         return _State(*vals)
 
 
-_FIELDS = ("F0", "F1", "F2", "ga", "gb", "c0", "c1", "c2", "res", "cost")
+_FIELDS = ("F0", "F1", "F2", "ga", "gb", "c0", "c1", "c2", "res", "cost")  # _State's arrays
 
 
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -1,20 +1,19 @@
 """Anchored placement of the modal template on fragments (whole-component references only).
 
-A faint light on a string (night2 of the real photographs) is above the threshold only where
-it is brightest, its hook or its foot: the first pass and the separation measure that part,
-a *fragment* far shorter than the frame's consensus vector. The rest of the light is in the
-image, below the threshold. With whole-component references
-(:mod:`blurtrack.detect.separation.modal`) every light drew the reference's curve, so the nearest
-reference's template, mapped onto the local consensus
+A faint light on a string (night2 of the real photographs) is above the threshold only where it is
+brightest, its hook or its foot: the first pass and the separation measure that part, a *fragment*
+far shorter than the frame's consensus vector. The rest of the light is in the image, below the
+threshold. With whole-component references (:mod:`blurtrack.detect.separation.modal`) every light
+drew the reference's curve, so the nearest reference's template, mapped onto the local consensus
 (:func:`blurtrack.detect.separation.templates.similar`), is matched to the smoothed image around
-each fragment at any amplitude down to :data:`AMP_MIN` (relative to the reference), with two
-conditions that keep it on the fragment's own light: its support covers :data:`COVER_MIN` of the
-fragment's centre line (the *anchor*), and its normalised correlation over the support is at least
-:data:`SCORE_MIN`. The light of every other component is removed from the image first (neighbouring
-lights are not matched). The placed centre line is then measured on that image
-(:func:`blurtrack.detect.lines.measure.measure_lines`) and replaces the fragment only when the
-measurement agrees with the local consensus within the shape tolerance
-(:func:`blurtrack.detect.separation.quality.shape_tolerance`). Pixels, frame coordinates.
+each fragment at any amplitude down to ``separation.anchor_amp_min`` (relative to the reference),
+with two conditions that keep it on the fragment's own light: its support covers
+``separation.anchor_cover_min`` of the fragment's centre line (the *anchor*), and its normalised
+correlation over the support is at least ``separation.anchor_score_min``. The light of every other
+component is removed from the image first (neighbouring lights are not matched). The placed centre
+line is then measured on that image (:func:`blurtrack.detect.lines.measure.measure_lines`) and
+replaces the fragment only when the measurement agrees with the local consensus within the shape
+tolerance (:func:`blurtrack.detect.separation.quality.shape_tolerance`). Pixels, frame coordinates.
 """
 
 from __future__ import annotations
@@ -22,30 +21,19 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
-from blurtrack.detect.lines.segment import Components
+from blurtrack.detect.paramsections import SeparationParams
 from blurtrack.detect.separation.quality import Consensus, shape_tolerance
 from blurtrack.detect.separation.templates import Template, similar, template
 
-#: A streak whose chord is under this fraction of the local consensus length is a fragment.
-FRAGMENT = 0.75
-#: ... where the consensus is at least this long (px).
-MIN_LENGTH_PX = 20.0
-#: Lowest amplitude (relative to the reference) of an anchored placement.
-AMP_MIN = 0.05
-#: Lowest support-normalised correlation of an anchored placement.
-SCORE_MIN = 0.65
-#: Fraction of the fragment's centre-line points that the placed support must hold.
-COVER_MIN = 0.75
-#: Two accepted placements closer than this fraction of the consensus length are one light.
-SAME_LIGHT = 0.3
-
 
 def _place(
-    x: np.ndarray, anchor: np.ndarray, tpl: Template
+    x: np.ndarray, anchor: np.ndarray, tpl: Template, sp: SeparationParams
 ) -> tuple[int, int, float, float] | None:
     """Best position ``(iy, ix)`` of ``tpl`` in ``x`` (its amplitude and score) among those
-    whose support covers :data:`COVER_MIN` of the ``anchor`` mask; None if none passes."""
+    whose support covers ``sp.anchor_cover_min`` of the ``anchor`` mask; None if none
+    passes."""
     th, tw = tpl.smooth.shape
     if x.shape[0] < th or x.shape[1] < tw:
         return None
@@ -54,7 +42,8 @@ def _place(
     cover = cv2.matchTemplate(anchor, tpl.support, cv2.TM_CCORR) / max(float(anchor.sum()), 1.0)
     score = num / (np.sqrt(np.maximum(den, 0.0)) * np.sqrt(tpl.norm2) + 1e-12)
     amp = num / tpl.norm2
-    ok = (cover >= COVER_MIN) & (amp >= AMP_MIN) & (score >= SCORE_MIN)
+    ok = (cover >= sp.anchor_cover_min) & (amp >= sp.anchor_amp_min)
+    ok &= score >= sp.anchor_score_min
     if not ok.any():
         return None
     best = np.where(ok, score, -1.0)
@@ -63,31 +52,25 @@ def _place(
 
 
 def anchored(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    m: Measured,
-    clipped: np.ndarray,
-    refs: Measured,
-    good: np.ndarray,
-    field: Consensus,
-    smooth_sigma: float,
+    ctx: FrameContext, m: Measured, refs: Measured, good: np.ndarray, field: Consensus
 ) -> tuple[Measured, int]:
     """The streaks ``m`` with their fragments replaced by anchored placements (see the module
-    text), and how many were replaced. ``clipped``: ``(N,)`` streaks near the border (never
-    fragments); ``refs``/``good``: the whole-component references and those that agree."""
+    text), and how many were replaced. Streaks near the border are never fragments;
+    ``refs``/``good``: the whole-component references and those that agree with ``field``."""
+    smooth, signal, comps = ctx.smooth, ctx.signal, ctx.comps
+    sp = ctx.params.separation
+    clipped = ctx.clipped(m.end_a, m.end_b)
     c = field.at(m.time_mid)
     L = np.hypot(*c.T)
     v = m.end_b - m.end_a
     dev = np.minimum(np.hypot(*(v - c).T), np.hypot(*(v + c).T))
-    tol = shape_tolerance(c)
-    frag = ~clipped & (L >= MIN_LENGTH_PX) & (np.hypot(*v.T) < FRAGMENT * L) & (dev > tol)
+    tol = shape_tolerance(c, ctx.params.quality)
+    frag = ~clipped & (sp.fragment_min_px <= L) & (np.hypot(*v.T) < sp.fragment_fraction * L)
+    frag &= dev > tol
     ref_idx = np.flatnonzero(good)
     if not frag.any() or ref_idx.size == 0:
         return m, 0
-    H, W = smooth.shape
+    H, W = ctx.shape
     bases: dict[int, Template] = {}
     found: list[tuple[int, Measured]] = []
     for i in np.flatnonzero(frag).tolist():
@@ -116,15 +99,13 @@ def anchored(
         q = np.rint(pts - [x0, y0]).astype(int)
         inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < xs.shape[1]) & (q[:, 1] < xs.shape[0])
         anchor[q[inside, 1], q[inside, 0]] = 1.0
-        hit = _place(xs, anchor, tpl)
+        hit = _place(xs, anchor, tpl, sp)
         if hit is None:
             continue
         iy, ix, _, _ = hit
         line = tpl.points - [tpl.box[0], tpl.box[1]] + [ix, iy]
         ls = LineSet([line], [int(m.own[i])], [False], [False])
-        got = measure_lines(
-            xs, xr, saturation, sat_comp, ls, m.sigma_c, False, smooth_sigma, m.sigma_raw
-        )
+        got = measure_lines(ctx.on(xs, xr), ls, m.sigma_c, False, m.sigma_raw)
         if len(got) != 1:
             continue
         w = got.end_b[0] - got.end_a[0]
@@ -140,15 +121,16 @@ def anchored(
     # Fragments of one light give one placement (the first by streak order stands), and a
     # placement on a streak that is already whole is that streak: the fragment stays.
     keep = np.ones(len(m), bool)
+    same = sp.same_light_fraction
     whole_mid = m.time_mid[~frag]
     mids: list[np.ndarray] = []
     out: Measured | None = None
     for i, got in found:
         mid = got.time_mid[0]
-        if whole_mid.size and np.min(np.hypot(*(whole_mid - mid).T)) < SAME_LIGHT * L[i]:
+        if whole_mid.size and np.min(np.hypot(*(whole_mid - mid).T)) < same * L[i]:
             continue
         keep[i] = False
-        if any(np.hypot(*(mid - q)) < SAME_LIGHT * L[i] for q in mids):
+        if any(np.hypot(*(mid - o)) < same * L[i] for o in mids):
             continue
         mids.append(mid)
         out = got if out is None else combine(out, np.ones(len(out), bool), got)

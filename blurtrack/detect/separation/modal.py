@@ -1,39 +1,36 @@
 """References for template separation from whole *components*
 (:mod:`blurtrack.detect.separation.separate`).
 
-Separation needs a few whole, isolated streaks as templates. On a frame whose streaks are
-curved (the "2"-shaped trails of real point lights under hand shake) the first pass breaks
-most of them at their hooks, so its lines give too few references. The components of the
-thresholded image do not depend on that: an isolated light is one component, and every light
-drew the same curve, so isolated lights are components of nearly equal area and extent. The
-*modal* cluster of components (the one with the most members within :data:`CLUSTER_LOG` of one
-another in log area, log width and log height, away from the border) is taken as the frame's
-whole streaks; each member's centre line is the longest path of its skeleton
-(:func:`skeleton_path`; the first pass's lines of these components are broken or cut short),
-measured on the frame like a first-pass line; their start-to-end vectors give the consensus
-field and the references.
+Separation needs a few whole, isolated streaks as templates. On a frame whose streaks are curved
+(the "2"-shaped trails of real point lights under hand shake) the first pass breaks most of them at
+their hooks, so its lines give too few references. The components of the thresholded image do not
+depend on that: an isolated light is one component, and every light drew the same curve, so isolated
+lights are components of nearly equal area and extent. The *modal* cluster of components (the one
+with the most members within ``separation.modal_cluster_log`` of one another in log area, log width
+and log height, away from the border) is taken as the frame's whole streaks; each member's centre
+line is the longest path of its skeleton (:func:`skeleton_path`; the first pass's lines of these
+components are broken or cut short), measured on the frame like a first-pass line; their
+start-to-end vectors give the consensus field and the references.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.separation.quality import MIN_REFERENCE, Consensus, consensus_field
-
-#: Smallest component (px) that can be a whole streak of the modal cluster.
-MIN_AREA_PX = 40
-#: Largest difference of log area, log width and log height within the modal cluster.
-CLUSTER_LOG = 0.25
+from blurtrack.detect.paramsections import SeparationParams
+from blurtrack.detect.separation.quality import Consensus, consensus_field
 
 
-def modal_components(comps: Components, away: np.ndarray) -> np.ndarray:
+def modal_components(comps: Components, away: np.ndarray, sp: SeparationParams) -> np.ndarray:
     """``(C,)`` bool: the modal cluster of components (see the module text) among ``away``
-    (those that do not touch the border); all False when it has under two members."""
+    (those that do not touch the border; at least ``sp.modal_min_area_px``); all False when
+    it has under two members."""
     C = comps.ids.size
     out = np.zeros(C, bool)
-    idx = np.flatnonzero(away & (comps.areas >= MIN_AREA_PX))
+    idx = np.flatnonzero(away & (comps.areas >= sp.modal_min_area_px))
     if idx.size < 2:
         return out
     f = np.log(
@@ -42,13 +39,13 @@ def modal_components(comps: Components, away: np.ndarray) -> np.ndarray:
         )
     )
     d = np.max(np.abs(f[:, None, :] - f[None, :, :]), axis=2)
-    near = d <= CLUSTER_LOG
+    near = d <= sp.modal_cluster_log
     count = near.sum(axis=1)
     # Ties go to the larger components (fragments of a streak are smaller, chains larger and
     # rarer).
     best = int(np.lexsort((-comps.areas[idx], -count))[0])
     centre = np.median(f[near[best]], axis=0)
-    members = np.max(np.abs(f - centre), axis=1) <= CLUSTER_LOG
+    members = np.max(np.abs(f - centre), axis=1) <= sp.modal_cluster_log
     if int(members.sum()) >= 2:
         out[idx[members]] = True
     return out
@@ -99,23 +96,18 @@ def skeleton_path(mask: np.ndarray) -> np.ndarray:
 
 
 def component_references(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    sigma_c: float,
-    sigma_raw: float,
-    smooth_sigma: float,
+    ctx: FrameContext, sigma_c: float, sigma_raw: float
 ) -> tuple[Measured, Consensus] | None:
     """The modal components' joined lines, measured on the frame, and the consensus field of
-    their start-to-end vectors (None: fewer than :data:`MIN_REFERENCE` of them); ``sigma_c``,
-    ``sigma_raw``: the first pass's cross-section sigmas (smoothed, raw)."""
-    H, W = smooth.shape
+    their start-to-end vectors (None: fewer than ``quality.min_reference`` of them);
+    ``sigma_c``, ``sigma_raw``: the first pass's cross-section sigmas (smoothed, raw)."""
+    comps, q = ctx.comps, ctx.params.quality
+    min_ref = q.min_reference
+    H, W = ctx.shape
     x, y, w, h = comps.boxes.T
     away = (x > 0) & (y > 0) & (x + w < W) & (y + h < H)
-    modal = modal_components(comps, away)
-    if int(modal.sum()) < MIN_REFERENCE:
+    modal = modal_components(comps, away, ctx.params.separation)
+    if int(modal.sum()) < min_ref:
         return None
     lines: list[np.ndarray] = []
     owner: list[int] = []
@@ -125,14 +117,12 @@ def component_references(
         if len(path) >= 2:
             lines.append(path + np.array([bx, by], np.float64))
             owner.append(ci)
-    if len(lines) < MIN_REFERENCE:
+    if len(lines) < min_ref:
         return None
     n = len(lines)
     ls = LineSet(lines, owner, [False] * n, [False] * n)
-    m = measure_lines(
-        smooth, signal, saturation, sat_comp, ls, sigma_c, False, smooth_sigma, sigma_raw
-    )
-    if len(m) < MIN_REFERENCE:
+    m = measure_lines(ctx, ls, sigma_c, False, sigma_raw)
+    if len(m) < min_ref:
         return None
-    field = consensus_field(m.end_b - m.end_a, m.time_mid, np.ones(len(m), bool))
+    field = consensus_field(m.end_b - m.end_a, m.time_mid, np.ones(len(m), bool), q)
     return None if field is None else (m, field)

@@ -4,9 +4,10 @@ streaks, :mod:`blurtrack.detect.separation.separate`, and the template pass,
 
 The template ``T`` is correlated with the residual image ``X`` (OpenCV ``matchTemplate``); a
 placement's score is the normalised correlation over the template's support, its amplitude
-``<T, X> / |T|^2``; the best placements above :data:`SCORE_MIN` and :data:`AMP_MIN` are
-taken, ``a T`` subtracted, for up to :data:`MAX_ROUNDS` rounds. Positions in pixels of the
-(possibly padded) images, refined to sub-pixel by a parabola through the score's peak.
+``<T, X> / |T|^2``; the best placements above ``separation.score_min`` and ``amp_min``
+(:class:`~blurtrack.detect.paramsections.SeparationParams`) are taken, ``a T`` subtracted,
+for up to :data:`MAX_ROUNDS` rounds. Positions in pixels of the (possibly padded) images,
+refined to sub-pixel by a parabola through the score's peak.
 """
 
 from __future__ import annotations
@@ -15,25 +16,19 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.lines.segment import Components
+from blurtrack.detect.paramsections import SeparationParams
 from blurtrack.detect.separation.templates import (
     HALO_PX,
-    INSIDE_MIN,
     InsideNorms,
     Placement,
     Template,
     inside_norm2,
 )
 
-#: Lowest support-normalised correlation of an accepted placement.
-SCORE_MIN = 0.8
-#: Lowest amplitude (relative to the reference) of an accepted placement.
-AMP_MIN = 0.6
-#: Rounds of the pursuit (each takes every good placement that keeps ``SUPPRESS`` x the
-#: template's size from a better one, then subtracts them all).
+#: Rounds of the pursuit (each takes every good placement that keeps ``separation.suppress``
+#: x the template's size from a better one, then subtracts them all); a budget: the rounds
+#: stop early where nothing is placed or too little light is left (``separation.left_min``).
 MAX_ROUNDS = 3
-SUPPRESS = 0.4
-#: A further round needs this fraction of a weakest placement's light left in the box.
-LEFT_MIN = 0.5
 #: Matched-filter peaks tried per round, and how far (px) a refused one suppresses its
 #: neighbours.
 MAX_TRIES = 16
@@ -59,19 +54,21 @@ def pursue(
     c: int,
     tpl: Template,
     comp_of_label: np.ndarray,
+    sp: SeparationParams,
     halo_max: float,
     frame: tuple[int, int, int, int] | None = None,
     norms: InsideNorms | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
-    light it explains.
+    light it explains. ``sp``: the thresholds; ``halo_max``: ``sp.halo_max`` or
+    ``sp.halo_max_whole``.
 
     ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
     ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.separation.templates.inside_norm2`): a placement
     reaching past the border is scored and scaled by its template's part inside the frame
-    (a streak leaving the frame), and needs at least
-    :data:`~blurtrack.detect.separation.templates.INSIDE_MIN` of its template inside.
+    (a streak leaving the frame), and needs at least ``sp.inside_min`` of its template
+    inside.
     ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``)."""
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
@@ -85,7 +82,7 @@ def pursue(
     region = residual[y0:y1, x0:x1]  # a view: subtractions update the residual
     out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))
-    sx, sy = max(int(SUPPRESS * tw), 1), max(int(SUPPRESS * th), 1)
+    sx, sy = max(int(sp.suppress * tw), 1), max(int(sp.suppress * th), 1)
     # The same region every round.
     box = (x0, y0, x1, y1)
     n2 = inside_norm2(frame, box, tpl.smooth) if norms is None else norms(box, tpl.smooth)
@@ -94,9 +91,9 @@ def pursue(
         # are evaluated at those few positions only.
         num = cv2.matchTemplate(region, tpl.smooth, cv2.TM_CCORR)
         if n2 is None:
-            open_ = np.where(num >= AMP_MIN * tpl.norm2, num, 0.0)
+            open_ = np.where(num >= sp.amp_min * tpl.norm2, num, 0.0)
         else:
-            open_ = np.where((num >= AMP_MIN * n2) & (n2 >= INSIDE_MIN * tpl.norm2), num, 0.0)
+            open_ = np.where((num >= sp.amp_min * n2) & (n2 >= sp.inside_min * tpl.norm2), num, 0.0)
         picked: list[tuple[int, int, float]] = []
         for _try in range(MAX_TRIES):
             jy, jx = np.unravel_index(int(np.argmax(open_)), open_.shape)
@@ -111,7 +108,7 @@ def pursue(
             t1 = norm if n2 is None else float(np.sqrt(t2))
             score = float(num[iy, ix]) / (np.sqrt(max(den, 0.0)) * t1 + 1e-12)
             # A streak's template lies in the dark: no blob or wider streak fits it.
-            if score >= SCORE_MIN and halo <= halo_max * den:
+            if score >= sp.score_min and halo <= halo_max * den:
                 picked.append((iy, ix, float(num[iy, ix]) / t2))
                 ry, rx = sy, sx
             else:
@@ -131,6 +128,6 @@ def pursue(
             np.maximum(win, 0.0, out=win)
         # Another round only if the candidate's box still holds a good part of a template.
         left = residual[y : y + h, x : x + w]
-        if float(np.sum(left * left)) < LEFT_MIN * AMP_MIN**2 * tpl.norm2:
+        if float(np.sum(left * left)) < sp.left_min * sp.amp_min**2 * tpl.norm2:
             break
     return out

@@ -13,20 +13,23 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   that a wrong start/end does not count as a shape error (and, where a strong roll turns the
   vectors across the frame, from neighbour to neighbour and then against the fitted field,
   whichever field more streaks agree with); NaN when fewer than
-  :data:`MIN_REFERENCE` streaks can vote.
-- ``thick_saturated``: saturated and wider than :data:`THICK_WIDTH_RATIO` x the frame's dot
-  width (the median of its unsaturated streaks', or of all where fewer than
-  :data:`MIN_REFERENCE` are unsaturated): a blown-out core whose centre line and ends are
+  ``quality.min_reference`` streaks can vote.
+- ``thick_saturated``: saturated and wider than ``quality.thick_width_ratio`` x the frame's
+  dot width (the median of its unsaturated streaks', or of all where fewer than
+  ``quality.min_reference`` are unsaturated): a blown-out core whose centre line and ends are
   unreliable.
 - ``source``: ``point``, ``extended`` or ``undetermined``, from the frame's image
   (:mod:`blurtrack.detect.trust`); a table without that evidence is ``undetermined``.
 - ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is
   ``point``, none of ``clipped``, ``merged``, ``crossing``, ``looped``, ``thick_saturated``,
   no neighbour's light just beyond an end, and a shape within
-  ``max(SHAPE_TOL_PX, SHAPE_TOL_REL |c|)`` of the consensus (where it is known). A saturated
+  ``max(shape_tol_px, shape_tol_rel |c|)`` of the consensus (where it is known). A saturated
   core alone does not disqualify: its ends are measured on the unclipped profile.
 - ``reason``: why (the first that applies, in the order of :data:`REASONS`), ``ok`` when
   ``quality_ok``.
+
+Thresholds: :class:`~blurtrack.detect.paramsections.QualityParams` (``quality`` of
+:class:`~blurtrack.detect.params.DetectParams`).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from blurtrack.detect.params import SourceParams
+from blurtrack.detect.params import DetectParams, QualityParams, SourceParams
 
 if TYPE_CHECKING:  # the table's type only: detection itself does not need pandas
     import pandas as pd
@@ -75,15 +78,9 @@ REASONS = (
     "gyro_mismatch",
     "ends_unsure",
 )
-#: Fewest unflagged streaks in a frame for a shape consensus.
-MIN_REFERENCE = 5
-#: Rounds of re-choosing each vector's sign against the fitted field (and refitting).
+#: Rounds of re-choosing each vector's sign against the fitted field (and refitting); a
+#: budget: the rounds stop early where no sign changes.
 RESIGN_ROUNDS = 3
-#: Saturated streaks wider than this times the frame's median width are ``thick_saturated``.
-THICK_WIDTH_RATIO = 2.0
-#: Shape tolerance of ``quality_ok``: absolute (px) and relative to the consensus length.
-SHAPE_TOL_PX = 3.0
-SHAPE_TOL_REL = 0.25
 
 
 @dataclass(frozen=True)
@@ -106,7 +103,7 @@ class Consensus:
 
 
 def _robust_affine(
-    X: np.ndarray, vs: np.ndarray, voters: np.ndarray, start: np.ndarray
+    X: np.ndarray, vs: np.ndarray, voters: np.ndarray, start: np.ndarray, min_reference: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Affine field from ``start``, refitted over rounds that keep the ``voters`` within 3x
     the median residual; returns the coefficients and the voters of the last round."""
@@ -117,7 +114,7 @@ def _robust_affine(
         r = np.hypot(*(vs - X @ coef).T)
         cut = max(3.0 * float(np.median(r[use])), 0.5)
         new = voters & (r <= cut)
-        if int(new.sum()) < MIN_REFERENCE:
+        if int(new.sum()) < min_reference:
             break
         use = new
     return coef, use
@@ -150,7 +147,7 @@ def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.
 
 
 def consensus_field(
-    v: np.ndarray, mid: np.ndarray, voters: np.ndarray, resign: bool = False
+    v: np.ndarray, mid: np.ndarray, voters: np.ndarray, q: QualityParams, resign: bool = False
 ) -> Consensus | None:
     """The frame's consensus start-to-end vector at every streak, orientation-free.
 
@@ -158,14 +155,15 @@ def consensus_field(
         v: ``(N, 2)`` start-to-end (or A-to-B) vectors.
         mid: ``(N, 2)`` time midpoints.
         voters: ``(N,)`` bool, the streaks that may vote.
+        q: the fewest voters and the shape tolerance.
         resign: also start from signs propagated between neighbours and re-choose each
             vector's sign against the fitted field (:data:`RESIGN_ROUNDS`): a strong roll
             turns the vectors across the frame, so one axis's sign splits the field. The
             quality flags use it; separation keeps the dominant axis's signs.
     Returns:
-        The field, or None when fewer than :data:`MIN_REFERENCE` streaks vote.
+        The field, or None when fewer than ``q.min_reference`` streaks vote.
     """
-    if int(voters.sum()) < MIN_REFERENCE:
+    if int(voters.sum()) < q.min_reference:
         return None
     ref = v[voters]
     # Dominant direction from the second-moment matrix (orientation-free), then signs.
@@ -180,8 +178,8 @@ def consensus_field(
     # refits and re-admits the voters within 3x the median residual, so the field grows over
     # the frame. The start whose field more voters agree with (within the tolerance) wins.
     med = np.median(vs[voters], axis=0)
-    near = np.hypot(*(vs - med).T) <= 2.0 * max(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*med))
-    tol = np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*v.T))
+    near = np.hypot(*(vs - med).T) <= 2.0 * max(q.shape_tol_px, q.shape_tol_rel * np.hypot(*med))
+    tol = np.maximum(q.shape_tol_px, q.shape_tol_rel * np.hypot(*v.T))
 
     def agreeing(coef: np.ndarray) -> int:  # orientation-free
         c = X @ coef
@@ -189,7 +187,7 @@ def consensus_field(
         return int(np.sum(voters & (dev <= tol)))
 
     starts = [(sign, voters)]
-    if int(np.sum(voters & near)) >= MIN_REFERENCE:
+    if int(np.sum(voters & near)) >= q.min_reference:
         starts.append((sign, voters & near))
     # A strong roll turns the vectors across the frame, so one axis's sign splits the field:
     # (resign) a third start takes each voter's sign from its nearest signed neighbour.
@@ -197,13 +195,13 @@ def consensus_field(
         starts.append((_propagated_signs(v, mid, voters), voters))
     best: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
     for sg, start in starts:
-        coef, use = _robust_affine(X, v * sg, voters, start)
+        coef, use = _robust_affine(X, v * sg, voters, start, q.min_reference)
         for _ in range(RESIGN_ROUNDS if resign else 0):  # signs re-chosen against the field
             new_sg = np.where(np.sum(v * (X @ coef), axis=1) < 0, -1.0, 1.0)[:, None]
             if np.array_equal(new_sg, sg):
                 break
             sg = new_sg
-            coef, use = _robust_affine(X, v * sg, voters, use)
+            coef, use = _robust_affine(X, v * sg, voters, use, q.min_reference)
         score = agreeing(coef)
         if best is None or score > best[0]:
             best = (score, coef, use, sg)
@@ -216,9 +214,9 @@ def consensus_field(
     return Consensus(c, np.minimum(dev_plus, dev_minus), use, coef, centre)
 
 
-def shape_tolerance(c: np.ndarray) -> np.ndarray:
+def shape_tolerance(c: np.ndarray, q: QualityParams) -> np.ndarray:
     """``(N,)`` largest shape deviation that ``quality_ok`` accepts for consensus ``c``."""
-    return np.maximum(SHAPE_TOL_PX, SHAPE_TOL_REL * np.hypot(*c.T))
+    return np.maximum(q.shape_tol_px, q.shape_tol_rel * np.hypot(*c.T))
 
 
 #: Columns :func:`add_quality` adds, in order (``frame_quality`` returns them in this order).
@@ -233,6 +231,7 @@ def _frame_quality(
     source: np.ndarray,
     end_light: np.ndarray,
     p: SourceParams,
+    q: QualityParams,
     short: np.ndarray | None = None,
 ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
     """The :data:`QUALITY_COLUMNS` of one frame's streaks from their start-to-end vectors,
@@ -246,10 +245,10 @@ def _frame_quality(
     # saturated streaks but one or two faint ones would call every streak thick): else from
     # all (a saturated width is measured on the clipped cross-section's flanks).
     ref_w = width[~sat & np.isfinite(width)]
-    ref_w = ref_w if ref_w.size >= MIN_REFERENCE else width[np.isfinite(width)]
+    ref_w = ref_w if ref_w.size >= q.min_reference else width[np.isfinite(width)]
     w0 = float(np.median(ref_w)) if ref_w.size else np.nan
     with np.errstate(invalid="ignore"):
-        thick = sat & (width > THICK_WIDTH_RATIO * w0)
+        thick = sat & (width > q.thick_width_ratio * w0)
     flagged = np.logical_or.reduce([flags[c] for c in FLAGGED_BY])
     point = source == "point"
     with np.errstate(invalid="ignore"):
@@ -260,10 +259,10 @@ def _frame_quality(
     long_ = short_ = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
     # dots' curve.
-    field = consensus_field(v, mid, point & ~(flagged | thick), resign=True)
+    field = consensus_field(v, mid, point & ~(flagged | thick), q, resign=True)
     if field is not None:
         dev = field.dev
-        tol = shape_tolerance(field.c)
+        tol = shape_tolerance(field.c, q)
         bent = dev > tol
         c_len = np.hypot(*field.c.T)
         length = np.hypot(*v.T)
@@ -310,11 +309,12 @@ def _flags(get: Callable[[str], np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def frame_quality(
-    fs: FrameStreaks, p: SourceParams | None = None
+    fs: FrameStreaks, p: DetectParams | None = None
 ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
     """:func:`add_quality`'s columns for one frame's streaks, and which of them have exactly
     one doubt (:func:`one_doubt`), from the frame itself
-    (the frame's worker computes them: frames are independent). They do not depend on which
+    (the frame's worker computes them: frames are independent; ``p``: its ``source`` and
+    ``quality`` sections, defaults if None). They do not depend on which
     end is A: the consensus takes each vector's sign from the dominant direction and the
     deviation is the nearer of ``|v - c|`` and ``|v + c|``, so the table's values after
     orientation are these."""
@@ -323,26 +323,23 @@ def frame_quality(
     source = ev.source if ev is not None else np.full(n, "undetermined", object)
     light = ev.end_light if ev is not None else np.zeros((n, 2))
     flags = _flags(lambda c: fs.flags[c])
+    p = p or DetectParams()
+    v = fs.end_b - fs.end_a
     short = fs.short if len(fs.short) == n else None
     return _frame_quality(
-        fs.end_b - fs.end_a,
-        fs.time_mid,
-        flags,
-        fs.width_px,
-        source,
-        light,
-        p or SourceParams(),
-        short,
+        v, fs.time_mid, flags, fs.width_px, source, light, p.source, p.quality, short
     )
 
 
-def add_quality(table: pd.DataFrame, p: SourceParams | None = None) -> pd.DataFrame:
-    """``table`` with the :data:`QUALITY_COLUMNS`. The image evidence comes from the
+def add_quality(table: pd.DataFrame, p: DetectParams | None = None) -> pd.DataFrame:
+    """``table`` with the :data:`QUALITY_COLUMNS` (``p``: the ``source`` and ``quality``
+    sections, defaults if None). The image evidence comes from the
     table's ``source``, ``end_light_start`` and ``end_light_end`` columns; without a
     ``source`` column every streak is ``undetermined`` (and none ``quality_ok``). The
     ``merged`` column there is ``merged`` or ``crossing`` (the table's definition)."""
     out = table.copy()
     n = len(out)
+    p = p or DetectParams()
     cols: list[np.ndarray] = [
         np.full(n, np.nan),
         np.zeros(n, bool),
@@ -377,7 +374,8 @@ def add_quality(table: pd.DataFrame, p: SourceParams | None = None) -> pd.DataFr
                 width[rows],
                 source[rows],
                 light[rows],
-                p or SourceParams(),
+                p.source,
+                p.quality,
             )
             for col, r in zip(cols, res[0], strict=True):
                 col[rows] = r

@@ -20,23 +20,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from blurtrack.detect.paramsections import SeparationParams
 from blurtrack.detect.separation.templates import (
-    INSIDE_MIN,
     InsideNorms,
     Placement,
     inside_norm2,
     warp,
 )
 
-#: Coordinate-descent rounds over the overlapping placements.
+#: Coordinate-descent rounds over the overlapping placements; a budget: the rounds stop early
+#: where no placement moved.
 ROUNDS = 3
-#: How far (px) one step may move a placement: this fraction of the template's larger side,
-#: within [REACH_MIN_PX, REACH_MAX_PX].
-REACH_FRACTION = 0.2
-REACH_MIN_PX = 3
-REACH_MAX_PX = 8
-#: A step whose amplitude would fall below this keeps the placement where it was.
-AMP_KEEP = 0.4
 
 
 def _tile(p: Placement) -> tuple[int, int, np.ndarray]:
@@ -116,6 +110,7 @@ def _peak(num: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 def refit(
     light: np.ndarray,
     pl: list[Placement],
+    sp: SeparationParams,
     frame: tuple[int, int, int, int] | None = None,
     norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray | None]:
@@ -124,7 +119,8 @@ def refit(
     with zeros beyond the frame, the frame's pixels in it, and a placement reaching past the border
     is scaled by its template's part inside, see
     :func:`blurtrack.detect.separation.templates.inside_norm2`; ``norms``: those norms
-    remembered over calls, its ``frame`` being ``frame``).
+    remembered over calls, its ``frame`` being ``frame``; ``sp``: the step's reach, the
+    amplitude it keeps, ``inside_min``).
 
     Returns the placements (moved and re-scaled where that fits better; the others as they
     were) and the model image ``sum amp * template`` of all of them (None when no
@@ -147,7 +143,7 @@ def refit(
         for k in sorted(active):
             p = out[k]
             x, y, w, h = p.tpl.box
-            r = int(np.clip(REACH_FRACTION * max(w, h), REACH_MIN_PX, REACH_MAX_PX))
+            r = int(np.clip(sp.reach_fraction * max(w, h), sp.reach_min_px, sp.reach_max_px))
             bx, by = int(np.rint(x + p.shift[0])), int(np.rint(y + p.shift[1]))
             x0, y0 = max(bx - r, 0), max(by - r, 0)
             x1, y1 = min(bx + w + r, W), min(by + h + r, H)
@@ -162,10 +158,10 @@ def refit(
                 if norms is None
                 else norms(box, p.tpl.smooth)
             )
-            pick = num if n2 is None else np.where(n2 >= INSIDE_MIN * p.tpl.norm2, num, -np.inf)
+            pick = num if n2 is None else np.where(n2 >= sp.inside_min * p.tpl.norm2, num, -np.inf)
             iy, ix = (int(v) for v in np.unravel_index(int(np.argmax(pick)), pick.shape))
             amp = float(num[iy, ix]) / (p.tpl.norm2 if n2 is None else float(n2[iy, ix]))
-            if amp >= AMP_KEEP:
+            if amp >= sp.amp_keep:
                 fx, fy = _peak(num, iy, ix)
                 shift = np.array([x0 + ix + fx - x, y0 + iy + fy - y])
                 if np.any(np.abs(shift - p.shift) > 0.05):

@@ -14,8 +14,8 @@ isolated streak is a matched template for its neighbours (shape *and* brightness
    template ``T``): the normalised correlation over the template's support,
    ``<T, X> / (|T| |X|_support)``, is 1 where ``X`` holds a scaled copy of ``T`` whatever lies
    outside, and about ``sqrt(f)`` where only a fraction ``f`` of a collinear neighbour overlaps;
-   the best placement above :data:`~blurtrack.detect.separation.pursuit.SCORE_MIN` with an amplitude
-   ``<T, X> / |T|^2`` above :data:`~blurtrack.detect.separation.pursuit.AMP_MIN` is accepted and
+   the best placement above ``separation.score_min`` with an amplitude ``<T, X> / |T|^2``
+   above ``separation.amp_min`` is accepted and
    ``a T`` subtracted from the candidates' residual image, until none is left
    (:func:`blurtrack.detect.separation.pursuit.pursue`). Fragments of one streak (a dim middle) are
    joined: one placement explains both. Placements that share light are then fitted together
@@ -25,7 +25,11 @@ isolated streak is a matched template for its neighbours (shape *and* brightness
    minus the templates of the *other* placements that overlap it, all tiled into one mosaic;
    the placed centre lines (the reference's, shifted) are measured there by
    :func:`blurtrack.detect.lines.measure.measure_lines` exactly like the first pass's, and moved
-   back. Placements whose templates overlap by more than :data:`OVERLAP_FRACTION` are ``crossing``.
+   back. Placements whose templates overlap by more than ``separation.overlap_fraction`` are
+   ``crossing``.
+
+Thresholds: :class:`~blurtrack.detect.paramsections.SeparationParams` (``separation`` of
+:class:`~blurtrack.detect.params.DetectParams`).
 """
 
 from __future__ import annotations
@@ -34,12 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.separation.modal import component_references
 from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.quality import (
-    MIN_REFERENCE,
     Consensus,
     consensus_field,
     shape_tolerance,
@@ -52,26 +55,6 @@ from blurtrack.detect.separation.templates import (
     template,
     warp,
 )
-
-#: Candidates whose light the placements leave more than this fraction of keep their lines.
-RESIDUAL_MAX = 0.5
-#: Placements whose supports share more than this fraction are flagged ``crossing``.
-OVERLAP_FRACTION = 0.1
-#: Components larger than this many reference areas are candidates (chains).
-AREA_FACTOR = 1.6
-#: Most light (squared, relative to that under the template) a template's halo (a ring of
-#: :data:`~blurtrack.detect.separation.templates.HALO_PX`) may hold where it is placed.
-HALO_MAX = 0.25
-#: The same with whole-component references: real lights on a string touch their neighbours,
-#: whose light then lies in the halo.
-HALO_MAX_WHOLE = 1.0
-#: A plain line shorter than this fraction of the consensus length is no measurement of
-#: its component (a line that collapsed): the component is a candidate whatever its area.
-STUB_FRACTION = 0.5
-#: ... where the consensus is at least this long (px): short streaks vary more.
-STUB_MIN_PX = 20.0
-#: References whose median area a component's area is compared with.
-NEIGHBOURS = 6
 
 
 @dataclass(frozen=True)
@@ -87,9 +70,9 @@ class Separation:
     good: np.ndarray | None = None
 
 
-def overlapping_placements(pl: list[Placement]) -> np.ndarray:
-    """``(P,)`` bool: the placement's support shares more than :data:`OVERLAP_FRACTION` of
-    its pixels with another placement's."""
+def overlapping_placements(pl: list[Placement], overlap_fraction: float) -> np.ndarray:
+    """``(P,)`` bool: the placement's support shares more than ``overlap_fraction`` of its
+    pixels with another placement's."""
     P = len(pl)
     flag = np.zeros(P, bool)
     org = np.array([[p.tpl.box[0], p.tpl.box[1]] for p in pl]) + np.rint([p.shift for p in pl])
@@ -106,7 +89,7 @@ def overlapping_placements(pl: list[Placement]) -> np.ndarray:
         si = pl[i].tpl.support[oi[1] : oi[1] + ext[1], oi[0] : oi[0] + ext[0]]
         sj = pl[j].tpl.support[oj[1] : oj[1] + ext[1], oj[0] : oj[0] + ext[0]]
         shared = float(np.sum(si * sj))
-        if shared > OVERLAP_FRACTION * min(pl[i].tpl.area, pl[j].tpl.area):
+        if shared > overlap_fraction * min(pl[i].tpl.area, pl[j].tpl.area):
             flag[i] = flag[j] = True
     return flag
 
@@ -213,66 +196,48 @@ def _placed_tile(q: Placement) -> tuple[int, int, np.ndarray, np.ndarray]:
     return bx, by, t_s, t_r
 
 
-def separate(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    sat_comp: np.ndarray | None,
-    comps: Components,
-    first: Measured,
-    folded: np.ndarray,
-    clipped: np.ndarray,
-    merged: np.ndarray,
-    smooth_sigma: float,
-) -> Separation:
+def separate(ctx: FrameContext, first: Measured, folded: np.ndarray) -> Separation:
     """Template separation of the first pass's doubtful components (see the module text).
 
     Args:
-        smooth, signal, saturation: the prepared frame.
-        sat_comp: per component, whether it has saturated pixels (None: none has).
-        comps: the components; ``folded`` ``(C,)`` those the skeleton tracer took.
-        first: the first pass's streaks; ``clipped``/``merged`` ``(N,)`` their flags.
-        smooth_sigma: the pre-smoothing sigma.
+        ctx: the frame.
+        first: the first pass's streaks.
+        folded: ``(C,)`` bool, the components the skeleton tracer took.
     Returns:
         The separated streaks (frame coordinates; None when nothing was separated), the
         ``(C,)`` bool mask of the components they replace, and the frame's consensus field
         (None without enough voters).
     """
+    smooth, signal, comps = ctx.smooth, ctx.signal, ctx.comps
+    sp, q = ctx.params.separation, ctx.params.quality
+    clipped = ctx.clipped(first.end_a, first.end_b)
+    merged = ctx.merged(first.width_px, first.sigma_c)
     C = comps.ids.size
     v = first.end_b - first.end_a
     n_lines = np.bincount(first.own, minlength=C)
     single = n_lines[first.own] == 1
     voters = single & ~(first.crossing | first.looped | merged | clipped)
-    field = consensus_field(v, first.time_mid, voters)
+    field = consensus_field(v, first.time_mid, voters, q)
     refs = first  # the streaks the references are taken from
     whole = False  # references from whole components (blurtrack.detect.separation.modal)
     good = np.zeros(len(first), bool)
     if field is not None:
-        good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c))
-    if field is None or int(good.sum()) < MIN_REFERENCE:
+        good = field.use & (field.dev <= 0.5 * shape_tolerance(field.c, q))
+    if field is None or int(good.sum()) < q.min_reference:
         # Too few whole first-pass lines: references from whole components instead.
-        alt = component_references(
-            smooth,
-            signal,
-            saturation,
-            sat_comp,
-            comps,
-            first.sigma_c,
-            first.sigma_raw,
-            smooth_sigma,
-        )
+        alt = component_references(ctx, first.sigma_c, first.sigma_raw)
         if alt is None:
             return Separation(None, None, field)
         # Whole components are references by their shape; their lines only need to agree.
-        alt_good = alt[1].use & (alt[1].dev <= shape_tolerance(alt[1].c))
-        if int(alt_good.sum()) < MIN_REFERENCE:
+        alt_good = alt[1].use & (alt[1].dev <= shape_tolerance(alt[1].c, q))
+        if int(alt_good.sum()) < q.min_reference:
             return Separation(None, None, field)
         (refs, field), good, whole = alt, alt_good, True
         cf = field.at(first.time_mid)
         dev = np.minimum(np.hypot(*(v - cf).T), np.hypot(*(v + cf).T))
-        tol = shape_tolerance(cf)
+        tol = shape_tolerance(cf, q)
     else:
-        dev, tol = field.dev, shape_tolerance(field.c)
+        dev, tol = field.dev, shape_tolerance(field.c, q)
     bad_line = ~clipped & ((dev > tol) | first.crossing | first.looped | merged)
 
     def done(m: Measured | None, replaced: np.ndarray | None) -> Separation:
@@ -306,12 +271,12 @@ def separate(
         centre[:, None, 1] - ref_mid[None, :, 1]
     ) ** 2
     d2[refs.own[ref_idx], np.arange(ref_idx.size)] = np.inf
-    k_near = min(NEIGHBOURS, ref_idx.size - 1)
+    k_near = min(sp.neighbours, ref_idx.size - 1)
     near = np.argpartition(d2, k_near - 1, axis=1)[:, :k_near]
-    cand |= comps.areas > AREA_FACTOR * np.median(ref_area[near], axis=1)
+    cand |= comps.areas > sp.area_factor * np.median(ref_area[near], axis=1)
     # (Whole components are references whatever their first-pass lines were.)
     keep_ref = np.full(ref_idx.size, True) if whole else ~cand[refs.own[ref_idx]]
-    if int(keep_ref.sum()) < MIN_REFERENCE:
+    if int(keep_ref.sum()) < q.min_reference:
         return done(None, None)
     ref_idx, ref_mid, d2 = ref_idx[keep_ref], ref_mid[keep_ref], d2[:, keep_ref]
     # Every component's nearest reference (local: the streaks' shape varies over the frame).
@@ -325,7 +290,8 @@ def separate(
     # ... unless that line is far shorter than the consensus (a measurement that collapsed).
     stub = np.zeros(C, bool)
     c_len = np.hypot(*field.at(first.time_mid).T)
-    stub[first.own[(c_len >= STUB_MIN_PX) & (first.length_px < STUB_FRACTION * c_len)]] = True
+    stub_rows = (c_len >= sp.stub_min_px) & (first.length_px < sp.stub_fraction * c_len)
+    stub[first.own[stub_rows]] = True
     cand &= ~(plain_one & ~stub & (n_lines == 1) & ~folded & (ratio > 0.75) & (ratio < 1.3))
     if not cand.any():
         return done(None, None)
@@ -358,14 +324,14 @@ def separate(
                 bases[k] = template(smooth, signal, comps, int(refs.own[k]), refs.points[k])
             base = bases[k]
             templates[key] = similar(base, z, refs.time_mid[k]) if abs(z - 1) > 0.02 else base
-        halo = HALO_MAX_WHOLE if whole else HALO_MAX
-        placements += pursue(residual, comps, ci, templates[key], comp_of_label, halo)
+        halo = sp.halo_max_whole if whole else sp.halo_max
+        placements += pursue(residual, comps, ci, templates[key], comp_of_label, sp, halo)
     if not placements:
         return done(None, None)
     # Placements that share light are fitted together (streaks running along each other);
     # not with whole-component references: real lights on a string differ more from their
     # template than the pair's fit can tell (night2: 61 whole streaks without, 55 with).
-    placements, model = (placements, None) if whole else refit(light, placements)
+    placements, model = (placements, None) if whole else refit(light, placements, sp)
     if model is not None:
         residual = np.maximum(light - model, 0.0)
     # Candidates whose light the placements mostly explain are replaced.
@@ -383,7 +349,7 @@ def separate(
     border = (x == 0) | (y == 0) | (x + w == W) | (y + h == H)
     explained = np.zeros(C, bool)
     explained[[p.comp for p in placements]] = True
-    replaced = cand & ((after <= RESIDUAL_MAX * before) | (border & explained))
+    replaced = cand & ((after <= sp.residual_max * before) | (border & explained))
     # A candidate explained by one placement of its own, whose first pass gave one plain
     # line, is one streak: its first measurement (on the image itself) stands.
     n_place = np.bincount([p.comp for p in placements], minlength=C)
@@ -398,12 +364,10 @@ def separate(
     ls = LineSet(
         lines=lines,
         owner=[p.comp for p in placements],
-        crossing=overlapping_placements(placements).tolist(),
+        crossing=overlapping_placements(placements, sp.overlap_fraction).tolist(),
         looped=[False] * len(placements),
     )
-    m = measure_lines(
-        mos_s, mos_r, saturation, sat_comp, ls, first.sigma_c, False, smooth_sigma, first.sigma_raw
-    )
+    m = measure_lines(ctx.on(mos_s, mos_r), ls, first.sigma_c, False, first.sigma_raw)
     off = back[m.src]
     m.end_a = m.end_a + off
     m.end_b = m.end_b + off

@@ -12,10 +12,9 @@ import numpy as np
 
 from blurtrack.detect.lines.segment import Components
 
-#: A placement reaching past the frame's border needs this fraction of its template (in
-#: squares) inside the frame (:func:`inside_norm2`).
-INSIDE_MIN = 0.3
-#: Width (px) of the ring around a template's support that must be dark where it is placed.
+#: Width (px) of the ring around a template's support that must be dark where it is placed
+#: (how much of it may be lit: ``separation.halo_max``). Fixed: templates are padded by it
+#: and the ring's disk is built once, here.
 HALO_PX = 3
 _HALO_DISK = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * HALO_PX + 1, 2 * HALO_PX + 1))
 

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from blurtrack.detect.params import QualityParams
 from blurtrack.detect.separation import quality
 from blurtrack.detect.session import detect_session
 from blurtrack.detect.table import read_table, to_arrow, write_table
@@ -92,6 +93,10 @@ def test_list_cells_take_the_general_path(table: pd.DataFrame) -> None:
     assert to_arrow(lists).equals(to_arrow(streaks.validate(table)), check_metadata=True)
 
 
+#: The quality section's defaults (the table's quality columns are computed with them).
+Q = QualityParams()
+
+
 def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
     """Per frame, from that frame's DataFrame rows (the definition in quality's docstring)."""
     out = table.copy()
@@ -108,17 +113,17 @@ def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
         ref = ref if ref.size else width[np.isfinite(width)]
         w0 = float(np.median(ref)) if ref.size else np.nan
         with np.errstate(invalid="ignore"):
-            th = sat & (width > quality.THICK_WIDTH_RATIO * w0)
+            th = sat & (width > Q.thick_width_ratio * w0)
         point = (d["source"] == "point").to_numpy(bool)
         light = d[["end_light_start", "end_light_end"]].to_numpy(float)
         with np.errstate(invalid="ignore"):
             lit = (light > quality.SourceParams().end_light_max).any(axis=1)
         good = ~(flagged | th) & point
-        field = quality.consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), good)
+        field = quality.consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), good, Q)
         good &= ~(lit | np.isnan(light).any(axis=1))
         if field is not None:
             dev[rows] = field.dev
-            good = good & (field.dev <= quality.shape_tolerance(field.c))
+            good = good & (field.dev <= quality.shape_tolerance(field.c, Q))
         thick[rows], ok[rows] = th, good
     out["shape_deviation_px"], out["thick_saturated"], out["quality_ok"] = dev, thick, ok
     return out

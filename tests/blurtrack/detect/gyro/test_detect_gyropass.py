@@ -13,7 +13,7 @@ from blurtrack.detect.gyro import gyroconfirm, gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
-from blurtrack.detect.separation import pursuit
+from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
@@ -201,27 +201,29 @@ def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
 
 
 def test_a_measured_line_of_the_placed_shape_is_confirmed_a_little_along_the_chain() -> None:
-    # A straight placed curve of 100 px; tolerance 12.5 px (TOL_PX + TOL_REL * arc).
+    # A straight placed curve of 100 px; tolerance 12.5 px (tol_px + tol_rel * arc).
+    gp = GyroPassParams()
     s, e = np.array([[100.0, 50.0]]), np.array([[200.0, 50.0]])
-    tol = np.array([gyropass.TOL_PX + gyropass.TOL_REL * 100.0])
+    tol = np.array([gp.tol_px + gp.tol_rel * 100.0])
     along = np.array([1.5 * tol[0], 0.0])
+    k = gp.shape_shift_factor
     # The same line: confirmed, in either orientation.
-    assert gyroconfirm.confirmed(s, e, s, e, tol)[0]
-    assert gyroconfirm.confirmed(e, s, s, e, tol)[0]
+    assert gyroconfirm.confirmed(s, e, s, e, tol, k)[0]
+    assert gyroconfirm.confirmed(e, s, s, e, tol, k)[0]
     # The dot's line 1.5 tolerances along the chain from its placement: the position alone
     # (negative control) refuses it, the shape confirms it.
     assert gyroconfirm.mismatch(s + along, e + along, s, e)[0] > tol[0]
-    assert gyroconfirm.confirmed(s + along, e + along, s, e, tol)[0]
-    # Too far along (over SHAPE_SHIFT_FACTOR tolerances), or of another shape (a fragment of
+    assert gyroconfirm.confirmed(s + along, e + along, s, e, tol, k)[0]
+    # Too far along (over shape_shift_factor tolerances), or of another shape (a fragment of
     # 60 px, a line turned by 20 degrees) that far off: refused.
-    far = np.array([(gyroconfirm.SHAPE_SHIFT_FACTOR + 0.1) * tol[0], 0.0])
-    assert not gyroconfirm.confirmed(s + far, e + far, s, e, tol)[0]
-    assert not gyroconfirm.confirmed(s + along, s + along + [60.0, 0.0], s, e, tol)[0]
+    far = np.array([(k + 0.1) * tol[0], 0.0])
+    assert not gyroconfirm.confirmed(s + far, e + far, s, e, tol, k)[0]
+    assert not gyroconfirm.confirmed(s + along, s + along + [60.0, 0.0], s, e, tol, k)[0]
     turned = s + along + 100.0 * np.array([np.cos(0.35), np.sin(0.35)])
-    assert not gyroconfirm.confirmed(s + along, turned, s, e, tol)[0]
+    assert not gyroconfirm.confirmed(s + along, turned, s, e, tol, k)[0]
 
 
-def test_components_at_the_border_are_candidates(monkeypatch) -> None:
+def test_components_at_the_border_are_candidates() -> None:
     # Three hairpins whose turn a short streak entering from the left border joins (their
     # components touch the border) and three inside.
     model = _model()
@@ -243,8 +245,8 @@ def test_components_at_the_border_are_candidates(monkeypatch) -> None:
     assert _matched(out, curves[3:], 1.0) == 3
     assert len(out) == len(first)  # the border components keep their lines, none is lost
     # Negative control: without border candidates only the three inside are.
-    monkeypatch.setattr(gyropass, "BORDER_CANDIDATES", False)
-    out2, what2 = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    inside_only = DetectParams(gyro_pass=GyroPassParams(border_candidates=False))
+    out2, what2 = refine_frame(image, first, FrameTiming(T0, EXP), model, inside_only)
     assert what2.candidates == 3
     assert _matched(out2, curves[3:], 1.0) == 3
 
@@ -300,19 +302,18 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
         mp.setattr(gyropass, "cut_at_border", lambda c, w, h: (c[0], c[-1]))
         out1, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
         assert _matched(out1, chained, 3.0) <= 1
-    monkeypatch.setattr(gyropass, "CLIP_AT_BORDER", False)
-    out2, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
+    no_clip = DetectParams(gyro_pass=GyroPassParams(clip_at_border=False))
+    out2, _ = refine_frame(image, first, FrameTiming(T0, EXP), model, no_clip)
     assert _matched(out2, chained, 3.0) <= 1
 
 
-def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins, monkeypatch) -> None:
+def test_a_frame_of_chains_is_accepted_a_wrong_prior_is_not(hairpins) -> None:
     # The measured margins (hard seed 3 frame 6: 66 of 160 placements confirmed in
     # components replaced whole; the rendered hairpins under the reversed gyro: 3 of 11).
-    assert gyroconfirm.accepted(66, 160)
-    assert not gyroconfirm.accepted(3, 11)
-    with monkeypatch.context() as mp:  # negative control: the former threshold
-        mp.setattr(gyroconfirm, "ACCEPT_MIN", 0.5)
-        assert not gyroconfirm.accepted(66, 160)
+    accept_min = GyroPassParams().accept_min
+    assert gyroconfirm.accepted(66, 160, accept_min)
+    assert not gyroconfirm.accepted(3, 11, accept_min)
+    assert not gyroconfirm.accepted(66, 160, 0.5)  # negative control: the former threshold
     image, _, first = hairpins
     assert refine_frame(image, first, FrameTiming(T0, EXP), _model(sign=-1.0))[1].status == (
         "refused"
@@ -366,13 +367,14 @@ def test_one_dots_light_is_a_components_light_per_line_not_a_chains() -> None:
     border = np.zeros(n_lines.size, bool)
     border[-2:] = True
     light[-2:] = 40.0  # streaks leaving the frame: part of a dot
-    est = gyropass._dot_light(light, border, n_lines)
+    quantile = GyroPassParams().light_quantile
+    est = gyropass._dot_light(light, border, n_lines, quantile)
     assert abs(est - 155.0) < 5.0
     # Negative control: the former estimate (the 0.4 quantile of the components' light) is
-    # two dots', at which the pursuit sees every dot at amplitude 0.5, under AMP_MIN.
-    former = float(np.quantile(light[~border], gyropass.LIGHT_QUANTILE))
+    # two dots', at which the pursuit sees every dot at amplitude 0.5, under amp_min.
+    former = float(np.quantile(light[~border], quantile))
     assert former > 1.8 * 155.0
-    assert 155.0 / former < pursuit.AMP_MIN
+    assert 155.0 / former < DetectParams().separation.amp_min
     # Without any first-pass line inside the frame the quantile stands.
     none = np.zeros_like(n_lines)
-    assert gyropass._dot_light(light, border, none) == former
+    assert gyropass._dot_light(light, border, none, quantile) == former

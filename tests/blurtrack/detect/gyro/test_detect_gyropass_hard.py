@@ -1,7 +1,7 @@
 """The template pass (blurtrack.detect.gyro.gyropass) on a simulated `hard` session of long straight
 streaks that chain and touch, checked against the simulator's truth: the further pursuit
 sweeps (``SWEEPS``) find dots the first pursuit did not place, and measuring each placement
-also with the neighbours' subtraction clipped at zero (``gyromeasure.CLIP_CHOICE``) finds more
+also with the neighbours' subtraction clipped at zero (``gyro_pass.clip_choice``) finds more
 and better-measured ones; each against the same frames refined without it as the negative
 control."""
 
@@ -15,7 +15,8 @@ import pytest
 import blurtrack.detect.gyro.refinepass as refinepass
 from blurtrack.cli import main
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.gyro import gyromeasure, gyropass
+from blurtrack.detect.gyro import gyropass
+from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.detect.session import detect_session
 from blurtrack.io.session import load_session
 from rigs.sim.shake import default_shake_path
@@ -65,7 +66,7 @@ def refined(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Any, FrameSt
         calls.append((a, out))
         return out, what
 
-    assert gyropass.SWEEPS == 2 and gyromeasure.CLIP_CHOICE
+    assert gyropass.SWEEPS == 2 and DetectParams().gyro_pass.clip_choice
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(refinepass, "refine_frame", spy)
         detect_session(session, workers=1)
@@ -74,15 +75,19 @@ def refined(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Any, FrameSt
     return [(a, out, frames[a[0].args[0]]) for a, out in calls]  # partial(read_image, index)
 
 
-def _counts(refined: list[Any], module: Any, name: str, off: Any) -> tuple[np.ndarray, ...]:
-    """Found / false of the defaults, then of the same frames refined again with
-    ``module.name = off``."""
+def _counts(
+    refined: list[Any], params: DetectParams | None = None, sweeps: int | None = None
+) -> tuple[np.ndarray, ...]:
+    """Found / false of the defaults, then of the same frames refined again with ``params``
+    (the call's own where None) and, where given, ``gyropass.SWEEPS = sweeps``."""
     default, control = np.zeros(2, int), np.zeros(2, int)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(module, name, off)
+        if sweeps is not None:
+            mp.setattr(gyropass, "SWEEPS", sweeps)
         for args, out, frame in refined:
             default += _found_and_false(out, frame)
-            again, _ = refinepass.refine_frame(*args)
+            call = args if params is None else (*args[:4], params, *args[5:])
+            again, _ = refinepass.refine_frame(*call)
             control += _found_and_false(again, frame)
     return default, control
 
@@ -90,9 +95,9 @@ def _counts(refined: list[Any], module: Any, name: str, off: Any) -> tuple[np.nd
 @pytest.mark.slow
 @pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
 def test_further_sweeps_find_dots_the_first_pursuit_left(refined: list[Any]) -> None:
-    with_sweeps, without = _counts(refined, gyropass, "SWEEPS", 0)
+    with_sweeps, without = _counts(refined, sweeps=0)
     # Measured (2026-12-04): found / false 1576 / 114 with the sweeps, 1544 / 127 without
-    # (before CLIP_CHOICE 1567 / 119 against 1533 / 128).
+    # (before the clip choice 1567 / 119 against 1533 / 128).
     assert with_sweeps[0] >= without[0] + 20
     assert with_sweeps[1] <= without[1]
 
@@ -100,7 +105,8 @@ def test_further_sweeps_find_dots_the_first_pursuit_left(refined: list[Any]) -> 
 @pytest.mark.slow
 @pytest.mark.skipif(not SHAKE.is_file(), reason=f"shake traces absent: {SHAKE}")
 def test_clipped_measurement_choice_finds_more_dots(refined: list[Any]) -> None:
-    with_choice, without = _counts(refined, gyromeasure, "CLIP_CHOICE", False)
+    no_choice = DetectParams(gyro_pass=GyroPassParams(clip_choice=False))
+    with_choice, without = _counts(refined, no_choice)
     # Measured (2026-12-04): found / false 1576 / 114 with the choice, 1567 / 119 without.
     assert with_choice[0] >= without[0] + 5
     assert with_choice[1] <= without[1]

@@ -12,6 +12,9 @@ import pytest
 from blurtrack.detect.gyro import gyroshape
 from blurtrack.detect.gyro.gyrocurve import _render, curve_template
 from blurtrack.detect.gyro.gyroshape import DEN_FLOOR, SHIFT_WINDOW_PX, _trial
+from blurtrack.detect.params import SeparationParams
+
+INSIDE_MIN = SeparationParams().inside_min
 
 
 def _splat_blur(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
@@ -90,7 +93,7 @@ def test_the_trial_ranks_placements_by_their_own_sums_and_never_the_dark() -> No
     lit = light > 0
     light[lit] += rng.normal(0.0, 0.01, lit.sum()).astype(np.float32)
     box = (tx + 8, ty + 5, tw - 10, th - 12)
-    got, score, rank, shift, top = _trial(light, box, tpl)
+    got, score, rank, shift, top = _trial(light, box, tpl, INSIDE_MIN)
     ref_rank, ref_shift = _brute(light, box, tpl)
     assert got is tpl
     assert shift == ref_shift == (3, -2)
@@ -100,11 +103,11 @@ def test_the_trial_ranks_placements_by_their_own_sums_and_never_the_dark() -> No
     assert 0.95 < rank <= 1.0 + 1e-5 and 0.95 < score <= 1.0 + 1e-5
     # Searched about a placement within the window of the best one, the trial finds it again.
     assert SHIFT_WINDOW_PX >= 2
-    near = _trial(light, box, tpl, (shift[0] - 2, shift[1] + 1, top))
+    near = _trial(light, box, tpl, INSIDE_MIN, (shift[0] - 2, shift[1] + 1, top))
     assert near[3] == shift and near[2] == pytest.approx(rank, rel=1e-5)
     # Nothing lit within reach: no trial.
     dark = np.zeros_like(light)
-    assert _trial(dark, box, tpl)[0] is None
+    assert _trial(dark, box, tpl, INSIDE_MIN)[0] is None
 
 
 def test_the_shape_search_finds_a_rotated_and_scaled_curve(monkeypatch) -> None:
@@ -126,6 +129,6 @@ def test_the_shape_search_finds_a_rotated_and_scaled_curve(monkeypatch) -> None:
     light[ty : ty + th, tx : tx + tw] = t.smooth
     comps = find_components(light, 0.05 * float(light.max()), 5, 10)
     c = int(np.argmax(comps.areas))
-    tpl, score = gyroshape.best_shape(light, comps, c, pts, make)
+    tpl, score = gyroshape.best_shape(light, comps, c, pts, make, INSIDE_MIN)
     assert tpl is not None and score > 0.999
     assert np.abs(tpl.points - truth).max() < 1e-9

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from blurtrack.detect import detect_frame
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.lines import centreline
 from blurtrack.detect.lines.centreline import refine_lines
 from blurtrack.detect.lines.ragged import arc_lengths
-from blurtrack.detect.params import DetectParams
+from blurtrack.detect.params import DetectParams, LinesParams
 from blurtrack.testing.streak_frames import quantise, render_streaks
+
+#: Faint tails off (``lines.tail_min_px`` infinite): the lines end at a quarter of the peak.
+NO_TAILS = DetectParams(lines=LinesParams(tail_min_px=np.inf))
 
 
 def _frame(shape: tuple[int, int], curves: list[np.ndarray], seed: int) -> np.ndarray:
@@ -32,22 +33,19 @@ def _hooked(x0: float, y0: float) -> np.ndarray:
     return np.stack([x0 + u, y], axis=1)
 
 
-def test_a_line_along_a_bright_hook_and_its_tail_is_kept_whole(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_a_line_along_a_bright_hook_and_its_tail_is_kept_whole() -> None:
     curves = [_hooked(40.0 + 130.0 * i, 50.0 + 60.0 * j) for i in range(3) for j in range(4)]
     image = _frame((300, 440), curves, seed=2)
     p = DetectParams()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     coarse = [c[::80] for c in curves]  # the placed curves: the whole streak, coarsely
     arc = np.array([float(np.sum(np.hypot(*np.diff(c, axis=0).T))) for c in curves])
-    _, kept = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, None, 3.0).lines)
+    _, kept = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, p.lines, None, 3.0).lines)
     # Kept: the whole streak plus the final pass's extensions past both ends (3 sigma + 3).
     assert np.all(kept > arc) and np.all(kept < arc + 2 * (3 * 1.6 + 3) + 2)
     # Negative control: cut at a quarter of the peak (the first pass's rule) without the faint
     # tails, every line keeps little more than its hook.
-    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
-    _, cut = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, None, None).lines)
+    _, cut = arc_lengths(refine_lines(prep.smooth, coarse, 1.6, NO_TAILS.lines, None).lines)
     assert np.all(cut < 0.6 * arc)
 
 
@@ -73,9 +71,7 @@ def _end_errors(fs: FrameStreaks, curves: list[np.ndarray]) -> tuple[np.ndarray,
     return out[:, 0], out[:, 1]
 
 
-def test_a_streak_fading_towards_its_end_is_measured_to_its_end(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_a_streak_fading_towards_its_end_is_measured_to_its_end() -> None:
     curves = [_speeding_up(30.0 + 140.0 * i, 40.0 + 50.0 * j) for i in range(3) for j in range(4)]
     image = _frame((260, 450), curves, seed=3)
     fs = detect_frame(image)
@@ -84,15 +80,14 @@ def test_a_streak_fading_towards_its_end_is_measured_to_its_end(
     assert np.all(start_err < 0.5) and np.all(end_err < 0.5)
     # Negative control: without the faint tails the lines stop where the light falls under a
     # quarter of the start's, 10-50 px short, and some streaks are lost.
-    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
-    fs = detect_frame(image)
+    fs = detect_frame(image, NO_TAILS)
     _, end_err = _end_errors(fs, curves)
     assert len(fs) < len(curves)
     assert np.median(end_err) > 5.0
 
 
-def test_faint_tails_leave_uniform_streaks_as_they_were(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Streaks of one brightness end in their caps' blur (runs under :data:`TAIL_MIN_PX`):
+def test_faint_tails_leave_uniform_streaks_as_they_were() -> None:
+    """Streaks of one brightness end in their caps' blur (runs under ``lines.tail_min_px``):
     their measured ends do not change."""
     curves = [
         np.stack([np.linspace(30.0, 110.0, 800) + 140.0 * i, np.full(800, 40.0 + 50.0 * j)], 1)
@@ -101,7 +96,6 @@ def test_faint_tails_leave_uniform_streaks_as_they_were(monkeypatch: pytest.Monk
     ]
     image = _frame((260, 450), curves, seed=4)
     with_tails = detect_frame(image)
-    monkeypatch.setattr(centreline, "TAIL_MIN_PX", np.inf)
-    without = detect_frame(image)
+    without = detect_frame(image, NO_TAILS)
     np.testing.assert_array_equal(with_tails.end_a, without.end_a)
     np.testing.assert_array_equal(with_tails.end_b, without.end_b)

@@ -40,7 +40,7 @@ def test_faint_fragments_are_placed_whole(shared_data, monkeypatch: pytest.Monke
     whole, frag = _classes(detect_frame(image), ref)
     assert calls and calls[0] >= 3
     # Negative control: without the pass these fragments stay fragments.
-    monkeypatch.setattr(frame_mod, "anchored", lambda *a, **k: (a[5], 0))
+    monkeypatch.setattr(frame_mod, "anchored", lambda ctx, m, *a, **k: (m, 0))
     whole0, frag0 = _classes(detect_frame(image), ref)
     assert whole >= whole0 + 3
     assert frag <= frag0 - 3

@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from blurtrack.detect import DetectParams, detect_frame
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.segment import Components, find_components
+from blurtrack.detect.params import SeparationParams
 from blurtrack.detect.separation.modal import component_references, modal_components, skeleton_path
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
@@ -35,11 +37,16 @@ def _frame(extra: list[np.ndarray] | None = None) -> tuple[np.ndarray, list[np.n
     return quantise(image), curves
 
 
-def _components(image: np.ndarray) -> tuple[Components, object]:
+def _components(image: np.ndarray) -> tuple[Components, FrameContext]:
+    """The frame's components (artefacts kept) and its context (saturation ignored)."""
     p = DetectParams()
     prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
     thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    return find_components(prep.smooth, thr, p.min_area_px, p.max_streaks), prep
+    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
+    ctx = FrameContext(
+        prep.smooth, prep.signal, prep.saturation, None, comps, thr, prep.noise_smooth, p
+    )
+    return comps, ctx
 
 
 def _whole(end_a: np.ndarray, end_b: np.ndarray, curves: list[np.ndarray], tol: float) -> int:
@@ -66,7 +73,9 @@ def test_modal_cluster_is_the_isolated_streaks() -> None:
     comps, _ = _components(image)
     H, W = SHAPE
     x, y, w, h = comps.boxes.T
-    modal = modal_components(comps, (x > 0) & (y > 0) & (x + w < W) & (y + h < H))
+    modal = modal_components(
+        comps, (x > 0) & (y > 0) & (x + w < W) & (y + h < H), SeparationParams()
+    )
     centre = np.stack([x + w / 2, y + h / 2], axis=1)[modal]
     truth = np.array([c.mean(axis=0) for c in curves])
     # Exactly the isolated ones: each member lies on one of them, each of them is a member.
@@ -77,7 +86,7 @@ def test_modal_cluster_is_the_isolated_streaks() -> None:
     # cluster is not made of them.
     away = np.ones(comps.ids.size, bool)
     away[np.flatnonzero(modal)] = False
-    rest = modal_components(comps, away)
+    rest = modal_components(comps, away, SeparationParams())
     assert not np.any(rest & modal)
 
 
@@ -107,9 +116,9 @@ def test_skeleton_path_runs_from_end_to_end_in_order() -> None:
 
 def test_component_references_are_whole_where_the_first_pass_cuts_the_foot() -> None:
     image, curves = _frame()
-    comps, prep = _components(image)
+    _, ctx = _components(image)
     sc = float(np.sqrt(SIGMA**2 + DetectParams().smooth_sigma_px ** 2 + 1.0 / 12.0))
-    out = component_references(prep.smooth, prep.signal, prep.saturation, None, comps, sc, sc, 1.0)
+    out = component_references(ctx, sc, sc)
     assert out is not None
     m, field = out
     assert _whole(m.end_a, m.end_b, curves, 1.5) >= 14
@@ -128,10 +137,8 @@ def test_real_string_lights_come_out_whole(shared_data) -> None:
     import cv2
 
     image = cv2.imread(str(shared_data / "real" / "light-streaks" / "night2.jpg"))
-    comps, prep = _components(image)
-    out = component_references(
-        prep.smooth, prep.signal, prep.saturation, None, comps, 2.0, 2.0, 1.0
-    )
+    _, ctx = _components(image)
+    out = component_references(ctx, 2.0, 2.0)
     assert out is not None
     m, field = out
     v = (m.end_b - m.end_a)[field.use]

@@ -122,14 +122,15 @@ def test_a_strong_roll_keeps_its_streaks_ok() -> None:
 def test_one_axis_signs_split_a_strong_roll() -> None:
     # The control for the re-signing: with the dominant axis's signs only (what separation
     # uses) the same field is not found.
+    from blurtrack.detect.params import QualityParams
     from blurtrack.detect.separation.quality import consensus_field
 
     d = _roll_frame()
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
     mid = d[["mid_x", "mid_y"]].to_numpy(float)
     voters = np.ones(len(d), bool)
-    old = consensus_field(v, mid, voters)
-    new = consensus_field(v, mid, voters, resign=True)
+    old = consensus_field(v, mid, voters, QualityParams())
+    new = consensus_field(v, mid, voters, QualityParams(), resign=True)
     assert old is not None and new is not None
     assert np.max(old.dev) > 3.0 and np.max(new.dev) < 1e-6
 

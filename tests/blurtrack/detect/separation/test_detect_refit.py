@@ -17,6 +17,7 @@ V = np.array([40.0, 8.0])  # every streak's start-to-end vector
 U = V / np.linalg.norm(V)
 N = np.array([-U[1], U[0]])
 REF = np.array([20.0, 20.0])  # where the template's streak starts
+SP = DetectParams().separation  # the separation section's defaults
 
 
 def _line(origin: np.ndarray, n: int = 600) -> np.ndarray:
@@ -62,7 +63,7 @@ def test_overlapping_placements_slide_to_the_ends() -> None:
     # Where a greedy pursuit leaves them: both slid into the shared part (the correlation
     # of one template with the pair is flat there).
     start = [Placement(tpl, ta + 7.0 * U, 1.0, 0), Placement(tpl, tb - 5.0 * U, 1.0, 0)]
-    out, model = refit(light, start)
+    out, model = refit(light, start, SP)
     assert model is not None
     for p, truth in zip(out, (ta, tb), strict=True):
         assert np.linalg.norm(p.shift - truth) < 0.3
@@ -77,7 +78,7 @@ def test_overlapping_placements_slide_to_the_ends() -> None:
 def test_placements_at_their_streaks_stay_there() -> None:
     tpl = _template()
     light, ta, tb = _pair(0.5, 3.0)
-    out, model = refit(light, [Placement(tpl, ta, 1.0, 0), Placement(tpl, tb, 1.0, 0)])
+    out, model = refit(light, [Placement(tpl, ta, 1.0, 0), Placement(tpl, tb, 1.0, 0)], SP)
     assert model is not None
     assert all(np.linalg.norm(p.shift - t) < 0.3 for p, t in zip(out, (ta, tb), strict=True))
 
@@ -90,7 +91,7 @@ def test_closer_pairs_are_placed_as_well() -> None:
     for along, side in ((0.5, 1.5), (0.6, 2.5)):
         light, ta, tb = _pair(along, side)
         start = [Placement(tpl, ta + 7.0 * U, 1.0, 0), Placement(tpl, tb - 5.0 * U, 1.0, 0)]
-        out, _ = refit(light, start)
+        out, _ = refit(light, start, SP)
         errs = [float(np.linalg.norm(p.shift - t)) for p, t in zip(out, (ta, tb), strict=True)]
         assert max(errs) < 0.3
 
@@ -117,5 +118,5 @@ def test_placements_that_do_not_meet_are_left_alone() -> None:
     light, ta, _ = _pair(0.5, 1.5)
     far = Placement(tpl, ta + np.array([120.0, 0.0]), 1.0, 1)  # over dark sky
     near = Placement(tpl, ta + 7.0 * U, 1.0, 0)
-    out, model = refit(light, [near, far])
+    out, model = refit(light, [near, far], SP)
     assert model is None and out[0] is near and out[1] is far

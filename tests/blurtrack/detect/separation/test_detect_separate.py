@@ -94,7 +94,9 @@ def test_faint_artefacts_next_to_bright_streaks_are_dropped() -> None:
 
 
 def _first_pass(image: np.ndarray):  # type: ignore[no-untyped-def]
-    """The first pass of detect_frame up to separation: prepared frame, components, lines."""
+    """The first pass of detect_frame up to separation: the frame (saturation ignored), the
+    folded components, lines."""
+    from blurtrack.detect.context import FrameContext
     from blurtrack.detect.frame import _first_lines
     from blurtrack.detect.image import prepare_frame
     from blurtrack.detect.lines.measure import measure_lines
@@ -107,8 +109,11 @@ def _first_pass(image: np.ndarray):  # type: ignore[no-untyped-def]
     sigma_c = float(np.sqrt(1.5**2 + 1.0 + 1.0 / 12.0))
     polys, folded = axis_polylines(prep.smooth, comps, sigma_c)
     ls = _first_lines(comps, polys, folded, 2.0 * sigma_c + 3.0)
-    m = measure_lines(prep.smooth, prep.signal, prep.saturation, None, ls, sigma_c, True, 1.0)
-    return prep, comps, folded, m
+    ctx = FrameContext(
+        prep.smooth, prep.signal, prep.saturation, None, comps, thr, prep.noise_smooth, p
+    )
+    m = measure_lines(ctx, ls, sigma_c, True)
+    return ctx, folded, m
 
 
 def _collapse(m, i: int) -> None:  # type: ignore[no-untyped-def]
@@ -120,25 +125,21 @@ def _collapse(m, i: int) -> None:  # type: ignore[no-untyped-def]
     m.points[i] = np.stack([m.end_a[i], m.end_b[i]])
 
 
-def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def test_a_collapsed_line_is_measured_again_with_the_template() -> None:
+    from dataclasses import replace
+
     import blurtrack.detect.separation.separate as sep
+    from blurtrack.detect.params import SeparationParams
 
     image, curves = _frame()
-    prep, comps, folded, m = _first_pass(image)
-    n = len(m)
+    ctx, folded, m = _first_pass(image)
     # The isolated streak nearest the frame's middle (12 isolated ones: curves[:12]).
     target = curves[4]
     i = int(np.argmin(np.linalg.norm(m.time_mid - target[len(target) // 2], axis=1)))
     _collapse(m, i)
     c = int(m.own[i])
 
-    def run() -> sep.Separation:
-        no = np.zeros(n, bool)
-        return sep.separate(
-            prep.smooth, prep.signal, prep.saturation, None, comps, m, folded, no, no, 1.0
-        )
-
-    out = run()
+    out = sep.separate(ctx, m, folded)
     assert out.replaced is not None and out.replaced[c] and out.streaks is not None
     rows = np.flatnonzero(out.streaks.own == c)
     assert rows.size == 1
@@ -148,6 +149,6 @@ def test_a_collapsed_line_is_measured_again_with_the_template(monkeypatch) -> No
     assert err < 1.0
     # Negative control: without the stub rule the collapsed line stands (one plain line in
     # a component of a reference's area).
-    monkeypatch.setattr(sep, "STUB_FRACTION", 0.0)
-    again = run()
+    no_stubs = DetectParams(separation=SeparationParams(stub_fraction=0.0))
+    again = sep.separate(replace(ctx, params=no_stubs), m, folded)
     assert again.replaced is None or not again.replaced[c]

@@ -1,0 +1,351 @@
+"""The stage sections of :class:`blurtrack.detect.params.DetectParams`: one frozen,
+self-validating dataclass per stage folder (``lines``, ``separation``, ``quality``,
+``gyro_pass``), each field range-checked from its metadata (:func:`check_section`).
+
+Defaults are the values the detector was tuned with; the measurements behind them are in the
+field descriptions (``hard``/``dense``/``realistic``: the simulator's presets; ``night1``,
+``night2``, ``phone``: the real photographs of docs/detection.md). Lengths in px, everything
+else a ratio (to a plateau, a peak, a length, a cross-section sigma) unless named otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from blurtrack.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class _Range:
+    """The values a numeric field takes: ``lo``..``hi`` (open where ``*_open``), integers only
+    with ``integer``, infinity only with ``infinite``."""
+
+    lo: float
+    hi: float
+    lo_open: bool
+    hi_open: bool
+    integer: bool
+    infinite: bool
+
+    def holds(self, v: Any) -> bool:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            return False
+        if self.integer and not isinstance(v, int):
+            return False
+        if math.isnan(v) or (math.isinf(v) and not self.infinite):
+            return False
+        above = v > self.lo if self.lo_open else v >= self.lo
+        below = v < self.hi if self.hi_open else v <= self.hi
+        return above and below
+
+    def text(self) -> str:
+        kind = "an integer " if self.integer else ""
+        if math.isinf(self.hi):
+            return f"{kind}{'>' if self.lo_open else '>='} {self.lo:g}"
+        left, right = "(" if self.lo_open else "[", ")" if self.hi_open else "]"
+        return f"{kind}in {left}{self.lo:g}, {self.hi:g}{right}"
+
+
+def _num(
+    default: float,
+    lo: float,
+    hi: float = math.inf,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    infinite: bool = False,
+) -> Any:
+    """A float field with its range (see :class:`_Range`)."""
+    return field(
+        default=default, metadata={"range": _Range(lo, hi, lo_open, hi_open, False, infinite)}
+    )
+
+
+def _int(default: int, lo: int) -> Any:
+    """An integer field of at least ``lo``."""
+    return field(
+        default=default, metadata={"range": _Range(lo, math.inf, False, True, True, False)}
+    )
+
+
+def _switch(default: bool) -> Any:
+    """A true/false field."""
+    return field(default=default, metadata={"switch": True})
+
+
+def check_section(obj: Any, section: str) -> None:
+    """Raise a one-line :class:`ConfigError` naming ``detect <section>.<field>`` for the
+    first field of ``obj`` outside its range (metadata of :func:`_num`, :func:`_int`,
+    :func:`_switch`)."""
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if f.metadata.get("switch"):
+            if not isinstance(v, bool):
+                raise ConfigError(f"detect {section}.{f.name} must be true or false, got {v!r}")
+            continue
+        rng: _Range = f.metadata["range"]
+        if not rng.holds(v):
+            raise ConfigError(f"detect {section}.{f.name} must be {rng.text()}, got {v!r}")
+
+
+def check_order(obj: Any, section: str, low: str, high: str) -> None:
+    """One-line :class:`ConfigError` unless ``obj.low <= obj.high``."""
+    if not getattr(obj, low) <= getattr(obj, high):
+        raise ConfigError(f"detect {section}.{low} must not exceed {section}.{high}")
+
+
+@dataclass(frozen=True)
+class LinesParams:
+    """Centre lines and their extent (:mod:`blurtrack.detect.lines`; YAML ``lines:``).
+
+    - ``lit_fraction``: a line's points whose cross-section integral exceeds this fraction of
+      the line's lit level are moved onto the light and bound the line's extent
+      (:func:`~blurtrack.detect.lines.centreline.refine_lines`; below an end's half level,
+      which the edge fits need inside the line).
+    - ``tail_fraction``, ``tail_min_px``: past a bound the line keeps, unmoved, a faint tail
+      (points above ``tail_fraction`` of the lit level contiguous with it) where it reaches
+      more than ``tail_min_px`` further. A dot that speeds up during the exposure draws a
+      bright start and a tail fading towards its end (``hard`` seed 4 frame 3: isolated streaks
+      cut 10-20 px short); shorter runs are the end cap's own blur, left to the edge fits.
+      ``hard`` seeds 1-5, recall / precision: 97.87 / 98.77, 92.58 / 94.92, 91.03 / 93.63,
+      91.46 / 96.07, 97.72 / 99.10 % against 97.87 / 98.77, 92.27 / 95.21, 89.96 / 92.75,
+      84.60 / 91.08, 97.72 / 99.10 % without. ``tail_min_px: .inf`` turns tails off.
+    - ``median_floor``: where a line's lit level is a multiple of its median profile (the gyro
+      pass's ``lit_median_factor``), that median is taken over the points above this fraction
+      of the line's peak (not the unlit extensions past its ends).
+    - ``gap_level``, ``long_factor``: a line longer than ``long_factor`` times the frame's
+      median lit extent whose profile falls below ``gap_level`` of its lit level inside is
+      cut at the dip (:mod:`~blurtrack.detect.lines.gaps`: two dots' streaks touching end to
+      end on a dense grid; their facing erf edges meet below a third of the plateau, and a
+      fast middle of one streak also dims it, hence the length test).
+    """
+
+    lit_fraction: float = _num(0.25, 0.0, 1.0, lo_open=True, hi_open=True)
+    tail_fraction: float = _num(0.1, 0.0, 1.0, lo_open=True, hi_open=True)
+    tail_min_px: float = _num(6.0, 0.0, infinite=True)
+    median_floor: float = _num(0.05, 0.0, 1.0, hi_open=True)
+    gap_level: float = _num(0.3, 0.0, 1.0, lo_open=True, hi_open=True)
+    long_factor: float = _num(1.6, 1.0)
+
+    def __post_init__(self) -> None:
+        check_section(self, "lines")
+        check_order(self, "lines", "tail_fraction", "lit_fraction")
+
+
+@dataclass(frozen=True)
+class SeparationParams:
+    """Template separation of touching and broken streaks (:mod:`blurtrack.detect.separation`;
+    YAML ``separation:``). Scores are support-normalised correlations (1: a scaled copy of
+    the template), amplitudes relative to the template's.
+
+    Candidates and replacement (:mod:`~blurtrack.detect.separation.separate`):
+
+    - ``residual_max``: a candidate whose light (squared) the placements leave more than
+      this fraction of keeps its first-pass lines (half: most of its light explained).
+    - ``overlap_fraction``: placements whose supports share more than this fraction of the
+      smaller one are flagged ``crossing``.
+    - ``area_factor``, ``neighbours``: a component larger than ``area_factor`` times the
+      median area of its ``neighbours`` nearest references is a candidate (a chain of two
+      streaks has about twice a reference's area; 1.6 leaves the spread of single streaks).
+    - ``halo_max``: the most light (squared, relative to that under the template) that a
+      placed template's halo ring may hold: a placement whose surroundings are bright sits
+      on a larger light, not on one dot's streak.
+    - ``halo_max_whole``: the same with whole-component references: real lights on a string
+      touch their neighbours, whose light then lies in the halo (``night2``).
+    - ``stub_fraction``, ``stub_min_px``: a plain line shorter than ``stub_fraction`` of the
+      consensus length (where that is at least ``stub_min_px``: short streaks vary more) is
+      no measurement of its component (a collapsed line): the component is a candidate.
+      0 turns the rule off.
+
+    Matching pursuit (:mod:`~blurtrack.detect.separation.pursuit`):
+
+    - ``score_min``, ``amp_min``: the lowest score and amplitude of an accepted placement
+      (a collinear neighbour overlapping a fraction ``f`` scores about ``sqrt(f)``: 0.8
+      refuses overlaps of less than 64 %).
+    - ``suppress``: a round takes every good placement that keeps this fraction of the
+      template's size from a better one.
+    - ``left_min``: a further round needs this fraction of a weakest placement's light left.
+
+    Joint refit (:mod:`~blurtrack.detect.separation.refit`):
+
+    - ``amp_keep``: a step whose amplitude would fall below this keeps the placement where
+      it was.
+    - ``reach_fraction``, ``reach_min_px``, ``reach_max_px``: how far one step may move a
+      placement: this fraction of the template's larger side, within the two bounds.
+
+    Templates and whole-component references (:mod:`~blurtrack.detect.separation.templates`,
+    :mod:`~blurtrack.detect.separation.modal`):
+
+    - ``inside_min``: a placement reaching past the frame's border needs this fraction of its
+      template (in squares) inside the frame.
+    - ``modal_min_area_px``: the smallest component that can be a whole streak of the modal
+      cluster.
+    - ``modal_cluster_log``: the largest difference of log area, log width and log height
+      within the modal cluster (0.25: sizes within about 28 % of each other).
+
+    Anchored placements on fragments (:mod:`~blurtrack.detect.separation.anchored`):
+
+    - ``fragment_fraction``, ``fragment_min_px``: a streak whose chord is under this
+      fraction of the local consensus length (where that is at least ``fragment_min_px``)
+      is a fragment.
+    - ``anchor_amp_min``, ``anchor_score_min``: the lowest amplitude and score of an
+      anchored placement (a faint light on a string is above the threshold only at its
+      hook, far fainter than the reference).
+    - ``anchor_cover_min``: the fraction of the fragment's centre-line points that the
+      placed support must hold (the placement stays on the fragment's own light).
+    - ``same_light_fraction``: accepted placements closer than this fraction of the
+      consensus length are one light.
+
+    Remnants (:func:`blurtrack.detect.frame.detect_frame`, and the gyro pass against its
+    predicted curves):
+
+    - ``spot_fraction``, ``spot_min_px``: unclipped streaks shorter than ``spot_fraction``
+      of the local consensus length (where that is at least ``spot_min_px``) are dropped:
+      every dot draws about the same curve, so they are remnants of chains or blobs.
+    """
+
+    residual_max: float = _num(0.5, 0.0, 1.0, lo_open=True)
+    overlap_fraction: float = _num(0.1, 0.0, 1.0)
+    area_factor: float = _num(1.6, 1.0)
+    neighbours: int = _int(6, 1)
+    halo_max: float = _num(0.25, 0.0)
+    halo_max_whole: float = _num(1.0, 0.0)
+    stub_fraction: float = _num(0.5, 0.0, 1.0)
+    stub_min_px: float = _num(20.0, 0.0)
+    score_min: float = _num(0.8, 0.0, 1.0, lo_open=True)
+    amp_min: float = _num(0.6, 0.0, lo_open=True)
+    suppress: float = _num(0.4, 0.0)
+    left_min: float = _num(0.5, 0.0, 1.0)
+    amp_keep: float = _num(0.4, 0.0)
+    reach_fraction: float = _num(0.2, 0.0, lo_open=True)
+    reach_min_px: int = _int(3, 1)
+    reach_max_px: int = _int(8, 1)
+    inside_min: float = _num(0.3, 0.0, 1.0, lo_open=True)
+    modal_min_area_px: int = _int(40, 1)
+    modal_cluster_log: float = _num(0.25, 0.0, lo_open=True)
+    fragment_fraction: float = _num(0.75, 0.0, 1.0, lo_open=True)
+    fragment_min_px: float = _num(20.0, 0.0)
+    anchor_amp_min: float = _num(0.05, 0.0, lo_open=True)
+    anchor_score_min: float = _num(0.65, 0.0, 1.0, lo_open=True)
+    anchor_cover_min: float = _num(0.75, 0.0, 1.0, lo_open=True)
+    same_light_fraction: float = _num(0.3, 0.0, lo_open=True)
+    spot_fraction: float = _num(0.2, 0.0, 1.0)
+    spot_min_px: float = _num(20.0, 0.0)
+
+    def __post_init__(self) -> None:
+        check_section(self, "separation")
+        check_order(self, "separation", "reach_min_px", "reach_max_px")
+
+
+@dataclass(frozen=True)
+class QualityParams:
+    """The frame's shape consensus and the per-streak quality flag
+    (:mod:`blurtrack.detect.separation.quality`; YAML ``quality:``).
+
+    - ``shape_tol_px``, ``shape_tol_rel``: a streak's start-to-end vector may deviate from
+      the frame's consensus by ``max(shape_tol_px, shape_tol_rel * |consensus|)`` and be
+      ``quality_ok``; separation takes the same tolerance for its candidates and references.
+    - ``min_reference``: the fewest unflagged streaks for a consensus (an affine field has 6
+      unknowns, 2 per vector: at least 3; 5 leave redundancy for the robust fit).
+    - ``thick_width_ratio``: saturated streaks wider than this times the frame's median width
+      are ``thick_saturated``.
+    - ``merged_width``: streaks wider than this times the frame's cross-section sigma are
+      ``merged`` (two dots overlapping side by side measure about 1.5x; a single dot's width
+      scatters ~10 % around the median).
+    """
+
+    shape_tol_px: float = _num(3.0, 0.0, lo_open=True)
+    shape_tol_rel: float = _num(0.25, 0.0)
+    min_reference: int = _int(5, 3)
+    thick_width_ratio: float = _num(2.0, 1.0)
+    merged_width: float = _num(1.5, 1.0)
+
+    def __post_init__(self) -> None:
+        check_section(self, "quality")
+
+
+@dataclass(frozen=True)
+class GyroPassParams:
+    """The gyro-template second pass (:mod:`blurtrack.detect.gyro`; YAML ``gyro_pass:``). Its
+    pursuit and replacement also read ``separation.score_min``, ``amp_min``, ``halo_max``,
+    ``residual_max`` and the remnant rule ``separation.spot_*``.
+
+    Which frames and components (:func:`~blurtrack.detect.gyro.gyropass.gate`):
+
+    - ``hairpin_chord``: frames whose median predicted chord is under this fraction of the
+      arc are hairpin frames (every component a candidate).
+    - ``min_arc_px``: predicted curves shorter than this are left to the first pass.
+    - ``tol_px``, ``tol_rel``: endpoint tolerance between a line and its prediction,
+      ``tol_px + tol_rel * arc``.
+    - ``bad_fraction``: other frames are refined where more than this fraction of the long
+      first-pass streaks miss their prediction (0: any).
+    - ``border_candidates``: components touching the border are candidates too: on frames of
+      long streaks the chains run into the border (``hard`` seed 3 frame 7: 50 of 65
+      components, 88 % of the light).
+    - ``clip_at_border``: border candidates' placements may reach past the border (the images
+      padded with zeros, each placement scored and scaled by its template's part inside the
+      frame, its placed curve cut at the border): chains into the border hold streaks
+      leaving the frame, which no template wholly inside explains.
+
+    Placing and accepting (:mod:`~blurtrack.detect.gyro.gyropass`,
+    :mod:`~blurtrack.detect.gyro.gyroconfirm`):
+
+    - ``shape_score_min``: the lowest score of a candidate's best predicted shape.
+    - ``light_quantile``: without first-pass lines inside the frame, the typical dot's light
+      is this quantile of the components' light (chains are brighter).
+    - ``measured_min``: a component is replaced where at least this fraction of its
+      placements was measured.
+    - ``accept_min``: a frame keeps its first pass unless this fraction of its measured
+      placements is confirmed in components replaced whole (0.5 until 2026-12-03).
+    - ``shape_shift_factor``: a line whose shape matches its placed curve's is confirmed
+      where its position lies within this times the tolerance (along a collinear chain a
+      placement may slip by part of a streak).
+    - ``old_lines_margin``: a replaced component's first-pass lines stay where they fit its
+      placed curves this many times better than the new lines (summed end mismatch). The
+      placed curves' ends are 2 px from the measured ones at the median, 14 px at the 90th
+      percentile, so a comparison at par kept worse old lines (1.0 until 2026-12-03: ``hard``
+      seed 3 endpoint median 0.304 px; at 1.5 0.286 px, precision 92.00 -> 92.51 %; seed 2
+      recall -0.27 %).
+    - ``chain_factor``: in a refined frame, first-pass lines longer than this times their
+      predicted arc are dropped (chains; 1.6 until 2026-12-03, 1.15 cost ``hard`` seed 1
+      0.27 % of recall).
+
+    Measuring the placements (:mod:`~blurtrack.detect.gyro.gyromeasure`):
+
+    - ``lit_median_factor``: a placement's line is kept from its first to its last point
+      above a quarter of its peak profile, but at most this times its median (2 and 4
+      measured worse): the curve runs along the whole streak, whose bright hook can be
+      several times its tail. (The first pass keeps the peak: the same factor there moved
+      ``phone``'s ends into the blooming, 1.43 -> 1.55 px on its optics test frame.)
+    - ``arms_chord``: placements whose curve's chord is under this fraction of its arc are
+      measured as two arms joined at the turn.
+    - ``clip_choice``: each placement is measured with the neighbours' templates subtracted
+      as they are and clipped at zero, keeping the line nearer its placed curve; false: as
+      they are only. ``hard`` seeds 1-5, recall / precision %: clipped alone 97.51 / 98.68,
+      91.33 / 94.85, 89.12 / 93.21, 84.88 / 91.48, 97.68 / 99.10; as they are 97.73 / 98.86,
+      92.14 / 94.85, 89.16 / 92.52, 84.17 / 90.85, 97.72 / 99.19; the choice 97.87 / 98.77,
+      92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10.
+    """
+
+    hairpin_chord: float = _num(0.8, 0.0, 1.0, lo_open=True)
+    min_arc_px: float = _num(12.0, 0.0)
+    tol_px: float = _num(2.5, 0.0)
+    tol_rel: float = _num(0.1, 0.0)
+    bad_fraction: float = _num(0.0, 0.0, 1.0, hi_open=True)
+    border_candidates: bool = _switch(True)
+    clip_at_border: bool = _switch(True)
+    shape_score_min: float = _num(0.8, 0.0, 1.0)
+    light_quantile: float = _num(0.4, 0.0, 1.0)
+    measured_min: float = _num(0.5, 0.0, 1.0)
+    accept_min: float = _num(0.35, 0.0, 1.0)
+    shape_shift_factor: float = _num(2.0, 1.0)
+    old_lines_margin: float = _num(1.5, 0.0, lo_open=True)
+    chain_factor: float = _num(1.25, 1.0)
+    lit_median_factor: float = _num(3.0, 0.0, lo_open=True)
+    arms_chord: float = _num(0.8, 0.0, 1.0, lo_open=True)
+    clip_choice: bool = _switch(True)
+
+    def __post_init__(self) -> None:
+        check_section(self, "gyro_pass")
