@@ -22,6 +22,14 @@ file.
   more, and the edge fit of that end (which reads that far) is then not this dot's end.
   NaN where that window leaves the frame: the end is too near the border to be measured
   (``reason`` ``clipped``, whatever ``border_margin_px`` says).
+- ``contrast``: the streak's brightest centre-line point in the smoothed image over the
+  segmentation threshold. Near the threshold the lit region is only the core of whatever
+  source drew the line, and the fill cannot tell a point from a broad light: a source ``r``
+  (``extended_width_ratio``) times the PSF wide with peak ``a`` lights a band of half-width
+  ``r psf sqrt(2 L)``, ``L = ln(a / threshold)``, where a point light with its profile would
+  light ``psf sqrt(2 (L + ln r))``; their ratio exceeds ``point_fill`` ``f`` only where
+  ``L > f^2 ln r / (r^2 - f^2)`` (:func:`min_contrast`: 2.44 with the defaults). A fainter
+  streak is never ``point``.
 - ``component``: index of the streak's connected component (-1 none), ``shared`` how many of
   the frame's streaks lie on it.
 
@@ -67,6 +75,7 @@ class Evidence:
     component: np.ndarray
     shared: np.ndarray
     source: np.ndarray  # object array of SOURCES
+    contrast: np.ndarray
 
     def __len__(self) -> int:
         return int(self.width_ratio.size)
@@ -81,6 +90,7 @@ class Evidence:
             np.zeros(0, np.int64),
             np.zeros(0, np.int64),
             np.zeros(0, object),
+            z.copy(),
         )
 
     def take(self, rows: np.ndarray) -> Evidence:
@@ -91,6 +101,7 @@ class Evidence:
             self.component[rows],
             self.shared[rows],
             self.source[rows],
+            self.contrast[rows],
         )
 
 
@@ -176,15 +187,49 @@ def _end_light(
     return np.asarray(light / np.maximum(ref, 1e-12))
 
 
-def classify_source(width_ratio: np.ndarray, fill: np.ndarray, p: SourceParams) -> np.ndarray:
+def min_contrast(p: SourceParams) -> float:
+    """Least peak over the segmentation threshold at which the fill tells a point light from a
+    source ``extended_width_ratio`` times the PSF wide (module docstring, ``contrast``):
+    ``exp(f^2 ln r / (r^2 - f^2))``, ``r`` that ratio, ``f`` ``point_fill``; infinite where
+    ``f >= r`` (no contrast makes such a source fill more than ``f``)."""
+    r, f = p.extended_width_ratio, p.point_fill
+    if f >= r:
+        return float("inf")
+    return float(np.exp(f * f * np.log(r) / (r * r - f * f)))
+
+
+def _contrast(smooth: np.ndarray, points: list[np.ndarray], threshold: float) -> np.ndarray:
+    """``(N,)`` each streak's brightest centre-line point in ``smooth`` over ``threshold``."""
+    if not points:
+        return np.zeros(0)
+    sizes = np.fromiter(map(len, points), np.int64, len(points))
+    flat = np.concatenate(points).reshape(-1, 2)
+    vals = sample_image(smooth, flat[:, 0], flat[:, 1])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    peak = np.full(len(points), -np.inf)
+    has = sizes > 0
+    peak[has] = np.maximum.reduceat(vals, starts[has])
+    return np.asarray(peak / max(threshold, 1e-12))
+
+
+def classify_source(
+    width_ratio: np.ndarray,
+    fill: np.ndarray,
+    p: SourceParams,
+    contrast: np.ndarray | None = None,
+) -> np.ndarray:
     """``(N,)`` object array of ``point``, ``extended`` or ``undetermined``: extended where the
     streak is far wider than the PSF or its lit region far larger than a point light's;
-    point where both are within a point light's spread; undetermined otherwise (and where a
-    measurement is missing)."""
+    point where both are within a point light's spread and (given ``contrast``) the streak
+    is bright enough for the fill to tell (:func:`min_contrast`); undetermined otherwise (and
+    where a measurement is missing)."""
     wr = np.where(np.isfinite(width_ratio), width_ratio, np.inf)
     fl = np.where(np.isfinite(fill), fill, np.inf)
     out = np.full(wr.size, "undetermined", object)
-    out[(wr <= p.point_width_ratio) & (fl <= p.point_fill)] = "point"
+    point = (wr <= p.point_width_ratio) & (fl <= p.point_fill)
+    if contrast is not None:
+        point &= np.nan_to_num(contrast, nan=0.0) >= min_contrast(p)
+    out[point] = "point"
     ext = (np.isfinite(width_ratio) & (width_ratio > p.extended_width_ratio)) | (
         np.isfinite(fill) & (fill > p.extended_fill)
     )
@@ -226,4 +271,6 @@ def assess(
         fill[has] = ratio[comp[has]]
     width_ratio = np.asarray(width_px, float) / psf
     light = _end_light(smooth, points, np.asarray(plateau, float), profile, psf)
-    return Evidence(width_ratio, fill, light, comp, shared, classify_source(width_ratio, fill, p))
+    contrast = _contrast(smooth, points, threshold)
+    source = classify_source(width_ratio, fill, p, contrast)
+    return Evidence(width_ratio, fill, light, comp, shared, source, contrast)

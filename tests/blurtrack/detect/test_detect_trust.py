@@ -13,6 +13,7 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
+from blurtrack.detect.trust import min_contrast
 from blurtrack.errors import ConfigError
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
@@ -127,3 +128,34 @@ def test_source_parameters_are_validated_and_read_from_yaml() -> None:
         DetectParams.from_dict({"source": {"bogus": 1.0}})
     with pytest.raises(ConfigError):
         SourceParams(point_fill=5.0, extended_fill=3.0)
+
+
+def test_min_contrast_is_where_a_wider_source_first_fills_more_than_a_point() -> None:
+    p = SourceParams()
+    r, f = p.extended_width_ratio, p.point_fill
+    L = np.log(min_contrast(p))
+    assert min_contrast(p) == pytest.approx(2.44, abs=0.01)
+    # At that contrast a source r times the PSF wide lights exactly f times a point's band;
+    # brighter, more (the fill then tells them apart); fainter, less.
+    assert r * np.sqrt(L / (L + np.log(r))) == pytest.approx(f)
+    assert r * np.sqrt(1.2 * L / (1.2 * L + np.log(r))) > f
+    assert r * np.sqrt(0.8 * L / (0.8 * L + np.log(r))) < f
+    assert min_contrast(SourceParams(point_fill=2.0, extended_fill=3.0)) == float("inf")
+
+
+@pytest.mark.parametrize(("flux", "point"), [(0.07, False), (0.6, True)])
+def test_a_streak_near_the_threshold_is_not_called_a_point_light(flux, point) -> None:
+    # The twelve dots at a peak of ~1.6x the segmentation threshold: their lit band is the
+    # core of whatever drew them, so nothing says point (nor quality_ok); brighter (the
+    # negative control, ~13x), they are point lights again.
+    img = render_streaks(SHAPE, _points(), flux, SIGMA, 0.03, 0.004, 1)
+    fs = detect_frame(quantise(img, np.uint16), DetectParams(psf_sigma_px=SIGMA))
+    ok, source, _ = _columns(fs)
+    assert len(fs) == 12 and fs.evidence is not None
+    c = fs.evidence.contrast
+    if point:
+        assert np.all(c > 2.0 * min_contrast(SourceParams()))
+        assert np.all(source == "point") and ok.all()
+    else:
+        assert np.all(c < min_contrast(SourceParams())) and np.all(c > 1.0)
+        assert not np.any(source == "point") and not ok.any()
