@@ -28,20 +28,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.paramsections import OrientationParams
 
-#: Largest |LLR| a single cue may contribute (one cue must not drown out the others entirely).
-MAX_CUE_LLR = 25.0
-#: Gyro prediction error model: sigma = GYRO_SIGMA_PX + GYRO_SIGMA_REL * length.
-GYRO_SIGMA_PX = 1.5
-GYRO_SIGMA_REL = 0.25
-GYRO_SIGMA_REL_REFINED = 0.12
-#: Profile cue: sigma of log brightness ratios.
-PROFILE_SIGMA_LOG = 0.35
 CUE_NAMES = ("gyro", "profile", "continuity")
 #: Rotation-integration sub-step of the models behind the gyro cue and the time-shift scan
 #: (the model's default is 1 ms): they compare ends against a tolerance of >= 1.5 px, and a
 #: 4 ms midpoint rule moves the predicted ends by < 0.01 px on ``dense`` and ``hard``.
 CUE_SUBSTEP_S = 4e-3
+
+
+@dataclass(frozen=True)
+class CueErrors:
+    """The cues' error model for one session (:class:`~blurtrack.detect.params.OrientationParams`,
+    :func:`cue_errors`): the gyro's predicted ends scatter by ``sigma_px + sigma_rel *
+    length`` (px), log brightness ratios by ``profile_sigma_log``; every LLR is clipped to
+    ``+-max_llr``."""
+
+    sigma_px: float = OrientationParams().gyro_sigma_px
+    sigma_rel: float = OrientationParams().gyro_sigma_rel
+    profile_sigma_log: float = OrientationParams().profile_sigma_log
+    max_llr: float = OrientationParams().max_cue_llr
+
+
+def cue_errors(p: OrientationParams, refined: bool) -> CueErrors:
+    """The error model of ``p``, with the smaller relative part where the time-shift scan
+    found the shift (``refined``)."""
+    rel = p.gyro_sigma_rel_refined if refined else p.gyro_sigma_rel
+    return CueErrors(p.gyro_sigma_px, rel, p.profile_sigma_log, p.max_cue_llr)
 
 
 @dataclass(frozen=True)
@@ -64,16 +77,16 @@ class Orientation:
 
 
 def gyro_cues(
-    fs: FrameStreaks, timing: FrameTiming, model: object, sigma_rel: float = GYRO_SIGMA_REL
+    fs: FrameStreaks, timing: FrameTiming, model: object, errors: CueErrors | None = None
 ) -> np.ndarray:
     """``(N, 2)`` LLRs of the gyro and profile cues for one frame.
 
     ``model`` is a :class:`blurtrack.geometry.blur_model.BlurModel` (camera clock); it must cover
-    the frame's exposure (:class:`~blurtrack.errors.CoverageError` otherwise). ``sigma_rel``:
-    prediction uncertainty per px of streak length (smaller once the time shift has been
+    the frame's exposure (:class:`~blurtrack.errors.CoverageError` otherwise). ``errors``: the
+    cues' error model (defaults if None; a smaller relative part once the time shift has been
     refined).
     """
-    return gyro_cues_batch([fs], [timing], model, sigma_rel)[0]
+    return gyro_cues_batch([fs], [timing], model, errors)[0]
 
 
 #: Streaks per batched model call of :func:`gyro_cues_batch` (bounds the temporaries).
@@ -84,7 +97,7 @@ def gyro_cues_batch(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     model: object,
-    sigma_rel: float = GYRO_SIGMA_REL,
+    errors: CueErrors | None = None,
 ) -> list[np.ndarray]:
     """:func:`gyro_cues` of many frames with one model evaluation per batch of streaks.
 
@@ -104,7 +117,9 @@ def gyro_cues_batch(
         groups[-1].append(k)
         count += len(fs)
     for g in groups:
-        llr = _gyro_cues_flat([frames[j] for j in g], [timings[j] for j in g], model, sigma_rel)
+        llr = _gyro_cues_flat(
+            [frames[j] for j in g], [timings[j] for j in g], model, errors or CueErrors()
+        )
         ends = np.cumsum([len(frames[j]) for j in g])[:-1]
         for j, part in zip(g, np.split(llr, ends), strict=True):
             out[j] = part
@@ -115,7 +130,7 @@ def _gyro_cues_flat(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     model: object,
-    sigma_rel: float,
+    errors: CueErrors,
 ) -> np.ndarray:
     """The gyro and profile LLRs ``(sum N, 2)`` of the streaks of ``frames``, concatenated."""
     cam = model.camera  # type: ignore[attr-defined]
@@ -136,7 +151,7 @@ def _gyro_cues_flat(
     out = np.zeros((mid.shape[0], 2))
     cost_a = np.sum((A - start) ** 2, axis=1) + np.sum((B - end) ** 2, axis=1)
     cost_b = np.sum((B - start) ** 2, axis=1) + np.sum((A - end) ** 2, axis=1)
-    sig = GYRO_SIGMA_PX + sigma_rel * length
+    sig = errors.sigma_px + errors.sigma_rel * length
     out[:, 0] = (cost_b - cost_a) / (2 * sig**2)
     # Profile: predicted speeds at both ends vs the ends' plateau brightness (one warp call
     # for both ends).
@@ -153,9 +168,9 @@ def _gyro_cues_flat(
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.log(plateau[:, 0] / plateau[:, 1])
         q = np.log(v_e / v_s)  # expected r if A is the start
-    llr = ((r + q) ** 2 - (r - q) ** 2) / (2 * PROFILE_SIGMA_LOG**2)
+    llr = ((r + q) ** 2 - (r - q) ** 2) / (2 * errors.profile_sigma_log**2)
     out[:, 1] = np.where(usable & np.isfinite(llr), llr, 0.0)
-    return np.clip(out, -MAX_CUE_LLR, MAX_CUE_LLR)
+    return np.clip(out, -errors.max_llr, errors.max_llr)
 
 
 def _outward_tangents(points: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -234,8 +249,10 @@ def continuity_cues(
     timings: Sequence[FrameTiming],
     swaps: Sequence[np.ndarray] | None = None,
     cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    max_llr: float = CueErrors.max_llr,
 ) -> list[np.ndarray]:
-    """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence).
+    """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence),
+    clipped to ``+-max_llr`` (:class:`CueErrors`).
 
     Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
     (a tentative orientation of every frame: True where end B is the start) only the
@@ -279,7 +296,7 @@ def continuity_cues(
             d_b = np.minimum(nearest_distance(ext_b, t), gate)
             # Previous frame (sign +1): an end near ext_a supports "A is the start".
             out[k] += sign * (d_b**2 - d_a**2) / (2 * unc**2)
-    return [np.clip(o, -MAX_CUE_LLR, MAX_CUE_LLR) for o in out]
+    return [np.clip(o, -max_llr, max_llr) for o in out]
 
 
 def combine(llr: np.ndarray) -> Orientation:

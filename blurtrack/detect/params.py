@@ -12,8 +12,10 @@ import yaml
 from blurtrack.detect.paramsections import (
     GyroPassParams,
     LinesParams,
+    OrientationParams,
     QualityParams,
     SeparationParams,
+    TimeshiftParams,
 )
 from blurtrack.errors import ConfigError
 from blurtrack.io.atomic import write_text_atomic
@@ -23,9 +25,11 @@ __all__ = [
     "DetectParams",
     "GyroPassParams",
     "LinesParams",
+    "OrientationParams",
     "QualityParams",
     "SeparationParams",
     "SourceParams",
+    "TimeshiftParams",
 ]
 
 
@@ -104,7 +108,8 @@ class DetectParams:
       streaks with the gyro's predicted curve as the template
       (:mod:`blurtrack.detect.gyro.gyropass`).
     - ``source``: point light or extended source, trustworthy ends (:class:`SourceParams`).
-    - ``lines``, ``separation``, ``quality``, ``gyro_pass``: each stage's tuning
+    - ``lines``, ``separation``, ``quality``, ``gyro_pass``, ``orientation``, ``timeshift``:
+      each stage's tuning
       (:mod:`blurtrack.detect.paramsections`).
 
     In YAML every section is a nested mapping (any of its keys may be left out).
@@ -129,6 +134,8 @@ class DetectParams:
     separation: SeparationParams = field(default_factory=SeparationParams)
     quality: QualityParams = field(default_factory=QualityParams)
     gyro_pass: GyroPassParams = field(default_factory=GyroPassParams)
+    orientation: OrientationParams = field(default_factory=OrientationParams)
+    timeshift: TimeshiftParams = field(default_factory=TimeshiftParams)
 
     def __post_init__(self) -> None:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
@@ -208,6 +215,8 @@ def _sections() -> dict[str, type]:
         "separation": SeparationParams,
         "quality": QualityParams,
         "gyro_pass": GyroPassParams,
+        "orientation": OrientationParams,
+        "timeshift": TimeshiftParams,
     }
 
 

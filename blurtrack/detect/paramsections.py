@@ -349,3 +349,66 @@ class GyroPassParams:
 
     def __post_init__(self) -> None:
         check_section(self, "gyro_pass")
+
+
+@dataclass(frozen=True)
+class OrientationParams:
+    """The start/end cues' error model (:mod:`blurtrack.detect.orientation`; YAML
+    ``orientation:``). Each cue is a log-likelihood ratio (LLR) that end A is the start.
+
+    - ``gyro_sigma_px``, ``gyro_sigma_rel``: the gyro's predicted ends scatter about the
+      measured ones by ``gyro_sigma_px + gyro_sigma_rel * length`` (a time shift off by a
+      few ms moves a streak's ends by a fraction of its length; the measured ends' own error
+      is ~0.2-0.4 px on ``realistic``, 1-1.5 px on saturated ``hard`` streaks).
+    - ``gyro_sigma_rel_refined``: the relative part once the time-shift scan found the shift
+      (the remaining error is the calibration's, about half).
+    - ``profile_sigma_log``: the scatter of the log ratio of the two ends' plateau brightness
+      about the log ratio of the gyro's predicted speeds there (brightness is 1 / speed;
+      speckle and noise leave ~0.3).
+    - ``max_cue_llr``: every cue's LLR is clipped to +-this, so that no single cue drowns the
+      others (25: odds of ~7e10, beyond any error model's validity).
+    """
+
+    gyro_sigma_px: float = _num(1.5, 0.0, lo_open=True)
+    gyro_sigma_rel: float = _num(0.25, 0.0)
+    gyro_sigma_rel_refined: float = _num(0.12, 0.0)
+    profile_sigma_log: float = _num(0.35, 0.0, lo_open=True)
+    max_cue_llr: float = _num(25.0, 0.0, lo_open=True)
+
+    def __post_init__(self) -> None:
+        check_section(self, "orientation")
+        check_order(self, "orientation", "gyro_sigma_rel_refined", "gyro_sigma_rel")
+
+
+@dataclass(frozen=True)
+class TimeshiftParams:
+    """The camera-IMU time shift found from the streaks (:mod:`blurtrack.detect.timeshift`,
+    the scan of measured ends; :mod:`blurtrack.detect.gyro.shiftfit`, the refinement by the
+    predicted templates; YAML ``timeshift:``).
+
+    - ``scan_min_length_px``: the scan uses streaks longer than this (a shorter one's ends
+      move by less than their own error over the scan's steps).
+    - ``scan_sigma_rel``: the scan weighs each streak's squared end distances by
+      ``(orientation.gyro_sigma_px + scan_sigma_rel * length)^2``.
+    - ``scan_min_contrast``: least drop of the scan's cost from its median to its minimum
+      (a chi-square-like sum: 9 is three sigmas for one parameter) for the minimum to mean
+      anything; a gyro that reads zero, or a motion too small to blur, gives a flat cost.
+    - ``refit_min_length_px``: the refinement uses streaks at least this long (shorter ones
+      say little about the curve's shape).
+    - ``refit_min_streaks``: fewer usable streaks over the sampled frames keep the scan's
+      shift.
+    - ``readout_rel``: the readout is refitted within this fraction of the session's.
+    - ``min_row_spread``: ... only where the streaks' row fractions spread at least this
+      much (standard deviation; a uniform spread is 0.29).
+    """
+
+    scan_min_length_px: float = _num(5.0, 0.0)
+    scan_sigma_rel: float = _num(0.1, 0.0)
+    scan_min_contrast: float = _num(9.0, 0.0)
+    refit_min_length_px: float = _num(15.0, 0.0)
+    refit_min_streaks: int = _int(20, 1)
+    readout_rel: float = _num(0.15, 0.0, 1.0, hi_open=True)
+    min_row_spread: float = _num(0.15, 0.0, infinite=True)
+
+    def __post_init__(self) -> None:
+        check_section(self, "timeshift")

@@ -18,11 +18,11 @@ from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
-    GYRO_SIGMA_REL,
-    GYRO_SIGMA_REL_REFINED,
+    CueErrors,
     FrameTiming,
     combine,
     continuity_cues,
+    cue_errors,
     gyro_cues,
     gyro_cues_batch,
 )
@@ -139,7 +139,7 @@ def _recomputed_where_changed(
     timings: list[FrameTiming],
     covered: list[int],
     model: Any,
-    sigma_rel: float,
+    error_model: CueErrors,
 ) -> list[np.ndarray | None]:
     """``cues`` (those of the covered frames of ``before``) with the frames that ``after``
     replaced computed again (each frame's cues depend on that frame alone)."""
@@ -147,7 +147,7 @@ def _recomputed_where_changed(
     if not changed:
         return cues
     out = list(cues)
-    redo = _gyro_llrs(after, timings, [covered[j] for j in changed], model, sigma_rel)
+    redo = _gyro_llrs(after, timings, [covered[j] for j in changed], model, error_model)
     for j, c in zip(changed, redo, strict=True):
         out[j] = c
     return out
@@ -158,14 +158,14 @@ def _gyro_llrs(
     timings: list[FrameTiming],
     covered: list[int],
     model: Any,
-    sigma_rel: float,
+    error_model: CueErrors,
 ) -> list[np.ndarray | None]:
     """Gyro and profile LLRs of the covered frames, batched; frame by frame (None where the
     gyro falls short after all, e.g. a point predicted outside the frame) if a batch fails."""
     try:
         return list(
             gyro_cues_batch(
-                [found[k] for k in covered], [timings[k] for k in covered], model, sigma_rel
+                [found[k] for k in covered], [timings[k] for k in covered], model, error_model
             )
         )
     except CoverageError:
@@ -173,7 +173,7 @@ def _gyro_llrs(
     out: list[np.ndarray | None] = []
     for k in covered:
         try:
-            out.append(gyro_cues(found[k], timings[k], model, sigma_rel))
+            out.append(gyro_cues(found[k], timings[k], model, error_model))
         except CoverageError:
             out.append(None)
     return out
@@ -250,7 +250,7 @@ def detect_session(
         calib, trace = inputs
         up = resampled[0]
         shift = (
-            estimate_timeshift(found, timings, calib, trace, model_gyro=up)
+            estimate_timeshift(found, timings, calib, trace, model_gyro=up, params=p)
             if refine_timeshift
             else None
         )
@@ -259,7 +259,7 @@ def detect_session(
             assert shift is not None  # found_shift implies a shift
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
-        sigma_rel = GYRO_SIGMA_REL_REFINED if found_shift else GYRO_SIGMA_REL
+        error_model = cue_errors(p.orientation, refined=found_shift)
         covered = _covered(found, timings, model)
         if found_shift and p.gyro_template and covered:
             # The template pass's frames: the shift their predicted curves explain best.
@@ -292,7 +292,7 @@ def detect_session(
                 # after the pass only the frames it changed are computed again. (A failure
                 # here leaves them all to be computed below, after the pass.)
                 with contextlib.suppress(BlurTrackError):
-                    early.append(_gyro_llrs(first, timings, covered, model, sigma_rel))
+                    early.append(_gyro_llrs(first, timings, covered, model, error_model))
 
             template_pass = refine_frames(
                 session, found, timings, idx, covered, model, p, workers, cues_meanwhile
@@ -300,10 +300,10 @@ def detect_session(
             llrs = [np.zeros((len(fs), 3)) for fs in found]
             if early:
                 cues = _recomputed_where_changed(
-                    early[0], first, found, timings, covered, model, sigma_rel
+                    early[0], first, found, timings, covered, model, error_model
                 )
         if cues is None:
-            cues = _gyro_llrs(found, timings, covered, model, sigma_rel)
+            cues = _gyro_llrs(found, timings, covered, model, error_model)
         if found_shift:
             # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
             # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
@@ -319,10 +319,14 @@ def detect_session(
     # Continuity twice: any neighbouring end first, then (with that tentative orientation)
     # only the previous frame's ends and the next frame's starts.
     basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(continuity_cues(found, timings, cache=basis)):
+    for k, c in enumerate(
+        continuity_cues(found, timings, cache=basis, max_llr=p.orientation.max_cue_llr)
+    ):
         llrs[k][:, 2] = c
     tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis)):
+    for k, c in enumerate(
+        continuity_cues(found, timings, tentative, cache=basis, max_llr=p.orientation.max_cue_llr)
+    ):
         llrs[k][:, 2] = c
     parts = []
     stamps = session.frames["timestamp_ns"].to_numpy(np.int64)

@@ -17,23 +17,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import CUE_SUBSTEP_S, GYRO_SIGMA_PX, FrameTiming
+from blurtrack.detect.orientation import CUE_SUBSTEP_S, FrameTiming
+from blurtrack.detect.params import DetectParams
 
 if TYPE_CHECKING:
     from blurtrack.geometry.calibration import Calibration
     from blurtrack.geometry.gyro import GyroTrace
 
-#: Streaks used per frame and frames used (spread over the session).
+#: Streaks used per frame and frames used (spread over the session): the scan's budget (180
+#: streaks pin one parameter far below the exposure's resolution; each costs a model call per
+#: trial shift).
 MAX_STREAKS_PER_FRAME = 30
 MAX_FRAMES = 6
-MIN_LENGTH_PX = 5.0
-
-
-#: Least drop of the scan's cost from its median to its minimum (a chi-square-like sum: 9 is
-#: three sigmas for one parameter) for the minimum to mean anything. A gyro that reads zero
-#: (or a motion too small to blur) predicts the same streaks at every shift: a flat cost, whose
-#: argmin is noise.
-MIN_CONTRAST = 9.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +93,7 @@ def estimate_timeshift(
     search_s: float = 0.05,
     step_s: float = 0.003,
     model_gyro: GyroTrace | None = None,
+    params: DetectParams | None = None,
 ) -> TimeshiftEstimate | None:
     """Scan shifts ``initial +- search_s``; None if too few long streaks or no gyro coverage,
     ``status="undetermined"`` (and no shift) if the cost does not depend on the shift.
@@ -106,7 +102,10 @@ def estimate_timeshift(
     is the initial guess), ``gyro`` a :class:`blurtrack.geometry.gyro.GyroTrace`;
     ``model_gyro``: that trace already resampled as the blur model resamples it
     (``gyro.upsampled(GYRO_UPSAMPLE)``, when the caller has it: it is not resampled again).
+    ``params``: its ``timeshift`` and ``orientation`` sections (defaults if None).
     """
+    dp = params or DetectParams()
+    ts = dp.timeshift
     from blurtrack.geometry.blur_model import BlurModel
 
     initial = float(calib.timeshift_cam_imu_s)  # type: ignore[attr-defined]
@@ -128,7 +127,7 @@ def estimate_timeshift(
     for k in (usable[int(i)] for i in pick):
         fs = frames[k]
         long = np.flatnonzero(
-            (fs.length_px > MIN_LENGTH_PX) & ~fs.flags["clipped"] & ~fs.flags["merged"]
+            (fs.length_px > ts.scan_min_length_px) & ~fs.flags["clipped"] & ~fs.flags["merged"]
         )
         if long.size:
             sel = np.unique(
@@ -147,7 +146,10 @@ def estimate_timeshift(
         end_a=np.concatenate([fs.end_a[sel] for fs, sel, _ in parts]),
         end_b=np.concatenate([fs.end_b[sel] for fs, sel, _ in parts]),
         sig2=np.concatenate(
-            [(GYRO_SIGMA_PX + 0.1 * fs.length_px[sel]) ** 2 for fs, sel, _ in parts]
+            [
+                (dp.orientation.gyro_sigma_px + ts.scan_sigma_rel * fs.length_px[sel]) ** 2
+                for fs, sel, _ in parts
+            ]
         ),
         frame_t_s=np.concatenate([np.full(len(sel), tm.t_s) for _, sel, tm in parts]),
         exposure_s=np.concatenate([np.full(len(sel), tm.exposure_s) for _, sel, tm in parts]),
@@ -175,7 +177,7 @@ def estimate_timeshift(
     if not np.any(np.isfinite(cost)):
         return None
     finite = cost[np.isfinite(cost)]
-    if float(np.median(finite) - np.min(finite)) < MIN_CONTRAST:
+    if float(np.median(finite) - np.min(finite)) < ts.scan_min_contrast:
         return TimeshiftEstimate(None, initial, grid, cost, n, "undetermined")
     best = float(grid[int(np.argmin(cost))])
     fine = best + np.arange(-step_s, step_s + 1e-12, step_s / 4)

@@ -24,10 +24,10 @@ the shift. Each streak is scored on the grid of trial shifts :data:`GRID_HALF_MS
 scan's in steps of :data:`GRID_STEP_MS` (the curves rendered once per trial); a streak at
 row fraction ``u = y / H`` sees the shift ``m + dr * (u - 1/2)`` (``m`` the shift at the
 frame's middle row), and ``(m, dr)`` is the best pair of a fine grid (:data:`FIT_STEP_MS`,
-``dr`` within :data:`READOUT_REL` of the session's readout, :data:`READOUT_STEP_MS`) of the
+``dr`` within ``timeshift.readout_rel`` of the session's readout, :data:`READOUT_STEP_MS`) of the
 streaks' scores interpolated between the trials by a Catmull-Rom spline. The readout is fitted
 only for a rolling shutter (readout > 0) and streaks spread over the rows
-(:data:`MIN_ROW_SPREAD`). It runs only where the template pass will use the shift: on sessions
+(``timeshift.min_row_spread``). It runs only where the template pass will use the shift: on sessions
 where the pass's gate lets one of the sampled frames through (those frames are decoded here
 and again by the pass: ~10 ms each).
 """
@@ -50,25 +50,22 @@ from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.errors import CoverageError
 
-#: Frames sampled (spread over the covered ones) and streaks used per frame.
+#: Frames sampled (spread over the covered ones) and streaks used per frame: the refinement's
+#: budget (each sampled frame is decoded again, each streak rendered once per trial shift).
 MAX_FRAMES = 6
 MAX_STREAKS_PER_FRAME = 40
-#: Streaks shorter than this (px, first-pass length) say little about the shape.
-MIN_LENGTH_PX = 15.0
-#: Fewer usable streaks than this over the sampled frames: the scan's shift is kept.
-MIN_STREAKS = 20
-#: Trial shifts about the scan's (ms): ``-GRID_HALF_MS .. +GRID_HALF_MS`` in ``GRID_STEP_MS``.
+#: Trial shifts about the scan's (ms): ``-GRID_HALF_MS .. +GRID_HALF_MS`` in ``GRID_STEP_MS``
+#: (the scan's minimum lies within 1.6 ms of the truth on ``hard``: twice that; a step well
+#: under the 10-50 ms exposures, interpolated by the spline).
 GRID_HALF_MS = 3.0
 GRID_STEP_MS = 0.375
 #: The fine grid of the fit: the middle row's shift (ms) and the readout's change (ms), the
-#: latter within this fraction of the session's readout.
+#: latter within ``timeshift.readout_rel`` of the session's readout (a third and two thirds
+#: of the trial step: the spline's resolution).
 FIT_STEP_MS = 0.125
 READOUT_STEP_MS = 0.25
-READOUT_REL = 0.15
-#: The readout is fitted only where the streaks' row fractions spread at least this much
-#: (standard deviation).
-MIN_ROW_SPREAD = 0.15
-#: A template is matched at placements up to this far (px) from its predicted position.
+#: A template is matched at placements up to this far (px) from its predicted position (the
+#: scan's shift, off by <= 1.6 ms, moves a dot by <= 2-3 px on ``hard``).
 WINDOW_PX = 3
 
 
@@ -91,15 +88,19 @@ class ShiftRefinement:
     status: str
 
 
-def usable_streaks(fs: FrameStreaks, n: int = MAX_STREAKS_PER_FRAME) -> np.ndarray:
+def usable_streaks(
+    fs: FrameStreaks,
+    n: int = MAX_STREAKS_PER_FRAME,
+    min_length_px: float = DetectParams().timeshift.refit_min_length_px,
+) -> np.ndarray:
     """Indices of up to ``n`` streaks of a frame that are one dot each as far as the first pass
-    can tell (not clipped by the border, merged or crossing; at least :data:`MIN_LENGTH_PX`),
+    can tell (not clipped by the border, merged or crossing; at least ``min_length_px``),
     spread over the frame's list."""
     if len(fs) == 0:
         return np.zeros(0, np.int64)
     f = fs.flags
     ok = np.flatnonzero(
-        ~f["clipped"] & ~f["merged"] & ~f["crossing"] & (fs.length_px >= MIN_LENGTH_PX)
+        ~f["clipped"] & ~f["merged"] & ~f["crossing"] & (fs.length_px >= min_length_px)
     )
     if ok.size <= n:
         return ok
@@ -226,9 +227,10 @@ def refine_timeshift(
     through = [k for k in pick if gate(found[k], timings[k], model, params.gyro_pass) is not None]
     if not through:
         return result("not needed")
-    sel = {k: usable_streaks(found[k]) for k in through}
+    min_len = params.timeshift.refit_min_length_px
+    sel = {k: usable_streaks(found[k], min_length_px=min_len) for k in through}
     scored = [k for k in through if sel[k].size]
-    if sum(sel[k].size for k in scored) < MIN_STREAKS:
+    if sum(sel[k].size for k in scored) < params.timeshift.refit_min_streaks:
         return result("too few streaks")
     sigma_px = float(np.median([found[k].sigma_c_px for k in covered]))
 
@@ -248,13 +250,13 @@ def refine_timeshift(
     rows = np.concatenate([p[1] for p in parts])
     total = scores.sum(axis=1)
     n = int(rows.size)
-    if n < MIN_STREAKS:
+    if n < params.timeshift.refit_min_streaks:
         return result("too few streaks", total, n)
     if not float(total.max() - total.min()) > 1e-6 * max(float(total.max()), 1e-12):
         return result("flat", total, n)
-    fit_readout = readout > 0.0 and float(np.std(rows)) >= MIN_ROW_SPREAD
+    fit_readout = readout > 0.0 and float(np.std(rows)) >= params.timeshift.min_row_spread
     m, dr, at_edge = fit_shift_readout(
-        grid_ms, scores, rows, READOUT_REL * 1e3 * readout if fit_readout else 0.0
+        grid_ms, scores, rows, params.timeshift.readout_rel * 1e3 * readout if fit_readout else 0.0
     )
     if at_edge:
         return result("at the grid's edge", total, n)

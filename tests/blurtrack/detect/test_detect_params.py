@@ -15,12 +15,17 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.params import (
     GyroPassParams,
     LinesParams,
+    OrientationParams,
     QualityParams,
     SeparationParams,
     SourceParams,
+    TimeshiftParams,
 )
 from blurtrack.detect.separation.quality import frame_quality
+from blurtrack.detect.session import detect_session
 from blurtrack.errors import ConfigError
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
 DOCS = Path(__file__).resolve().parents[3] / "docs" / "detection.md"
@@ -32,6 +37,8 @@ SECTIONS: dict[str, type] = {
     "separation": SeparationParams,
     "quality": QualityParams,
     "gyro_pass": GyroPassParams,
+    "orientation": OrientationParams,
+    "timeshift": TimeshiftParams,
 }
 
 #: Per section, a valid non-default value of some fields (the round trip must keep them).
@@ -41,6 +48,8 @@ CHANGED: dict[str, dict[str, Any]] = {
     "separation": {"residual_max": 0.6, "neighbours": 4, "reach_max_px": 10},
     "quality": {"shape_tol_px": 2.5, "min_reference": 6},
     "gyro_pass": {"tol_px": 3.0, "clip_choice": False},
+    "orientation": {"gyro_sigma_px": 2.0, "max_cue_llr": 30.0},
+    "timeshift": {"scan_min_contrast": 16.0, "refit_min_streaks": 30},
 }
 
 #: Per section, values out of range (negative controls): field -> value.
@@ -55,6 +64,8 @@ BAD: dict[str, list[tuple[str, Any]]] = {
     ],
     "quality": [("min_reference", 2), ("merged_width", 0.5), ("shape_tol_px", float("inf"))],
     "gyro_pass": [("clip_at_border", 1), ("bad_fraction", 1.0), ("accept_min", "0.3")],
+    "orientation": [("gyro_sigma_px", 0.0), ("profile_sigma_log", -0.1)],
+    "timeshift": [("readout_rel", 1.0), ("refit_min_streaks", 0), ("scan_min_contrast", -1.0)],
 }
 
 
@@ -145,3 +156,30 @@ def test_moved_values_are_read_from_the_params() -> None:
     assert len(detect_frame(pair, plain)) == 14
     low = replace(plain, lines=LinesParams(gap_level=0.05))
     assert len(detect_frame(pair, low)) == 13
+
+
+@pytest.fixture(scope="module")
+def small_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("params") / "s"
+    write_synthetic_session(folder, n_frames=4, seed=4, timeshift_s=0.01)
+    return folder
+
+
+def test_the_orientation_and_timeshift_sections_are_read(small_session: Path) -> None:
+    session = load_session(small_session)
+    p = DetectParams()
+    base = detect_session(session, params=p)
+    assert base.summary["gyro_timeshift_status"] != "undetermined"
+    assert np.abs(base.table.llr_gyro).max() > 2.0
+    # Every cue clipped at +-2 instead of +-25.
+    capped = replace(p, orientation=replace(p.orientation, max_cue_llr=2.0))
+    got = detect_session(session, params=capped).table
+    assert np.abs(got[["llr_gyro", "llr_profile", "llr_continuity"]].to_numpy()).max() <= 2.0
+    # A scan whose cost must drop by more than any cost can: the shift is undetermined.
+    flat = replace(p, timeshift=replace(p.timeshift, scan_min_contrast=1e12))
+    assert detect_session(session, params=flat).summary["gyro_timeshift_status"] == "undetermined"
+
+
+def test_the_refined_gyro_sigma_may_not_exceed_the_unrefined() -> None:
+    with pytest.raises(ConfigError, match="orientation.gyro_sigma_rel_refined must not exceed"):
+        DetectParams.from_dict({"orientation": {"gyro_sigma_rel_refined": 0.5}})

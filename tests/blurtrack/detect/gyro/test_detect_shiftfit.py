@@ -5,6 +5,8 @@ does so by a different amount in every row."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -53,11 +55,11 @@ def arcs():
     return image, detect_frame(image)
 
 
-def _refine(image, fs, model, monkeypatch):
+def _refine(image, fs, model, monkeypatch, params=None):
     # The gate is the template pass's business (tested there): here every frame goes through.
     monkeypatch.setattr(shiftfit, "gate", lambda *a: False)
     return shiftfit.refine_timeshift(
-        lambda k: image, [fs], [FrameTiming(T0, EXP)], [0], model, DetectParams()
+        lambda k: image, [fs], [FrameTiming(T0, EXP)], [0], model, params or DetectParams()
     )
 
 
@@ -71,8 +73,9 @@ def test_the_templates_find_the_true_shift_and_readout(arcs, monkeypatch) -> Non
     assert abs(got.readout_s - READOUT_S) < 0.8e-3
     # negative control: the shift alone (no readout fitted) settles for the middle row's,
     # off the truth at row 0 by about half the readout's error
-    monkeypatch.setattr(shiftfit, "MIN_ROW_SPREAD", 2.0)
-    alone = _refine(image, fs, _model(0.0015, 0.9 * READOUT_S), monkeypatch)
+    p = DetectParams()
+    no_readout = replace(p, timeshift=replace(p.timeshift, min_row_spread=2.0))
+    alone = _refine(image, fs, _model(0.0015, 0.9 * READOUT_S), monkeypatch, no_readout)
     assert alone.status == "refined" and alone.readout_s == pytest.approx(0.9 * READOUT_S)
     assert abs(alone.timeshift_s) > 0.8e-3
 
