@@ -49,9 +49,10 @@ class SourceParams:
       streaks would light as PSF-wide lines (crossings only lower the ratio; the margin
       covers the rounding of lit half-widths to whole pixels on short streaks).
     - ``extended_fill``: a lit region above this times that area is an extended source.
-    - ``end_light_max``: light beyond an end (a cross-section integral 3 to 6 sigmas plus
-      3 px out) above this fraction of the streak's brightness at that end means a
-      neighbour's light reaches the end: the end is not trusted.
+    - ``end_light_max``: light beyond an end (a cross-section integral 3 to 4 sigmas out,
+      where it leaves the edge fit no dip to stop at) above this fraction of the streak's
+      brightness at that end means a neighbour's light reaches the end: the end is not
+      trusted.
     - ``gyro_vector_tol_px``, ``hairpin_depth_px`` (with a gyro,
       :mod:`blurtrack.detect.gyro.gyrotrust`): the two share the contract's 2 px end gate.
       The measured start-to-end vector may be off the gyro's prediction (corrected by the

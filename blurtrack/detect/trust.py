@@ -19,7 +19,8 @@ file.
   the steps from ``END_GAP_SIGMAS`` sigmas out to ``END_REACH_SIGMAS`` sigmas plus
   ``END_REACH_PX``) over the streak's brightness there: a dot's erf edge leaves
   ``Phi(-END_GAP_SIGMAS)`` of it, a neighbour's light touching or continuing the end much
-  more, and the edge fit of that end (which reads that far) is then not this dot's end.
+  more, and the edge fit of that end (which finds no dip to stop at there) is then not this
+  dot's end.
   NaN where that window leaves the frame: the end is too near the border to be measured
   (``reason`` ``clipped``, whatever ``border_margin_px`` says).
 - ``contrast``: the streak's brightest centre-line point in the smoothed image over the
@@ -54,10 +55,14 @@ SOURCES = ("point", "extended", "undetermined")
 #: The end-light window starts this many sigmas beyond the end (half-level point), where a
 #: dot's own erf edge has fallen to Phi(-3) = 0.13 % of its plateau.
 END_GAP_SIGMAS = 3.0
-#: ... and reaches this many sigmas plus END_REACH_PX further: the edge fit reads the profile
-#: 3 sigma + 3 px beyond the end (docs/detection.md, "refine"), so light there moves the end.
-END_REACH_SIGMAS = 3.0
-END_REACH_PX = 3.0
+#: ... and reaches this many sigmas plus END_REACH_PX further. The edge fit's area starts at
+#: the profile's minimum beyond the end (:mod:`blurtrack.detect.lines.endpoints`), so a
+#: neighbour's light peaking ``D`` beyond the end is read only through its tail inside the dip
+#: at about ``D / 2``: ``sigma G(-D / (2 sigma))`` of area per unit of its brightness, 0.01
+#: sigma at ``D = 4 sigma`` (``G(z) = z Phi(z) + phi(z)``). Light from 4 sigmas on no longer
+#: moves the end; light between 3 and 4 sigmas leaves no dip to stop at.
+END_REACH_SIGMAS = 1.0
+END_REACH_PX = 0.0
 #: Half-width of the end-light cross-section integral, in sigmas: +-2 sigma holds 95 % of a
 #: Gaussian cross-section.
 END_HALF_SIGMAS = 2.0

@@ -34,6 +34,15 @@ PLATEAU_WINDOW = 7
 PLATEAU_INSET_SIGMAS = 2.0
 #: Margin (sigmas) beyond the half-peak crossings over which short profiles' moments are taken.
 MOMENT_MARGIN_SIGMAS = 3.0
+#: Where other light lies beyond an end (the profile rises again, outwards, from its minimum
+#: between ``3 sigma + 1`` samples and this many sigmas beyond the half-level crossing), the
+#: edge area starts at that minimum, the erf's own tail beyond it (at most ``sigma G(-1.5) =
+#: 0.03 sigma`` of area) modelled, and the baseline is zero: the neighbour's light past the
+#: dip is not read.
+EDGE_LOW_SIGMAS = 1.5
+#: ... "rises again": by more than the edge's own erf can hold anywhere past that minimum,
+#: ``Phi(-EDGE_LOW_SIGMAS)`` = 6.7 % of the plateau; the edge alone falls monotonically.
+EDGE_RISE = float(normal_cdf(np.array(-EDGE_LOW_SIGMAS)))
 
 
 @dataclass(frozen=True)
@@ -115,6 +124,19 @@ def _time_law_density(
     return np.where(good, alpha, lin_alpha), np.where(good, beta, lin_beta), good
 
 
+def _tail_area(z: np.ndarray) -> np.ndarray:
+    """``G(z) = z Phi(z) + phi(z)``: area under ``Phi`` from minus infinity to ``z``."""
+    return np.asarray(z * normal_cdf(z) + np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi))
+
+
+def _profile_minimum(A: np.ndarray, lens: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Index of each row's least sample within ``[lo, hi]`` (``lo`` where that is empty)."""
+    cols = np.arange(A.shape[1], dtype=np.float64)[None, :]
+    win = (cols >= lo[:, None]) & (cols <= hi[:, None]) & (cols < lens[:, None])
+    k = np.argmin(np.where(win, A, np.inf), axis=1).astype(np.float64)
+    return np.where(win.any(axis=1), np.maximum(k, lo), lo)
+
+
 def _cumulative(A: np.ndarray) -> np.ndarray:
     """Trapezoid integral of each row from index 0 to every index, same shape as ``A``."""
     C = np.empty(A.shape)
@@ -144,6 +166,14 @@ def rising_edges(
     on, with the window's samples divided by the erf still rising there; the edge's area up to
     the window start then gives the endpoint, including the erf tail beyond it:
     ``M = P (d + sigma psi(d / sigma))``, ``psi(x) = phi(x) - x Phi(-x)``.
+
+    Where other light lies beyond the end (:data:`EDGE_LOW_SIGMAS`, :data:`EDGE_RISE`), the
+    area starts at the profile's minimum there, less the erf's own tail beyond it, ``P sigma
+    G((s_lo - s0) / sigma)`` (:func:`_tail_area`), so that the neighbour's light past the dip
+    does not move the end, and the baseline is zero (the signal is background subtracted): one
+    from the samples beyond the end would be that neighbour's light and move the end inwards.
+    Elsewhere the area starts ``3 sigma + 1`` samples out, less a baseline from the samples
+    beyond (where there are at least four).
     """
     s_half, has = _first_crossing(A, lens, 0.5 * guess)
     ok = has.copy()
@@ -157,25 +187,36 @@ def rising_edges(
         s_half, has = _first_crossing(A, lens, 0.5 * np.where(value > 0, value, guess))
         ok &= has
     s_far = np.maximum(s_half - 3.0 * sigma - 1.0, 0.0)
+    s_lo = _profile_minimum(A, lens, s_far, s_half - EDGE_LOW_SIGMAS * sigma)
+    cols = np.arange(A.shape[1], dtype=np.float64)[None, :]
+    outer = cols <= s_lo[:, None]
+    peak_out = np.max(np.where(outer, A, -np.inf), axis=1)
+    lit_beyond = peak_out - _at(A, s_lo, lens) > EDGE_RISE * value
+    s_lo = np.where(lit_beyond, s_lo, s_far)
+    w_lo = s_in - s_lo
     C = _cumulative(A)
-    # Local baseline from the samples beyond s_far (when there are enough of them).
+    # Local baseline from the samples beyond s_far (when there are enough of them and no
+    # other light lies there).
     n_tail = np.floor(s_far).astype(np.int64)
     S = np.concatenate([np.zeros((A.shape[0], 1)), np.cumsum(A, axis=1)], axis=1)
     base = np.where(n_tail >= 4, S[np.arange(A.shape[0]), n_tail] / np.maximum(n_tail, 1), 0.0)
-    M = _integral_to(A, C, s_in, lens) - _integral_to(A, C, s_far, lens) - base * (s_in - s_far)
+    base = np.where(lit_beyond, 0.0, base)
+    M = _integral_to(A, C, s_in, lens) - _integral_to(A, C, s_lo, lens) - base * (s_in - s_lo)
     P = value - base
+    v = v - base[:, None]
     ok &= P > 0
     P = np.where(P > 0, P, 1.0)
     d = M / P
     for _ in range(3):
         z = d / sigma
         psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * normal_cdf(-z)
-        d = (M + 0.5 * slope * (d * d - sigma * sigma)) / P - sigma * psi
+        tail = np.where(lit_beyond, sigma * _tail_area((d - w_lo) / sigma), 0.0)
+        d = (M + 0.5 * slope * (d * d - sigma * sigma)) / P - sigma * psi + tail
     # Refined under the constant-acceleration density: the bulk of the edge's mass,
     # ∫_{-d}^{0} (alpha + beta x)**-1/2 dx = 2 d / (sqrt(alpha) + sqrt(alpha - beta d)), in place
     # of the linear density's P d - g d**2 / 2, and the blur terms with that density's value
     # at the end and slope at s_in. Newton from the linear model's d.
-    alpha, beta, _ = _time_law_density(v - base[:, None], P, slope)
+    alpha, beta, _ = _time_law_density(v, P, slope)
     sa = np.sqrt(alpha)
     g_in = -0.5 * beta / (alpha * sa)
     d_lin = d
@@ -183,7 +224,8 @@ def rising_edges(
         z = d / sigma
         psi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi) - z * normal_cdf(-z)
         se = np.sqrt(np.maximum(alpha - beta * d, alpha / 16.0))  # at most 4x the plateau
-        f = 2.0 * d / (sa + se) + sigma * psi / se + 0.5 * g_in * sigma * sigma - M
+        tail = np.where(lit_beyond, sigma * _tail_area((d - w_lo) / sigma) / se, 0.0)
+        f = 2.0 * d / (sa + se) + sigma * psi / se + 0.5 * g_in * sigma * sigma - tail - M
         df = normal_cdf(z) / se
         step = np.where(np.isfinite(f) & (df > 1e-12), f / np.where(df > 1e-12, df, 1.0), 0.0)
         d = d - np.clip(step, -sigma, sigma)

@@ -211,17 +211,41 @@ def test_streaks_measured_along_the_curve_keep_quality_ok() -> None:
     )
 
 
-@pytest.mark.parametrize("gap_px", [5.0, 6.0, 8.0])
+@pytest.mark.parametrize("gap_px", [5.0, 6.0])
 def test_the_gyro_confirms_a_lit_end_where_each_end_was_fitted_on_its_own(gap_px) -> None:
     # 35 px streaks (an edge fit at each end) with a still light just beyond two of their
-    # ends: the image flags them chained (a neighbour's light might pull the end); the gyro
-    # measures their start-to-end vector right, so the ends are: confirmed, and right.
+    # ends, 3 to 4 PSF sigmas out (no dip for the edge fit to stop at): the image flags them
+    # chained (a neighbour's light might pull the end); the gyro measures their start-to-end
+    # vector right, so the ends are: confirmed, and right.
     fs, _, ok, reason, wrong = _checked(3.0, reach_px=70.0, spot_gap_px=gap_px)
     first = np.asarray(fs.quality[4], object)
     lit = (first == "chained") & fs.one_doubt
     assert lit.sum() >= 2 and not fs.short[lit].any()
     assert np.all(ok[lit]) and set(reason[lit]) == {"ok"}
     assert not np.any(ok & wrong)
+
+
+@pytest.mark.parametrize("gap_px", [7.0, 8.0, 10.0])
+def test_the_image_trusts_a_lit_end_past_a_dip(gap_px) -> None:
+    # The same 35 px streaks, the still light 5.4 to 7.7 PSF sigmas (1.3 px) beyond two ends:
+    # the profile dips between the end and the light, the edge fit stops at the dip
+    # (blurtrack.detect.lines.endpoints.EDGE_LOW_SIGMAS) and the end-light window (3 to 4
+    # sigmas) no longer reaches the light: the image alone trusts both streaks, and their ends
+    # are within 0.5 px of the truth (before the dip rule: ``chained``, the gyro's to confirm).
+    image, starts, ends = _frame(_model(3.0, 70.0), gap_px)
+    p = DetectParams()
+    fs = detect_frame(image, p)
+    fs.quality, fs.one_doubt = frame_quality(fs, p)
+    reason = np.asarray(fs.quality[4], object)
+    for i in (1, 6):
+        err = np.minimum(
+            np.maximum(np.hypot(*(fs.end_a - starts[i]).T), np.hypot(*(fs.end_b - ends[i]).T)),
+            np.maximum(np.hypot(*(fs.end_a - ends[i]).T), np.hypot(*(fs.end_b - starts[i]).T)),
+        )
+        k = int(np.argmin(err))
+        assert err[k] < 0.5 and not fs.short[k]
+        assert reason[k] == "ok" and fs.quality[2][k]
+    assert not np.any(np.asarray(fs.quality[2], bool) & _wrong(fs, starts, ends))
 
 
 @pytest.mark.parametrize("gap_px", [6.0, 7.0])

@@ -102,6 +102,48 @@ def test_edge_fit_follows_an_accelerating_dot(length: float, sigma: float, gamma
     assert fit.pos_b[0] == pytest.approx(10.0 + length, abs=0.06)
 
 
+def _lit_end_profile(kind: str, gap_sigmas: float, sigma: float) -> tuple[np.ndarray, float]:
+    """A 30-sample erf streak with a faint neighbour (0.3 of its plateau) ``gap_sigmas``
+    beyond its first end: a still light (a Gaussian of the edge's sigma) or a collinear
+    streak ending there; a long tail beyond (baseline samples). The profile and ``s0``."""
+    s0 = 12.0 + gap_sigmas * sigma + 6.0
+    n = int(s0 + 30.0 + 12.0)
+    A = _erf_profile(30.0, s0, sigma, 1.0, n)
+    s = np.arange(n, dtype=float)
+    at = s0 - gap_sigmas * sigma
+    if kind == "spot":
+        A = A + 0.3 * np.exp(-0.5 * ((s - at) / sigma) ** 2)
+    else:
+        A = A + 0.3 * ndtr((at - s) / sigma)
+    return A, s0
+
+
+@pytest.mark.parametrize(
+    ("kind", "gap_sigmas"),
+    [("spot", 4.0), ("spot", 5.0), ("spot", 6.0), ("line", 3.0), ("line", 4.0), ("line", 6.0)],
+)
+def test_edge_fit_ignores_light_past_a_dip(kind: str, gap_sigmas: float) -> None:
+    # The neighbour's light past the profile's dip is not read: the end within 0.08 px (what
+    # remains is the neighbour's own tail inside the dip, 0.3 sigma G(-1.5) = 0.015 px at 3
+    # sigmas, and the dip's position on whole samples); the area from 3 sigma + 1 out with a
+    # baseline from the tail put it 0.2 to 2.7 px off.
+    A, s0 = _lit_end_profile(kind, gap_sigmas, 1.7)
+    n = A.size
+    fit = fit_edges(A[None, :], np.array([n]), np.array([1.7]))
+    assert fit.valid[0] and not fit.short[0]
+    assert fit.pos_a[0] == pytest.approx(s0, abs=0.08)
+    assert fit.pos_b[0] == pytest.approx(s0 + 30.0, abs=0.03)
+
+
+def test_edge_fit_is_still_moved_by_light_without_a_dip() -> None:
+    # Negative control: a faint still light 2 sigmas beyond the end leaves no dip: the end
+    # moves outwards by over 1 px, which is why trust.END_GAP_SIGMAS..+END_REACH_SIGMAS
+    # (3 to 4 sigmas beyond the end) stays an ``end_light`` doubt.
+    A, s0 = _lit_end_profile("spot", 2.0, 1.7)
+    fit = fit_edges(A[None, :], np.array([A.size]), np.array([1.7]))
+    assert s0 - fit.pos_a[0] > 1.0
+
+
 @pytest.mark.parametrize("length", [0.5, 2.0, 5.0, 9.0])
 def test_short_profiles_use_moments(length: float) -> None:
     A = _erf_profile(length, 10.0, 1.8, 1.0, 32)[None, :]
