@@ -178,6 +178,20 @@ def _gyro_llrs(
     return out
 
 
+def _continuity_cues(
+    found: list[FrameStreaks], timings: list[FrameTiming], llrs: list[np.ndarray]
+) -> None:
+    """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
+    (with the tentative orientation of all three cues) only the previous frame's ends and the
+    next frame's starts."""
+    basis: dict[int, Any] = {}  # the frames do not change between the two passes
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis)):
+        llrs[k][:, 2] = c
+    tentative = [combine(llr).swap for llr in llrs]
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis)):
+        llrs[k][:, 2] = c
+
+
 def detect_session(
     session: Any,
     params: DetectParams | None = None,
@@ -243,6 +257,13 @@ def detect_session(
     model = shift = refined = None
     gyro_checked = 0
     template_pass = TemplatePass()  # empty where the pass does not run
+    continued: list[bool] = []
+
+    def continuity() -> None:
+        # (Of the final frames and gyro cues: ``llrs`` as bound when called.)
+        _continuity_cues(found, timings, llrs)
+        continued.append(True)
+
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
 
@@ -303,10 +324,6 @@ def detect_session(
                 )
         if cues is None:
             cues = _gyro_llrs(found, timings, covered, model, sigma_rel)
-        if found_shift:
-            # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
-            # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
-            gyro_checked = check_frames(found, timings, covered, model, p.source)
         for k, llr in zip(covered, cues, strict=True):
             if llr is None:
                 if gyro == "on":
@@ -315,14 +332,16 @@ def detect_session(
             else:
                 llrs[k][:, 0:2] = llr
         uncovered.sort()
-    # Continuity twice: any neighbouring end first, then (with that tentative orientation)
-    # only the previous frame's ends and the next frame's starts.
-    basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(continuity_cues(found, timings, cache=basis)):
-        llrs[k][:, 2] = c
-    tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis)):
-        llrs[k][:, 2] = c
+        if found_shift:
+            # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
+            # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing);
+            # its predictions in the workers, the continuity cues here meanwhile (the check
+            # changes only the frames' quality, which continuity does not read).
+            gyro_checked = check_frames(
+                found, timings, covered, model, p.source, workers, continuity
+            )
+    if not continued:
+        continuity()
     parts = []
     stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
     sources: dict[str, int] = {}
