@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.forkmap import fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
@@ -221,6 +221,24 @@ def detect_session(
     Raises:
         DetectionError: no streak in any frame.
     """
+    # One BLAS thread: the cores are this function's processes' (forkmap.one_blas_thread).
+    with one_blas_thread():
+        return _detect_session(
+            session, params, gyro, frames, on_frame, refine_timeshift, workers, meanwhile
+        )
+
+
+def _detect_session(
+    session: Any,
+    params: DetectParams | None,
+    gyro: str,
+    frames: range | None,
+    on_frame: Callable[[int, FrameStreaks], None] | None,
+    refine_timeshift: bool,
+    workers: int,
+    meanwhile: Callable[[], None] | None,
+) -> DetectionResult:
+    """:func:`detect_session`'s work."""
     if gyro not in GYRO_MODES:
         raise DetectionError(f"gyro mode must be one of {GYRO_MODES}, got {gyro!r}")
     p = params or DetectParams()

@@ -390,3 +390,23 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
             assert c is not None and g is not None
             np.testing.assert_array_equal(g[0], c[:, -1] - c[:, 0])
             np.testing.assert_array_equal(g[1], gyrotrust.hairpin_depth(c))
+
+
+def test_one_blas_thread_within_and_as_it_was_after() -> None:
+    from blurtrack.detect import forkmap
+
+    fns = forkmap._openblas()
+    if fns is None:
+        pytest.skip("numpy is not linked against OpenBLAS here")
+    get, put = fns
+    before = int(get())
+    put(2)  # (OpenBLAS may cap it at the cores it has)
+    outside = int(get())
+    try:
+        with forkmap.one_blas_thread():
+            assert int(get()) == 1
+            # the workers forked within inherit it
+            assert list(forkmap.fork_map(lambda _: int(get()), [0, 1], 2)) == [1, 1]
+        assert int(get()) == outside
+    finally:
+        put(before)
