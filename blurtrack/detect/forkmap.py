@@ -9,6 +9,7 @@ the items are processed in this process: the results do not depend on the worker
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing as mp
 import platform
@@ -47,6 +48,54 @@ def _worker_start() -> None:
     if platform.libc_ver()[0] != "glibc":
         return
     ctypes.CDLL(None).mallopt(_M_TOP_PAD, WORKER_TOP_PAD)
+
+
+#: OpenBLAS's thread-count functions under the names its builds export (numpy's and scipy's
+#: wheels: ``scipy_openblas``, 64-bit integers; a plain OpenBLAS), getter and setter.
+_OPENBLAS_THREADS = (
+    ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
+    ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
+    ("openblas_get_num_threads", "openblas_set_num_threads"),
+)
+
+
+def _openblas() -> tuple[Any, Any] | None:
+    """The loaded OpenBLAS's thread-count getter and setter, or None (another BLAS, not
+    Linux, or none loaded yet)."""
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {ln.split()[-1] for ln in fh if "openblas" in ln and ".so" in ln}
+    except OSError:
+        return None
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for get, put in _OPENBLAS_THREADS:
+            if hasattr(lib, get) and hasattr(lib, put):
+                return getattr(lib, get), getattr(lib, put)
+    return None
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """OpenBLAS on one thread within the block (this process and the workers it forks), as
+    it was after. Detection keeps every core busy with its own processes: a BLAS call that
+    spreads over the cores too waits, spinning, for cores that are busy (dense, 150 frames:
+    ~0.7 s of CPU over the command's ~13). Only speed depends on this, never a result (the
+    tables are byte-identical)."""
+    fns = _openblas()
+    if fns is None:
+        yield
+        return
+    get, put = fns
+    before = int(get())
+    put(1)
+    try:
+        yield
+    finally:
+        put(before)
 
 
 def can_fork() -> bool:

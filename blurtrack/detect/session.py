@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.forkmap import fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
@@ -179,6 +179,23 @@ def _gyro_llrs(
     return out
 
 
+def _continuity_cues(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    llrs: list[np.ndarray],
+    max_llr: float,
+) -> None:
+    """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
+    (with the tentative orientation of all three cues) only the previous frame's ends and the
+    next frame's starts; each LLR clipped to ``+-max_llr``."""
+    basis: dict[int, Any] = {}  # the frames do not change between the two passes
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis, max_llr=max_llr)):
+        llrs[k][:, 2] = c
+    tentative = [combine(llr).swap for llr in llrs]
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, max_llr=max_llr)):
+        llrs[k][:, 2] = c
+
+
 def detect_session(
     session: Any,
     params: DetectParams | None = None,
@@ -208,6 +225,24 @@ def detect_session(
     Raises:
         DetectionError: no streak in any frame.
     """
+    # One BLAS thread: the cores are this function's processes' (forkmap.one_blas_thread).
+    with one_blas_thread():
+        return _detect_session(
+            session, params, gyro, frames, on_frame, refine_timeshift, workers, meanwhile
+        )
+
+
+def _detect_session(
+    session: Any,
+    params: DetectParams | None,
+    gyro: str,
+    frames: range | None,
+    on_frame: Callable[[int, FrameStreaks], None] | None,
+    refine_timeshift: bool,
+    workers: int,
+    meanwhile: Callable[[], None] | None,
+) -> DetectionResult:
+    """:func:`detect_session`'s work."""
     if gyro not in GYRO_MODES:
         raise DetectionError(f"gyro mode must be one of {GYRO_MODES}, got {gyro!r}")
     p = params or DetectParams()
@@ -244,6 +279,13 @@ def detect_session(
     model = shift = refined = None
     gyro_checked = 0
     template_pass = TemplatePass()  # empty where the pass does not run
+    continued: list[bool] = []
+
+    def continuity() -> None:
+        # (Of the final frames and gyro cues: ``llrs`` as bound when called.)
+        _continuity_cues(found, timings, llrs, p.orientation.max_cue_llr)
+        continued.append(True)
+
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
 
@@ -304,10 +346,6 @@ def detect_session(
                 )
         if cues is None:
             cues = _gyro_llrs(found, timings, covered, model, error_model)
-        if found_shift:
-            # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
-            # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
-            gyro_checked = check_frames(found, timings, covered, model, p.source)
         for k, llr in zip(covered, cues, strict=True):
             if llr is None:
                 if gyro == "on":
@@ -316,18 +354,16 @@ def detect_session(
             else:
                 llrs[k][:, 0:2] = llr
         uncovered.sort()
-    # Continuity twice: any neighbouring end first, then (with that tentative orientation)
-    # only the previous frame's ends and the next frame's starts.
-    basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(
-        continuity_cues(found, timings, cache=basis, max_llr=p.orientation.max_cue_llr)
-    ):
-        llrs[k][:, 2] = c
-    tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(
-        continuity_cues(found, timings, tentative, cache=basis, max_llr=p.orientation.max_cue_llr)
-    ):
-        llrs[k][:, 2] = c
+        if found_shift:
+            # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
+            # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing);
+            # its predictions in the workers, the continuity cues here meanwhile (the check
+            # changes only the frames' quality, which continuity does not read).
+            gyro_checked = check_frames(
+                found, timings, covered, model, p.source, workers, continuity
+            )
+    if not continued:
+        continuity()
     parts = []
     stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
     sources: dict[str, int] = {}

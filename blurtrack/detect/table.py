@@ -22,6 +22,8 @@ Python floats); :func:`write_table` writes them as Parquet lists, the very file
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from itertools import repeat
+from operator import attrgetter, itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -196,14 +198,16 @@ def _list_array(cells: Sequence[np.ndarray], ndim: int) -> Any:
 
 
 def _is_cells(column: pd.Series, ndim: int) -> bool:
-    """Whether every cell is a float64 array of points (``ndim`` 2) or values (1)."""
-    return all(
-        isinstance(c, np.ndarray)
-        and c.dtype == np.float64
-        and c.ndim == ndim
-        and (ndim == 1 or c.shape[1] == 2)
-        for c in column.to_numpy(object)
-    )
+    """Whether every cell is a float64 array of points (``ndim`` 2) or values (1) (tested
+    attribute by attribute over all cells, each pass a ``map``: no Python loop per cell)."""
+    cells = column.to_numpy(object)
+    if not all(map(isinstance, cells, repeat(np.ndarray))):
+        return False
+    if set(map(attrgetter("dtype"), cells)) - {np.dtype(np.float64)}:
+        return False
+    if set(map(attrgetter("ndim"), cells)) - {ndim}:
+        return False
+    return ndim == 1 or not set(map(itemgetter(1), map(attrgetter("shape"), cells))) - {2}
 
 
 def to_arrow(df: pd.DataFrame) -> Any:

@@ -38,12 +38,13 @@ then seen by the image only where it is wide enough to fold the streak (``looped
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.orientation import FrameTiming
@@ -78,6 +79,50 @@ class GyroCheck:
     depth: np.ndarray
 
 
+def _batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
+    """The positions of the frames with streaks, in order, in batches of at most
+    :data:`BATCH_STREAKS` streaks (a larger frame alone)."""
+    out: list[list[int]] = []
+    count = 0
+    for k, fs in enumerate(frames):
+        if not len(fs):
+            continue
+        if not out or count + len(fs) > BATCH_STREAKS:
+            out.append([])
+            count = 0
+        out[-1].append(k)
+        count += len(fs)
+    return out
+
+
+def _predicted_batch(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    group: Sequence[int],
+    samples: int,
+) -> list[np.ndarray | None]:
+    """:func:`predicted_curves` of the frames ``group`` (one batch of :func:`_batches`): one
+    model call, frame by frame where it fails (only those the gyro misses are lost)."""
+    ref = np.concatenate([frames[k].time_mid for k in group])
+    ft = np.concatenate([np.full(len(frames[k]), timings[k].t_s) for k in group])
+    ex = np.concatenate([np.full(len(frames[k]), timings[k].exposure_s) for k in group])
+    try:
+        pts = predict_curves(model, ref, ft, ex, samples).pts
+    except CoverageError:
+        out: list[np.ndarray | None] = [None] * len(group)
+        if len(group) == 1:
+            return out
+        for j, k in enumerate(group):
+            with contextlib.suppress(CoverageError):
+                out[j] = predict_curves(
+                    model, frames[k].time_mid, timings[k].t_s, timings[k].exposure_s, samples
+                ).pts
+        return out
+    bounds = np.cumsum([len(frames[k]) for k in group])[:-1]
+    return list(np.split(pts, bounds))
+
+
 def predicted_curves(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
@@ -85,41 +130,15 @@ def predicted_curves(
     samples: int = PATH_SAMPLES,
 ) -> list[np.ndarray | None]:
     """``(N, samples, 2)`` predicted curves of each frame's streaks at their time midpoints
-    (None where the gyro falls short), batched over frames. Every sample is predicted on its
-    own, so ``samples=2`` gives the same two ends as the whole path at a fraction of the cost."""
+    (None where the gyro falls short), batched over frames (:func:`_batches`). Every sample
+    is predicted on its own, so ``samples=2`` gives the same two ends as the whole path at a
+    fraction of the cost."""
     out: list[np.ndarray | None] = [None] * len(frames)
-    todo = [k for k, fs in enumerate(frames) if len(fs)]
-    start = 0
-    while start < len(todo):
-        group: list[int] = []
-        count = 0
-        while start < len(todo) and (
-            not group or count + len(frames[todo[start]]) <= BATCH_STREAKS
+    for group in _batches(frames):
+        for k, c in zip(
+            group, _predicted_batch(frames, timings, model, group, samples), strict=True
         ):
-            group.append(todo[start])
-            count += len(frames[todo[start]])
-            start += 1
-        ref = np.concatenate([frames[k].time_mid for k in group])
-        ft = np.concatenate([np.full(len(frames[k]), timings[k].t_s) for k in group])
-        ex = np.concatenate([np.full(len(frames[k]), timings[k].exposure_s) for k in group])
-        try:
-            pts = predict_curves(model, ref, ft, ex, samples).pts
-        except CoverageError:
-            if len(group) == 1:
-                continue
-            for k in group:  # frame by frame: only those the gyro misses are lost
-                with contextlib.suppress(CoverageError):
-                    out[k] = predict_curves(
-                        model,
-                        frames[k].time_mid,
-                        timings[k].t_s,
-                        timings[k].exposure_s,
-                        samples,
-                    ).pts
-            continue
-        bounds = np.cumsum([len(frames[k]) for k in group])[:-1]
-        for k, part in zip(group, np.split(pts, bounds), strict=True):
-            out[k] = part
+            out[k] = c
     return out
 
 
@@ -264,30 +283,69 @@ def apply_check(
     return ok, reason
 
 
+def _vectors_of_batch(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    group: Sequence[int],
+    depth: bool,
+) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
+    """Per frame of ``group``: the predicted start-to-end vectors ``(N, 2)`` and, with
+    ``depth``, the :func:`hairpin_depth` of the whole predicted paths (:data:`PATH_SAMPLES`;
+    without, only the two ends are predicted); None where the gyro falls short. All that
+    :func:`check_frames` needs of a model's curves, so that little comes back from a worker."""
+    curves = _predicted_batch(frames, timings, model, group, PATH_SAMPLES if depth else 2)
+    return [
+        None if c is None else (c[:, -1] - c[:, 0], hairpin_depth(c) if depth else None)
+        for c in curves
+    ]
+
+
 def check_frames(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     covered: Sequence[int],
     model: Any,
     p: SourceParams,
+    workers: int = 1,
+    meanwhile: Callable[[], None] | None = None,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
     vectors are tested against the session's fit (:func:`session_residual`) where every
-    perturbed model predicts the frame, else against the frame's similarity."""
+    perturbed model predicts the frame, else against the frame's similarity.
+
+    The predictions (the model's and each perturbed model's, batch by batch: each batch the
+    very model call of one process) are made in ``workers`` forked processes
+    (:func:`blurtrack.detect.forkmap.fork_map`), the same numbers as in one; ``meanwhile``:
+    work of this process run while they predict (first, without workers)."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
-    curves = predicted_curves(sub, tim, model)
-    # the fit needs only each perturbed path's start-to-end vector: its two ends
-    moved = [predicted_curves(sub, tim, m, samples=2) for m in perturbed_models(model)]
-    joint = [c is not None and all(mv[j] is not None for mv in moved) for j, c in enumerate(curves)]
+    models = [model, *perturbed_models(model)]
+    batches = _batches(sub)
+    # The whole paths (the costliest tasks) first; the fit needs only each perturbed path's
+    # start-to-end vector: its two ends.
+    tasks = [(i, b) for i in range(len(models)) for b in range(len(batches))]
+
+    def one(task: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
+        i, b = task
+        return _vectors_of_batch(sub, tim, models[i], batches[b], depth=i == 0)
+
+    per_model: list[list[tuple[np.ndarray, np.ndarray | None] | None]] = [
+        [None] * len(sub) for _ in models
+    ]
+    for (i, b), got in zip(tasks, fork_map(one, tasks, workers, 1, meanwhile), strict=True):
+        for k, v in zip(batches[b], got, strict=True):
+            per_model[i][k] = v
+    main, moved = per_model[0], per_model[1:]
+    joint = [c is not None and all(mv[j] is not None for mv in moved) for j, c in enumerate(main)]
     parts: dict[int, tuple[np.ndarray, ...]] = {}
-    for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
+    for j, (fs, c) in enumerate(zip(sub, main, strict=True)):
         if joint[j] and c is not None and fs.quality is not None:
-            pv = c[:, -1] - c[:, 0]
-            ends = [e for e in (mv[j] for mv in moved) if e is not None]  # all, by joint
-            J = np.stack([e[:, -1] - e[:, 0] - pv for e in ends], axis=2)
+            pv = c[0]
+            ends = [e[0] for e in (mv[j] for mv in moved) if e is not None]  # all, by joint
+            J = np.stack([e - pv for e in ends], axis=2)
             parts[j] = (fs.end_b - fs.end_a, pv, J, np.asarray(fs.quality[2], bool))
     session: dict[int, np.ndarray] = {}
     if parts:
@@ -297,13 +355,16 @@ def check_frames(
             bounds = np.cumsum([len(v[0]) for v in parts.values()])[:-1]
             session = dict(zip(parts, np.split(r, bounds), strict=True))
     checked = 0
-    for j, (fs, c) in enumerate(zip(sub, curves, strict=True)):
+    for j, (fs, c) in enumerate(zip(sub, main, strict=True)):
         if c is None or fs.quality is None:
             continue
         ok0 = np.asarray(fs.quality[2], bool)
-        chk = check_frame(fs, c, ok0)
-        if j in session:
-            chk = GyroCheck(session[j], chk.depth)
+        pv, depth = c
+        assert depth is not None  # the model's own paths: whole
+        chk = GyroCheck(
+            session[j] if j in session else vector_residual(fs.end_b - fs.end_a, pv, ok0),
+            depth,
+        )
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
         ok, reason = apply_check(fs, chk, p)

@@ -329,3 +329,84 @@ def test_recomputed_where_changed_keeps_the_rest() -> None:
         out = m._recomputed_where_changed(cues, first, [a, b, [3.0]], [], [0, 2], None, 0.1)
     assert seen == [[2]]  # an equal replacement is a change; only it is computed
     assert out[0] is cues[0] and out[1].tolist() == [[7.0, 7.0]]
+
+
+def test_the_gyro_check_in_workers_is_that_of_one_process(
+    session_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The check's predictions, batch by batch in forked workers (batches of a few streaks
+    here, so that there are many), give the very quality columns and count of one process,
+    and the batches' curves are those of the one batched call per batch that
+    ``predicted_curves`` makes; its ``meanwhile`` runs once, in this process."""
+    import copy
+    import dataclasses
+    from functools import partial
+
+    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrotrust
+
+    inputs: list[tuple] = []
+    real = m.check_frames
+
+    def spy(found, timings, covered, model, p, *a, **k):
+        inputs.append((copy.deepcopy(found), timings, covered, model, p))
+        return real(found, timings, covered, model, p, *a, **k)
+
+    monkeypatch.setattr(m, "check_frames", spy)
+    detect_session(load_session(session_folder), workers=1)
+    found, timings, covered, model, p = inputs[0]
+    # Tolerances that this session's streaks fail in part: the check has something to do.
+    p = dataclasses.replace(p, gyro_vector_tol_px=0.05, hairpin_depth_px=0.01)
+    monkeypatch.setattr(gyrotrust, "BATCH_STREAKS", 25)
+    frames = [found[k] for k in covered]
+    assert len(gyrotrust._batches(frames)) >= 4
+    out = {}
+    for workers in (1, 2, 3):
+        fr = copy.deepcopy(found)
+        calls: list[int] = []
+        n = gyrotrust.check_frames(
+            fr, timings, covered, model, p, workers, partial(calls.append, 1)
+        )
+        assert calls == [1]
+        out[workers] = (n, [fs.quality for fs in fr])
+    assert out[1][0] == len(covered) > 0
+    demoted = sum(
+        int(np.sum(np.asarray(a.quality[2]) & ~np.asarray(q[2])))
+        for a, q in zip(found, out[1][1], strict=True)
+    )
+    assert 0 < demoted < sum(int(np.sum(fs.quality[2])) for fs in found)
+    for workers in (2, 3):
+        assert out[workers][0] == out[1][0]
+        for a, b in zip(out[1][1], out[workers][1], strict=True):
+            for x, y in zip(a, b, strict=True):
+                np.testing.assert_array_equal(x, y)
+    # The batches' curves are those of predicted_curves (one model call per batch).
+    tim = [timings[k] for k in covered]
+    whole = gyrotrust.predicted_curves(frames, tim, model)
+    for group in gyrotrust._batches(frames):
+        got = gyrotrust._vectors_of_batch(frames, tim, model, group, depth=True)
+        for k, g in zip(group, got, strict=True):
+            c = whole[k]
+            assert c is not None and g is not None
+            np.testing.assert_array_equal(g[0], c[:, -1] - c[:, 0])
+            np.testing.assert_array_equal(g[1], gyrotrust.hairpin_depth(c))
+
+
+def test_one_blas_thread_within_and_as_it_was_after() -> None:
+    from blurtrack.detect import forkmap
+
+    fns = forkmap._openblas()
+    if fns is None:
+        pytest.skip("numpy is not linked against OpenBLAS here")
+    get, put = fns
+    before = int(get())
+    put(2)  # (OpenBLAS may cap it at the cores it has)
+    outside = int(get())
+    try:
+        with forkmap.one_blas_thread():
+            assert int(get()) == 1
+            # the workers forked within inherit it
+            assert list(forkmap.fork_map(lambda _: int(get()), [0, 1], 2)) == [1, 1]
+        assert int(get()) == outside
+    finally:
+        put(before)
