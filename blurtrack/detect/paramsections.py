@@ -254,6 +254,9 @@ class QualityParams:
     - ``merged_width``: streaks wider than this times the frame's cross-section sigma are
       ``merged`` (two dots overlapping side by side measure about 1.5x; a single dot's width
       scatters ~10 % around the median).
+    - ``overexposed_fraction``: a frame with more than this fraction of its pixels saturated
+      is listed as over-exposed in the summary (a laser-dot frame lights a few % of its
+      pixels; a quarter saturated is a lit scene or an exposure far too long).
     """
 
     shape_tol_px: float = _num(3.0, 0.0, lo_open=True)
@@ -261,6 +264,7 @@ class QualityParams:
     min_reference: int = _int(5, 3)
     thick_width_ratio: float = _num(2.0, 1.0)
     merged_width: float = _num(1.5, 1.0)
+    overexposed_fraction: float = _num(0.25, 0.0, 1.0, hi_open=True)
 
     def __post_init__(self) -> None:
         check_section(self, "quality")

@@ -36,9 +36,6 @@ from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
 GYRO_MODES = ("auto", "on", "off")
 
-#: A frame with more than this fraction of its pixels saturated is reported as over-exposed.
-OVEREXPOSED_FRACTION = 0.25
-
 
 def default_workers() -> int:
     """The CPU cores this process may run on."""
@@ -377,9 +374,8 @@ def _detect_session(
         conf.append(ori.confidence)
     table = build_table(parts)
     empty = [idx[k] for k, fs in enumerate(found) if len(fs) == 0]
-    overexposed = [
-        idx[k] for k, fs in enumerate(found) if fs.saturated_fraction > OVEREXPOSED_FRACTION
-    ]
+    over = p.quality.overexposed_fraction
+    overexposed = [idx[k] for k, fs in enumerate(found) if fs.saturated_fraction > over]
     if len(table) == 0:
         why = f" ({len(overexposed)} over-exposed)" if overexposed else ""
         raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames{why}")
