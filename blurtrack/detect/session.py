@@ -97,6 +97,13 @@ def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
     return session.initial_calibration(), session.gyro()
 
 
+def _quality_ok(fs: FrameStreaks) -> np.ndarray:
+    """``(N,)`` the frame's ``quality_ok`` as it stands (none where not computed)."""
+    if fs.quality is None:
+        return np.zeros(len(fs), bool)
+    return np.asarray(fs.quality[2], bool).copy()
+
+
 def _nan_median(x: pd.Series) -> float | None:
     v = x.to_numpy(float)
     v = v[np.isfinite(v)]
@@ -275,6 +282,7 @@ def _detect_session(
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
     gyro_checked = 0
+    gyro_changed = [0, 0]  # quality_ok streaks the gyro's check demoted, confirmed
     template_pass = TemplatePass()  # empty where the pass does not run
     continued: list[bool] = []
 
@@ -356,9 +364,14 @@ def _detect_session(
             # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing);
             # its predictions in the workers, the continuity cues here meanwhile (the check
             # changes only the frames' quality, which continuity does not read).
+            image_ok = [_quality_ok(fs) for fs in found]
             gyro_checked = check_frames(
                 found, timings, covered, model, p.source, workers, continuity
             )
+            for before, fs in zip(image_ok, found, strict=True):
+                after = _quality_ok(fs)
+                gyro_changed[0] += int(np.sum(before & ~after))
+                gyro_changed[1] += int(np.sum(after & ~before))
     if not continued:
         continuity()
     parts = []
@@ -416,6 +429,8 @@ def _detect_session(
         "source": {s: int((table["source"] == s).sum()) for s in SOURCES},
         "reasons": {r: int((table["reason"] == r).sum()) for r in REASONS},
         "gyro_trust_frames": gyro_checked,
+        "gyro_trust_demoted": gyro_changed[0],
+        "gyro_trust_confirmed": gyro_changed[1],
         "thick_saturated": int(table["thick_saturated"].sum()),
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),

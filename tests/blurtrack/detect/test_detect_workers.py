@@ -71,6 +71,11 @@ def test_all_zero_gyro_leaves_the_time_shift_undetermined(
     assert set(res.table.reason) <= set(REASONS)
     assert res.summary["table_version"] == 2
     assert not np.any(res.table.orientation_source == "gyro")
+    # A gyro that predicts nothing neither demotes nor confirms: quality_ok is the image's.
+    assert res.summary["gyro_trust_demoted"] == res.summary["gyro_trust_confirmed"] == 0
+    off = detect_session(load_session(folder), gyro="off").table
+    np.testing.assert_array_equal(res.table.quality_ok.to_numpy(), off.quality_ok.to_numpy())
+    np.testing.assert_array_equal(res.table.reason.to_numpy(), off.reason.to_numpy())
     assert main(["detect", str(folder), "--out", str(tmp_path / "z.parquet")]) == 0
     assert "camera-IMU time shift: undetermined" in capsys.readouterr().out
 
