@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from blurtrack.detect.params import DetectParams, QualityParams, SourceParams
+from blurtrack.detect.separation.crossreach import crossing_ends
 
 if TYPE_CHECKING:  # the table's type only: detection itself does not need pandas
     import pandas as pd
@@ -233,13 +234,16 @@ def _frame_quality(
     p: SourceParams,
     q: QualityParams,
     short: np.ndarray | None = None,
+    cross_ends: np.ndarray | None = None,
 ) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
     """The :data:`QUALITY_COLUMNS` of one frame's streaks from their start-to-end vectors,
     time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
     ``looped``), widths, sources and end light, and ``(N,)`` which streaks not
     ``quality_ok`` have exactly one doubt (:func:`one_doubt`). ``short``: ``(N,)`` the
     streaks whose ends came from the profile's moments, not an edge fit each
-    (:class:`~blurtrack.detect.lines.endpoints.EdgeFit`); None: all of them."""
+    (:class:`~blurtrack.detect.lines.endpoints.EdgeFit`); None: all of them. ``cross_ends``:
+    ``(N, 2)`` which ends another streak's light reaches
+    (:func:`~blurtrack.detect.separation.crossreach.crossing_ends`); None: not known."""
     sat = flags["saturated"]
     # The dot's width from the unsaturated streaks, where enough of them say it (a frame of
     # saturated streaks but one or two faint ones would call every streak thick): else from
@@ -274,9 +278,13 @@ def _frame_quality(
     moments = np.ones(len(v), bool) if short is None else np.asarray(short, bool)
     with np.errstate(invalid="ignore"):
         lit = end_light > p.end_light_max
+    # A crossing whose light reaches only ends that are lit anyway is that doubt, not another.
+    crossing = flags["crossing"]
+    if cross_ends is not None:
+        crossing = crossing & ~(cross_ends.any(axis=1) & np.all(~cross_ends | lit, axis=1))
     single = ~ok & one_doubt(
         point & ~(at_border | flags["looped"] | flags["merged"] | short_),
-        [flags["crossing"], *lit.T, *(lit & moments[:, None]).T, thick, bent],
+        [crossing, *lit.T, *(lit & moments[:, None]).T, thick, bent],
     )
     reason = np.full(len(v), "ends_unsure", object)
     # Assigned from the last to the first, so that the first that applies stays.
@@ -326,8 +334,13 @@ def frame_quality(
     p = p or DetectParams()
     v = fs.end_b - fs.end_a
     short = fs.short if len(fs.short) == n else None
+    cross = (
+        crossing_ends(fs.points, flags["crossing"], fs.sigma_c_px, short)
+        if len(fs.points) == n
+        else None
+    )
     return _frame_quality(
-        v, fs.time_mid, flags, fs.width_px, source, light, p.source, p.quality, short
+        v, fs.time_mid, flags, fs.width_px, source, light, p.source, p.quality, short, cross
     )
 
 
