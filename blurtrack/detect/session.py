@@ -97,11 +97,9 @@ def _gyro_inputs(session: Any, mode: str) -> tuple[Any, Any] | None:
     return session.initial_calibration(), session.gyro()
 
 
-def _quality_ok(fs: FrameStreaks) -> np.ndarray:
-    """``(N,)`` the frame's ``quality_ok`` as it stands (none where not computed)."""
-    if fs.quality is None:
-        return np.zeros(len(fs), bool)
-    return np.asarray(fs.quality[2], bool).copy()
+def _count_ok(frames: list[FrameStreaks]) -> int:
+    """The frames' ``quality_ok`` streaks as they stand (none where not computed)."""
+    return sum(int(np.count_nonzero(fs.quality[2])) for fs in frames if fs.quality is not None)
 
 
 def _nan_median(x: pd.Series) -> float | None:
@@ -282,7 +280,7 @@ def _detect_session(
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
     gyro_checked = 0
-    gyro_changed = [0, 0]  # quality_ok streaks the gyro's check demoted, confirmed
+    ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
     continued: list[bool] = []
 
@@ -364,14 +362,11 @@ def _detect_session(
             # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing);
             # its predictions in the workers, the continuity cues here meanwhile (the check
             # changes only the frames' quality, which continuity does not read).
-            image_ok = [_quality_ok(fs) for fs in found]
+            image_ok = _count_ok(found)
             gyro_checked = check_frames(
                 found, timings, covered, model, p.source, workers, continuity
             )
-            for before, fs in zip(image_ok, found, strict=True):
-                after = _quality_ok(fs)
-                gyro_changed[0] += int(np.sum(before & ~after))
-                gyro_changed[1] += int(np.sum(after & ~before))
+            ok_change = _count_ok(found) - image_ok
     if not continued:
         continuity()
     parts = []
@@ -393,6 +388,8 @@ def _detect_session(
         why = f" ({len(overexposed)} over-exposed)" if overexposed else ""
         raise DetectionError(f"no laser-dot streaks found in any of the {len(idx)} frames{why}")
     allc = np.concatenate(conf)
+    reasons = {r: int((table["reason"] == r).sum()) for r in REASONS}
+    demoted = reasons["hairpin"] + reasons["gyro_mismatch"]
     summary = {
         "frames": len(idx),
         "streaks": len(table),
@@ -427,10 +424,12 @@ def _detect_session(
         "table_version": TABLE_VERSION,
         "quality_ok": int(table["quality_ok"].sum()),
         "source": {s: int((table["source"] == s).sum()) for s in SOURCES},
-        "reasons": {r: int((table["reason"] == r).sum()) for r in REASONS},
+        "reasons": reasons,
         "gyro_trust_frames": gyro_checked,
-        "gyro_trust_demoted": gyro_changed[0],
-        "gyro_trust_confirmed": gyro_changed[1],
+        # Only the check demotes (its two reasons) or confirms (one doubt lifted, never a
+        # demoted streak): confirmed = the change in quality_ok plus the demoted.
+        "gyro_trust_demoted": demoted,
+        "gyro_trust_confirmed": ok_change + demoted,
         "thick_saturated": int(table["thick_saturated"].sum()),
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),

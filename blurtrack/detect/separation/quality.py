@@ -255,8 +255,9 @@ def _frame_quality(
         thick = sat & (width > q.thick_width_ratio * w0)
     flagged = np.logical_or.reduce([flags[c] for c in FLAGGED_BY])
     point = source == "point"
-    with np.errstate(invalid="ignore"):
-        lit_end = np.any(end_light > p.end_light_max, axis=1)
+    with np.errstate(invalid="ignore"):  # NaN (an end too near the border): not lit
+        lit = end_light > p.end_light_max
+    lit_end = lit.any(axis=1)
     at_border = flags["clipped"] | np.any(np.isnan(end_light), axis=1)
     dev = np.full(len(v), np.nan)
     ok = point & ~(flagged | thick | lit_end | at_border)
@@ -276,8 +277,6 @@ def _frame_quality(
     # A neighbour's light beyond an end moves that end's edge fit only, but the moments of a
     # short streak's whole profile: both its ends (a doubt against each).
     moments = np.ones(len(v), bool) if short is None else np.asarray(short, bool)
-    with np.errstate(invalid="ignore"):
-        lit = end_light > p.end_light_max
     # A crossing whose light reaches only ends that are lit anyway is that doubt, not another.
     crossing = flags["crossing"]
     if cross_ends is not None:
@@ -307,8 +306,7 @@ def one_doubt(eligible: np.ndarray, doubts: list[np.ndarray]) -> np.ndarray:
     consensus) speaks. The image alone cannot tell whether such a streak's ends
     are right; an independent measure of its start-to-end vector (the gyro's,
     :func:`blurtrack.detect.gyro.gyrotrust.apply_check`) can lift one doubt, never two."""
-    with np.errstate(invalid="ignore"):
-        count = np.sum([np.asarray(d, bool) for d in doubts], axis=0)
+    count = np.sum([np.asarray(d, bool) for d in doubts], axis=0)
     return np.asarray(eligible & (count == 1))
 
 
