@@ -55,17 +55,13 @@ from blurtrack.io.yamlio import read_yaml
 from blurtrack.synth.dataset import (
     DEFAULT_PNG_LEVEL,
     MAX_WORKERS,
-    BuildResult,
-    BuildRun,
-    DatasetSpec,
-    Job,
     Renderer,
     check_png_level,
-    inputs_identity,
-    open_build,
     write_files,
 )
 from blurtrack.synth.images import list_images
+from blurtrack.synth.run import BuildResult, BuildRun, inputs_identity, open_build
+from blurtrack.synth.spec import DatasetSpec, Job
 from blurtrack.synth.store import remove_temporaries
 
 _LOCAL = re.compile(r"local:([0-9]{1,4})")

@@ -22,7 +22,7 @@ from typing import Any, cast
 from blurtrack.errors import BlurTrackError, SynthesisError
 from blurtrack.io import atomic
 from blurtrack.io.yamlio import read_yaml, write_text_atomic, write_yaml
-from blurtrack.synth.dataset import FORMAT, DatasetSpec
+from blurtrack.synth.spec import FORMAT, DatasetSpec
 from blurtrack.synth.store import dataset_lock, finished, read_manifest
 
 
