@@ -158,15 +158,23 @@ def run(args: argparse.Namespace) -> int:
     )
     print(f"  flags: {s['flags']}")
     if s["gyro_timeshift_status"] == "found":
+        by = {"refined": "templates", "session calibration": "session calibration"}
         how = (
-            f"templates, scan {1e3 * s['gyro_timeshift_scan_s']:+.2f} ms; "
-            f"readout {1e3 * s['gyro_readout_s']:.2f} ms"
-            if s["gyro_timeshift_refinement"] == "refined"
+            f"{by[s['gyro_timeshift_refinement']]}, scan {1e3 * s['gyro_timeshift_scan_s']:+.2f} "
+            f"ms; readout {1e3 * s['gyro_readout_s']:.2f} ms"
+            if s["gyro_timeshift_refinement"] in by
             else "coarse scan"
         )
         print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms ({how})")
     elif s["gyro_timeshift_status"] != "no gyro":
         print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
+    sc = s["gyro_session_calibration"]
+    if sc is not None and sc["status"] == "fitted":
+        print(
+            f"  session calibration: gyro-predicted vectors {sc['residual_before_px']:.2f} -> "
+            f"{sc['residual_after_px']:.2f} px off the image's at the median "
+            f"({sc['voters']} quality_ok streaks)"
+        )
     tp, comps = s["gyro_template_frames"], s["gyro_template_components"]
     if tp.get("refined"):
         print(

@@ -316,6 +316,16 @@ class GyroPassParams:
       predicted arc are dropped (chains; 1.6 until 2026-12-03, 1.15 cost ``hard`` seed 1
       0.27 % of recall).
 
+    - ``shape_search``: each candidate's predicted curve is rotated and scaled about its
+      centroid to the shape its light fits best
+      (:func:`~blurtrack.detect.gyro.gyroshape.best_shape`), standing in for a nominal
+      calibration; the session does not search where it corrected its calibration first
+      (``session_calibration``).
+    - ``session_calibration``: before the pass, the session's calibration error (focal
+      length, principal point, axes, time offset, readout, gyro bias) is fitted from the
+      first pass's ``quality_ok`` streaks (:mod:`~blurtrack.detect.gyro.sessioncalib`) and
+      the pass, the orientation cues and the gyro's check predict with the corrected model.
+
     Measuring the placements (:mod:`~blurtrack.detect.gyro.gyromeasure`):
 
     - ``lit_median_factor``: a placement's line is kept from its first to its last point
@@ -350,6 +360,8 @@ class GyroPassParams:
     lit_median_factor: float = _num(3.0, 0.0, lo_open=True)
     arms_chord: float = _num(0.8, 0.0, 1.0, lo_open=True)
     clip_choice: bool = _switch(True)
+    shape_search: bool = _switch(True)
+    session_calibration: bool = _switch(True)
 
     def __post_init__(self) -> None:
         check_section(self, "gyro_pass")

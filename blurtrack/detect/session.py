@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -279,6 +279,7 @@ def _detect_session(
     uncovered: list[int] = []
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
+    session_fit: Any = None
     gyro_checked = 0
     ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
@@ -306,8 +307,21 @@ def _detect_session(
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = _covered(found, timings, model)
-        if found_shift and p.gyro_template and covered:
-            # The template pass's frames: the shift their predicted curves explain best.
+        if found_shift and p.gyro_pass.session_calibration and covered:
+            # The session's calibration error (time offset and readout among it) from the
+            # first pass's quality_ok streaks: the template pass, the cues and the check
+            # predict with the corrected model.
+            from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
+
+            session_fit = fit_session_calibration(found, timings, covered, model)
+            if session_fit.status == "fitted":
+                calib = session_fit.calib
+                model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
+                covered = _covered(found, timings, model)
+        fitted = session_fit is not None and session_fit.status == "fitted"
+        if found_shift and p.gyro_template and covered and not fitted:
+            # Without the session's fit, the template pass's frames: the shift and readout
+            # their predicted curves explain best.
             from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
 
             refined = refine_by_templates(
@@ -339,8 +353,11 @@ def _detect_session(
                 with contextlib.suppress(BlurTrackError):
                     early.append(_gyro_llrs(first, timings, covered, model, error_model))
 
+            # Where the session's calibration was corrected, the curves are the dots': no
+            # rotations and scales to search (the search stands in for a nominal calibration).
+            p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
             template_pass = refine_frames(
-                session, found, timings, idx, covered, model, p, workers, cues_meanwhile
+                session, found, timings, idx, covered, model, p_pass, workers, cues_meanwhile
             )
             llrs = [np.zeros((len(fs), 3)) for fs in found]
             if early:
@@ -404,9 +421,22 @@ def _detect_session(
         if shift is None or shift.status != "found" or model is None
         else float(model.calib.timeshift_cam_imu_s),
         "gyro_timeshift_scan_s": None if shift is None else shift.timeshift_s,
-        "gyro_timeshift_refinement": "not run" if refined is None else refined.status,
+        "gyro_timeshift_refinement": "session calibration"
+        if session_fit is not None and session_fit.status == "fitted"
+        else "not run"
+        if refined is None
+        else refined.status,
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
+        "gyro_session_calibration": None
+        if session_fit is None
+        else {
+            "status": session_fit.status,
+            "voters": session_fit.voters,
+            "residual_before_px": session_fit.residual_before_px,
+            "residual_after_px": session_fit.residual_after_px,
+            "change": session_fit.change,
+        },
         "gyro_template_frames": template_pass.frames,
         "gyro_template_components": {
             "candidates": template_pass.candidates,

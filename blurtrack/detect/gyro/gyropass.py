@@ -21,14 +21,14 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    hairpin frame every component whose predicted curve, placed with its light centroid on
    the component's, is a hairpin; elsewhere components that do not have exactly one line
    matching the prediction.
-2. **Shape search**: calibration is nominal (intrinsics, ``R_cam_imu``, gyro bias and scale
-   are guesses, the time shift is the scan's), so the predicted curve is off by a px or
-   two: per candidate the curve is rotated and scaled about its centroid, a coordinate
+2. **Shape**: the session normally corrects its nominal calibration before the pass
+   (:mod:`blurtrack.detect.gyro.sessioncalib`: intrinsics, ``R_cam_imu``, time offset, readout
+   and gyro bias fitted to the first pass's ``quality_ok`` streaks), and the predicted curve
+   is the template as it is. Where it could not (``gyro_pass.shape_search``), the curve is off
+   by a px or two: per candidate it is rotated and scaled about its centroid, a coordinate
    search ranked by the correlation normalised over the template's support and halo
-   (:func:`blurtrack.detect.gyro.gyroshape.best_shape`); shifts are searched by the matched filter
-   over the component's box and by the joint fit (up to 8 px). (One rotation and scale for
-   the whole frame, the median of a sample's, measured worse: hard seed 2 frames 0-3 recall
-   94.4 against 95.3 %.)
+   (:func:`blurtrack.detect.gyro.gyroshape.best_shape`). Shifts are searched by the matched
+   filter over the component's box and by the joint fit (up to 8 px).
 3. **Pursuit and joint fit** with that template, exactly as in separation
    (:func:`blurtrack.detect.separation.pursuit.pursue`,
    :func:`blurtrack.detect.separation.refit.refit`); then up to :data:`SWEEPS` more pursuits of
@@ -318,7 +318,9 @@ def refine_frame(
     templates: dict[int, Template] = {}  # each pursued candidate's shape
     norms = InsideNorms(in_frame)  # the sweeps pursue and refit over the same regions again
     for c in order.tolist():
-        tpl, score = best_shape(light, comps_p, c, pts[c] + P, make, sp.inside_min, in_frame)
+        tpl, score = best_shape(
+            light, comps_p, c, pts[c] + P, make, sp.inside_min, in_frame, gp.shape_search
+        )
         if tpl is None or score < gp.shape_score_min:
             continue
         tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
