@@ -72,27 +72,34 @@ def crossing_ends(
     hi = np.array([p.max(axis=0) if len(p) else np.full(2, -np.inf) for p in points])
     grow = r + beyond
 
-    def lit_by_other(k: int, q: np.ndarray) -> np.ndarray:
-        """``(len(q),)`` whether another streak's centre line lies within ``r`` of each point."""
+    def lit_by_other(k: int, queries: list[np.ndarray]) -> list[np.ndarray]:
+        """Per point set of ``queries``, ``(len(q),)`` whether another streak's centre line
+        lies within ``r`` of each point: the neighbours whose grown boxes meet streak ``k``'s,
+        their points in one array and every query point against them at once."""
         meet = np.all((lo <= hi[k] + grow) & (hi >= lo[k] - grow), axis=1)
         meet[k] = False
-        hit = np.zeros(len(q), bool)
-        for j in np.flatnonzero(meet).tolist():
-            d2 = np.sum((q[:, None, :] - points[j][None, :, :]) ** 2, axis=2)
-            hit |= np.any(d2 <= r * r, axis=1)
-        return hit
+        sizes = [len(q) for q in queries]
+        near = np.flatnonzero(meet).tolist()
+        if not near:
+            return [np.zeros(n, bool) for n in sizes]
+        others = np.concatenate([points[j] for j in near])
+        q = np.concatenate(queries)
+        dx = q[:, 0, None] - others[None, :, 0]
+        dy = q[:, 1, None] - others[None, :, 1]
+        hit = np.any(dx * dx + dy * dy <= r * r, axis=1)
+        return np.split(hit, np.cumsum(sizes)[:-1])
 
     for k in idx.tolist():
         p = points[k]
         if len(p) == 0:
             continue
-        near = lit_by_other(k, p)
+        near, past_a, past_b = lit_by_other(
+            k, [p, _beyond(p, True, beyond), _beyond(p, False, beyond)]
+        )
         s = _arc(p)
-        for end, at_start in ((0, True), (1, False)):
-            read = s <= inside if at_start else s >= s[-1] - inside
-            out[k, end] = bool(np.any(near & read)) or bool(
-                np.any(lit_by_other(k, _beyond(p, at_start, beyond)))
-            )
+        for end, past in ((0, past_a), (1, past_b)):
+            read = s <= inside if end == 0 else s >= s[-1] - inside
+            out[k, end] = bool(np.any(near & read)) or bool(np.any(past))
         if moments[k] and (near.any() or out[k].any()):
             out[k] = True
     return out
