@@ -7,6 +7,9 @@ session is detected once with the full pipeline and once with each stage switche
   separated with the frame's own templates);
 - ``no_gyro_pass``: ``DetectParams(gyro_template=False)`` (no second pass with the gyro's
   predicted curves);
+- ``no_session_calibration``: ``DetectParams(gyro_pass=GyroPassParams(session_calibration=False))``
+  (the nominal calibration, the template time-shift refinement and the shape search instead
+  of the session's fitted calibration error);
 - ``no_artefact_filter``: ``DetectParams(artefact_ratio=0)`` (ringing/blooming components kept);
 - ``no_shift_refine``: ``detect_session(refine_timeshift=False)`` (the session's time offset
   is not re-fitted from the streaks before orientation);
@@ -41,6 +44,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_detect import baseline_files, evaluate, simulate, trust  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
+from blurtrack.detect.params import GyroPassParams  # noqa: E402
 from blurtrack.detect.session import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
@@ -49,6 +53,10 @@ VARIANTS: dict[str, tuple[DetectParams, dict[str, Any]]] = {
     "full": (DetectParams(), {}),
     "no_separation": (DetectParams(separate=False), {}),
     "no_gyro_pass": (DetectParams(gyro_template=False), {}),
+    "no_session_calibration": (
+        DetectParams(gyro_pass=GyroPassParams(session_calibration=False)),
+        {},
+    ),
     "no_artefact_filter": (DetectParams(artefact_ratio=0.0), {}),
     "no_shift_refine": (DetectParams(), {"refine_timeshift": False}),
     "no_gyro": (DetectParams(), {"gyro": "off"}),

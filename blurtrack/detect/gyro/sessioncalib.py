@@ -20,7 +20,11 @@ which light is which dot's, and the calibration a lab fits later (``blurtrack ca
 starts again from the streak table and the nominal calibration.
 
 A correction is kept only where it predicts the voters better than the calibration it starts
-from (the median residual falls) and every corrected value is physical (a readout >= 0).
+from (the median residual falls), every corrected value is physical (a readout >= 0) and no
+parameter moved by more than :data:`MAX_STEPS` of its finite-difference step (20 % of the
+focal length, 100 px, 0.2 rad, 20 ms, 0.2 rad/s): a fit that far from its start is outside
+the linearisation it came from, and says that the nominal calibration is wrong in kind (axes
+mirrored, another camera's gyro), which ``blurtrack calibrate`` decides.
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ ROUNDS = 2
 #: true ones at the median with all voters, 0.79 px with 400 evenly spaced (a few poorly
 #: determined combinations of the axes, readout and bias).
 MAX_VOTERS = 2000
+#: Largest accepted move of any parameter, in units of its step (module text).
+MAX_STEPS = 20.0
 #: Parameter names of ``d``, in the order of the Jacobian's columns.
 PARAMETERS = (
     "focal_rel",
@@ -70,9 +76,10 @@ PARAMETERS = (
 @dataclass(frozen=True)
 class SessionCalibration:
     """The fit's outcome. ``status``: ``fitted`` (``calib`` corrected), ``too_few_voters``,
-    ``no_prediction`` (the gyro misses the voters' exposures) or ``not_better`` (``calib``
-    as given). ``change``: the correction by parameter name (:data:`PARAMETERS`, units in
-    the names; zeros where not fitted). ``voters``: streaks used; ``residual_before_px`` /
+    ``no_prediction`` (the gyro misses the voters' exposures), ``not_better`` or
+    ``implausible`` (``calib`` as given; module text). ``change``: the correction by
+    parameter name (:data:`PARAMETERS`, units in the names; zeros where not fitted; the
+    refused one where ``implausible``). ``voters``: streaks used; ``residual_before_px`` /
     ``residual_after_px``: their median vector residual against the given and the
     corrected calibration (NaN where not measured)."""
 
@@ -171,6 +178,8 @@ def fit_session_calibration(
     change = difference(model.calib, current.calib)
     if not after < before:
         return SessionCalibration("not_better", model.calib, zero, n, before, after)
+    if _steps(change) > MAX_STEPS:
+        return SessionCalibration("implausible", model.calib, change, n, before, after)
     return SessionCalibration("fitted", current.calib, change, n, before, after)
 
 
@@ -191,3 +200,13 @@ def difference(before: Any, after: Any) -> dict[str, float]:
         *bias.tolist(),
     ]
     return {k: float(v) for k, v in zip(PARAMETERS, values, strict=True)}
+
+
+def _steps(change: dict[str, float]) -> float:
+    """The largest move of :func:`difference`'s ``change`` in units of its parameter's step
+    (:data:`~blurtrack.detect.gyro.gyrotrust.CALIBRATION_STEPS`)."""
+    step = {"focal_rel": "focal", "cx_px": "pp", "cy_px": "pp", "timeshift_s": "time"}
+    step |= {"readout_s": "time"}
+    step |= {k: "axes" for k in ("axis_x_rad", "axis_y_rad", "axis_z_rad")}
+    step |= {k: "bias" for k in ("bias_x_radps", "bias_y_radps", "bias_z_radps")}
+    return max(abs(v) / CALIBRATION_STEPS[step[k]] for k, v in change.items())

@@ -163,3 +163,18 @@ def test_no_fit_without_enough_voters_or_where_nothing_is_gained() -> None:
     # Frames not covered are not read.
     fit = fit_session_calibration(frames, timings, [], INIT)
     assert fit.status == "too_few_voters" and fit.voters == 0
+
+
+def test_a_correction_far_outside_the_linearisation_is_refused() -> None:
+    # Streaks drawn through axes turned 25 degrees from the initial calibration's: the fit
+    # predicts them (0.27 px), but a move of 0.4 rad (40 steps) says the start is wrong in
+    # kind; the calibration is kept as given and the refused change reported.
+    turned = _model(_rot([0.3, 1.0, 0.2], 25.0), F, (W - 1) / 2, (H - 1) / 2)
+    frames, timings = _session(turned)
+    fit = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
+    assert fit.status == "implausible"
+    assert fit.calib is INIT.calib
+    assert max(abs(fit.change[k]) for k in ("axis_x_rad", "axis_y_rad", "axis_z_rad")) > 0.2
+    # The same within reach (the test above): fitted.
+    frames, timings = _session(TRUE)
+    assert fit_session_calibration(frames, timings, [0, 1, 2], INIT).status == "fitted"
