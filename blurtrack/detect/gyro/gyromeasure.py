@@ -50,13 +50,15 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
     half = 0.5 * cum[-1]
     j = int(np.clip(np.searchsorted(cum, half), 1, len(cum) - 1))
     f = (half - cum[j - 1]) / max(cum[j] - cum[j - 1], 1e-12)
+    widths = m.width_px[list(rows)]
+    widths = widths[np.isfinite(widths)]  # NaN where neither arm's width was measured
     return {
         "end_a": pts[0],
         "end_b": pts[-1],
         "time_mid": pts[j - 1] + f * (pts[j] - pts[j - 1]),
         "plateau": np.array([parts[0][2][0], parts[1][2][1]]),
         "length_px": float(m.length_px[rows[0]] + m.length_px[rows[1]]),
-        "width_px": float(np.nanmean(m.width_px[list(rows)])),
+        "width_px": float(widths.mean()) if widths.size else float("nan"),
         "points": pts,
         "profile": prof,
         "saturated": bool(m.saturated[list(rows)].any()),
