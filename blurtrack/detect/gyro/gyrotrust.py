@@ -56,8 +56,12 @@ from blurtrack.detect.params import SourceParams
 from blurtrack.errors import CoverageError
 
 #: Samples per predicted curve (uniform in time): at a turn the dot is slow, so its depth is
-#: sampled to a small fraction of a pixel (the rest of the curve is only needed at its ends).
-PATH_SAMPLES = 33
+#: sampled to a small fraction of a pixel (the rest of the curve is only needed at its ends):
+#: a turn of rate ``w`` px/s^2 by at most ``w (T / 32)^2 / 2`` (T the exposure), ~0.05 px on
+#: a 24 px excursion turning at 3/4 of the exposure, a tenth of ``source.hairpin_depth_px``
+#: (33 samples: a quarter of that, 2 of 44 726 streaks of a 150-frame dense session otherwise,
+#: both right; at 1.5x the predictions' time).
+PATH_SAMPLES = 17
 #: Fewest ``quality_ok`` streaks in a frame for its similarity fit (as the shape consensus).
 MIN_VOTERS = 5
 #: The calibration parameters of the session's fit and the step of each finite difference:

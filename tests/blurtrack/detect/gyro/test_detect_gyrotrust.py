@@ -12,6 +12,7 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
     MAX_FIT_STEPS,
+    PATH_SAMPLES,
     GyroCheck,
     apply_check,
     check_frame,
@@ -96,7 +97,7 @@ def _checked(turn: float, reach_px: float = REACH_PX, spot_gap_px: float | None 
     p = DetectParams()
     fs = detect_frame(image, p)
     fs.quality, fs.one_doubt = frame_quality(fs, p)
-    curves = predict_curves(model, fs.time_mid, T0, EXP, 33).pts
+    curves = predict_curves(model, fs.time_mid, T0, EXP, PATH_SAMPLES).pts
     check = check_frame(fs, curves, np.asarray(fs.quality[2], bool))
     ok, reason = apply_check(fs, check, p.source)
     return fs, check, ok, reason, _wrong(fs, starts, ends)
@@ -287,6 +288,19 @@ def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
     assert pos == [0, 3]
     assert [s.tolist() for s in picks] == [[0], [0, 4]]
     assert fit_sample([_Voters([False])]) == ([], [])  # type: ignore[list-item]
+
+
+def test_the_path_samples_resolve_a_turns_depth() -> None:
+    # A dot at the centre turning at 0.78 of the exposure, between two samples (0.75 and
+    # 0.8125): PATH_SAMPLES resolve its depth to 0.1 px (a fifth of source.hairpin_depth_px;
+    # 0.044 px here), as 257 samples do to 0.05 px of the analytic depth.
+    model = _model(0.78)
+    ref = np.array([[(W - 1) / 2, (H - 1) / 2]])
+    fine = float(hairpin_depth(predict_curves(model, ref, T0, EXP, 257).pts)[0])
+    got = float(hairpin_depth(predict_curves(model, ref, T0, EXP, PATH_SAMPLES).pts)[0])
+    assert fine == pytest.approx(_depth(0.78), abs=0.05)
+    assert 0.0 < fine - got < 0.1
+    assert DetectParams().source.hairpin_depth_px >= 0.5
 
 
 def test_shallow_hairpins_lose_quality_ok() -> None:
