@@ -42,7 +42,7 @@ then seen by the image only where it is wide enough to fold the streak (``looped
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -114,7 +114,7 @@ def _batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
 
 
 def _predicted_batch(
-    frames: Sequence[FrameStreaks],
+    frames: Sequence[FrameStreaks] | Sequence[_Pending],
     timings: Sequence[FrameTiming],
     model: Any,
     group: Sequence[int],
@@ -421,6 +421,82 @@ def session_fit(
     return d
 
 
+@dataclass(frozen=True)
+class _Pending:
+    """A frame's streaks still to predict: their time midpoints ``(n, 2)`` (px)."""
+
+    time_mid: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.time_mid)
+
+
+def _known_paths(
+    frames: Sequence[FrameStreaks], pos: Sequence[int], known: Mapping[int, np.ndarray]
+) -> tuple[dict[int, np.ndarray], list[_Pending]]:
+    """Of ``frames`` (``pos``: their positions in ``known``'s keys), the known curves of the
+    streaks inside the image, by frame (only those of :data:`PATH_SAMPLES`, one per inside
+    streak), and per frame the streaks still to predict (all, or the clipped ones)."""
+    have: dict[int, np.ndarray] = {}
+    pending: list[_Pending] = []
+    for j, (fs, k) in enumerate(zip(frames, pos, strict=True)):
+        c = known.get(k)
+        inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
+        if c is not None and c.shape == (int(inside.sum()), PATH_SAMPLES, 2):
+            have[j] = c
+            pending.append(_Pending(fs.time_mid[~inside]))
+        else:
+            pending.append(_Pending(fs.time_mid))
+    return have, pending
+
+
+def _path_batches(frames: Sequence[FrameStreaks], pending: Sequence[_Pending]) -> list[list[int]]:
+    """The positions of the frames with streaks, in order, in batches of at most
+    :data:`BATCH_STREAKS` streaks to predict, or a frame's depth to measure (an eighth of
+    a predicted streak's cost); exactly :func:`_batches` where every streak is pending."""
+    out: list[list[int]] = []
+    count = 0
+    for k, (fs, todo) in enumerate(zip(frames, pending, strict=True)):
+        if not len(fs):
+            continue
+        n = len(todo) if len(todo) == len(fs) else len(todo) + len(fs) // 8
+        if not out or count + n > BATCH_STREAKS:
+            out.append([])
+            count = 0
+        out[-1].append(k)
+        count += n
+    return out
+
+
+def _paths_of_batch(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    group: Sequence[int],
+    have: Mapping[int, np.ndarray],
+    pending: Sequence[_Pending],
+) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
+    """:func:`_vectors_of_batch` (with the depth) of the frames ``group``, their ``pending``
+    streaks predicted in one model call, the rest taken from ``have``."""
+    todo = [k for k in group if len(pending[k])]
+    pred = dict(
+        zip(todo, _predicted_batch(pending, timings, model, todo, PATH_SAMPLES), strict=True)
+        if todo
+        else ()
+    )
+    out: list[tuple[np.ndarray, np.ndarray | None] | None] = []
+    for k in group:
+        c = pred.get(k) if len(pending[k]) else np.zeros((0, PATH_SAMPLES, 2))
+        if c is not None and k in have:
+            inside = ~frames[k].flags["clipped"]
+            whole = np.empty((len(frames[k]), PATH_SAMPLES, 2))
+            whole[inside] = have[k]
+            whole[~inside] = c
+            c = whole
+        out.append(None if c is None else (c[:, -1] - c[:, 0], hairpin_depth(c)))
+    return out
+
+
 def check_frames(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
@@ -429,6 +505,7 @@ def check_frames(
     p: SourceParams,
     workers: int = 1,
     meanwhile: Callable[[], None] | None = None,
+    known: Mapping[int, np.ndarray] | None = None,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
@@ -440,11 +517,17 @@ def check_frames(
     The model's whole paths (batch by batch: each batch the very model call of one process)
     are predicted in ``workers`` forked processes (:func:`blurtrack.detect.forkmap.fork_map`),
     the same numbers as in one; meanwhile this process runs ``meanwhile`` (first, without
-    workers), the fit and the corrected model's predictions."""
+    workers), the fit and the corrected model's predictions. ``known``: by position in
+    ``frames``, the curves ``(n_inside, PATH_SAMPLES, 2)`` this very model predicted for a
+    frame's streaks inside the image (the template pass's gate,
+    :attr:`blurtrack.detect.gyro.refinepass.TemplatePass.curves`): only its other streaks
+    are predicted here."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
     batches = _batches(sub)
+    have, pending = _known_paths(sub, keep, known or {})
+    groups = _path_batches(sub, pending)
     fixed: list[list[tuple[np.ndarray, np.ndarray | None] | None]] = []
 
     def fit_meanwhile() -> None:
@@ -463,15 +546,17 @@ def check_frames(
         fixed.append(out)
 
     def one(b: int) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
-        return _vectors_of_batch(sub, tim, model, batches[b], depth=True)
+        if not have:  # nothing known: the very batches and model calls of _vectors_of_batch
+            return _vectors_of_batch(sub, tim, model, groups[b], depth=True)
+        return _paths_of_batch(sub, tim, model, groups[b], have, pending)
 
     main: list[tuple[np.ndarray, np.ndarray | None] | None] = [None] * len(sub)
     for b, got in zip(
-        range(len(batches)),
-        fork_map(one, range(len(batches)), workers, 1, fit_meanwhile),
+        range(len(groups)),
+        fork_map(one, range(len(groups)), workers, 1, fit_meanwhile),
         strict=True,
     ):
-        for k, v in zip(batches[b], got, strict=True):
+        for k, v in zip(groups[b], got, strict=True):
             main[k] = v
     checked = 0
     for j, (fs, c) in enumerate(zip(sub, main, strict=True)):
