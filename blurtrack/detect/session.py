@@ -381,7 +381,7 @@ def _detect_session(
             # changes only the frames' quality, which continuity does not read).
             image_ok = _count_ok(found)
             gyro_checked = check_frames(
-                found, timings, covered, model, p.source, workers, continuity
+                found, timings, covered, model, p.source, workers, continuity, template_pass.curves
             )
             ok_change = _count_ok(found) - image_ok
     if not continued:

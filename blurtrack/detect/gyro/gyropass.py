@@ -179,11 +179,20 @@ def _pad_px(curves: np.ndarray, sigma: float) -> int:
     return int(np.ceil(1.1 * ext + 3.0 * sigma)) + HALO_PX + 8
 
 
-def gate(fs: FrameStreaks, timing: FrameTiming, model: Any, gp: GyroPassParams) -> bool | None:
+def gate(
+    fs: FrameStreaks,
+    timing: FrameTiming,
+    model: Any,
+    gp: GyroPassParams,
+    curves_out: list[np.ndarray] | None = None,
+) -> bool | None:
     """Whether the pass has work on a frame, from its first-pass streaks alone (one model
     call, no image work): None where it has none (no streak inside the frame, none long, the
     gyro not covering it, or every long streak matching its prediction in a frame that is not
-    a hairpin frame), else whether it is a hairpin frame. ``gp``: the pass's parameters."""
+    a hairpin frame), else whether it is a hairpin frame. ``gp``: the pass's parameters.
+    ``curves_out``: gets the predicted curves ``(n_inside, GATE_SAMPLES, 2)`` of the streaks
+    inside the frame, where the model predicts them (the gyro check's, for a frame the pass
+    leaves as it was)."""
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
     if not inside.any():
         return None
@@ -195,6 +204,8 @@ def gate(fs: FrameStreaks, timing: FrameTiming, model: Any, gp: GyroPassParams) 
         )
     except CoverageError:
         return None
+    if curves_out is not None:
+        curves_out.append(curves.pts)
     g_long = curves.arc >= gp.min_arc_px
     if not g_long.any():
         return None
@@ -218,17 +229,19 @@ def refine_frame(
     model: Any,
     params: DetectParams | None = None,
     sigma_c: float | None = None,
+    gate_curves: list[np.ndarray] | None = None,
 ) -> tuple[FrameStreaks, FrameOutcome]:
     """The second pass on one frame (see the module text): the frame's streaks (``fs`` itself
     when nothing changed) and what happened. ``image``: the frame as stored, or a function
     that reads it (called only when the gate lets the frame through). ``model``: a
     :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
     ``point_track``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
-    the templates and the measurement (None: the frame's, ``fs.sigma_c_px``)."""
+    the templates and the measurement (None: the frame's, ``fs.sigma_c_px``).
+    ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
     p = params or DetectParams()
     gp, sp = p.gyro_pass, p.separation
     inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
-    hairpin = gate(fs, timing, model, gp)
+    hairpin = gate(fs, timing, model, gp, gate_curves)
     if hairpin is None:
         return fs, FrameOutcome("skipped")
     if callable(image):

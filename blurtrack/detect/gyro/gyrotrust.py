@@ -12,15 +12,19 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
   rates) are the session's, the same for every frame, so the predicted vectors ``p`` of all
   the checked frames change with them by ``J d`` (``J``: the prediction's Jacobian, by finite
   differences over models perturbed by :data:`CALIBRATION_STEPS`; ``d``: the error). ``d`` is
-  fitted robustly, orientation-free, over the ``quality_ok`` streaks of every checked frame
-  (:func:`session_residual`; at least :data:`SESSION_VOTERS_PER_PARAMETER` per unknown) and
-  the residual ``|m - p - J d|`` tested. The vector is the difference of the two ends, so an
+  fitted robustly, orientation-free, over a sample of the ``quality_ok`` streaks spread over
+  every checked frame (:func:`session_fit`, :func:`fit_sample`: at most
+  :data:`FIT_SAMPLE_VOTERS`, so that the perturbed models predict those alone;
+  :func:`session_residual`, at least :data:`SESSION_VOTERS_PER_PARAMETER` per unknown) and
+  the residual ``|m - q|`` tested, ``q`` the vector that the calibration corrected by ``d``
+  predicts (:func:`corrected_model`; ``p + J d`` but for the curvature of a few steps). The
+  vector is the difference of the two ends, so an
   end ``e`` px off moves it by ``e``: a residual above ``source.gyro_vector_tol_px`` means an
   end is off by about that much. Eleven unknowns for the whole session cannot absorb a bias
   that one frame's streaks share (saturated ends 2-3 px long in one frame), which a fit per
-  frame does. Where a perturbed model does not cover a frame, or the session has too few
-  voters, the frame's own similarity ``m = z p`` (:func:`vector_residual`,
-  :data:`MIN_VOTERS` at least, else not checked) is the fallback.
+  frame does. Where the corrected model does not cover a frame, or the session has too few
+  voters (or a fit far off, :data:`MAX_FIT_STEPS`), the frame's own similarity ``m = z p``
+  (:func:`vector_residual`, :data:`MIN_VOTERS` at least, else not checked) is the fallback.
 - ``hairpin``: where the shake turns within the exposure, the dot's path doubles back, and the
   streak's visible extremities are its turning points, not its start and end: the depth of the
   predicted start and end inside the predicted path's extremities along the chord
@@ -38,7 +42,7 @@ then seen by the image only where it is wide enough to fold the streak (``looped
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -52,8 +56,12 @@ from blurtrack.detect.params import SourceParams
 from blurtrack.errors import CoverageError
 
 #: Samples per predicted curve (uniform in time): at a turn the dot is slow, so its depth is
-#: sampled to a small fraction of a pixel (the rest of the curve is only needed at its ends).
-PATH_SAMPLES = 33
+#: sampled to a small fraction of a pixel (the rest of the curve is only needed at its ends):
+#: a turn of rate ``w`` px/s^2 by at most ``w (T / 32)^2 / 2`` (T the exposure), ~0.05 px on
+#: a 24 px excursion turning at 3/4 of the exposure, a tenth of ``source.hairpin_depth_px``
+#: (33 samples: a quarter of that, 2 of 44 726 streaks of a 150-frame dense session otherwise,
+#: both right; at 1.5x the predictions' time).
+PATH_SAMPLES = 17
 #: Fewest ``quality_ok`` streaks in a frame for its similarity fit (as the shape consensus).
 MIN_VOTERS = 5
 #: The calibration parameters of the session's fit and the step of each finite difference:
@@ -69,6 +77,16 @@ SESSION_VOTERS_PER_PARAMETER = 3
 FIT_ROUNDS = 4
 #: Streaks per batched model call (bounds the temporaries: samples x streaks points).
 BATCH_STREAKS = 4000
+#: Most ``quality_ok`` streaks the session fit is made over (:func:`fit_sample`): each is
+#: predicted by the model and the 11 perturbed ones (~360 times the unknowns; a 150-frame
+#: dense session has 43 500).
+FIT_SAMPLE_VOTERS = 4000
+#: Largest fitted calibration error (in steps of :data:`CALIBRATION_STEPS`) that the corrected
+#: model applies (the simulator's sessions: within 7). Where the calibration is barely
+#: observable (a shake of constant rates: the axes and the bias trade off) the fit runs far
+#: along that null space, on the Jacobian's curvature: no calibration to apply; the frames'
+#: own similarities test them.
+MAX_FIT_STEPS = 20.0
 
 
 @dataclass(frozen=True)
@@ -96,7 +114,7 @@ def _batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
 
 
 def _predicted_batch(
-    frames: Sequence[FrameStreaks],
+    frames: Sequence[FrameStreaks] | Sequence[_Pending],
     timings: Sequence[FrameTiming],
     model: Any,
     group: Sequence[int],
@@ -301,6 +319,184 @@ def _vectors_of_batch(
     ]
 
 
+def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarray]]:
+    """The session fit's sample: at most :data:`FIT_SAMPLE_VOTERS` ``quality_ok`` streaks spread
+    evenly over the session's (in frame order, every ``n``-th), as the positions of the frames
+    that hold them and each one's streak indices ``(n_k,)`` (all of them where the session has
+    no more)."""
+    ok = [
+        np.flatnonzero(np.asarray(fs.quality[2], bool))
+        if fs.quality is not None
+        else np.zeros(0, int)
+        for fs in frames
+    ]
+    total = sum(len(o) for o in ok)
+    step = max(1, -(-total // FIT_SAMPLE_VOTERS))  # ceil: at most FIT_SAMPLE_VOTERS
+    pos: list[int] = []
+    picks: list[np.ndarray] = []
+    start = 0  # the session-wide rank of each frame's first voter
+    for k, o in enumerate(ok):
+        first = (-start) % step  # the first of this frame's voters whose rank is a multiple
+        sel = o[first::step]
+        start += len(o)
+        if len(sel):
+            pos.append(k)
+            picks.append(sel)
+    return pos, picks
+
+
+def corrected_model(model: Any, d: np.ndarray) -> Any:
+    """``model`` with the calibration error ``d (11,)`` of :func:`session_residual` applied (in
+    :data:`CALIBRATION_STEPS` units, the order of :func:`perturbed_models`: ``d = e_i`` is the
+    ``i``-th perturbed model; the readout no less than 0)."""
+    c = model.calib
+    fx, fy, cx, cy = c.camera.intrinsics
+    bias = np.asarray(c.gyro_bias_radps, float)
+    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
+    e = [float(v) for v in d]  # python floats, as the perturbed models' parameters
+    turn = ang * np.asarray(e[3:6])
+    calib = c.with_(
+        intrinsics=(fx * (1.0 + fs * e[0]), fy * (1.0 + fs * e[0]), cx + pp * e[1], cy + pp * e[2]),
+        R_cam_imu=_rotation(turn) @ c.R_cam_imu if np.any(turn) else c.R_cam_imu,
+        timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt * e[6],
+        readout_s=max(c.camera.readout_s + dt * e[7], 0.0),
+        gyro_bias_radps=bias + rate * np.asarray(e[8:11]) if any(e[8:11]) else c.gyro_bias_radps,
+    )
+    return replace(model, calib=calib, gyro_upsample=1)
+
+
+def _sample_vectors(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    pos: Sequence[int],
+    picks: Sequence[np.ndarray],
+) -> np.ndarray:
+    """``(n, 2)`` predicted start-to-end vectors of the sampled streaks (:func:`fit_sample`),
+    one model call; NaN rows for the frames the model does not cover."""
+    ref = np.concatenate([frames[k].time_mid[s] for k, s in zip(pos, picks, strict=True)])
+    ft = np.concatenate([np.full(len(s), timings[k].t_s) for k, s in zip(pos, picks, strict=True)])
+    ex = np.concatenate(
+        [np.full(len(s), timings[k].exposure_s) for k, s in zip(pos, picks, strict=True)]
+    )
+    try:
+        pts = predict_curves(model, ref, ft, ex, 2).pts
+        return np.asarray(pts[:, -1] - pts[:, 0])
+    except CoverageError:
+        pass
+    out = []
+    for k, s in zip(pos, picks, strict=True):
+        try:
+            c = predict_curves(
+                model, frames[k].time_mid[s], timings[k].t_s, timings[k].exposure_s, 2
+            )
+            out.append(c.pts[:, -1] - c.pts[:, 0])
+        except CoverageError:
+            out.append(np.full((len(s), 2), np.nan))
+    return np.concatenate(out)
+
+
+def session_fit(
+    frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming], model: Any
+) -> np.ndarray | None:
+    """The session's calibration error ``d (11,)`` (:func:`session_residual`, in
+    :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
+    ``quality_ok`` streaks (those of the frames that the model and every perturbed model
+    predict), or None: too few voters, or an error over :data:`MAX_FIT_STEPS` in a parameter."""
+    pos, picks = fit_sample(frames)
+    if not pos:
+        return None
+    m = np.concatenate(
+        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
+    )
+    p = _sample_vectors(frames, timings, model, pos, picks)
+    J = np.stack(
+        [_sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
+        axis=2,
+    )
+    use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
+    r, d = session_residual(m[use], p[use], J[use], np.ones(int(use.sum()), bool))
+    if r.size == 0 or np.all(np.isnan(r)) or float(np.max(np.abs(d))) > MAX_FIT_STEPS:
+        return None
+    return d
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """A frame's streaks still to predict: their time midpoints ``(n, 2)`` (px)."""
+
+    time_mid: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.time_mid)
+
+
+def _known_paths(
+    frames: Sequence[FrameStreaks], pos: Sequence[int], known: Mapping[int, np.ndarray]
+) -> tuple[dict[int, np.ndarray], list[_Pending]]:
+    """Of ``frames`` (``pos``: their positions in ``known``'s keys), the known curves of the
+    streaks inside the image, by frame (only those of :data:`PATH_SAMPLES`, one per inside
+    streak), and per frame the streaks still to predict (all, or the clipped ones)."""
+    have: dict[int, np.ndarray] = {}
+    pending: list[_Pending] = []
+    for j, (fs, k) in enumerate(zip(frames, pos, strict=True)):
+        c = known.get(k)
+        inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
+        if c is not None and c.shape == (int(inside.sum()), PATH_SAMPLES, 2):
+            have[j] = c
+            pending.append(_Pending(fs.time_mid[~inside]))
+        else:
+            pending.append(_Pending(fs.time_mid))
+    return have, pending
+
+
+def _path_batches(frames: Sequence[FrameStreaks], pending: Sequence[_Pending]) -> list[list[int]]:
+    """The positions of the frames with streaks, in order, in batches of at most
+    :data:`BATCH_STREAKS` streaks to predict, or a frame's depth to measure (an eighth of
+    a predicted streak's cost); exactly :func:`_batches` where every streak is pending."""
+    out: list[list[int]] = []
+    count = 0
+    for k, (fs, todo) in enumerate(zip(frames, pending, strict=True)):
+        if not len(fs):
+            continue
+        n = len(todo) if len(todo) == len(fs) else len(todo) + len(fs) // 8
+        if not out or count + n > BATCH_STREAKS:
+            out.append([])
+            count = 0
+        out[-1].append(k)
+        count += n
+    return out
+
+
+def _paths_of_batch(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    group: Sequence[int],
+    have: Mapping[int, np.ndarray],
+    pending: Sequence[_Pending],
+) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
+    """:func:`_vectors_of_batch` (with the depth) of the frames ``group``, their ``pending``
+    streaks predicted in one model call, the rest taken from ``have``."""
+    todo = [k for k in group if len(pending[k])]
+    pred = dict(
+        zip(todo, _predicted_batch(pending, timings, model, todo, PATH_SAMPLES), strict=True)
+        if todo
+        else ()
+    )
+    out: list[tuple[np.ndarray, np.ndarray | None] | None] = []
+    for k in group:
+        c = pred.get(k) if len(pending[k]) else np.zeros((0, PATH_SAMPLES, 2))
+        if c is not None and k in have:
+            inside = ~frames[k].flags["clipped"]
+            whole = np.empty((len(frames[k]), PATH_SAMPLES, 2))
+            whole[inside] = have[k]
+            whole[~inside] = c
+            c = whole
+        out.append(None if c is None else (c[:, -1] - c[:, 0], hairpin_depth(c)))
+    return out
+
+
 def check_frames(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
@@ -309,67 +505,78 @@ def check_frames(
     p: SourceParams,
     workers: int = 1,
     meanwhile: Callable[[], None] | None = None,
+    known: Mapping[int, np.ndarray] | None = None,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
-    vectors are tested against the session's fit (:func:`session_residual`) where every
-    perturbed model predicts the frame, else against the frame's similarity.
+    vectors are tested against the session's fit where the corrected model predicts the frame
+    (the calibration error :func:`session_fit` fits over a sample of the voters, applied by
+    :func:`corrected_model`; the residual ``|m - q|``, orientation-free, ``q`` that model's
+    predicted vector), else against the frame's similarity.
 
-    The predictions (the model's and each perturbed model's, batch by batch: each batch the
-    very model call of one process) are made in ``workers`` forked processes
-    (:func:`blurtrack.detect.forkmap.fork_map`), the same numbers as in one; ``meanwhile``:
-    work of this process run while they predict (first, without workers)."""
+    The model's whole paths (batch by batch: each batch the very model call of one process)
+    are predicted in ``workers`` forked processes (:func:`blurtrack.detect.forkmap.fork_map`),
+    the same numbers as in one; meanwhile this process runs ``meanwhile`` (first, without
+    workers), the fit and the corrected model's predictions. ``known``: by position in
+    ``frames``, the curves ``(n_inside, PATH_SAMPLES, 2)`` this very model predicted for a
+    frame's streaks inside the image (the template pass's gate,
+    :attr:`blurtrack.detect.gyro.refinepass.TemplatePass.curves`): only its other streaks
+    are predicted here."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
-    models = [model, *perturbed_models(model)]
     batches = _batches(sub)
-    # The whole paths (the costliest tasks) first; the fit needs only each perturbed path's
-    # start-to-end vector: its two ends.
-    tasks = [(i, b) for i in range(len(models)) for b in range(len(batches))]
+    have, pending = _known_paths(sub, keep, known or {})
+    groups = _path_batches(sub, pending)
+    fixed: list[list[tuple[np.ndarray, np.ndarray | None] | None]] = []
 
-    def one(task: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
-        i, b = task
-        return _vectors_of_batch(sub, tim, models[i], batches[b], depth=i == 0)
+    def fit_meanwhile() -> None:
+        if meanwhile is not None:
+            meanwhile()
+        d = session_fit(sub, tim, model)
+        if d is None:
+            return
+        fix = corrected_model(model, d)
+        out: list[tuple[np.ndarray, np.ndarray | None] | None] = [None] * len(sub)
+        for group in batches:
+            for k, v in zip(
+                group, _vectors_of_batch(sub, tim, fix, group, depth=False), strict=True
+            ):
+                out[k] = v
+        fixed.append(out)
 
-    per_model: list[list[tuple[np.ndarray, np.ndarray | None] | None]] = [
-        [None] * len(sub) for _ in models
-    ]
-    for (i, b), got in zip(tasks, fork_map(one, tasks, workers, 1, meanwhile), strict=True):
-        for k, v in zip(batches[b], got, strict=True):
-            per_model[i][k] = v
-    main, moved = per_model[0], per_model[1:]
-    joint = [c is not None and all(mv[j] is not None for mv in moved) for j, c in enumerate(main)]
-    parts: dict[int, tuple[np.ndarray, ...]] = {}
-    for j, (fs, c) in enumerate(zip(sub, main, strict=True)):
-        if joint[j] and c is not None and fs.quality is not None:
-            pv = c[0]
-            ends = [e[0] for e in (mv[j] for mv in moved) if e is not None]  # all, by joint
-            J = np.stack([e - pv for e in ends], axis=2)
-            parts[j] = (fs.end_b - fs.end_a, pv, J, np.asarray(fs.quality[2], bool))
-    session: dict[int, np.ndarray] = {}
-    if parts:
-        cat = [np.concatenate([v[i] for v in parts.values()]) for i in range(4)]
-        r, _ = session_residual(*cat)
-        if not np.all(np.isnan(r)):
-            bounds = np.cumsum([len(v[0]) for v in parts.values()])[:-1]
-            session = dict(zip(parts, np.split(r, bounds), strict=True))
+    def one(b: int) -> list[tuple[np.ndarray, np.ndarray | None] | None]:
+        if not have:  # nothing known: the very batches and model calls of _vectors_of_batch
+            return _vectors_of_batch(sub, tim, model, groups[b], depth=True)
+        return _paths_of_batch(sub, tim, model, groups[b], have, pending)
+
+    main: list[tuple[np.ndarray, np.ndarray | None] | None] = [None] * len(sub)
+    for b, got in zip(
+        range(len(groups)),
+        fork_map(one, range(len(groups)), workers, 1, fit_meanwhile),
+        strict=True,
+    ):
+        for k, v in zip(groups[b], got, strict=True):
+            main[k] = v
     checked = 0
     for j, (fs, c) in enumerate(zip(sub, main, strict=True)):
         if c is None or fs.quality is None:
             continue
         ok0 = np.asarray(fs.quality[2], bool)
+        m = fs.end_b - fs.end_a
         pv, depth = c
         assert depth is not None  # the model's own paths: whole
-        chk = GyroCheck(
-            session[j] if j in session else vector_residual(fs.end_b - fs.end_a, pv, ok0),
-            depth,
-        )
+        v = fixed[0][j] if fixed else None
+        if v is not None:
+            res = np.minimum(np.hypot(*(m - v[0]).T), np.hypot(*(m + v[0]).T))
+        else:
+            res = vector_residual(m, pv, ok0)
+        chk = GyroCheck(np.asarray(res), depth)
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
         ok, reason = apply_check(fs, chk, p)
-        q = list(fs.quality)
-        q[2], q[4] = ok, reason
-        fs.quality = tuple(q)
+        qual = list(fs.quality)
+        qual[2], qual[4] = ok, reason
+        fs.quality = tuple(qual)
         checked += 1
     return checked

@@ -36,6 +36,9 @@ class TemplatePass:
     candidates: int = 0
     replaced: int = 0
     streaks: int = 0
+    #: Per frame the pass left as it was (its position in ``found``): the gate's predicted
+    #: curves ``(n_inside, GATE_SAMPLES, 2)`` of its streaks inside the frame, for the check.
+    curves: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 def refine_frames(
@@ -60,20 +63,24 @@ def refine_frames(
     sig = [fs.sigma_c_px for fs in found if len(fs)]
     sigma_c = float(np.median(sig)) if sig else None
 
-    def one(k: int) -> tuple[FrameStreaks | None, FrameOutcome]:  # None: as it was
+    def one(k: int) -> tuple[FrameStreaks | None, FrameOutcome, np.ndarray | None]:
+        # (None: as it was; then the gate's curves, where it predicted them)
         fs = found[k]
+        seen: list[np.ndarray] = []
         out, what = refine_frame(
-            partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c
+            partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c, seen
         )
         if out is fs:
-            return None, what
+            return None, what, seen[0] if seen else None
         out.quality, out.one_doubt = frame_quality(out, params)
-        return out, what
+        return out, what, None
 
     results = fork_map(one, covered, workers, 1, meanwhile)
-    for k, (changed, what) in zip(covered, results, strict=True):
+    for k, (changed, what, curves) in zip(covered, results, strict=True):
         if changed is not None:
             found[k] = changed
+        elif curves is not None:
+            out.curves[k] = curves
         out.frames[what.status] = out.frames.get(what.status, 0) + 1
         if what.status == "refined":
             out.candidates += what.candidates

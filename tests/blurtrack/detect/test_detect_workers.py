@@ -397,6 +397,79 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
             np.testing.assert_array_equal(g[1], gyrotrust.hairpin_depth(c))
 
 
+def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
+    session_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The template pass hands the check its gate's curves of the frames it left as they
+    were (the same model, PATH_SAMPLES): the check predicts only the clipped streaks of those
+    and gives the quality columns and count it gives predicting every streak itself."""
+    import copy
+    import dataclasses
+
+    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrotrust
+
+    inputs: list[tuple] = []
+    real = m.check_frames
+
+    def spy(found, timings, covered, model, p, *a, **k):
+        inputs.append((copy.deepcopy(found), timings, covered, model, p, a[2]))
+        return real(found, timings, covered, model, p, *a, **k)
+
+    monkeypatch.setattr(m, "check_frames", spy)
+    detect_session(load_session(session_folder), workers=1)
+    found, timings, covered, model, p, known = inputs[0]
+    assert set(known) <= set(covered) and len(known) > 0
+    for k, c in known.items():
+        assert c.shape == (int(np.sum(~found[k].flags["clipped"])), gyrotrust.PATH_SAMPLES, 2)
+    # Tolerances that this session's streaks fail in part: the check has something to do.
+    p = dataclasses.replace(p, gyro_vector_tol_px=0.05, hairpin_depth_px=0.01)
+    out = {}
+    for name, given in (("own", None), ("known", known)):
+        fr = copy.deepcopy(found)
+        n = gyrotrust.check_frames(fr, timings, covered, model, p, 2, None, given)
+        out[name] = (n, [fs.quality for fs in fr])
+    assert out["own"][0] == out["known"][0] > 0
+    for a, b in zip(out["own"][1], out["known"][1], strict=True):
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+    # Without workers too, and only the pending streaks are predicted.
+    predicted: list[int] = []
+    real_batch = gyrotrust._predicted_batch
+
+    def counting(frames, tim, model_, group, samples):
+        if samples == gyrotrust.PATH_SAMPLES:
+            predicted.append(sum(len(frames[k]) for k in group))
+        return real_batch(frames, tim, model_, group, samples)
+
+    monkeypatch.setattr(gyrotrust, "_predicted_batch", counting)
+    fr = copy.deepcopy(found)
+    assert gyrotrust.check_frames(fr, timings, covered, model, p, 1, None, known) == out["own"][0]
+    clipped_known = sum(int(np.sum(found[k].flags["clipped"])) for k in known)
+    others = sum(len(found[k]) for k in covered if k not in known)
+    assert sum(predicted) == clipped_known + others
+
+
+def test_path_batches_are_the_batches_where_every_streak_is_pending() -> None:
+    from blurtrack.detect.gyro import gyrotrust
+
+    class F:
+        def __init__(self, n: int) -> None:
+            self.n = n
+            self.time_mid = np.zeros((n, 2))
+
+        def __len__(self) -> int:
+            return self.n
+
+    frames = [F(n) for n in (3000, 0, 900, 200, 4500, 10)]
+    pending = [gyrotrust._Pending(f.time_mid) for f in frames]
+    assert gyrotrust._path_batches(frames, pending) == gyrotrust._batches(frames)  # type: ignore[arg-type]
+    assert gyrotrust._batches(frames) == [[0, 2], [3], [4], [5]]  # type: ignore[arg-type]
+    # A frame with nothing pending still joins a batch (its depth), at an eighth of its size.
+    pending[4] = gyrotrust._Pending(np.zeros((0, 2)))
+    assert gyrotrust._path_batches(frames, pending) == [[0, 2], [3, 4, 5]]  # type: ignore[arg-type]
+
+
 def test_one_blas_thread_within_and_as_it_was_after() -> None:
     from blurtrack.detect import forkmap
 

@@ -11,9 +11,13 @@ import pytest
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
+    MAX_FIT_STEPS,
+    PATH_SAMPLES,
     GyroCheck,
     apply_check,
     check_frame,
+    corrected_model,
+    fit_sample,
     hairpin_depth,
     perturbed_models,
     session_residual,
@@ -93,7 +97,7 @@ def _checked(turn: float, reach_px: float = REACH_PX, spot_gap_px: float | None 
     p = DetectParams()
     fs = detect_frame(image, p)
     fs.quality, fs.one_doubt = frame_quality(fs, p)
-    curves = predict_curves(model, fs.time_mid, T0, EXP, 33).pts
+    curves = predict_curves(model, fs.time_mid, T0, EXP, PATH_SAMPLES).pts
     check = check_frame(fs, curves, np.asarray(fs.quality[2], bool))
     ok, reason = apply_check(fs, check, p.source)
     return fs, check, ok, reason, _wrong(fs, starts, ends)
@@ -174,6 +178,129 @@ def test_the_session_fit_absorbs_a_calibration_error_that_varies_over_the_frame(
     few = np.zeros(len(m), bool)
     few[:32] = True
     assert np.all(np.isnan(session_residual(m, p, J, few)[0]))
+
+
+def _shake_vectors(model: BlurModel, ref: np.ndarray) -> np.ndarray:
+    pts = predict_curves(model, ref, T0, EXP, 9).pts
+    return np.asarray(pts[:, -1] - pts[:, 0])
+
+
+def test_the_corrected_model_is_each_perturbed_model_at_a_unit_error() -> None:
+    # d = 0: the model itself; d = e_i: the i-th perturbed model (the Jacobian's columns), to
+    # the last bit, with a rolling shutter (the readout is a parameter) and a gyro bias.
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 5), np.linspace(30, H - 30, 4))
+    ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    base = _shake_model(_rot(np.array([1.0, 0.0, 1.0]), 2.0), F, W / 2 + 3, H / 2 - 2)
+    calib = base.calib.with_(readout_s=0.02, gyro_bias_radps=(0.01, -0.02, 0.03))
+    model = BlurModel(calib, base.gyro, gyro_upsample=1)
+    # (Calibration.with_ re-normalises R_cam_imu: ~1e-13 px.)
+    np.testing.assert_allclose(
+        _shake_vectors(corrected_model(model, np.zeros(11)), ref),
+        _shake_vectors(model, ref),
+        rtol=0,
+        atol=1e-9,
+    )
+    moved = perturbed_models(model)
+    assert len(moved) == 11
+    for i, mv in enumerate(moved):
+        np.testing.assert_array_equal(
+            _shake_vectors(corrected_model(model, np.eye(11)[i]), ref), _shake_vectors(mv, ref)
+        )
+    # A readout that the error would make negative is a global shutter's.
+    assert corrected_model(model, -100.0 * np.eye(11)[7]).camera.readout_s == 0.0
+
+
+def _varying_shake_model(R_cam_imu: np.ndarray, f: float, cx: float, cy: float) -> BlurModel:
+    """A three-axis shake whose rates vary over the exposure (the axes and the bias apart)."""
+    cam = Camera(resolution=(W, H), intrinsics=(f, f, cx, cy), readout_s=0.0)
+    t = np.arange(0.0, 0.2, 1e-4)
+    omega = np.stack(
+        [0.9 + 2.0 * np.sin(60 * t), 0.6 - 1.5 * np.cos(45 * t), 2.5 * np.sin(30 * t + 1.0)],
+        axis=1,
+    )
+    calib = Calibration(camera=cam, R_cam_imu=R_cam_imu, timeshift_cam_imu_s=0.0)
+    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+
+
+def test_the_corrected_model_explains_the_streaks_the_session_fit_absorbed() -> None:
+    # The session fit's calibration error applied to the initial calibration (all of it, not
+    # only to first order): its predicted vectors match the true ones within a fifth of the
+    # tolerance, and the fitted error is within MAX_FIT_STEPS.
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    true = _varying_shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
+    init = _varying_shake_model(
+        _rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8
+    )
+    # The dots of frames spread over the trace (as a session's): the rates differ.
+    ft = np.linspace(0.005, 0.15, len(ref))
+
+    def vectors(model: BlurModel) -> np.ndarray:
+        pts = predict_curves(model, ref, ft, EXP, 2).pts
+        return np.asarray(pts[:, -1] - pts[:, 0])
+
+    m, p = vectors(true), vectors(init)
+    J = np.stack([vectors(k) - p for k in perturbed_models(init)], axis=2)
+    _, d = session_residual(m, p, J, np.ones(len(m), bool))
+    assert np.max(np.abs(d)) < MAX_FIT_STEPS
+    q = vectors(corrected_model(init, d))
+    tol = DetectParams().source.gyro_vector_tol_px
+    assert np.max(np.hypot(*(m - p).T)) > tol  # the initial calibration alone does not
+    assert np.max(np.hypot(*(m - q).T)) < 0.2 * tol
+
+
+def test_a_barely_observable_calibration_fits_far_past_the_limit() -> None:
+    # Constant rates: the axes and the bias trade off, and the fit runs far along that null
+    # space (on the finite differences' curvature): MAX_FIT_STEPS keeps it from being applied.
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    true = _shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
+    init = _shake_model(_rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8)
+    m, p = _shake_vectors(true, ref), _shake_vectors(init, ref)
+    J = np.stack([_shake_vectors(k, ref) - p for k in perturbed_models(init)], axis=2)
+    _, d = session_residual(m, p, J, np.ones(len(m), bool))
+    assert np.max(np.abs(d)) > 10 * MAX_FIT_STEPS
+
+
+class _Voters:
+    """The one field of a frame that :func:`fit_sample` reads: ``quality[2]``."""
+
+    def __init__(self, ok: list[bool] | None) -> None:
+        self.quality = None if ok is None else (None, None, np.asarray(ok, bool), None, None)
+
+
+def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
+    from blurtrack.detect.gyro import gyrotrust
+
+    frames = [
+        _Voters([True, False, True, True]),
+        _Voters(None),
+        _Voters([False, False]),
+        _Voters([True, True, True, False, True]),
+    ]
+    # All the voters where the session has no more than the sample.
+    pos, picks = fit_sample(frames)  # type: ignore[arg-type]
+    assert pos == [0, 3]
+    assert [s.tolist() for s in picks] == [[0, 2, 3], [0, 1, 2, 4]]
+    # Seven voters, at most three: every third by session rank (ranks 0, 3, 6).
+    monkeypatch.setattr(gyrotrust, "FIT_SAMPLE_VOTERS", 3)
+    pos, picks = fit_sample(frames)  # type: ignore[arg-type]
+    assert pos == [0, 3]
+    assert [s.tolist() for s in picks] == [[0], [0, 4]]
+    assert fit_sample([_Voters([False])]) == ([], [])  # type: ignore[list-item]
+
+
+def test_the_path_samples_resolve_a_turns_depth() -> None:
+    # A dot at the centre turning at 0.78 of the exposure, between two samples (0.75 and
+    # 0.8125): PATH_SAMPLES resolve its depth to 0.1 px (a fifth of source.hairpin_depth_px;
+    # 0.044 px here), as 257 samples do to 0.05 px of the analytic depth.
+    model = _model(0.78)
+    ref = np.array([[(W - 1) / 2, (H - 1) / 2]])
+    fine = float(hairpin_depth(predict_curves(model, ref, T0, EXP, 257).pts)[0])
+    got = float(hairpin_depth(predict_curves(model, ref, T0, EXP, PATH_SAMPLES).pts)[0])
+    assert fine == pytest.approx(_depth(0.78), abs=0.05)
+    assert 0.0 < fine - got < 0.1
+    assert DetectParams().source.hairpin_depth_px >= 0.5
 
 
 def test_shallow_hairpins_lose_quality_ok() -> None:
