@@ -365,7 +365,7 @@ def corrected_model(model: Any, d: np.ndarray) -> Any:
     return replace(model, calib=calib, gyro_upsample=1)
 
 
-def _sample_vectors(
+def sample_vectors(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     model: Any,
@@ -397,26 +397,32 @@ def _sample_vectors(
 
 
 def session_fit(
-    frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming], model: Any
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    max_steps: float | None = MAX_FIT_STEPS,
 ) -> np.ndarray | None:
     """The session's calibration error ``d (11,)`` (:func:`session_residual`, in
     :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
     ``quality_ok`` streaks (those of the frames that the model and every perturbed model
-    predict), or None: too few voters, or an error over :data:`MAX_FIT_STEPS` in a parameter."""
+    predict), or None: too few voters, or an error over ``max_steps`` (default
+    :data:`MAX_FIT_STEPS`; None: no limit) in a parameter."""
     pos, picks = fit_sample(frames)
     if not pos:
         return None
     m = np.concatenate(
         [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
     )
-    p = _sample_vectors(frames, timings, model, pos, picks)
+    p = sample_vectors(frames, timings, model, pos, picks)
     J = np.stack(
-        [_sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
+        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
         axis=2,
     )
     use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
     r, d = session_residual(m[use], p[use], J[use], np.ones(int(use.sum()), bool))
-    if r.size == 0 or np.all(np.isnan(r)) or float(np.max(np.abs(d))) > MAX_FIT_STEPS:
+    if r.size == 0 or np.all(np.isnan(r)):
+        return None
+    if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
         return None
     return d
 

@@ -20,8 +20,8 @@ which light is which dot's, and the calibration a lab fits later (``blurtrack ca
 starts again from the streak table and the nominal calibration.
 
 A correction is kept only where it predicts the voters better than the calibration it starts
-from (the median residual falls), every corrected value is physical (a readout >= 0) and no
-parameter moved by more than :data:`MAX_STEPS` of its finite-difference step (20 % of the
+from (the median residual falls) and no parameter moved by more than
+:data:`~blurtrack.detect.gyro.gyrotrust.MAX_FIT_STEPS` of its finite-difference step (20 % of the
 focal length, 100 px, 0.2 rad, 20 ms, 0.2 rad/s): a fit that far from its start is outside
 the linearisation it came from, and says that the nominal calibration is wrong in kind (axes
 mirrored, another camera's gyro), which ``blurtrack calibrate`` decides.
@@ -36,27 +36,26 @@ from typing import Any
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
     CALIBRATION_STEPS,
+    MAX_FIT_STEPS,
     SESSION_VOTERS_PER_PARAMETER,
-    perturbed_models,
-    session_residual,
+    corrected_model,
+    fit_sample,
+    sample_vectors,
+    session_fit,
 )
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.errors import BlurTrackError
-from blurtrack.geometry.rotation import so3_exp, so3_log
+from blurtrack.geometry.rotation import so3_log
 
-#: Gauss-Newton rounds (each: the Jacobian at the current calibration, a robust fit, a move).
-ROUNDS = 2
-#: Most voters a round predicts (evenly spaced over the session's ``quality_ok`` streaks),
-#: bounding the cost at 12 models x 2000 x 2 predicted points. Fewer measured worse: on
+#: Gauss-Newton rounds (each: the Jacobian at the current calibration, a robust fit, a move;
+#: :func:`~blurtrack.detect.gyro.gyrotrust.session_fit` over the check's sample,
+#: :data:`~blurtrack.detect.gyro.gyrotrust.FIT_SAMPLE_VOTERS` at most). Many voters pay: on
 #: ``hard`` seed 2 (8 frames, 933 voters) the corrected model's vectors are 0.57 px from the
-#: true ones at the median with all voters, 0.79 px with 400 evenly spaced (a few poorly
+#: true ones at the median with all of them, 0.79 px with 400 evenly spaced (a few poorly
 #: determined combinations of the axes, readout and bias).
-MAX_VOTERS = 2000
-#: Largest accepted move of any parameter, in units of its step (module text).
-MAX_STEPS = 20.0
+ROUNDS = 2
 #: Parameter names of ``d``, in the order of the Jacobian's columns.
 PARAMETERS = (
     "focal_rel",
@@ -91,50 +90,11 @@ class SessionCalibration:
     residual_after_px: float
 
 
-def corrected(calib: Any, d: np.ndarray) -> Any:
-    """``calib`` moved by ``d`` ``(11,)`` in units of :data:`CALIBRATION_STEPS` (the columns
-    of :func:`~blurtrack.detect.gyro.gyrotrust.perturbed_models`, in that order)."""
-    fx, fy, cx, cy = calib.camera.intrinsics
-    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
-    bias = np.asarray(calib.gyro_bias_radps, float)
-    return calib.with_(
-        intrinsics=(fx * (1.0 + fs * d[0]), fy * (1.0 + fs * d[0]), cx + pp * d[1], cy + pp * d[2]),
-        R_cam_imu=so3_exp(ang * np.asarray(d[3:6], float)) @ calib.R_cam_imu,
-        timeshift_cam_imu_s=calib.timeshift_cam_imu_s + dt * float(d[6]),
-        readout_s=calib.camera.readout_s + dt * float(d[7]),
-        gyro_bias_radps=bias + rate * np.asarray(d[8:11], float),
-    )
-
-
-def _voters(
-    frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming], covered: Sequence[int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The measured vectors ``(V, 2)``, time midpoints, frame times and exposures of at most
-    :data:`MAX_VOTERS` ``quality_ok`` streaks of the ``covered`` frames, evenly spaced."""
-    m, ref, ft, ex = [], [], [], []
-    for k in covered:
-        fs = frames[k]
-        if fs.quality is None or not len(fs):
-            continue
-        ok = np.asarray(fs.quality[2], bool)
-        m.append((fs.end_b - fs.end_a)[ok])
-        ref.append(fs.time_mid[ok])
-        ft.append(np.full(int(ok.sum()), timings[k].t_s))
-        ex.append(np.full(int(ok.sum()), timings[k].exposure_s))
-    if not m:
-        return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0)
-    arrays = [np.concatenate(a) for a in (m, ref, ft, ex)]
-    n = arrays[0].shape[0]
-    if n > MAX_VOTERS:
-        pick = np.unique(np.linspace(0, n - 1, MAX_VOTERS).round().astype(int))
-        arrays = [a[pick] for a in arrays]
-    return arrays[0], arrays[1], arrays[2], arrays[3]
-
-
-def _ends(model: Any, ref: np.ndarray, ft: np.ndarray, ex: np.ndarray) -> np.ndarray:
-    """``(V, 2)`` the predicted start-to-end vectors of streaks at these times."""
-    pts = predict_curves(model, ref, ft, ex, 2).pts
-    return np.asarray(pts[:, -1] - pts[:, 0])
+def _median_residual(m: np.ndarray, p: np.ndarray) -> float:
+    """Median orientation-free ``|m - p|`` (px) over the rows the model predicts."""
+    r = np.minimum(np.hypot(*(m - p).T), np.hypot(*(m + p).T))
+    r = r[np.isfinite(r)]
+    return float(np.median(r)) if r.size else float("nan")
 
 
 def fit_session_calibration(
@@ -146,39 +106,32 @@ def fit_session_calibration(
     """The session's calibration error from the ``covered`` frames' ``quality_ok`` streaks
     (see the module text); ``model``: the blur model of the calibration to correct (its
     ``calib``; the corrected one is returned, not a model)."""
-    from dataclasses import replace
-
     zero = dict.fromkeys(PARAMETERS, 0.0)
-    m, ref, ft, ex = _voters(frames, timings, covered)
-    n = m.shape[0]
+    sub = [frames[k] for k in covered]
+    tim = [timings[k] for k in covered]
+    pos, picks = fit_sample(sub)
+    n = sum(len(s) for s in picks)
     if n < SESSION_VOTERS_PER_PARAMETER * len(PARAMETERS):
         return SessionCalibration("too_few_voters", model.calib, zero, n, np.nan, np.nan)
-    use = np.ones(n, bool)
+    m = np.concatenate([sub[k].end_b[s] - sub[k].end_a[s] for k, s in zip(pos, picks, strict=True)])
     current = model
-    before = after = np.nan
     try:
+        before = _median_residual(m, sample_vectors(sub, tim, model, pos, picks))
         for _ in range(ROUNDS):
-            p = _ends(current, ref, ft, ex)
-            J = np.stack([_ends(mv, ref, ft, ex) - p for mv in perturbed_models(current)], axis=2)
-            r0 = np.minimum(np.hypot(*(m - p).T), np.hypot(*(m + p).T))
-            if np.isnan(before):
-                before = float(np.median(r0))
-            _, d = session_residual(m, p, J, use)
-            try:
-                calib = corrected(current.calib, d)
-            except BlurTrackError:
+            # No limit per round: the rounds may go far; the whole move is judged below.
+            d = session_fit(sub, tim, current, max_steps=None)
+            if d is None:
                 break
-            if calib.camera.readout_s < 0:
-                break
-            current = replace(current, calib=calib)
-        p = _ends(current, ref, ft, ex)
-        after = float(np.median(np.minimum(np.hypot(*(m - p).T), np.hypot(*(m + p).T))))
+            current = corrected_model(current, d)
+        after = _median_residual(m, sample_vectors(sub, tim, current, pos, picks))
     except BlurTrackError:
-        return SessionCalibration("no_prediction", model.calib, zero, n, before, np.nan)
+        return SessionCalibration("no_prediction", model.calib, zero, n, np.nan, np.nan)
+    if not np.isfinite(before):
+        return SessionCalibration("no_prediction", model.calib, zero, n, before, after)
     change = difference(model.calib, current.calib)
     if not after < before:
         return SessionCalibration("not_better", model.calib, zero, n, before, after)
-    if _steps(change) > MAX_STEPS:
+    if _steps(change) > MAX_FIT_STEPS:
         return SessionCalibration("implausible", model.calib, change, n, before, after)
     return SessionCalibration("fitted", current.calib, change, n, before, after)
 
