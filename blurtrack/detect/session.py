@@ -380,8 +380,19 @@ def _detect_session(
             # its predictions in the workers, the continuity cues here meanwhile (the check
             # changes only the frames' quality, which continuity does not read).
             image_ok = _count_ok(found)
+            # Where the session's calibration was fitted and the template pass changed no
+            # frame, the model is already fitted over the very streaks the check would fit.
+            unchanged = not template_pass.frames.get("refined")
             gyro_checked = check_frames(
-                found, timings, covered, model, p.source, workers, continuity, template_pass.curves
+                found,
+                timings,
+                covered,
+                model,
+                p.source,
+                workers,
+                continuity,
+                template_pass.curves,
+                fitted=fitted and unchanged,
             )
             ok_change = _count_ok(found) - image_ok
     if not continued:

@@ -512,6 +512,7 @@ def check_frames(
     workers: int = 1,
     meanwhile: Callable[[], None] | None = None,
     known: Mapping[int, np.ndarray] | None = None,
+    fitted: bool = False,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
@@ -527,7 +528,9 @@ def check_frames(
     ``frames``, the curves ``(n_inside, PATH_SAMPLES, 2)`` this very model predicted for a
     frame's streaks inside the image (the template pass's gate,
     :attr:`blurtrack.detect.gyro.refinepass.TemplatePass.curves`): only its other streaks
-    are predicted here."""
+    are predicted here. ``fitted``: ``model`` is already corrected by the session's error
+    fitted over these very streaks (:mod:`blurtrack.detect.gyro.sessioncalib`, no frame
+    changed since): the vectors are tested against its own predictions, with no fit again."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
@@ -539,6 +542,8 @@ def check_frames(
     def fit_meanwhile() -> None:
         if meanwhile is not None:
             meanwhile()
+        if fitted:
+            return
         d = session_fit(sub, tim, model)
         if d is None:
             return
@@ -572,7 +577,7 @@ def check_frames(
         m = fs.end_b - fs.end_a
         pv, depth = c
         assert depth is not None  # the model's own paths: whole
-        v = fixed[0][j] if fixed else None
+        v = fixed[0][j] if fixed else (c if fitted else None)
         if v is not None:
             res = np.minimum(np.hypot(*(m - v[0]).T), np.hypot(*(m + v[0]).T))
         else:

@@ -488,3 +488,52 @@ def test_one_blas_thread_within_and_as_it_was_after() -> None:
         assert int(get()) == outside
     finally:
         put(before)
+
+
+def test_a_session_fitted_model_is_tested_as_it_is(
+    session_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the session calibration fitted the model over the first pass's streaks and the
+    template pass changed no frame, the check fits nothing again: every quality_ok streak is
+    tested against that model's own predicted vector (derived here from the model)."""
+    import copy
+    import dataclasses
+
+    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrotrust
+    from blurtrack.detect.gyro.gyrocurve import predict_curves
+
+    inputs: list[tuple] = []
+    real = m.check_frames
+
+    def spy(found, timings, covered, model, p, *a, **k):
+        inputs.append((copy.deepcopy(found), timings, covered, model, p, k.get("fitted")))
+        return real(found, timings, covered, model, p, *a, **k)
+
+    monkeypatch.setattr(m, "check_frames", spy)
+    res = detect_session(load_session(session_folder), workers=1)
+    assert res.summary["gyro_session_calibration"]["status"] == "fitted"
+    assert not res.summary["gyro_template_frames"].get("refined")
+    found, timings, covered, model, p, fitted = inputs[0]
+    assert fitted is True
+
+    def no_fit(*a, **k):
+        raise AssertionError("the check fitted the session again")
+
+    monkeypatch.setattr(gyrotrust, "session_fit", no_fit)
+    tol = 0.3  # that this session's streaks fail in part
+    p = dataclasses.replace(p, gyro_vector_tol_px=tol, hairpin_depth_px=1e3)
+    fr = copy.deepcopy(found)
+    gyrotrust.check_frames(fr, timings, covered, model, p, 1, None, None, fitted=True)
+    demoted = 0
+    for k in covered:
+        before, after = found[k], fr[k]
+        ok0 = np.asarray(before.quality[2], bool)
+        t = timings[k]
+        pts = predict_curves(model, before.time_mid, t.t_s, t.exposure_s, 2).pts
+        v = pts[:, -1] - pts[:, 0]
+        mv = before.end_b - before.end_a
+        r = np.minimum(np.hypot(*(mv - v).T), np.hypot(*(mv + v).T))
+        np.testing.assert_array_equal(ok0 & ~np.asarray(after.quality[2], bool), ok0 & (r > tol))
+        demoted += int(np.sum(ok0 & (r > tol)))
+    assert demoted > 0
