@@ -13,7 +13,7 @@ import contextlib
 import ctypes
 import multiprocessing as mp
 import platform
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
@@ -138,3 +138,18 @@ def fork_map(
             yield from results
     finally:
         _WORKER_STATE.clear()
+
+
+def batch_positions(weighted: Iterable[tuple[int, int]], most: int) -> list[list[int]]:
+    """The positions of ``weighted`` ``(position, weight)`` pairs, in order, cut into
+    batches whose weights sum to at most ``most`` (a heavier one alone): the frames of one
+    model call each, for the gyro's batched predictions."""
+    out: list[list[int]] = []
+    count = 0
+    for k, n in weighted:
+        if not out or count + n > most:
+            out.append([])
+            count = 0
+        out[-1].append(k)
+        count += n
+    return out

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.forkmap import batch_positions
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.paramsections import OrientationParams
 
@@ -106,16 +107,9 @@ def gyro_cues_batch(
     :data:`GYRO_BATCH_STREAKS` at a time. Every frame must be covered by the gyro.
     """
     out = [np.zeros((len(fs), 2)) for fs in frames]
-    groups: list[list[int]] = []
-    count = 0
-    for k, fs in enumerate(frames):
-        if len(fs) == 0:
-            continue
-        if not groups or count + len(fs) > GYRO_BATCH_STREAKS:
-            groups.append([])
-            count = 0
-        groups[-1].append(k)
-        count += len(fs)
+    groups = batch_positions(
+        ((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), GYRO_BATCH_STREAKS
+    )
     for g in groups:
         llr = _gyro_cues_flat(
             [frames[j] for j in g], [timings[j] for j in g], model, errors or CueErrors()

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.forkmap import batch_positions, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.orientation import FrameTiming
@@ -100,17 +100,7 @@ class GyroCheck:
 def _batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
     """The positions of the frames with streaks, in order, in batches of at most
     :data:`BATCH_STREAKS` streaks (a larger frame alone)."""
-    out: list[list[int]] = []
-    count = 0
-    for k, fs in enumerate(frames):
-        if not len(fs):
-            continue
-        if not out or count + len(fs) > BATCH_STREAKS:
-            out.append([])
-            count = 0
-        out[-1].append(k)
-        count += len(fs)
-    return out
+    return batch_positions(((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), BATCH_STREAKS)
 
 
 def _predicted_batch(
@@ -460,18 +450,12 @@ def _path_batches(frames: Sequence[FrameStreaks], pending: Sequence[_Pending]) -
     """The positions of the frames with streaks, in order, in batches of at most
     :data:`BATCH_STREAKS` streaks to predict, or a frame's depth to measure (an eighth of
     a predicted streak's cost); exactly :func:`_batches` where every streak is pending."""
-    out: list[list[int]] = []
-    count = 0
-    for k, (fs, todo) in enumerate(zip(frames, pending, strict=True)):
-        if not len(fs):
-            continue
-        n = len(todo) if len(todo) == len(fs) else len(todo) + len(fs) // 8
-        if not out or count + n > BATCH_STREAKS:
-            out.append([])
-            count = 0
-        out[-1].append(k)
-        count += n
-    return out
+    weighted = (
+        (k, len(todo) if len(todo) == len(fs) else len(todo) + len(fs) // 8)
+        for k, (fs, todo) in enumerate(zip(frames, pending, strict=True))
+        if len(fs)
+    )
+    return batch_positions(weighted, BATCH_STREAKS)
 
 
 def _paths_of_batch(
