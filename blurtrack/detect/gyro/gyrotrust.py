@@ -11,19 +11,17 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
   principal point, ``R_cam_imu`` (three angles), time offset, readout and gyro bias (three
   rates) are the session's, the same for every frame, so the predicted vectors ``p`` of all
   the checked frames change with them by ``J d`` (``J``: the prediction's Jacobian, by finite
-  differences over models perturbed by :data:`CALIBRATION_STEPS`; ``d``: the error). ``d`` is
-  fitted robustly, orientation-free, over a sample of the ``quality_ok`` streaks spread over
-  every checked frame (:func:`session_fit`, :func:`fit_sample`: at most
-  :data:`FIT_SAMPLE_VOTERS`, so that the perturbed models predict those alone;
-  :func:`session_residual`, at least :data:`SESSION_VOTERS_PER_PARAMETER` per unknown) and
-  the residual ``|m - q|`` tested, ``q`` the vector that the calibration corrected by ``d``
-  predicts (:func:`corrected_model`; ``p + J d`` but for the curvature of a few steps). The
-  vector is the difference of the two ends, so an
-  end ``e`` px off moves it by ``e``: a residual above ``source.gyro_vector_tol_px`` means an
-  end is off by about that much. Eleven unknowns for the whole session cannot absorb a bias
-  that one frame's streaks share (saturated ends 2-3 px long in one frame), which a fit per
-  frame does. Where the corrected model does not cover a frame, or the session has too few
-  voters (or a fit far off, :data:`MAX_FIT_STEPS`), the frame's own similarity ``m = z p``
+  differences over perturbed models; ``d``: the error). ``d`` is fitted robustly,
+  orientation-free, over a sample of the ``quality_ok`` streaks spread over every checked
+  frame, and the residual ``|m - q|`` tested, ``q`` the vector that the calibration corrected
+  by ``d`` predicts (``p + J d`` but for the curvature of a few steps; the sample, the fit and
+  the correction are :mod:`blurtrack.detect.gyro.sessioncalib`'s ``fit_sample``,
+  ``session_fit`` and ``corrected_model``). The vector is the difference of the two ends, so
+  an end ``e`` px off moves it by ``e``: a residual above ``source.gyro_vector_tol_px`` means
+  an end is off by about that much. Eleven unknowns for the whole session cannot absorb a
+  bias that one frame's streaks share (saturated ends 2-3 px long in one frame), which a fit
+  per frame does. Where the corrected model does not cover a frame, or the session has too
+  few voters (or a fit far off), the frame's own similarity ``m = z p``
   (:func:`vector_residual`, :data:`MIN_VOTERS` at least, else not checked) is the fallback.
 - ``hairpin``: where the shake turns within the exposure, the dot's path doubles back, and the
   streak's visible extremities are its turning points, not its start and end: the depth of the
@@ -43,7 +41,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -51,6 +49,11 @@ import numpy as np
 from blurtrack.detect.forkmap import batch_positions, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
+from blurtrack.detect.gyro.sessioncalib import (
+    FIT_ROUNDS,
+    corrected_model,
+    session_fit,
+)
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import SourceParams
 from blurtrack.errors import CoverageError
@@ -64,29 +67,8 @@ from blurtrack.errors import CoverageError
 PATH_SAMPLES = 17
 #: Fewest ``quality_ok`` streaks in a frame for its similarity fit (as the shape consensus).
 MIN_VOTERS = 5
-#: The calibration parameters of the session's fit and the step of each finite difference:
-#: focal length (relative), principal point (px), ``R_cam_imu`` (rad about each axis), time
-#: offset and readout (s), gyro bias (rad/s about each axis). Each step moves a dot ~1-10 px
-#: over an exposure (f ~1000 px, rates ~1 rad/s, 10-50 ms): far above the predictions'
-#: rounding, and where the prediction is still linear (its curvature costs ~step^2).
-CALIBRATION_STEPS = {"focal": 0.01, "pp": 5.0, "axes": 0.01, "time": 1e-3, "bias": 0.01}
-#: Fewest session voters per fitted parameter (11 unknowns, 2 equations a streak: three
-#: streaks for each unknown, so that no frame's streaks alone can steer the fit).
-SESSION_VOTERS_PER_PARAMETER = 3
-#: Robust rounds of the similarity fit, dropping residuals over 3x their median (>= 0.5 px).
-FIT_ROUNDS = 4
 #: Streaks per batched model call (bounds the temporaries: samples x streaks points).
 BATCH_STREAKS = 4000
-#: Most ``quality_ok`` streaks the session fit is made over (:func:`fit_sample`): each is
-#: predicted by the model and the 11 perturbed ones (~360 times the unknowns; a 150-frame
-#: dense session has 43 500).
-FIT_SAMPLE_VOTERS = 4000
-#: Largest fitted calibration error (in steps of :data:`CALIBRATION_STEPS`) that the corrected
-#: model applies (the simulator's sessions: within 7). Where the calibration is barely
-#: observable (a shake of constant rates: the axes and the bias trade off) the fit runs far
-#: along that null space, on the Jacobian's curvature: no calibration to apply; the frames'
-#: own similarities test them.
-MAX_FIT_STEPS = 20.0
 
 
 @dataclass(frozen=True)
@@ -197,64 +179,6 @@ def vector_residual(m: np.ndarray, p: np.ndarray, voters: np.ndarray) -> np.ndar
     return np.asarray(r)
 
 
-def _rotation(v: np.ndarray) -> np.ndarray:
-    """The rotation matrix of rotation vector ``v`` (rad)."""
-    th = float(np.linalg.norm(v))
-    if th == 0.0:
-        return np.eye(3)
-    a = v / th
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    return np.asarray(np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K)
-
-
-def perturbed_models(model: Any) -> list[Any]:
-    """``model`` with each calibration parameter of :data:`CALIBRATION_STEPS` moved by its
-    step, in that order (the columns of the prediction's Jacobian)."""
-    c = model.calib
-    fx, fy, cx, cy = c.camera.intrinsics
-    bias = np.asarray(c.gyro_bias_radps, float)
-    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
-    calibs = [
-        c.with_(intrinsics=(fx * (1.0 + fs), fy * (1.0 + fs), cx, cy)),
-        c.with_(intrinsics=(fx, fy, cx + pp, cy)),
-        c.with_(intrinsics=(fx, fy, cx, cy + pp)),
-        *(c.with_(R_cam_imu=_rotation(ang * ax) @ c.R_cam_imu) for ax in np.eye(3)),
-        c.with_(timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt),
-        c.with_(readout_s=c.camera.readout_s + dt),
-        *(c.with_(gyro_bias_radps=bias + rate * ax) for ax in np.eye(3)),
-    ]
-    # The model's gyro is already resampled: no second resampling.
-    return [replace(model, calib=k, gyro_upsample=1) for k in calibs]
-
-
-def session_residual(
-    m: np.ndarray, p: np.ndarray, J: np.ndarray, voters: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(N,)`` ``|m - p - J d|`` (orientation-free: ``m``'s sign nearest ``p + J d``) after the
-    calibration error ``d`` fitted robustly over ``voters`` (the first-order change of the
-    predicted vectors ``p`` with the calibration: ``J (N, 2, P)``), and ``d``. NaN residuals
-    when fewer than :data:`SESSION_VOTERS_PER_PARAMETER` x ``P`` vote."""
-    n, P = m.shape[0], J.shape[2]
-    if int(voters.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
-        return np.full(n, np.nan), np.zeros(P)
-    q = p.copy()  # the corrected prediction; each measured vector's sign is the nearer to it
-    use = voters.copy()
-    d = np.zeros(P)
-    r = np.hypot(*m.T)
-    for _ in range(FIT_ROUNDS + 1):
-        sign = np.where(np.sum(m * q, axis=1) < 0, -1.0, 1.0)
-        y = m * sign[:, None] - p
-        d = np.linalg.lstsq(J[use].reshape(-1, P), y[use].reshape(-1), rcond=None)[0]
-        q = p + J @ d
-        r = np.minimum(np.hypot(*(m - q).T), np.hypot(*(m + q).T))
-        cut = max(3.0 * float(np.median(r[use])), 0.5)
-        new = voters & (r <= cut)
-        if int(new.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
-            break
-        use = new
-    return np.asarray(r), np.asarray(d)
-
-
 def check_frame(fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray) -> GyroCheck:
     """The :class:`GyroCheck` of one frame's streaks against their predicted ``curves``, the
     frame's similarity fitted over the streaks ``ok`` (the fallback of :func:`check_frames`
@@ -307,114 +231,6 @@ def _vectors_of_batch(
         None if c is None else (c[:, -1] - c[:, 0], hairpin_depth(c) if depth else None)
         for c in curves
     ]
-
-
-def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarray]]:
-    """The session fit's sample: at most :data:`FIT_SAMPLE_VOTERS` ``quality_ok`` streaks spread
-    evenly over the session's (in frame order, every ``n``-th), as the positions of the frames
-    that hold them and each one's streak indices ``(n_k,)`` (all of them where the session has
-    no more)."""
-    ok = [
-        np.flatnonzero(np.asarray(fs.quality[2], bool))
-        if fs.quality is not None
-        else np.zeros(0, int)
-        for fs in frames
-    ]
-    total = sum(len(o) for o in ok)
-    step = max(1, -(-total // FIT_SAMPLE_VOTERS))  # ceil: at most FIT_SAMPLE_VOTERS
-    pos: list[int] = []
-    picks: list[np.ndarray] = []
-    start = 0  # the session-wide rank of each frame's first voter
-    for k, o in enumerate(ok):
-        first = (-start) % step  # the first of this frame's voters whose rank is a multiple
-        sel = o[first::step]
-        start += len(o)
-        if len(sel):
-            pos.append(k)
-            picks.append(sel)
-    return pos, picks
-
-
-def corrected_model(model: Any, d: np.ndarray) -> Any:
-    """``model`` with the calibration error ``d (11,)`` of :func:`session_residual` applied (in
-    :data:`CALIBRATION_STEPS` units, the order of :func:`perturbed_models`: ``d = e_i`` is the
-    ``i``-th perturbed model; the readout no less than 0)."""
-    c = model.calib
-    fx, fy, cx, cy = c.camera.intrinsics
-    bias = np.asarray(c.gyro_bias_radps, float)
-    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
-    e = [float(v) for v in d]  # python floats, as the perturbed models' parameters
-    turn = ang * np.asarray(e[3:6])
-    calib = c.with_(
-        intrinsics=(fx * (1.0 + fs * e[0]), fy * (1.0 + fs * e[0]), cx + pp * e[1], cy + pp * e[2]),
-        R_cam_imu=_rotation(turn) @ c.R_cam_imu if np.any(turn) else c.R_cam_imu,
-        timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt * e[6],
-        readout_s=max(c.camera.readout_s + dt * e[7], 0.0),
-        gyro_bias_radps=bias + rate * np.asarray(e[8:11]) if any(e[8:11]) else c.gyro_bias_radps,
-    )
-    return replace(model, calib=calib, gyro_upsample=1)
-
-
-def sample_vectors(
-    frames: Sequence[FrameStreaks],
-    timings: Sequence[FrameTiming],
-    model: Any,
-    pos: Sequence[int],
-    picks: Sequence[np.ndarray],
-) -> np.ndarray:
-    """``(n, 2)`` predicted start-to-end vectors of the sampled streaks (:func:`fit_sample`),
-    one model call; NaN rows for the frames the model does not cover."""
-    ref = np.concatenate([frames[k].time_mid[s] for k, s in zip(pos, picks, strict=True)])
-    ft = np.concatenate([np.full(len(s), timings[k].t_s) for k, s in zip(pos, picks, strict=True)])
-    ex = np.concatenate(
-        [np.full(len(s), timings[k].exposure_s) for k, s in zip(pos, picks, strict=True)]
-    )
-    try:
-        pts = predict_curves(model, ref, ft, ex, 2).pts
-        return np.asarray(pts[:, -1] - pts[:, 0])
-    except CoverageError:
-        pass
-    out = []
-    for k, s in zip(pos, picks, strict=True):
-        try:
-            c = predict_curves(
-                model, frames[k].time_mid[s], timings[k].t_s, timings[k].exposure_s, 2
-            )
-            out.append(c.pts[:, -1] - c.pts[:, 0])
-        except CoverageError:
-            out.append(np.full((len(s), 2), np.nan))
-    return np.concatenate(out)
-
-
-def session_fit(
-    frames: Sequence[FrameStreaks],
-    timings: Sequence[FrameTiming],
-    model: Any,
-    max_steps: float | None = MAX_FIT_STEPS,
-) -> np.ndarray | None:
-    """The session's calibration error ``d (11,)`` (:func:`session_residual`, in
-    :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
-    ``quality_ok`` streaks (those of the frames that the model and every perturbed model
-    predict), or None: too few voters, or an error over ``max_steps`` (default
-    :data:`MAX_FIT_STEPS`; None: no limit) in a parameter."""
-    pos, picks = fit_sample(frames)
-    if not pos:
-        return None
-    m = np.concatenate(
-        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
-    )
-    p = sample_vectors(frames, timings, model, pos, picks)
-    J = np.stack(
-        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
-        axis=2,
-    )
-    use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
-    r, d = session_residual(m[use], p[use], J[use], np.ones(int(use.sum()), bool))
-    if r.size == 0 or np.all(np.isnan(r)):
-        return None
-    if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
-        return None
-    return d
 
 
 @dataclass(frozen=True)
@@ -501,9 +317,11 @@ def check_frames(
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
     vectors are tested against the session's fit where the corrected model predicts the frame
-    (the calibration error :func:`session_fit` fits over a sample of the voters, applied by
-    :func:`corrected_model`; the residual ``|m - q|``, orientation-free, ``q`` that model's
-    predicted vector), else against the frame's similarity.
+    (the calibration error :func:`~blurtrack.detect.gyro.sessioncalib.session_fit` fits over
+    a sample of the voters, applied by
+    :func:`~blurtrack.detect.gyro.sessioncalib.corrected_model`; the residual ``|m - q|``,
+    orientation-free, ``q`` that model's predicted vector), else against the frame's
+    similarity.
 
     The model's whole paths (batch by batch: each batch the very model call of one process)
     are predicted in ``workers`` forked processes (:func:`blurtrack.detect.forkmap.fork_map`),

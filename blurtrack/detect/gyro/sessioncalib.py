@@ -4,12 +4,12 @@ the gyro-template pass uses the blur model.
 The initial calibration is nominal (intrinsics, ``R_cam_imu`` and the gyro bias are guesses, the
 time shift is the scan's), so every predicted curve is off by a px or two, in the same way for
 every frame: one error of the session's eleven calibration parameters
-(:data:`~blurtrack.detect.gyro.gyrotrust.CALIBRATION_STEPS`: focal length, principal point,
+(:data:`CALIBRATION_STEPS`: focal length, principal point,
 three axis angles, time offset, readout, three gyro-bias rates). The image's ``quality_ok``
 streaks measure it: their start-to-end vectors ``m`` against the predicted ``p`` change with
 the calibration by ``J d`` (the prediction's Jacobian by finite differences,
-:func:`~blurtrack.detect.gyro.gyrotrust.perturbed_models`), ``d`` fitted robustly and
-orientation-free (:func:`~blurtrack.detect.gyro.gyrotrust.session_residual`), the calibration
+:func:`perturbed_models`), ``d`` fitted robustly and
+orientation-free (:func:`session_residual`), the calibration
 moved by ``d`` and the fit repeated from there (Gauss-Newton: the prediction is nonlinear in
 the axes and the bias over a 10-50 ms exposure).
 
@@ -19,9 +19,14 @@ orientation cues and the gyro's check. The endpoints stay the image's: the corre
 which light is which dot's, and the calibration a lab fits later (``blurtrack calibrate``)
 starts again from the streak table and the nominal calibration.
 
+The fit's pieces (:func:`fit_sample`, :func:`perturbed_models`, :func:`session_residual`,
+:func:`session_fit`, :func:`corrected_model`) are the gyro check's too
+(:mod:`blurtrack.detect.gyro.gyrotrust`), which fits again where the template pass changed
+frames.
+
 A correction is kept only where it predicts the voters better than the calibration it starts
 from (the median residual falls) and no parameter moved by more than
-:data:`~blurtrack.detect.gyro.gyrotrust.MAX_FIT_STEPS` of its finite-difference step (20 % of the
+:data:`MAX_FIT_STEPS` of its finite-difference step (20 % of the
 focal length, 100 px, 0.2 rad, 20 ms, 0.2 rad/s): a fit that far from its start is outside
 the linearisation it came from, and says that the nominal calibration is wrong in kind (axes
 mirrored, another camera's gyro), which ``blurtrack calibrate`` decides.
@@ -30,28 +35,42 @@ mirrored, another camera's gyro), which ``blurtrack calibrate`` decides.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.gyro.gyrotrust import (
-    CALIBRATION_STEPS,
-    MAX_FIT_STEPS,
-    SESSION_VOTERS_PER_PARAMETER,
-    corrected_model,
-    fit_sample,
-    sample_vectors,
-    session_fit,
-)
+from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.orientation import FrameTiming
-from blurtrack.errors import BlurTrackError
+from blurtrack.errors import BlurTrackError, CoverageError
 from blurtrack.geometry.rotation import so3_log
 
+#: The calibration parameters of the session's fit and the step of each finite difference:
+#: focal length (relative), principal point (px), ``R_cam_imu`` (rad about each axis), time
+#: offset and readout (s), gyro bias (rad/s about each axis). Each step moves a dot ~1-10 px
+#: over an exposure (f ~1000 px, rates ~1 rad/s, 10-50 ms): far above the predictions'
+#: rounding, and where the prediction is still linear (its curvature costs ~step^2).
+CALIBRATION_STEPS = {"focal": 0.01, "pp": 5.0, "axes": 0.01, "time": 1e-3, "bias": 0.01}
+#: Fewest session voters per fitted parameter (11 unknowns, 2 equations a streak: three
+#: streaks for each unknown, so that no frame's streaks alone can steer the fit).
+SESSION_VOTERS_PER_PARAMETER = 3
+#: Robust rounds of the session fit and of the frames' similarity fits, dropping residuals
+#: over 3x their median (>= 0.5 px).
+FIT_ROUNDS = 4
+#: Most ``quality_ok`` streaks the session fit is made over (:func:`fit_sample`): each is
+#: predicted by the model and the 11 perturbed ones (~360 times the unknowns; a 150-frame
+#: dense session has 43 500).
+FIT_SAMPLE_VOTERS = 4000
+#: Largest fitted calibration error (in steps of :data:`CALIBRATION_STEPS`) that the corrected
+#: model applies (the simulator's sessions: within 7). Where the calibration is barely
+#: observable (a shake of constant rates: the axes and the bias trade off) the fit runs far
+#: along that null space, on the Jacobian's curvature: no calibration to apply; the frames'
+#: own similarities test them.
+MAX_FIT_STEPS = 20.0
 #: Gauss-Newton rounds (each: the Jacobian at the current calibration, a robust fit, a move;
-#: :func:`~blurtrack.detect.gyro.gyrotrust.session_fit` over the check's sample,
-#: :data:`~blurtrack.detect.gyro.gyrotrust.FIT_SAMPLE_VOTERS` at most). Many voters pay: on
+#: :func:`session_fit` over the check's sample,
+#: :data:`FIT_SAMPLE_VOTERS` at most). Many voters pay: on
 #: ``hard`` seed 2 (8 frames, 933 voters) the corrected model's vectors are 0.57 px from the
 #: true ones at the median with all of them, 0.79 px with 400 evenly spaced (a few poorly
 #: determined combinations of the axes, readout and bias).
@@ -88,6 +107,172 @@ class SessionCalibration:
     voters: int
     residual_before_px: float
     residual_after_px: float
+
+
+def _rotation(v: np.ndarray) -> np.ndarray:
+    """The rotation matrix of rotation vector ``v`` (rad)."""
+    th = float(np.linalg.norm(v))
+    if th == 0.0:
+        return np.eye(3)
+    a = v / th
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.asarray(np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K)
+
+
+def perturbed_models(model: Any) -> list[Any]:
+    """``model`` with each calibration parameter of :data:`CALIBRATION_STEPS` moved by its
+    step, in that order (the columns of the prediction's Jacobian)."""
+    c = model.calib
+    fx, fy, cx, cy = c.camera.intrinsics
+    bias = np.asarray(c.gyro_bias_radps, float)
+    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
+    calibs = [
+        c.with_(intrinsics=(fx * (1.0 + fs), fy * (1.0 + fs), cx, cy)),
+        c.with_(intrinsics=(fx, fy, cx + pp, cy)),
+        c.with_(intrinsics=(fx, fy, cx, cy + pp)),
+        *(c.with_(R_cam_imu=_rotation(ang * ax) @ c.R_cam_imu) for ax in np.eye(3)),
+        c.with_(timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt),
+        c.with_(readout_s=c.camera.readout_s + dt),
+        *(c.with_(gyro_bias_radps=bias + rate * ax) for ax in np.eye(3)),
+    ]
+    # The model's gyro is already resampled: no second resampling.
+    return [replace(model, calib=k, gyro_upsample=1) for k in calibs]
+
+
+def session_residual(
+    m: np.ndarray, p: np.ndarray, J: np.ndarray, voters: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(N,)`` ``|m - p - J d|`` (orientation-free: ``m``'s sign nearest ``p + J d``) after the
+    calibration error ``d`` fitted robustly over ``voters`` (the first-order change of the
+    predicted vectors ``p`` with the calibration: ``J (N, 2, P)``), and ``d``. NaN residuals
+    when fewer than :data:`SESSION_VOTERS_PER_PARAMETER` x ``P`` vote."""
+    n, P = m.shape[0], J.shape[2]
+    if int(voters.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
+        return np.full(n, np.nan), np.zeros(P)
+    q = p.copy()  # the corrected prediction; each measured vector's sign is the nearer to it
+    use = voters.copy()
+    d = np.zeros(P)
+    r = np.hypot(*m.T)
+    for _ in range(FIT_ROUNDS + 1):
+        sign = np.where(np.sum(m * q, axis=1) < 0, -1.0, 1.0)
+        y = m * sign[:, None] - p
+        d = np.linalg.lstsq(J[use].reshape(-1, P), y[use].reshape(-1), rcond=None)[0]
+        q = p + J @ d
+        r = np.minimum(np.hypot(*(m - q).T), np.hypot(*(m + q).T))
+        cut = max(3.0 * float(np.median(r[use])), 0.5)
+        new = voters & (r <= cut)
+        if int(new.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
+            break
+        use = new
+    return np.asarray(r), np.asarray(d)
+
+
+def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarray]]:
+    """The session fit's sample: at most :data:`FIT_SAMPLE_VOTERS` ``quality_ok`` streaks spread
+    evenly over the session's (in frame order, every ``n``-th), as the positions of the frames
+    that hold them and each one's streak indices ``(n_k,)`` (all of them where the session has
+    no more)."""
+    ok = [
+        np.flatnonzero(np.asarray(fs.quality[2], bool))
+        if fs.quality is not None
+        else np.zeros(0, int)
+        for fs in frames
+    ]
+    total = sum(len(o) for o in ok)
+    step = max(1, -(-total // FIT_SAMPLE_VOTERS))  # ceil: at most FIT_SAMPLE_VOTERS
+    pos: list[int] = []
+    picks: list[np.ndarray] = []
+    start = 0  # the session-wide rank of each frame's first voter
+    for k, o in enumerate(ok):
+        first = (-start) % step  # the first of this frame's voters whose rank is a multiple
+        sel = o[first::step]
+        start += len(o)
+        if len(sel):
+            pos.append(k)
+            picks.append(sel)
+    return pos, picks
+
+
+def corrected_model(model: Any, d: np.ndarray) -> Any:
+    """``model`` with the calibration error ``d (11,)`` of :func:`session_residual` applied (in
+    :data:`CALIBRATION_STEPS` units, the order of :func:`perturbed_models`: ``d = e_i`` is the
+    ``i``-th perturbed model; the readout no less than 0)."""
+    c = model.calib
+    fx, fy, cx, cy = c.camera.intrinsics
+    bias = np.asarray(c.gyro_bias_radps, float)
+    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
+    e = [float(v) for v in d]  # python floats, as the perturbed models' parameters
+    turn = ang * np.asarray(e[3:6])
+    calib = c.with_(
+        intrinsics=(fx * (1.0 + fs * e[0]), fy * (1.0 + fs * e[0]), cx + pp * e[1], cy + pp * e[2]),
+        R_cam_imu=_rotation(turn) @ c.R_cam_imu if np.any(turn) else c.R_cam_imu,
+        timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt * e[6],
+        readout_s=max(c.camera.readout_s + dt * e[7], 0.0),
+        gyro_bias_radps=bias + rate * np.asarray(e[8:11]) if any(e[8:11]) else c.gyro_bias_radps,
+    )
+    return replace(model, calib=calib, gyro_upsample=1)
+
+
+def sample_vectors(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    pos: Sequence[int],
+    picks: Sequence[np.ndarray],
+) -> np.ndarray:
+    """``(n, 2)`` predicted start-to-end vectors of the sampled streaks (:func:`fit_sample`),
+    one model call; NaN rows for the frames the model does not cover."""
+    ref = np.concatenate([frames[k].time_mid[s] for k, s in zip(pos, picks, strict=True)])
+    ft = np.concatenate([np.full(len(s), timings[k].t_s) for k, s in zip(pos, picks, strict=True)])
+    ex = np.concatenate(
+        [np.full(len(s), timings[k].exposure_s) for k, s in zip(pos, picks, strict=True)]
+    )
+    try:
+        pts = predict_curves(model, ref, ft, ex, 2).pts
+        return np.asarray(pts[:, -1] - pts[:, 0])
+    except CoverageError:
+        pass
+    out = []
+    for k, s in zip(pos, picks, strict=True):
+        try:
+            c = predict_curves(
+                model, frames[k].time_mid[s], timings[k].t_s, timings[k].exposure_s, 2
+            )
+            out.append(c.pts[:, -1] - c.pts[:, 0])
+        except CoverageError:
+            out.append(np.full((len(s), 2), np.nan))
+    return np.concatenate(out)
+
+
+def session_fit(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    model: Any,
+    max_steps: float | None = MAX_FIT_STEPS,
+) -> np.ndarray | None:
+    """The session's calibration error ``d (11,)`` (:func:`session_residual`, in
+    :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
+    ``quality_ok`` streaks (those of the frames that the model and every perturbed model
+    predict), or None: too few voters, or an error over ``max_steps`` (default
+    :data:`MAX_FIT_STEPS`; None: no limit) in a parameter."""
+    pos, picks = fit_sample(frames)
+    if not pos:
+        return None
+    m = np.concatenate(
+        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
+    )
+    p = sample_vectors(frames, timings, model, pos, picks)
+    J = np.stack(
+        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
+        axis=2,
+    )
+    use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
+    r, d = session_residual(m[use], p[use], J[use], np.ones(int(use.sum()), bool))
+    if r.size == 0 or np.all(np.isnan(r)):
+        return None
+    if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
+        return None
+    return d
 
 
 def _median_residual(m: np.ndarray, p: np.ndarray) -> float:
@@ -157,7 +342,7 @@ def difference(before: Any, after: Any) -> dict[str, float]:
 
 def _steps(change: dict[str, float]) -> float:
     """The largest move of :func:`difference`'s ``change`` in units of its parameter's step
-    (:data:`~blurtrack.detect.gyro.gyrotrust.CALIBRATION_STEPS`)."""
+    (:data:`CALIBRATION_STEPS`)."""
     step = {"focal_rel": "focal", "cx_px": "pp", "cy_px": "pp", "timeshift_s": "time"}
     step |= {"readout_s": "time"}
     step |= {k: "axes" for k in ("axis_x_rad", "axis_y_rad", "axis_z_rad")}

@@ -11,17 +11,19 @@ import pytest
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
-    MAX_FIT_STEPS,
     PATH_SAMPLES,
     GyroCheck,
     apply_check,
     check_frame,
+    hairpin_depth,
+    vector_residual,
+)
+from blurtrack.detect.gyro.sessioncalib import (
+    MAX_FIT_STEPS,
     corrected_model,
     fit_sample,
-    hairpin_depth,
     perturbed_models,
     session_residual,
-    vector_residual,
 )
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.geometry.blur_model import BlurModel
@@ -270,7 +272,7 @@ class _Voters:
 
 
 def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
-    from blurtrack.detect.gyro import gyrotrust
+    from blurtrack.detect.gyro import sessioncalib
 
     frames = [
         _Voters([True, False, True, True]),
@@ -283,7 +285,7 @@ def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
     assert pos == [0, 3]
     assert [s.tolist() for s in picks] == [[0, 2, 3], [0, 1, 2, 4]]
     # Seven voters, at most three: every third by session rank (ranks 0, 3, 6).
-    monkeypatch.setattr(gyrotrust, "FIT_SAMPLE_VOTERS", 3)
+    monkeypatch.setattr(sessioncalib, "FIT_SAMPLE_VOTERS", 3)
     pos, picks = fit_sample(frames)  # type: ignore[arg-type]
     assert pos == [0, 3]
     assert [s.tolist() for s in picks] == [[0], [0, 4]]

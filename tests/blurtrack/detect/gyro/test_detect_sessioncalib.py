@@ -8,8 +8,13 @@ import numpy as np
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrotrust import CALIBRATION_STEPS, corrected_model
-from blurtrack.detect.gyro.sessioncalib import PARAMETERS, difference, fit_session_calibration
+from blurtrack.detect.gyro.sessioncalib import (
+    CALIBRATION_STEPS,
+    PARAMETERS,
+    corrected_model,
+    difference,
+    fit_session_calibration,
+)
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
