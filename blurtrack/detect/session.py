@@ -198,6 +198,48 @@ def _continuity_cues(
         llrs[k][:, 2] = c
 
 
+def _corrected_model(
+    session: Any,
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    idx: list[int],
+    covered: list[int],
+    model: Any,
+    p: DetectParams,
+    workers: int,
+) -> tuple[Any, list[int], Any, Any]:
+    """The blur model the template pass, the cues and the check predict with, once the
+    time-shift scan found the shift of ``model``: its calibration corrected by the session's
+    error fitted to the first pass's quality_ok streaks (time offset and readout among it;
+    :mod:`blurtrack.detect.gyro.sessioncalib`), or where that is not fitted, its shift and
+    readout refined by the template pass's predicted curves (:mod:`blurtrack.detect.gyro.shiftfit`).
+    Returns the model, the frames it covers, the session fit and the template refinement
+    (None: not run)."""
+    from dataclasses import replace as with_calib
+
+    session_fit = refined = None
+    if p.gyro_pass.session_calibration and covered:
+        from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
+
+        session_fit = fit_session_calibration(found, timings, covered, model)
+        if session_fit.status == "fitted":
+            model = with_calib(model, calib=session_fit.calib)
+            covered = _covered(found, timings, model)
+    if p.gyro_template and covered and not (session_fit and session_fit.status == "fitted"):
+        from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
+
+        refined = refine_by_templates(
+            lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers
+        )
+        if refined.status == "refined":
+            calib = model.calib.with_(
+                timeshift_cam_imu_s=refined.timeshift_s, readout_s=refined.readout_s
+            )
+            model = with_calib(model, calib=calib)
+            covered = _covered(found, timings, model)
+    return model, covered, session_fit, refined
+
+
 def detect_session(
     session: Any,
     params: DetectParams | None = None,
@@ -307,32 +349,11 @@ def _detect_session(
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = _covered(found, timings, model)
-        if found_shift and p.gyro_pass.session_calibration and covered:
-            # The session's calibration error (time offset and readout among it) from the
-            # first pass's quality_ok streaks: the template pass, the cues and the check
-            # predict with the corrected model.
-            from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
-
-            session_fit = fit_session_calibration(found, timings, covered, model)
-            if session_fit.status == "fitted":
-                calib = session_fit.calib
-                model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
-                covered = _covered(found, timings, model)
-        fitted = session_fit is not None and session_fit.status == "fitted"
-        if found_shift and p.gyro_template and covered and not fitted:
-            # Without the session's fit, the template pass's frames: the shift and readout
-            # their predicted curves explain best.
-            from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
-
-            refined = refine_by_templates(
-                lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers
+        if found_shift:
+            model, covered, session_fit, refined = _corrected_model(
+                session, found, timings, idx, covered, model, p, workers
             )
-            if refined.status == "refined":
-                calib = calib.with_(
-                    timeshift_cam_imu_s=refined.timeshift_s, readout_s=refined.readout_s
-                )
-                model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
-                covered = _covered(found, timings, model)
+        fitted = session_fit is not None and session_fit.status == "fitted"
         for k in sorted(set(range(len(found))) - set(covered)):
             if len(found[k]) == 0:
                 continue
