@@ -16,6 +16,7 @@ from blurtrack.detect.forkmap import fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
+from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
     CueErrors,
@@ -118,22 +119,6 @@ def _shift_status(model: Any, shift: Any, searched: bool) -> str:
     return "too few streaks" if shift is None else str(shift.status)
 
 
-def _covered(found: list[FrameStreaks], timings: list[FrameTiming], model: Any) -> list[int]:
-    """Positions of the frames with streaks whose exposure ``model``'s gyro covers."""
-    return [
-        k
-        for k, (fs, tm) in enumerate(zip(found, timings, strict=True))
-        if len(fs) and _covers(model, tm)
-    ]
-
-
-def _covers(model: Any, tm: FrameTiming) -> bool:
-    """Whether the model's gyro covers a frame's exposure (all rows, camera clock)."""
-    shift = float(model.calib.timeshift_cam_imu_s)
-    t0 = tm.t_s + shift
-    return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
-
-
 def _recomputed_where_changed(
     cues: list[np.ndarray | None],
     before: list[FrameStreaks],
@@ -196,48 +181,6 @@ def _continuity_cues(
     tentative = [combine(llr).swap for llr in llrs]
     for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, max_llr=max_llr)):
         llrs[k][:, 2] = c
-
-
-def _corrected_model(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    idx: list[int],
-    covered: list[int],
-    model: Any,
-    p: DetectParams,
-    workers: int,
-) -> tuple[Any, list[int], Any, Any]:
-    """The blur model the template pass, the cues and the check predict with, once the
-    time-shift scan found the shift of ``model``: its calibration corrected by the session's
-    error fitted to the first pass's quality_ok streaks (time offset and readout among it;
-    :mod:`blurtrack.detect.gyro.sessioncalib`), or where that is not fitted, its shift and
-    readout refined by the template pass's predicted curves (:mod:`blurtrack.detect.gyro.shiftfit`).
-    Returns the model, the frames it covers, the session fit and the template refinement
-    (None: not run)."""
-    from dataclasses import replace as with_calib
-
-    session_fit = refined = None
-    if p.gyro_pass.session_calibration and covered:
-        from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
-
-        session_fit = fit_session_calibration(found, timings, covered, model)
-        if session_fit.status == "fitted":
-            model = with_calib(model, calib=session_fit.calib)
-            covered = _covered(found, timings, model)
-    if p.gyro_template and covered and not (session_fit and session_fit.status == "fitted"):
-        from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
-
-        refined = refine_by_templates(
-            lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers
-        )
-        if refined.status == "refined":
-            calib = model.calib.with_(
-                timeshift_cam_imu_s=refined.timeshift_s, readout_s=refined.readout_s
-            )
-            model = with_calib(model, calib=calib)
-            covered = _covered(found, timings, model)
-    return model, covered, session_fit, refined
 
 
 def detect_session(
@@ -348,9 +291,9 @@ def _detect_session(
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
-        covered = _covered(found, timings, model)
+        covered = covered_frames(found, timings, model)
         if found_shift:
-            model, covered, session_fit, refined = _corrected_model(
+            model, covered, session_fit, refined = session_model(
                 session, found, timings, idx, covered, model, p, workers
             )
         fitted = session_fit is not None and session_fit.status == "fitted"
