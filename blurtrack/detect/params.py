@@ -59,6 +59,11 @@ class SourceParams:
       session's fitted first-order calibration error) by three quarters of it (an end ``e``
       px off moves the vector ``e``); the predicted start or end may lie inside the path's
       extremities (a hairpin: the visible ends are the turns) by the quarter left.
+    - ``gyro_confirm_tol_px`` (with a gyro): a streak the image doubts (a lit end, a blown-out
+      core, a shape off the consensus, a crossing) is confirmed only where its vector is this
+      near the prediction. The vector bounds the doubted end's error only up to the other
+      end's own error, so that end's typical error (the median of plain ends, 0.25 px:
+      docs/detection.md) comes off the vector's share: ``gyro_vector_tol_px`` - 0.25.
     """
 
     point_width_ratio: float = 1.5
@@ -68,6 +73,7 @@ class SourceParams:
     end_light_max: float = 0.2
     gyro_vector_tol_px: float = 1.5
     hairpin_depth_px: float = 0.5
+    gyro_confirm_tol_px: float = 1.25
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -80,6 +86,10 @@ class SourceParams:
             )
         if not self.point_fill <= self.extended_fill:
             raise ConfigError("detect source.point_fill must not exceed extended_fill")
+        if not self.gyro_confirm_tol_px <= self.gyro_vector_tol_px:
+            raise ConfigError(
+                "detect source.gyro_confirm_tol_px must not exceed gyro_vector_tol_px"
+            )
 
 
 @dataclass(frozen=True)

@@ -193,17 +193,18 @@ def apply_check(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``fs.quality``'s ``quality_ok`` and ``reason`` after the check: the ``quality_ok``
     streaks that fail it demoted (``hairpin`` first, then ``gyro_mismatch``), the streaks
-    with exactly one image doubt (:attr:`~blurtrack.detect.frame.FrameStreaks.one_doubt`: a
-    crossing, one lit end, a blown-out core or a shape off the consensus) that pass it
-    confirmed (``ok``: the gyro measured the start-to-end vector the image doubted); other
-    streaks keep their image reason."""
+    with one image doubt (:attr:`~blurtrack.detect.frame.FrameStreaks.one_doubt`: one lit
+    end, a blown-out core or a shape off the consensus, with or without a crossing; or a
+    crossing alone) whose vector is within ``p.gyro_confirm_tol_px`` and whose path does not
+    turn beyond an end confirmed (``ok``: the gyro measured the start-to-end vector the image
+    doubted); other streaks keep their image reason."""
     assert fs.quality is not None
     ok = np.asarray(fs.quality[2], bool).copy()
     reason = np.asarray(fs.quality[4], object).copy()
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
     single = fs.one_doubt if len(fs.one_doubt) == len(fs) else np.zeros(len(fs), bool)
     with np.errstate(invalid="ignore"):  # NaN: not checked (neither off nor confirmed)
-        fits = check.residual <= p.gyro_vector_tol_px
+        fits = check.residual <= p.gyro_confirm_tol_px
         off = ok & (check.residual > p.gyro_vector_tol_px)
         turns = (check.depth > p.hairpin_depth_px) & ~along
     deep = ok & turns

@@ -361,7 +361,9 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
     detect_session(load_session(session_folder), workers=1)
     found, timings, covered, model, p = inputs[0]
     # Tolerances that this session's streaks fail in part: the check has something to do.
-    p = dataclasses.replace(p, gyro_vector_tol_px=0.05, hairpin_depth_px=0.01)
+    p = dataclasses.replace(
+        p, gyro_vector_tol_px=0.05, gyro_confirm_tol_px=0.05, hairpin_depth_px=0.01
+    )
     monkeypatch.setattr(gyrotrust, "BATCH_STREAKS", 25)
     frames = [found[k] for k in covered]
     assert len(gyrotrust._batches(frames)) >= 4
@@ -423,7 +425,9 @@ def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
     for k, c in known.items():
         assert c.shape == (int(np.sum(~found[k].flags["clipped"])), gyrotrust.PATH_SAMPLES, 2)
     # Tolerances that this session's streaks fail in part: the check has something to do.
-    p = dataclasses.replace(p, gyro_vector_tol_px=0.05, hairpin_depth_px=0.01)
+    p = dataclasses.replace(
+        p, gyro_vector_tol_px=0.05, gyro_confirm_tol_px=0.05, hairpin_depth_px=0.01
+    )
     out = {}
     for name, given in (("own", None), ("known", known)):
         fr = copy.deepcopy(found)
@@ -522,7 +526,9 @@ def test_a_session_fitted_model_is_tested_as_it_is(
 
     monkeypatch.setattr(gyrotrust, "session_fit", no_fit)
     tol = 0.3  # that this session's streaks fail in part
-    p = dataclasses.replace(p, gyro_vector_tol_px=tol, hairpin_depth_px=1e3)
+    p = dataclasses.replace(
+        p, gyro_vector_tol_px=tol, gyro_confirm_tol_px=tol, hairpin_depth_px=1e3
+    )
     fr = copy.deepcopy(found)
     gyrotrust.check_frames(fr, timings, covered, model, p, 1, None, None, fitted=True)
     demoted = 0

@@ -160,5 +160,12 @@ def test_one_doubt_counts_each_doubt_of_an_eligible_streak() -> None:
     eligible = np.array([True, True, True, True, False])
     crossing = np.array([True, False, True, False, True])
     lit = np.array([False, True, True, False, False])
-    assert one_doubt(eligible, [crossing, lit]).tolist() == [True, True, False, False, False]
-    assert not one_doubt(eligible, [np.zeros(5, bool)]).any()  # no doubt: nothing to lift
+    thick = np.array([False, False, True, False, False])
+    # 0: a crossing alone; 1: a lit end; 2: a crossing, a lit end and a blown-out core (two
+    # doubts besides the crossing); 3: none; 4: not eligible.
+    got = one_doubt(eligible, [lit, thick], crossing)
+    assert got.tolist() == [True, True, False, False, False]
+    # The crossing does not count against the one doubt: with it, a lit end stays one.
+    assert one_doubt(eligible, [lit], crossing).tolist() == [True, True, True, False, False]
+    no = np.zeros(5, bool)
+    assert not one_doubt(eligible, [no], no).any()  # no doubt: nothing to lift
