@@ -106,7 +106,10 @@ def test_ordered_pairs_are_checked() -> None:
         LinesParams(tail_fraction=0.3, lit_fraction=0.25)
     with pytest.raises(ConfigError, match="separation.reach_min_px must not exceed"):
         SeparationParams(reach_min_px=9)
+    with pytest.raises(ConfigError, match="source.gyro_confirm_tol_px must not exceed"):
+        SourceParams(gyro_confirm_tol_px=1.6)
     LinesParams(tail_fraction=0.25, lit_fraction=0.25)  # equal is fine
+    SourceParams(gyro_confirm_tol_px=1.5)
 
 
 def test_every_field_is_documented_in_its_section_and_in_the_docs() -> None:

@@ -408,3 +408,24 @@ def test_only_streaks_with_one_doubt_and_a_fitting_vector_are_confirmed() -> Non
     expect[[1, 2, 3, 4]] = False
     assert np.array_equal(ok, expect)
     assert set(reason[~expect]) == {"chained"} and set(reason[expect]) == {"ok"}
+
+
+def test_a_doubted_streak_is_confirmed_only_within_the_tighter_tolerance() -> None:
+    # Between gyro_confirm_tol_px and gyro_vector_tol_px: an image-ok streak stays ok, a
+    # doubted one stays refused (the vector bounds its doubted end only up to the other end's
+    # own error); within both, both are ok.
+    p = DetectParams().source
+    assert p.gyro_confirm_tol_px < p.gyro_vector_tol_px
+    fs, _, _, _, _ = _checked(1.0)
+    n = len(fs)
+    q = list(fs.quality)
+    q[2] = np.arange(n) % 2 == 0  # even: image-ok; odd: one doubt
+    q[4] = np.where(q[2], "ok", "chained").astype(object)
+    fs.quality = tuple(q)
+    fs.one_doubt = ~q[2]
+    between = 0.5 * (p.gyro_confirm_tol_px + p.gyro_vector_tol_px)
+    residual = np.where(np.arange(n) < n // 2, between, 0.5 * p.gyro_confirm_tol_px)
+    ok, reason = apply_check(fs, GyroCheck(residual, np.zeros(n)), p)
+    low = np.arange(n) >= n // 2
+    np.testing.assert_array_equal(ok, q[2] | low)
+    assert set(reason[~ok]) == {"chained"}
