@@ -127,18 +127,28 @@ def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.
     idx = np.flatnonzero(voters)
     sign = np.ones(len(v))
     d2 = np.sum((mid[idx][:, None] - mid[idx][None]) ** 2, axis=2)
+    # Prim's algorithm: ``best`` the distance of each voter outside the tree to it (inf
+    # inside), ``parent`` its nearest voter inside; the signs follow in the order grown.
     inside = np.zeros(idx.size, bool)
     inside[0] = True
     best = d2[0].copy()
+    best[0] = np.inf
     parent = np.zeros(idx.size, np.int64)
-    for _ in range(idx.size - 1):
-        k = int(np.argmin(np.where(inside, np.inf, best)))
+    grown = np.zeros(max(idx.size - 1, 0), np.int64)
+    for step in range(idx.size - 1):
+        k = int(np.argmin(best))
+        grown[step] = k
         inside[k] = True
-        j = idx[parent[k]]
-        sign[idx[k]] = -sign[j] if float(v[idx[k]] @ v[j]) < 0 else sign[j]
-        closer = d2[k] < best
+        closer = (d2[k] < best) & ~inside
         parent[closer] = k
-        best = np.minimum(best, d2[k])
+        np.minimum(best, d2[k], out=best)
+        best[inside] = np.inf
+    a, b = v[idx[grown]], v[idx[parent[grown]]]
+    flips = (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] < 0).tolist()
+    voter_sign = [1.0] * idx.size
+    for k, j, f in zip(grown.tolist(), parent[grown].tolist(), flips, strict=True):
+        voter_sign[k] = -voter_sign[j] if f else voter_sign[j]
+    sign[idx] = voter_sign
     rest = np.flatnonzero(~voters)
     if rest.size:
         j = idx[np.argmin(np.sum((mid[rest][:, None] - mid[idx][None]) ** 2, axis=2), axis=1)]
