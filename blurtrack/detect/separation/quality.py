@@ -23,8 +23,11 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
 - ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is
   ``point``, none of ``clipped``, ``merged``, ``crossing``, ``looped``, ``thick_saturated``,
   no neighbour's light just beyond an end, and a shape within
-  ``max(shape_tol_px, shape_tol_rel |c|)`` of the consensus (where it is known). A saturated
-  core alone does not disqualify: its ends are measured on the unclipped profile.
+  ``max(shape_tol_px, shape_tol_rel |c|)`` of the consensus. A frame without a consensus
+  (fewer than ``quality.min_reference`` clean point lights) has no ``quality_ok`` streak: no
+  other streak says that a line is a dot's blur rather than a highlight or a ridge of texture
+  (``ends_unsure``; the gyro, which predicts the shape, may confirm it). A saturated core
+  alone does not disqualify: its ends are measured on the unclipped profile.
 - ``reason``: why (the first that applies, in the order of :data:`REASONS`), ``ok`` when
   ``quality_ok``.
 
@@ -269,8 +272,11 @@ def _frame_quality(
     ok = point & ~(flagged | thick | lit_end | at_border)
     long_ = short_ = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
-    # dots' curve.
+    # dots' curve. Without one (fewer than ``q.min_reference`` clean point lights) no other
+    # streak of the frame says that a streak is a dot's blur, not a highlight or an edge.
     field = consensus_field(v, mid, point & ~(flagged | thick), q, resign=True)
+    unchecked = np.full(len(v), field is None)
+    ok &= ~unchecked
     if field is not None:
         dev = field.dev
         tol = shape_tolerance(field.c, q)
@@ -285,7 +291,7 @@ def _frame_quality(
     moments = np.ones(len(v), bool) if short is None else np.asarray(short, bool)
     single = ~ok & one_doubt(
         point & ~(at_border | flags["looped"] | flags["merged"] | short_),
-        [*lit.T, *(lit & moments[:, None]).T, thick, bent],
+        [*lit.T, *(lit & moments[:, None]).T, thick, bent, unchecked],
         flags["crossing"],
     )
     reason = np.full(len(v), "ends_unsure", object)
