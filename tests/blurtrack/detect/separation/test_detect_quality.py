@@ -178,31 +178,3 @@ def test_one_doubt_counts_each_doubt_of_an_eligible_streak() -> None:
     assert one_doubt(eligible, [lit], crossing).tolist() == [True, True, True, False, False]
     no = np.zeros(5, bool)
     assert not one_doubt(eligible, [no], no).any()  # no doubt: nothing to lift
-
-
-def test_a_frame_without_consensus_leaves_one_doubt_for_the_gyro() -> None:
-    # Four clean point lights (one fewer than min_reference): none ok, each with one doubt
-    # (the shape nothing checks), which the gyro's vector may lift; a lit end makes two.
-    from blurtrack.detect.params import DetectParams
-    from blurtrack.detect.separation.quality import _frame_quality
-
-    n = 4
-    p = DetectParams()
-    assert n < p.quality.min_reference
-    flags = {k: np.zeros(n, bool) for k in ("clipped", "merged", "crossing", "looped", "saturated")}
-    light = np.zeros((n, 2))
-    light[3, 0] = 1.0
-    (dev, _, ok, _, reason), single = _frame_quality(
-        np.tile([30.0, 4.0], (n, 1)),
-        np.array([[50.0, 50.0], [150.0, 60.0], [250.0, 70.0], [350.0, 80.0]]),
-        flags,
-        np.full(n, 1.9),
-        np.full(n, "point", object),
-        light,
-        p.source,
-        p.quality,
-        np.zeros(n, bool),
-    )
-    assert np.isnan(dev).all() and not ok.any()
-    assert reason.tolist() == ["ends_unsure"] * 3 + ["chained"]
-    assert single.tolist() == [True, True, True, False]

@@ -1,5 +1,5 @@
-"""How a crossing counts among the doubts the gyro may lift (quality._frame_quality), on
-separated crossings of rendered frames."""
+"""The image doubts the gyro may lift (quality._frame_quality's ``single``): how a crossing
+counts, on separated crossings of rendered frames too, and a frame without a consensus."""
 
 from __future__ import annotations
 
@@ -11,10 +11,12 @@ from blurtrack.detect.separation.quality import _frame_quality, frame_quality
 from blurtrack.testing.streak_frames import quantise, render_streaks
 
 
-def _quality(crossing: np.ndarray, lit: np.ndarray) -> np.ndarray:
-    """``single`` of four streaks (``crossing (4,)``, ``lit (4, 2)``: light beyond each end)
-    among eight clean ones."""
-    n = 12
+def _quality(
+    crossing: np.ndarray, lit: np.ndarray, clean: int = 8
+) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+    """The quality columns and ``single`` of four streaks (``crossing (4,)``, ``lit (4, 2)``:
+    light beyond each end) among ``clean`` clean ones, the four first."""
+    n = 4 + clean
     rng = np.random.default_rng(0)
     v = np.tile([30.0, 4.0], (n, 1)) + rng.normal(0, 0.2, (n, 2))
     mid = rng.uniform(0, 400, (n, 2))
@@ -23,7 +25,7 @@ def _quality(crossing: np.ndarray, lit: np.ndarray) -> np.ndarray:
     light = np.zeros((n, 2))
     light[:4] = np.where(lit, 1.0, 0.0)
     p = DetectParams()
-    _, single = _frame_quality(
+    cols, single = _frame_quality(
         v,
         mid,
         flags,
@@ -34,17 +36,32 @@ def _quality(crossing: np.ndarray, lit: np.ndarray) -> np.ndarray:
         p.quality,
         np.zeros(n, bool),
     )
-    return single[:4]
+    return tuple(c[:4] for c in cols), single[:4]
 
 
 def test_a_crossing_does_not_count_against_the_one_doubt_the_gyro_lifts() -> None:
     lit = np.array([[True, False], [False, True], [True, True], [False, False]])
     # 0, 1: a crossing and one lit end: one doubt (the crossing's light runs across the
     # streak); 2: both ends lit: two, crossing or not; 3: a crossing alone: one.
-    assert _quality(np.ones(4, bool), lit).tolist() == [True, True, False, True]
+    assert _quality(np.ones(4, bool), lit)[1].tolist() == [True, True, False, True]
     # Negative control: without the crossing, the lit ends alone count the same, and a
     # streak with no doubt at all has nothing to lift.
-    assert _quality(np.zeros(4, bool), lit).tolist() == [True, True, False, False]
+    assert _quality(np.zeros(4, bool), lit)[1].tolist() == [True, True, False, False]
+
+
+def test_a_frame_without_consensus_leaves_one_doubt_for_the_gyro() -> None:
+    # Four point lights (one fewer than min_reference clean ones): none ok, each with one
+    # doubt (the shape nothing checks), which the gyro's vector may lift; a lit end makes two.
+    assert DetectParams().quality.min_reference > 4
+    lit = np.array([[False, False], [False, False], [False, False], [True, False]])
+    (dev, _, ok, _, reason), single = _quality(np.zeros(4, bool), lit, clean=0)
+    assert np.isnan(dev).all() and not ok.any()
+    assert reason.tolist() == ["ends_unsure"] * 3 + ["chained"]
+    assert single.tolist() == [True, True, True, False]
+    # Negative control: with the clean streaks, the consensus exists and the three are ok.
+    (dev, _, ok, _, _), single = _quality(np.zeros(4, bool), lit)
+    assert np.isfinite(dev).all() and ok.tolist() == [True, True, True, False]
+    assert single.tolist() == [False, False, False, True]
 
 
 def _arc(x0: float, y0: float) -> np.ndarray:
