@@ -61,8 +61,8 @@ class FrameStreaks:
     #: ``(N,)`` the streaks the gyro-template pass measured along its predicted curve (a
     #: hairpin as its two arms); empty: none (:mod:`blurtrack.detect.gyro.gyrotrust`).
     along_curve: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    #: ``(N,)`` the streaks not ``quality_ok`` against which the image has exactly one doubt
-    #: (:func:`blurtrack.detect.separation.quality.one_doubt`), set with ``quality``; the
+    #: ``(N,)`` the streaks not ``quality_ok`` against which the image has one doubt the gyro
+    #: may lift (:func:`blurtrack.detect.separation.quality.one_doubt`), set with ``quality``; the
     #: gyro's check confirms them where it measures their start-to-end vector right.
     one_doubt: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
