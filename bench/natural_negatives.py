@@ -40,9 +40,14 @@ def dimmed(img: np.ndarray, seed: int) -> np.ndarray:
     return np.clip(np.round(x), 0, 255).astype(np.uint8)
 
 
-def measure(img: np.ndarray) -> dict[str, Any]:
+def frame_table(img: np.ndarray):  # type: ignore[no-untyped-def]
+    """The streak table of one image, image evidence only (no gyro)."""
     fs = detect_frame(img)
-    table = build_table([frame_rows(0, 0, fs, combine(np.zeros((len(fs), 3))))])
+    return build_table([frame_rows(0, 0, fs, combine(np.zeros((len(fs), 3))))])
+
+
+def measure(img: np.ndarray) -> dict[str, Any]:
+    table = frame_table(img)
     return {
         "streaks": len(table),
         "quality_ok": int(table.quality_ok.sum()) if len(table) else 0,

@@ -15,19 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections import Counter
 from pathlib import Path
 
 import cv2
 import numpy as np
+from natural_negatives import frame_table  # bench/ is on the path (the script's folder)
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from blurtrack.detect import detect_frame  # noqa: E402
-from blurtrack.detect.orientation import combine  # noqa: E402
-from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real"
 #: Each recording's frames, relative to :data:`DATA`.
@@ -38,13 +33,11 @@ RECORDINGS = {
 }
 
 
-def frame_table(path: Path):  # type: ignore[no-untyped-def]
-    """The streak table of one frame, image evidence only (no gyro)."""
+def image(path: Path) -> np.ndarray:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise SystemExit(f"cannot read {path}")
-    fs = detect_frame(img)
-    return build_table([frame_rows(0, 0, fs, combine(np.zeros((len(fs), 3))))])
+    return img
 
 
 def recording(name: str, every: int) -> dict:
@@ -53,7 +46,7 @@ def recording(name: str, every: int) -> dict:
     reason: Counter[str] = Counter()
     n = ok = 0
     for f in files:
-        t = frame_table(f)
+        t = frame_table(image(f))
         n += len(t)
         ok += int(t.quality_ok.sum())
         source.update(t.source.tolist())

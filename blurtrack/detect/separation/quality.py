@@ -250,7 +250,7 @@ def _frame_quality(
     """The :data:`QUALITY_COLUMNS` of one frame's streaks from their start-to-end vectors,
     time midpoints, flags (``clipped``, ``saturated``, ``merged``, ``crossing``,
     ``looped``), widths, sources and end light, and ``(N,)`` which streaks not
-    ``quality_ok`` have exactly one doubt (:func:`one_doubt`). ``short``: ``(N,)`` the
+    ``quality_ok`` have one doubt the gyro may lift (:func:`one_doubt`). ``short``: ``(N,)`` the
     streaks whose ends came from the profile's moments, not an edge fit each
     (:class:`~blurtrack.detect.lines.endpoints.EdgeFit`); None: all of them."""
     sat = flags["saturated"]
