@@ -32,8 +32,22 @@ _M_TOP_PAD = -2
 WORKER_TOP_PAD = 64 << 20
 
 
-def _call(item: Any) -> Any:
-    return _WORKER_STATE["fn"](item)
+def _call(task: tuple[bool, Any]) -> Any:
+    is_job, what = task
+    return _WORKER_STATE["jobs"][what]() if is_job else _WORKER_STATE["fn"](what)
+
+
+class Jobs:
+    """Side work for a :func:`fork_map`'s pool: functions of no argument (closures too, as the
+    mapped function) computed in the workers before the items, a core's worth of this process's
+    work that would otherwise hold up the map (the cues of the frames while the template pass
+    gates them); ``results``, in their order, once the map has yielded its first item (or
+    ended). Without workers they run in this process, after ``meanwhile``: the same values.
+    """
+
+    def __init__(self, fns: Iterable[Callable[[], Any]]) -> None:
+        self.fns: list[Callable[[], Any]] = list(fns)
+        self.results: list[Any] = []
 
 
 def _worker_start() -> None:
@@ -109,32 +123,41 @@ def fork_map(
     workers: int,
     chunk: int = 1,
     meanwhile: Callable[[], None] | None = None,
+    jobs: Jobs | None = None,
 ) -> Iterator[R]:
     """``fn(item)`` for every item, in order, computed in ``workers`` forked processes.
 
     ``chunk``: items a worker takes at a time (larger for many cheap items). ``meanwhile``:
     work of this process that does not need the results, run while the workers compute
-    (before the first item without workers). One map at a time (the state is module-level).
+    (before the first item without workers). ``jobs``: side work computed in the pool ahead
+    of the items (:class:`Jobs`). One map at a time (the state is module-level).
     """
     if workers < 1:
         raise DetectionError(f"workers must be >= 1, got {workers}")
-    n = min(workers, len(items))
+    side = jobs.fns if jobs is not None else []
+    n = min(workers, len(items) + len(side))
     if n <= 1 or not can_fork():
         if meanwhile is not None:
             meanwhile()
+        if jobs is not None:
+            jobs.results = [job() for job in side]
         for item in items:
             yield fn(item)
         return
     if _WORKER_STATE:
         raise DetectionError("fork_map: another map is already running in this process")
     _WORKER_STATE["fn"] = fn
+    _WORKER_STATE["jobs"] = side
     try:
         ctx = mp.get_context("fork")
         init = worker_initializer(_worker_start)  # workers end when this process dies
+        tasks = [(True, j) for j in range(len(side))] + [(False, item) for item in items]
         with ProcessPoolExecutor(n, mp_context=ctx, initializer=init) as pool:
-            results = pool.map(_call, items, chunksize=chunk)  # submits every item (forks)
+            results = pool.map(_call, tasks, chunksize=chunk)  # submits every task (forks)
             if meanwhile is not None:
                 meanwhile()
+            if jobs is not None:
+                jobs.results = [next(results) for _ in side]
             yield from results
     finally:
         _WORKER_STATE.clear()

@@ -107,17 +107,34 @@ def gyro_cues_batch(
     :data:`GYRO_BATCH_STREAKS` at a time. Every frame must be covered by the gyro.
     """
     out = [np.zeros((len(fs), 2)) for fs in frames]
-    groups = batch_positions(
-        ((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), GYRO_BATCH_STREAKS
-    )
-    for g in groups:
-        llr = _gyro_cues_flat(
-            [frames[j] for j in g], [timings[j] for j in g], model, errors or CueErrors()
-        )
-        ends = np.cumsum([len(frames[j]) for j in g])[:-1]
-        for j, part in zip(g, np.split(llr, ends), strict=True):
+    for g in gyro_cue_batches(frames):
+        for j, part in zip(g, gyro_cues_of_batch(frames, timings, g, model, errors), strict=True):
             out[j] = part
     return out
+
+
+def gyro_cue_batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
+    """The positions in ``frames`` of :func:`gyro_cues_batch`'s model calls, in order (the
+    frames with streaks, at most :data:`GYRO_BATCH_STREAKS` streaks a batch)."""
+    return batch_positions(
+        ((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), GYRO_BATCH_STREAKS
+    )
+
+
+def gyro_cues_of_batch(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    batch: Sequence[int],
+    model: object,
+    errors: CueErrors | None = None,
+) -> list[np.ndarray]:
+    """The ``(N, 2)`` cues of the frames at the positions ``batch`` (one of
+    :func:`gyro_cue_batches`), in one model call: batch by batch, :func:`gyro_cues_batch`'s very
+    numbers (so that the batches may be computed in several processes)."""
+    llr = _gyro_cues_flat(
+        [frames[j] for j in batch], [timings[j] for j in batch], model, errors or CueErrors()
+    )
+    return np.split(llr, np.cumsum([len(frames[j]) for j in batch])[:-1])
 
 
 def _gyro_cues_flat(

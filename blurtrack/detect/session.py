@@ -6,13 +6,14 @@ import contextlib
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.forkmap import fork_map, one_blas_thread
+from blurtrack.detect.forkmap import Jobs, fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
@@ -24,8 +25,10 @@ from blurtrack.detect.orientation import (
     combine,
     continuity_cues,
     cue_errors,
+    gyro_cue_batches,
     gyro_cues,
     gyro_cues_batch,
+    gyro_cues_of_batch,
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
@@ -166,6 +169,52 @@ def _gyro_llrs(
     return out
 
 
+def _cue_jobs(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> Jobs:
+    """:func:`_gyro_llrs`'s batched model calls as side jobs of a worker pool
+    (:class:`~blurtrack.detect.forkmap.Jobs`): each returns its batch's cues, or the
+    :class:`~blurtrack.errors.BlurTrackError` it met (:func:`_cues_of_jobs` decides)."""
+    sub, tim = [found[k] for k in covered], [timings[k] for k in covered]
+
+    def job(batch: list[int]) -> list[np.ndarray] | BlurTrackError:
+        try:
+            return gyro_cues_of_batch(sub, tim, batch, model, error_model)
+        except BlurTrackError as exc:
+            return exc
+
+    return Jobs(partial(job, b) for b in gyro_cue_batches(sub))
+
+
+def _cues_of_jobs(
+    jobs: Jobs,
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> list[np.ndarray | None] | None:
+    """The cues of the covered frames from :func:`_cue_jobs`'s results: :func:`_gyro_llrs`'s
+    very values (where the batches meet a coverage error first, frame by frame, as it does),
+    or None where it would have failed (left to be computed after the pass)."""
+    sub = [found[k] for k in covered]
+    out: list[np.ndarray | None] = [np.zeros((len(fs), 2)) for fs in sub]
+    for batch, got in zip(gyro_cue_batches(sub), jobs.results, strict=True):
+        if isinstance(got, CoverageError):
+            with contextlib.suppress(BlurTrackError):
+                return _gyro_llrs(found, timings, covered, model, error_model)
+            return None
+        if isinstance(got, BlurTrackError):
+            return None
+        for j, part in zip(batch, got, strict=True):
+            out[j] = part
+    return out
+
+
 def _continuity_cues(
     found: list[FrameStreaks],
     timings: list[FrameTiming],
@@ -268,12 +317,14 @@ def _detect_session(
     gyro_checked = 0
     ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
-    continued: list[bool] = []
+    continuity: Jobs | None = None  # where the check's workers compute it
 
-    def continuity() -> None:
-        # (Of the final frames and gyro cues: ``llrs`` as bound when called.)
-        _continuity_cues(found, timings, llrs, p.orientation.max_cue_llr)
-        continued.append(True)
+    def continuity_columns() -> list[np.ndarray]:
+        # Of the final frames and gyro cues (``llrs`` as bound when called), on a copy: it
+        # may run in a worker.
+        cols = [llr.copy() for llr in llrs]
+        _continuity_cues(found, timings, cols, p.orientation.max_cue_llr)
+        return [c[:, 2] for c in cols]
 
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
@@ -306,27 +357,23 @@ def _detect_session(
         cues: list[np.ndarray | None] | None = None
         if p.gyro_template and covered:
             # Second pass: the gyro's predicted shape as the template (hairpin frames).
+            # The gyro cues of the first-pass frames, batch by batch in the pass's workers
+            # ahead of its frames (with one worker: before the pass, so that the table does
+            # not depend on the count); after the pass only the frames it changed are
+            # computed again.
             first = list(found)
-            early: list[list[np.ndarray | None]] = []
-
-            def cues_meanwhile() -> None:
-                # The gyro cues of the first-pass frames, while the workers refine (with one
-                # worker: before the pass, so that the table does not depend on the count);
-                # after the pass only the frames it changed are computed again. (A failure
-                # here leaves them all to be computed below, after the pass.)
-                with contextlib.suppress(BlurTrackError):
-                    early.append(_gyro_llrs(first, timings, covered, model, error_model))
-
+            early = _cue_jobs(first, timings, covered, model, error_model)
             # Where the session's calibration was corrected, the curves are the dots': no
             # rotations and scales to search (the search stands in for a nominal calibration).
             p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
             template_pass = refine_frames(
-                session, found, timings, idx, covered, model, p_pass, workers, cues_meanwhile
+                session, found, timings, idx, covered, model, p_pass, workers, early
             )
             llrs = [np.zeros((len(fs), 3)) for fs in found]
-            if early:
+            got = _cues_of_jobs(early, first, timings, covered, model, error_model)
+            if got is not None:
                 cues = _recomputed_where_changed(
-                    early[0], first, found, timings, covered, model, error_model
+                    got, first, found, timings, covered, model, error_model
                 )
         if cues is None:
             cues = _gyro_llrs(found, timings, covered, model, error_model)
@@ -341,12 +388,13 @@ def _detect_session(
         if found_shift:
             # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
             # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing);
-            # its predictions in the workers, the continuity cues here meanwhile (the check
-            # changes only the frames' quality, which continuity does not read).
+            # its predictions and the continuity cues in the workers, its fit here meanwhile
+            # (the check changes only the frames' quality, which continuity does not read).
             image_ok = _count_ok(found)
             # Where the session's calibration was fitted and the template pass changed no
             # frame, the model is already fitted over the very streaks the check would fit.
             unchanged = not template_pass.frames.get("refined")
+            continuity = Jobs([continuity_columns])
             gyro_checked = check_frames(
                 found,
                 timings,
@@ -354,13 +402,15 @@ def _detect_session(
                 model,
                 p.source,
                 workers,
-                continuity,
+                None,
                 template_pass.curves,
                 fitted=fitted and unchanged,
+                jobs=continuity,
             )
             ok_change = _count_ok(found) - image_ok
-    if not continued:
-        continuity()
+    columns = continuity.results[0] if continuity is not None else continuity_columns()
+    for llr, col in zip(llrs, columns, strict=True):
+        llr[:, 2] = col
     parts = []
     stamps = session.frames["timestamp_ns"].to_numpy(np.int64)
     sources: dict[str, int] = {}

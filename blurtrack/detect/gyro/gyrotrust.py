@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.forkmap import batch_positions, fork_map
+from blurtrack.detect.forkmap import Jobs, batch_positions, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.sessioncalib import (
@@ -314,6 +314,7 @@ def check_frames(
     meanwhile: Callable[[], None] | None = None,
     known: Mapping[int, np.ndarray] | None = None,
     fitted: bool = False,
+    jobs: Jobs | None = None,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
@@ -333,7 +334,9 @@ def check_frames(
     :attr:`blurtrack.detect.gyro.refinepass.TemplatePass.curves`): only its other streaks
     are predicted here. ``fitted``: ``model`` is already corrected by the session's error
     fitted over these very streaks (:mod:`blurtrack.detect.gyro.sessioncalib`, no frame
-    changed since): the vectors are tested against its own predictions, with no fit again."""
+    changed since): the vectors are tested against its own predictions, with no fit again.
+    ``jobs``: side work computed in the same workers ahead of the batches
+    (:class:`~blurtrack.detect.forkmap.Jobs`)."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
@@ -367,7 +370,7 @@ def check_frames(
     main: list[tuple[np.ndarray, np.ndarray | None] | None] = [None] * len(sub)
     for b, got in zip(
         range(len(groups)),
-        fork_map(one, range(len(groups)), workers, 1, fit_meanwhile),
+        fork_map(one, range(len(groups)), workers, 1, fit_meanwhile, jobs),
         strict=True,
     ):
         for k, v in zip(groups[b], got, strict=True):

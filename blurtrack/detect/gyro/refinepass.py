@@ -8,14 +8,14 @@ exactly the result of one process.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.forkmap import fork_map
+from blurtrack.detect.forkmap import Jobs, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyropass import FrameOutcome, refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -50,13 +50,14 @@ def refine_frames(
     model: Any,
     params: DetectParams,
     workers: int = 1,
-    meanwhile: Callable[[], None] | None = None,
+    jobs: Jobs | None = None,
 ) -> TemplatePass:
     """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
     is updated in place; ``idx`` their frame indices, the images re-read from ``session``
     only for the frames the gate lets through), in ``workers`` forked processes (the same
-    result as in one). ``meanwhile``: work of this process run while the workers refine,
-    before ``found`` changes (before the first frame without workers)."""
+    result as in one). ``jobs``: side work on the frames as they were (the first pass's
+    cues), computed in the same workers ahead of the frames (before any frame without
+    workers; :class:`~blurtrack.detect.forkmap.Jobs`)."""
     out = TemplatePass()
     # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
     # (measured on lines down the middle of both arms) is too wide. The session's median.
@@ -75,7 +76,7 @@ def refine_frames(
         out.quality, out.one_doubt = frame_quality(out, params)
         return out, what, None
 
-    results = fork_map(one, covered, workers, 1, meanwhile)
+    results = fork_map(one, covered, workers, 1, None, jobs)
     for k, (changed, what, curves) in zip(covered, results, strict=True):
         if changed is not None:
             found[k] = changed

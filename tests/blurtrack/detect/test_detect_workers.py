@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -10,7 +11,7 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.detect.session import detect_session
-from blurtrack.errors import DetectionError
+from blurtrack.errors import CoverageError, DetectionError
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
 
@@ -259,63 +260,159 @@ def test_fork_map_keeps_order_and_runs_closures() -> None:
     assert not forkmap._WORKER_STATE
 
 
-def _count_cue_calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[int], list, tuple]]:
+def test_fork_map_runs_side_jobs_in_the_pool_ahead_of_the_items() -> None:
+    import os
+
+    from blurtrack.detect import forkmap
+
+    here = os.getpid()
+    base = [3, 4]  # closures over this process's state, as the mapped function
+    for workers in (1, 2, 3):
+        for n_items in (0, 1, 5):
+            jobs = forkmap.Jobs(
+                [lambda: (sum(base), os.getpid()), lambda: (base[0] * base[1], os.getpid())]
+            )
+            got = list(
+                forkmap.fork_map(lambda i: i * i, list(range(n_items)), workers, 1, None, jobs)
+            )
+            assert got == [i * i for i in range(n_items)]
+            assert [r[0] for r in jobs.results] == [7, 12]
+            # computed by the workers where there are any, here otherwise
+            in_here = [r[1] == here for r in jobs.results]
+            assert all(in_here) if workers == 1 else not any(in_here)
+    # the results are there once the first item is
+    jobs = forkmap.Jobs([lambda: "a", lambda: "b"])
+    it = forkmap.fork_map(lambda i: i, [0, 1], 2, 1, None, jobs)
+    assert jobs.results == []
+    assert next(it) == 0 and jobs.results == ["a", "b"]
+    assert list(it) == [1]
+    assert not forkmap._WORKER_STATE
+
+
+def _count_cue_calls(
+    monkeypatch: pytest.MonkeyPatch,
+) -> tuple[list[tuple[list[int], list, tuple]], list[tuple[Any, tuple, list]]]:
     """Record the ids of the frame objects computed, the result and the arguments of every
-    gyro-cue call in this process."""
+    gyro-cue call in this process; and the first pass's cue jobs with their arguments and
+    the cues of one call on them."""
     from blurtrack.detect import session as detect_session_module
 
     calls: list[tuple[list[int], list, tuple]] = []
+    jobs: list[tuple[Any, tuple, list]] = []
     real = detect_session_module._gyro_llrs
+    real_jobs = detect_session_module._cue_jobs
 
     def spy(found, timings, covered, *a, **k):
         out = real(found, timings, covered, *a, **k)
         calls.append(([id(found[j]) for j in covered], out, (found, timings, covered, *a)))
         return out
 
+    def spy_jobs(*a):
+        # (with the cues of one batched call of these frames as they are now: the session
+        # turns some of their streaks round at the end)
+        out = real_jobs(*a)
+        jobs.append((out, a, real(*a)))
+        return out
+
     monkeypatch.setattr(detect_session_module, "_gyro_llrs", spy)
-    return calls
+    monkeypatch.setattr(detect_session_module, "_cue_jobs", spy_jobs)
+    return calls, jobs
 
 
 def test_gyro_cues_computed_while_the_template_pass_runs(
     session_folder: Path, hairpin_session, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The gyro cues of the first pass are computed while the workers run the template pass
-    (with one worker: before it); afterwards only the frames the pass replaced are computed
-    again: the same table as one process both where nothing and where every frame changed."""
+    """The gyro cues of the first pass are computed batch by batch by the template pass's
+    workers, ahead of its frames (with one worker: here, before it); afterwards only the
+    frames the pass replaced are computed again: the same table as one process both where
+    nothing and where every frame changed."""
     from blurtrack.detect.session import _gyro_llrs as real_llrs
 
     session = load_session(session_folder)
     one = detect_session(session, workers=1)
-    calls = _count_cue_calls(monkeypatch)
+    calls, jobs = _count_cue_calls(monkeypatch)
     two = detect_session(session, workers=2)
     assert two.summary["gyro_template_frames"] == {"skipped": 5}
-    assert len(calls) == 1  # computed once, during the pass, and kept
+    assert calls == []  # none here: all from the workers' jobs, and kept
     pd.testing.assert_frame_equal(one.table, two.table, check_exact=True)
+    # The jobs' results are the cues of one batched call in this process, batch by batch.
+    (job, args, want), *_ = jobs
+    got = [part for batch in job.results for part in batch]
+    assert len(got) == len(want) == len(args[2])
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, w)
     # A frame's cues depend on that frame alone: a subset's are the whole batch's rows.
-    found, timings, covered, *rest = calls[0][2]
+    found, timings, covered, *rest = args
+    whole = real_llrs(found, timings, covered, *rest)
     part = real_llrs(found, timings, covered[1:3], *rest)
-    for got, want in zip(part, calls[0][1][1:3], strict=True):
-        np.testing.assert_array_equal(got, want)
+    for g, w in zip(part, whole[1:3], strict=True):
+        np.testing.assert_array_equal(g, w)
     # Frames the pass changes: those (and only those) computed again, as in one process.
     kw = dict(gyro="on", refine_timeshift=False)
     calls.clear()
+    jobs.clear()
     two = detect_session(hairpin_session, workers=2, **kw)
     assert two.summary["gyro_template_frames"] == {"refined": 4}
-    assert len(calls) == 2 and not set(calls[0][0]) & set(calls[1][0])
-    assert len(calls[1][0]) == 4
+    assert len(calls) == 1 and len(calls[0][0]) == 4
+    first = [part for batch in jobs[0][0].results for part in batch]
+    assert len(first) == 4
     # Negative control: the first pass's cues are not those of the refined frames.
     assert any(
         a is None or b is None or a.shape != b.shape or not np.array_equal(a, b)
-        for a, b in zip(calls[0][1], calls[1][1], strict=True)
+        for a, b in zip(first, calls[0][1], strict=True)
     )
     calls.clear()
     ref = detect_session(hairpin_session, workers=1, **kw)
-    assert len(calls) == 2 and len(calls[1][0]) == 4  # one worker: the same two calls
+    assert len(calls) == 1 and len(calls[0][0]) == 4  # one worker: the same call
     pd.testing.assert_frame_equal(ref.table, two.table, check_exact=True)
 
 
+def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch that meets a coverage error: every frame computed on its own (a frame the
+    gyro does not cover gets None), as :func:`_gyro_llrs` does; another detection error:
+    nothing (computed after the pass); otherwise the batches' cues in order."""
+    from blurtrack.detect import forkmap
+    from blurtrack.detect import session as m
+
+    frames: list[Any] = [[0.0] * 2, [], [0.0] * 3]
+    covered = [0, 1, 2]
+    batches = [[0], [2]]  # the frame without streaks is in no batch
+    monkeypatch.setattr(m, "gyro_cue_batches", lambda sub: batches)
+
+    def results(*rs: Any) -> forkmap.Jobs:
+        jobs = forkmap.Jobs([])
+        jobs.results = list(rs)
+        return jobs
+
+    ok = [[np.ones((2, 2))], [np.full((3, 2), 2.0)]]
+    got = m._cues_of_jobs(results(*ok), frames, [], covered, None, None)
+    assert [g.tolist() for g in got] == [[[1, 1]] * 2, [], [[2, 2]] * 3]
+    assert got[1].shape == (0, 2)
+    seen: list[list[int]] = []
+
+    def by_frame(found, timings, cov, model, errors):
+        seen.append(list(cov))
+        return [None, np.zeros((0, 2)), np.zeros((3, 2))]
+
+    monkeypatch.setattr(m, "_gyro_llrs", by_frame)
+    got = m._cues_of_jobs(results(ok[0], CoverageError("x")), frames, [], covered, None, None)
+    assert seen == [covered] and got[0] is None
+    assert (
+        m._cues_of_jobs(results(DetectionError("y"), ok[1]), frames, [], covered, None, None)
+        is None
+    )
+    # the first failure decides, in order: as the batches of one call meet them
+    seen.clear()
+    assert (
+        m._cues_of_jobs(
+            results(DetectionError("y"), CoverageError("x")), frames, [], covered, None, None
+        )
+        is None
+    )
+    assert seen == []
+
+
 def test_recomputed_where_changed_keeps_the_rest() -> None:
-    from typing import Any
 
     from blurtrack.detect import session as m
 
