@@ -111,7 +111,6 @@ def _robust_affine(
     """Affine field from ``start``, refitted over rounds that keep the ``voters`` within 3x
     the median residual; returns the coefficients and the voters of the last round."""
     use = start.copy()
-    coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
     for _ in range(5):
         coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
         r = np.hypot(*(vs - X @ coef).T)
@@ -119,6 +118,8 @@ def _robust_affine(
         new = voters & (r <= cut)
         if int(new.sum()) < min_reference:
             break
+        if np.array_equal(new, use):
+            break  # a fixed point: further rounds refit the very same voters
         use = new
     return coef, use
 
@@ -132,20 +133,21 @@ def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.
     d2 = np.sum((mid[idx][:, None] - mid[idx][None]) ** 2, axis=2)
     # Prim's algorithm: ``best`` the distance of each voter outside the tree to it (inf
     # inside), ``parent`` its nearest voter inside; the signs follow in the order grown.
-    inside = np.zeros(idx.size, bool)
-    inside[0] = True
     best = d2[0].copy()
     best[0] = np.inf
     parent = np.zeros(idx.size, np.int64)
     grown = np.zeros(max(idx.size - 1, 0), np.int64)
+    # A voter's column of ``d2`` is set to inf as it joins, so that no row brings it back
+    # (one strided write a step instead of two masked passes over ``best``).
+    d2[:, 0] = np.inf
     for step in range(idx.size - 1):
         k = int(np.argmin(best))
         grown[step] = k
-        inside[k] = True
-        closer = (d2[k] < best) & ~inside
-        parent[closer] = k
-        np.minimum(best, d2[k], out=best)
-        best[inside] = np.inf
+        d2[:, k] = np.inf
+        best[k] = np.inf
+        row = d2[k]
+        parent[row < best] = k
+        np.minimum(best, row, out=best)
     a, b = v[idx[grown]], v[idx[parent[grown]]]
     flips = (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] < 0).tolist()
     voter_sign = [1.0] * idx.size

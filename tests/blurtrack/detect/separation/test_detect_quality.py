@@ -178,3 +178,85 @@ def test_one_doubt_counts_each_doubt_of_an_eligible_streak() -> None:
     assert one_doubt(eligible, [lit], crossing).tolist() == [True, True, True, False, False]
     no = np.zeros(5, bool)
     assert not one_doubt(eligible, [no], no).any()  # no doubt: nothing to lift
+
+
+def _prim_reference(mid: np.ndarray) -> tuple[list[int], list[int]]:
+    """Prim's algorithm written out plainly: the order the nodes join from node 0 and each
+    one's parent (the nearest node already in the tree, the first of equals)."""
+    n = len(mid)
+    d2 = np.sum((mid[:, None] - mid[None]) ** 2, axis=2)
+    inside = [0]
+    order, parent = [], []
+    while len(inside) < n:
+        best = (np.inf, -1, -1)
+        for j in range(n):
+            if j in inside:
+                continue
+            for i in inside:
+                if d2[i, j] < best[0] or (d2[i, j] == best[0] and j < best[1]):
+                    best = (d2[i, j], j, i)
+        order.append(best[1])
+        parent.append(best[2])
+        inside.append(best[1])
+    return order, parent
+
+
+def test_propagated_signs_follow_the_minimum_spanning_tree() -> None:
+    from blurtrack.detect.separation.quality import _propagated_signs
+
+    rng = np.random.default_rng(5)
+    for _trial in range(20):
+        n = int(rng.integers(2, 40))
+        mid = rng.uniform(0, 500, (n, 2))
+        v = rng.normal(0, 10, (n, 2))
+        voters = np.ones(n, bool)
+        order, parent = _prim_reference(mid)
+        want = np.ones(n)
+        for k, j in zip(order, parent, strict=True):
+            want[k] = -want[j] if v[k] @ v[j] < 0 else want[j]
+        got = _propagated_signs(v, mid, voters)[:, 0]
+        np.testing.assert_array_equal(got, want)
+    # Known value: a row of vectors alternating in sign, each nearest its neighbours: all
+    # turned to the first's direction; a non-voter takes its nearest voter's.
+    mid = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0], [21.0, 1.0]])
+    v = np.array([[5.0, 1.0], [-5.0, -1.0], [5.0, 1.2], [-4.0, -1.0], [-5.0, -1.0]])
+    voters = np.array([True, True, True, True, False])
+    signs = _propagated_signs(v, mid, voters)[:, 0]
+    assert signs.tolist() == [1.0, -1.0, 1.0, -1.0, -1.0]
+    assert np.all((v * signs[:, None]) @ v[0] > 0)
+
+
+def test_robust_affine_stops_at_a_fixed_point_with_the_rounds_result() -> None:
+    """Stopping when a round keeps the very voters it started from gives what all five
+    rounds give (each later round refits the same voters)."""
+    from blurtrack.detect.separation.quality import _robust_affine
+
+    def all_rounds(X, vs, voters, start, min_reference):
+        use = start.copy()
+        coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+        for _ in range(5):
+            coef = np.linalg.lstsq(X[use], vs[use], rcond=None)[0]
+            r = np.hypot(*(vs - X @ coef).T)
+            cut = max(3.0 * float(np.median(r[use])), 0.5)
+            new = voters & (r <= cut)
+            if int(new.sum()) < min_reference:
+                break
+            use = new
+        return coef, use
+
+    rng = np.random.default_rng(11)
+    for _trial in range(40):
+        n = int(rng.integers(6, 80))
+        mid = rng.uniform(0, 1000, (n, 2))
+        X = np.column_stack([np.ones(n), (mid - mid.mean(axis=0)) / 100.0])
+        vs = X @ rng.normal(0, 5, (3, 2)) + rng.normal(0, 0.3, (n, 2))
+        bad = rng.random(n) < 0.2  # chains and strays: far off the field
+        vs[bad] += rng.normal(0, 30, (int(bad.sum()), 2))
+        voters = rng.random(n) < 0.9
+        start = voters & (rng.random(n) < 0.8)
+        if start.sum() < 3:
+            continue
+        want = all_rounds(X, vs, voters, start, 5)
+        got = _robust_affine(X, vs, voters, start, 5)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
