@@ -48,6 +48,7 @@ from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.sampling import sample_image
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.params import SourceParams
+from blurtrack.errors import DetectionError
 
 #: The closed set of ``source`` values.
 SOURCES = ("point", "extended", "undetermined")
@@ -133,26 +134,41 @@ def _expected_area(profile: list[np.ndarray], psf: float, threshold: float) -> n
     if not profile:
         return out
     norm = np.sqrt(2.0 * np.pi) * psf  # cross-section integral of a unit-peak Gaussian
-    for i, pr in enumerate(profile):
-        a = np.asarray(pr, float) / norm
-        h = psf * np.sqrt(2.0 * np.log(np.maximum(a / threshold, 1.0)))
-        caps = np.pi * (h[0] ** 2 + h[-1] ** 2) / 2.0 if h.size else 0.0
-        out[i] = float(2.0 * h.sum() + caps)
+    # Elementwise over all profiles at once; each profile's sum over its own slice (the very
+    # pairwise sum of its own array).
+    sizes = np.array([np.size(pr) for pr in profile], np.int64)
+    a = np.concatenate([np.asarray(pr, float).ravel() for pr in profile]) / norm
+    h = psf * np.sqrt(2.0 * np.log(np.maximum(a / threshold, 1.0)))
+    stops = np.cumsum(sizes)
+    starts = stops - sizes
+    some = sizes > 0
+    caps = np.zeros(len(profile))
+    caps[some] = np.pi * (h[starts[some]] ** 2 + h[stops[some] - 1] ** 2) / 2.0
+    sums = np.array([h[i:j].sum() for i, j in zip(starts.tolist(), stops.tolist(), strict=True)])
+    out[:] = 2.0 * sums + caps
     return out
 
 
 def _end_frames(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``(N, 2, 2)`` ends and ``(N, 2, 2)`` outward unit tangents (end A, end B)."""
+    """``(N, 2, 2)`` ends and ``(N, 2, 2)`` outward unit tangents (end A, end B); every line
+    has at least one point."""
     n = len(points)
     ends = np.zeros((n, 2, 2))
     tang = np.zeros((n, 2, 2))
-    for i, p in enumerate(points):
-        p = np.asarray(p, float)
-        k = min(TANGENT_POINTS, len(p) - 1)
-        ends[i, 0], ends[i, 1] = p[0], p[-1]
-        if k >= 1:
-            tang[i, 0] = p[0] - p[k]
-            tang[i, 1] = p[-1] - p[-1 - k]
+    if n == 0:
+        return ends, tang
+    # One flat gather: each line's first and last points, and those TANGENT_POINTS inside.
+    sizes = np.array([len(p) for p in points], np.int64)
+    if np.any(sizes == 0):
+        raise DetectionError("a streak's centre line has no points")
+    flat = np.concatenate([np.asarray(p, float).reshape(-1, 2) for p in points])
+    last = np.cumsum(sizes) - 1
+    first = last - sizes + 1
+    k = np.minimum(TANGENT_POINTS, sizes - 1)
+    ends[:, 0], ends[:, 1] = flat[first], flat[last]
+    has = k >= 1
+    tang[has, 0] = flat[first[has]] - flat[first[has] + k[has]]
+    tang[has, 1] = flat[last[has]] - flat[last[has] - k[has]]
     nrm = np.linalg.norm(tang, axis=2, keepdims=True)
     tang = np.where(nrm > 1e-9, tang / np.maximum(nrm, 1e-9), [1.0, 0.0])
     return ends, tang

@@ -14,7 +14,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.detect.trust import min_contrast
-from blurtrack.errors import ConfigError
+from blurtrack.errors import ConfigError, DetectionError
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
 SHAPE = (240, 320)
@@ -159,3 +159,36 @@ def test_a_streak_near_the_threshold_is_not_called_a_point_light(flux, point) ->
     else:
         assert np.all(c < min_contrast(SourceParams())) and np.all(c > 1.0)
         assert not np.any(source == "point") and not ok.any()
+
+
+def test_expected_area_and_end_frames_are_those_of_each_streak_alone() -> None:
+    """The batched forms give, streak by streak, the values of the formulas applied to each
+    streak alone (profiles of any length, empty ones too; lines of one to many points)."""
+    from blurtrack.detect.trust import TANGENT_POINTS, _end_frames, _expected_area
+
+    rng = np.random.default_rng(3)
+    psf, threshold = 1.3, 0.05
+    profiles = [rng.uniform(0, 2, int(rng.integers(0, 60))) for _ in range(50)]
+    norm = np.sqrt(2.0 * np.pi) * psf
+    for pr, got in zip(profiles, _expected_area(profiles, psf, threshold), strict=True):
+        h = psf * np.sqrt(2.0 * np.log(np.maximum(pr / norm / threshold, 1.0)))
+        caps = np.pi * (h[0] ** 2 + h[-1] ** 2) / 2.0 if h.size else 0.0
+        assert got == 2.0 * h.sum() + caps
+    assert _expected_area([], psf, threshold).shape == (0,)
+    lines = [np.cumsum(rng.normal(0, 1, (int(rng.integers(1, 12)), 2)), axis=0) for _ in range(40)]
+    ends, tang = _end_frames(lines)
+    raw = np.zeros_like(tang)  # each line's own ends and tangents, then normalised alike
+    for i, p in enumerate(lines):
+        np.testing.assert_array_equal(ends[i], [p[0], p[-1]])
+        k = min(TANGENT_POINTS, len(p) - 1)
+        if k >= 1:
+            raw[i] = [p[0] - p[k], p[-1] - p[-1 - k]]
+    nrm = np.linalg.norm(raw, axis=2, keepdims=True)
+    np.testing.assert_array_equal(
+        tang, np.where(nrm > 1e-9, raw / np.maximum(nrm, 1e-9), [1.0, 0.0])
+    )
+    assert np.allclose(np.linalg.norm(tang, axis=2), 1.0)
+    one = [len(p) == 1 for p in lines]
+    assert any(one) and np.all(tang[one] == [1.0, 0.0])  # one point: the convention (1, 0)
+    with pytest.raises(DetectionError, match="no points"):
+        _end_frames([np.zeros((3, 2)), np.zeros((0, 2))])
