@@ -288,6 +288,15 @@ def test_fork_map_runs_side_jobs_in_the_pool_ahead_of_the_items() -> None:
     assert list(it) == [1]
     assert not forkmap._WORKER_STATE
 
+    # A job's error reaches the caller, in a worker as here, and the map's state is cleared.
+    def broken() -> None:
+        raise ValueError("job failed")
+
+    for workers in (1, 2):
+        with pytest.raises(ValueError, match="job failed"):
+            list(forkmap.fork_map(lambda i: i, [0, 1], workers, 1, None, forkmap.Jobs([broken])))
+        assert not forkmap._WORKER_STATE
+
 
 def _count_cue_calls(
     monkeypatch: pytest.MonkeyPatch,
