@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
-from functools import partial
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from blurtrack.allocator import keep_heap
+from blurtrack.detect import sessioncues
 from blurtrack.detect.forkmap import Jobs, fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.gyrotrust import check_frames
@@ -20,22 +19,16 @@ from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
 from blurtrack.detect.orientation import (
     CUE_SUBSTEP_S,
-    CueErrors,
     FrameTiming,
     combine,
-    continuity_cues,
     cue_errors,
-    gyro_cue_batches,
-    gyro_cues,
-    gyro_cues_batch,
-    gyro_cues_of_batch,
 )
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.detect.table import TABLE_VERSION, build_table, frame_columns
 from blurtrack.detect.timeshift import estimate_timeshift
 from blurtrack.detect.trust import SOURCES
-from blurtrack.errors import BlurTrackError, CoverageError, DetectionError
+from blurtrack.errors import CoverageError, DetectionError
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
 GYRO_MODES = ("auto", "on", "off")
@@ -120,116 +113,6 @@ def _shift_status(model: Any, shift: Any, searched: bool) -> str:
     if not searched:
         return "not searched"
     return "too few streaks" if shift is None else str(shift.status)
-
-
-def _recomputed_where_changed(
-    cues: list[np.ndarray | None],
-    before: list[FrameStreaks],
-    after: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    error_model: CueErrors,
-) -> list[np.ndarray | None]:
-    """``cues`` (those of the covered frames of ``before``) with the frames that ``after``
-    replaced computed again (each frame's cues depend on that frame alone)."""
-    changed = [j for j, k in enumerate(covered) if after[k] is not before[k]]
-    if not changed:
-        return cues
-    out = list(cues)
-    redo = _gyro_llrs(after, timings, [covered[j] for j in changed], model, error_model)
-    for j, c in zip(changed, redo, strict=True):
-        out[j] = c
-    return out
-
-
-def _gyro_llrs(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    error_model: CueErrors,
-) -> list[np.ndarray | None]:
-    """Gyro and profile LLRs of the covered frames, batched; frame by frame (None where the
-    gyro falls short after all, e.g. a point predicted outside the frame) if a batch fails."""
-    try:
-        return list(
-            gyro_cues_batch(
-                [found[k] for k in covered], [timings[k] for k in covered], model, error_model
-            )
-        )
-    except CoverageError:
-        pass
-    out: list[np.ndarray | None] = []
-    for k in covered:
-        try:
-            out.append(gyro_cues(found[k], timings[k], model, error_model))
-        except CoverageError:
-            out.append(None)
-    return out
-
-
-def _cue_jobs(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    error_model: CueErrors,
-) -> Jobs:
-    """:func:`_gyro_llrs`'s batched model calls as side jobs of a worker pool
-    (:class:`~blurtrack.detect.forkmap.Jobs`): each returns its batch's cues, or the
-    :class:`~blurtrack.errors.BlurTrackError` it met (:func:`_cues_of_jobs` decides)."""
-    sub, tim = [found[k] for k in covered], [timings[k] for k in covered]
-
-    def job(batch: list[int]) -> list[np.ndarray] | BlurTrackError:
-        try:
-            return gyro_cues_of_batch(sub, tim, batch, model, error_model)
-        except BlurTrackError as exc:
-            return exc
-
-    return Jobs(partial(job, b) for b in gyro_cue_batches(sub))
-
-
-def _cues_of_jobs(
-    jobs: Jobs,
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    error_model: CueErrors,
-) -> list[np.ndarray | None] | None:
-    """The cues of the covered frames from :func:`_cue_jobs`'s results: :func:`_gyro_llrs`'s
-    very values (where the batches meet a coverage error first, frame by frame, as it does),
-    or None where it would have failed (left to be computed after the pass)."""
-    sub = [found[k] for k in covered]
-    out: list[np.ndarray | None] = [np.zeros((len(fs), 2)) for fs in sub]
-    for batch, got in zip(gyro_cue_batches(sub), jobs.results, strict=True):
-        if isinstance(got, CoverageError):
-            with contextlib.suppress(BlurTrackError):
-                return _gyro_llrs(found, timings, covered, model, error_model)
-            return None
-        if isinstance(got, BlurTrackError):
-            return None
-        for j, part in zip(batch, got, strict=True):
-            out[j] = part
-    return out
-
-
-def _continuity_cues(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    llrs: list[np.ndarray],
-    max_llr: float,
-) -> None:
-    """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
-    (with the tentative orientation of all three cues) only the previous frame's ends and the
-    next frame's starts; each LLR clipped to ``+-max_llr``."""
-    basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(continuity_cues(found, timings, cache=basis, max_llr=max_llr)):
-        llrs[k][:, 2] = c
-    tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, max_llr=max_llr)):
-        llrs[k][:, 2] = c
 
 
 def detect_session(
@@ -317,14 +200,11 @@ def _detect_session(
     gyro_checked = 0
     ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
-    continuity: Jobs | None = None  # where the check's workers compute it
+    continued: Jobs | None = None  # the continuity cues, where the check's workers compute them
 
-    def continuity_columns() -> list[np.ndarray]:
-        # Of the final frames and gyro cues (``llrs`` as bound when called), on a copy: it
-        # may run in a worker.
-        cols = [llr.copy() for llr in llrs]
-        _continuity_cues(found, timings, cols, p.orientation.max_cue_llr)
-        return [c[:, 2] for c in cols]
+    def continuity() -> list[np.ndarray]:
+        # Of the final frames and gyro cues: ``llrs`` as bound when called.
+        return sessioncues.continuity_columns(found, timings, llrs, p.orientation.max_cue_llr)
 
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel
@@ -362,7 +242,7 @@ def _detect_session(
             # not depend on the count); after the pass only the frames it changed are
             # computed again.
             first = list(found)
-            early = _cue_jobs(first, timings, covered, model, error_model)
+            early = sessioncues.cue_jobs(first, timings, covered, model, error_model)
             # Where the session's calibration was corrected, the curves are the dots': no
             # rotations and scales to search (the search stands in for a nominal calibration).
             p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
@@ -370,13 +250,13 @@ def _detect_session(
                 session, found, timings, idx, covered, model, p_pass, workers, early
             )
             llrs = [np.zeros((len(fs), 3)) for fs in found]
-            got = _cues_of_jobs(early, first, timings, covered, model, error_model)
+            got = sessioncues.cues_of_jobs(early, first, timings, covered, model, error_model)
             if got is not None:
-                cues = _recomputed_where_changed(
+                cues = sessioncues.recomputed_where_changed(
                     got, first, found, timings, covered, model, error_model
                 )
         if cues is None:
-            cues = _gyro_llrs(found, timings, covered, model, error_model)
+            cues = sessioncues.gyro_llrs(found, timings, covered, model, error_model)
         for k, llr in zip(covered, cues, strict=True):
             if llr is None:
                 if gyro == "on":
@@ -394,7 +274,7 @@ def _detect_session(
             # Where the session's calibration was fitted and the template pass changed no
             # frame, the model is already fitted over the very streaks the check would fit.
             unchanged = not template_pass.frames.get("refined")
-            continuity = Jobs([continuity_columns])
+            continued = Jobs([continuity])
             gyro_checked = check_frames(
                 found,
                 timings,
@@ -405,10 +285,10 @@ def _detect_session(
                 None,
                 template_pass.curves,
                 fitted=fitted and unchanged,
-                jobs=continuity,
+                jobs=continued,
             )
             ok_change = _count_ok(found) - image_ok
-    columns = continuity.results[0] if continuity is not None else continuity_columns()
+    columns = continued.results[0] if continued is not None else continuity()
     for llr, col in zip(llrs, columns, strict=True):
         llr[:, 2] = col
     parts = []

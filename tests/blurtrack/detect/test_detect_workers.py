@@ -304,12 +304,12 @@ def _count_cue_calls(
     """Record the ids of the frame objects computed, the result and the arguments of every
     gyro-cue call in this process; and the first pass's cue jobs with their arguments and
     the cues of one call on them."""
-    from blurtrack.detect import session as detect_session_module
+    from blurtrack.detect import sessioncues as detect_session_module
 
     calls: list[tuple[list[int], list, tuple]] = []
     jobs: list[tuple[Any, tuple, list]] = []
-    real = detect_session_module._gyro_llrs
-    real_jobs = detect_session_module._cue_jobs
+    real = detect_session_module.gyro_llrs
+    real_jobs = detect_session_module.cue_jobs
 
     def spy(found, timings, covered, *a, **k):
         out = real(found, timings, covered, *a, **k)
@@ -323,8 +323,8 @@ def _count_cue_calls(
         jobs.append((out, a, real(*a)))
         return out
 
-    monkeypatch.setattr(detect_session_module, "_gyro_llrs", spy)
-    monkeypatch.setattr(detect_session_module, "_cue_jobs", spy_jobs)
+    monkeypatch.setattr(detect_session_module, "gyro_llrs", spy)
+    monkeypatch.setattr(detect_session_module, "cue_jobs", spy_jobs)
     return calls, jobs
 
 
@@ -335,7 +335,7 @@ def test_gyro_cues_computed_while_the_template_pass_runs(
     workers, ahead of its frames (with one worker: here, before it); afterwards only the
     frames the pass replaced are computed again: the same table as one process both where
     nothing and where every frame changed."""
-    from blurtrack.detect.session import _gyro_llrs as real_llrs
+    from blurtrack.detect.sessioncues import gyro_llrs as real_llrs
 
     session = load_session(session_folder)
     one = detect_session(session, workers=1)
@@ -378,10 +378,10 @@ def test_gyro_cues_computed_while_the_template_pass_runs(
 
 def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.MonkeyPatch) -> None:
     """A batch that meets a coverage error: every frame computed on its own (a frame the
-    gyro does not cover gets None), as :func:`_gyro_llrs` does; another detection error:
+    gyro does not cover gets None), as :func:`gyro_llrs` does; another detection error:
     nothing (computed after the pass); otherwise the batches' cues in order."""
     from blurtrack.detect import forkmap
-    from blurtrack.detect import session as m
+    from blurtrack.detect import sessioncues as m
 
     frames: list[Any] = [[0.0] * 2, [], [0.0] * 3]
     covered = [0, 1, 2]
@@ -394,7 +394,7 @@ def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.Monk
         return jobs
 
     ok = [[np.ones((2, 2))], [np.full((3, 2), 2.0)]]
-    got = m._cues_of_jobs(results(*ok), frames, [], covered, None, None)
+    got = m.cues_of_jobs(results(*ok), frames, [], covered, None, None)
     assert [g.tolist() for g in got] == [[[1, 1]] * 2, [], [[2, 2]] * 3]
     assert got[1].shape == (0, 2)
     seen: list[list[int]] = []
@@ -403,17 +403,16 @@ def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.Monk
         seen.append(list(cov))
         return [None, np.zeros((0, 2)), np.zeros((3, 2))]
 
-    monkeypatch.setattr(m, "_gyro_llrs", by_frame)
-    got = m._cues_of_jobs(results(ok[0], CoverageError("x")), frames, [], covered, None, None)
+    monkeypatch.setattr(m, "gyro_llrs", by_frame)
+    got = m.cues_of_jobs(results(ok[0], CoverageError("x")), frames, [], covered, None, None)
     assert seen == [covered] and got[0] is None
     assert (
-        m._cues_of_jobs(results(DetectionError("y"), ok[1]), frames, [], covered, None, None)
-        is None
+        m.cues_of_jobs(results(DetectionError("y"), ok[1]), frames, [], covered, None, None) is None
     )
     # the first failure decides, in order: as the batches of one call meet them
     seen.clear()
     assert (
-        m._cues_of_jobs(
+        m.cues_of_jobs(
             results(DetectionError("y"), CoverageError("x")), frames, [], covered, None, None
         )
         is None
@@ -423,12 +422,12 @@ def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.Monk
 
 def test_recomputed_where_changed_keeps_the_rest() -> None:
 
-    from blurtrack.detect import session as m
+    from blurtrack.detect import sessioncues as m
 
     a, b, c = [1.0], [2.0], [3.0]
     first: list[Any] = [a, b, c]
     cues: list[Any] = [np.zeros((1, 2)), np.ones((1, 2))]  # covered: positions 0 and 2
-    assert m._recomputed_where_changed(cues, first, [a, b, c], [], [0, 2], None, 0.1) is cues
+    assert m.recomputed_where_changed(cues, first, [a, b, c], [], [0, 2], None, 0.1) is cues
     seen: list[list[int]] = []
 
     def fake(found, timings, covered, model, sigma_rel):
@@ -436,8 +435,8 @@ def test_recomputed_where_changed_keeps_the_rest() -> None:
         return [np.full((1, 2), 7.0) for _ in covered]
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(m, "_gyro_llrs", fake)
-        out = m._recomputed_where_changed(cues, first, [a, b, [3.0]], [], [0, 2], None, 0.1)
+        mp.setattr(m, "gyro_llrs", fake)
+        out = m.recomputed_where_changed(cues, first, [a, b, [3.0]], [], [0, 2], None, 0.1)
     assert seen == [[2]]  # an equal replacement is a change; only it is computed
     assert out[0] is cues[0] and out[1].tolist() == [[7.0, 7.0]]
 

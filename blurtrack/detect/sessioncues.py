@@ -1,0 +1,152 @@
+"""The orientation cues of a session's frames, as the session driver
+(:func:`blurtrack.detect.session.detect_session`) computes them: the gyro and profile LLRs of
+the covered frames, batched (:func:`gyro_llrs`), as side jobs of the template pass's workers
+(:func:`cue_jobs`, :func:`cues_of_jobs`) and again only for the frames the pass replaced
+(:func:`recomputed_where_changed`); and the continuity LLRs of the final frames
+(:func:`continuity_columns`). The cues themselves are :mod:`blurtrack.detect.orientation`'s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from blurtrack.detect.forkmap import Jobs
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.orientation import (
+    CueErrors,
+    FrameTiming,
+    combine,
+    continuity_cues,
+    gyro_cue_batches,
+    gyro_cues,
+    gyro_cues_batch,
+    gyro_cues_of_batch,
+)
+from blurtrack.errors import BlurTrackError, CoverageError
+
+
+def recomputed_where_changed(
+    cues: list[np.ndarray | None],
+    before: list[FrameStreaks],
+    after: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> list[np.ndarray | None]:
+    """``cues`` (those of the covered frames of ``before``) with the frames that ``after``
+    replaced computed again (each frame's cues depend on that frame alone)."""
+    changed = [j for j, k in enumerate(covered) if after[k] is not before[k]]
+    if not changed:
+        return cues
+    out = list(cues)
+    redo = gyro_llrs(after, timings, [covered[j] for j in changed], model, error_model)
+    for j, c in zip(changed, redo, strict=True):
+        out[j] = c
+    return out
+
+
+def gyro_llrs(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> list[np.ndarray | None]:
+    """Gyro and profile LLRs of the covered frames, batched; frame by frame (None where the
+    gyro falls short after all, e.g. a point predicted outside the frame) if a batch fails."""
+    try:
+        return list(
+            gyro_cues_batch(
+                [found[k] for k in covered], [timings[k] for k in covered], model, error_model
+            )
+        )
+    except CoverageError:
+        pass
+    out: list[np.ndarray | None] = []
+    for k in covered:
+        try:
+            out.append(gyro_cues(found[k], timings[k], model, error_model))
+        except CoverageError:
+            out.append(None)
+    return out
+
+
+def cue_jobs(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> Jobs:
+    """:func:`gyro_llrs`'s batched model calls as side jobs of a worker pool
+    (:class:`~blurtrack.detect.forkmap.Jobs`): each returns its batch's cues, or the
+    :class:`~blurtrack.errors.BlurTrackError` it met (:func:`cues_of_jobs` decides)."""
+    sub, tim = [found[k] for k in covered], [timings[k] for k in covered]
+
+    def job(batch: list[int]) -> list[np.ndarray] | BlurTrackError:
+        try:
+            return gyro_cues_of_batch(sub, tim, batch, model, error_model)
+        except BlurTrackError as exc:
+            return exc
+
+    return Jobs(partial(job, b) for b in gyro_cue_batches(sub))
+
+
+def cues_of_jobs(
+    jobs: Jobs,
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    error_model: CueErrors,
+) -> list[np.ndarray | None] | None:
+    """The cues of the covered frames from :func:`cue_jobs`'s results: :func:`gyro_llrs`'s
+    very values (where the batches meet a coverage error first, frame by frame, as it does),
+    or None where it would have failed (left to be computed after the pass)."""
+    sub = [found[k] for k in covered]
+    out: list[np.ndarray | None] = [np.zeros((len(fs), 2)) for fs in sub]
+    for batch, got in zip(gyro_cue_batches(sub), jobs.results, strict=True):
+        if isinstance(got, CoverageError):
+            with contextlib.suppress(BlurTrackError):
+                return gyro_llrs(found, timings, covered, model, error_model)
+            return None
+        if isinstance(got, BlurTrackError):
+            return None
+        for j, part in zip(batch, got, strict=True):
+            out[j] = part
+    return out
+
+
+def _continuity_into(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    llrs: list[np.ndarray],
+    max_llr: float,
+) -> None:
+    """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
+    (with the tentative orientation of all three cues) only the previous frame's ends and the
+    next frame's starts; each LLR clipped to ``+-max_llr``."""
+    basis: dict[int, Any] = {}  # the frames do not change between the two passes
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis, max_llr=max_llr)):
+        llrs[k][:, 2] = c
+    tentative = [combine(llr).swap for llr in llrs]
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, max_llr=max_llr)):
+        llrs[k][:, 2] = c
+
+
+def continuity_columns(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    llrs: list[np.ndarray],
+    max_llr: float,
+) -> list[np.ndarray]:
+    """The continuity column of each frame's ``llrs`` (:func:`_continuity_into` on a copy:
+    ``llrs`` stays as it is, so that this may run in a worker)."""
+    cols = [llr.copy() for llr in llrs]
+    _continuity_into(found, timings, cols, max_llr)
+    return [c[:, 2] for c in cols]
