@@ -130,9 +130,8 @@ def _component_of(points: list[np.ndarray], comps: Components) -> np.ndarray:
 
 def _expected_area(profile: list[np.ndarray], psf: float, threshold: float) -> np.ndarray:
     """``(N,)`` pixels a point light with these profiles would light above ``threshold``."""
-    out = np.zeros(len(profile))
     if not profile:
-        return out
+        return np.zeros(0)
     norm = np.sqrt(2.0 * np.pi) * psf  # cross-section integral of a unit-peak Gaussian
     # Elementwise over all profiles at once; each profile's sum over its own slice (the very
     # pairwise sum of its own array).
@@ -145,8 +144,7 @@ def _expected_area(profile: list[np.ndarray], psf: float, threshold: float) -> n
     caps = np.zeros(len(profile))
     caps[some] = np.pi * (h[starts[some]] ** 2 + h[stops[some] - 1] ** 2) / 2.0
     sums = np.array([h[i:j].sum() for i, j in zip(starts.tolist(), stops.tolist(), strict=True)])
-    out[:] = 2.0 * sums + caps
-    return out
+    return np.asarray(2.0 * sums + caps)
 
 
 def _end_frames(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
