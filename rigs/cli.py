@@ -192,6 +192,8 @@ def run_record(args: argparse.Namespace) -> int:
         f"recorded {s.imu_samples} IMU samples and {s.frames} frames in {s.elapsed_s:.1f} s "
         f"into {log_path} (stopped by {result.stopped_by})"
     )
+    for warning in result.warnings:
+        print(f"  warning: {warning}")
     if result.imu_stats:
         st = result.imu_stats
         print(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import errno
 import queue
 import threading
+from collections import deque
 from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import asdict, dataclass, field
@@ -47,12 +48,14 @@ class RecorderConfig:
     stop_when_camera_ends: bool = True
     after_camera_end_s: float = 0.3  # IMU keeps recording this long after the last frame
     # (a virtual board with a sample limit is instead recorded to its last sample)
+    imu_tail_timeout_s: float = 2.0  # wall clock beyond that tail before a lagging IMU is
+    # given up on (its tail is then short, and the log says so)
 
     def __post_init__(self) -> None:
         if not 0.01 <= self.flush_interval_s <= 1.0:
             raise RigConfigError("flush_interval_s must be in [0.01, 1] (crash loss bound)")
-        if self.after_camera_end_s < 0:
-            raise RigConfigError("after_camera_end_s must be non-negative")
+        if self.after_camera_end_s < 0 or self.imu_tail_timeout_s < 0:
+            raise RigConfigError("after_camera_end_s and imu_tail_timeout_s must be non-negative")
         if self.status_interval_s <= 0 or (self.duration_s is not None and self.duration_s <= 0):
             raise RigConfigError("status_interval_s and duration_s must be positive")
         if self.frame_encoding not in ("raw", "png"):
@@ -99,6 +102,7 @@ class RecordResult:
     imu_stats: dict[str, int] = field(default_factory=dict)
     stopped_by: str = ""  # "stop", "duration", "camera-ended", "error"
     error: str | None = None
+    warnings: list[str] = field(default_factory=list)  # e.g. an IMU tail cut short
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -106,8 +110,48 @@ class RecordResult:
             "status": asdict(self.status),
             "imu_stats": self.imu_stats,
             "stopped_by": self.stopped_by,
+            "warnings": list(self.warnings),
             "error": self.error,
         }
+
+
+class ImuProgress:
+    """How far the IMU's samples reach, in device time, and where a host instant falls on
+    the device clock.
+
+    A sample's host time is its device time plus the (unknown, fixed) clock offset plus a
+    latency >= 0, so ``host - device`` at the fastest delivery bounds the offset from above;
+    its minimum over the last ``window_ns`` of batches (a short window: the two crystals drift
+    apart by up to ~1e-4) maps a host instant to a device time no earlier than the true one.
+    The recorder waits for samples that far, not for wall-clock time: a starved reader
+    delivers a backlog late, and the backlog is what covers the last exposure.
+    """
+
+    def __init__(self, window_ns: int = 2_000_000_000) -> None:
+        self.window_ns = window_ns
+        self.last_dev_ns: int | None = None
+        self._offsets: deque[tuple[int, int]] = deque()  # (host_ns, host - device ns)
+
+    def add(self, batch: ImuBatch) -> None:
+        """Account one batch (its last sample is the freshest of its read)."""
+        if len(batch) == 0:
+            return
+        host_ns, dev_ns = int(batch.host_ns[-1]), int(batch.t_dev_us[-1]) * 1000
+        self.last_dev_ns = dev_ns if self.last_dev_ns is None else max(self.last_dev_ns, dev_ns)
+        self._offsets.append((host_ns, host_ns - dev_ns))
+        while self._offsets[0][0] < host_ns - self.window_ns:
+            self._offsets.popleft()
+
+    def device_ns_of(self, host_ns: int) -> int | None:
+        """The device time of host instant ``host_ns`` (an upper bound), None before any sample."""
+        if not self._offsets:
+            return None
+        return host_ns - min(off for _, off in self._offsets)
+
+    def reaches(self, host_ns: int) -> bool:
+        """Has a sample taken at or after host instant ``host_ns`` arrived?"""
+        target = self.device_ns_of(host_ns)
+        return target is not None and self.last_dev_ns is not None and self.last_dev_ns >= target
 
 
 class Recorder:
@@ -136,6 +180,8 @@ class Recorder:
         self._q: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._frame_slots = threading.Semaphore(self.config.frame_queue)
         self.status = RecorderStatus()
+        self._imu_progress = ImuProgress()
+        self._warnings: list[str] = []
 
     def stop(self) -> None:
         """Ask for a clean stop (thread- and signal-safe): the camera stops at once, the IMU
@@ -192,6 +238,7 @@ class Recorder:
                 int(b.host_ns[-1]), b.index, b.t_dev_us, b.host_ns, b.gyro_radps, b.accel_mps2
             )
             counts["imu"] += len(b)
+            self._imu_progress.add(b)
         elif kind == "frame":
             frame, data = payload
             f: CameraFrame = frame
@@ -261,7 +308,7 @@ class Recorder:
                     stopped_by = "camera-ended"
                     camera_end_ns = self.clock.now_ns()
                 self._write(log, kind, payload, counts)
-                if camera_end_ns is not None and self._imu_done(camera_end_ns, timed_tail):
+                if camera_end_ns is not None and self._imu_done(camera_end_ns, timed_tail, log):
                     break
                 now = self.clock.now_ns()
                 if now >= next_flush:
@@ -310,20 +357,48 @@ class Recorder:
         if self.on_status is not None:
             self.on_status(status)
         imu_stats = self.imu.stats if self.imu is not None else {}
-        return RecordResult(self.log_path, status, imu_stats, stopped_by, error)
+        return RecordResult(self.log_path, status, imu_stats, stopped_by, error, self._warnings)
 
     def _log_failed(self, exc: OSError) -> str:
         reason = "no space left on the device" if exc.errno == errno.ENOSPC else exc.strerror
         return f"cannot write the log {self.log_path}: {reason or exc}"
 
-    def _imu_done(self, camera_end_ns: int, timed: bool = False) -> bool:
-        """After the camera ended: has the IMU delivered what belongs to the recording?"""
-        imu = self.imu
+    def _imu_done(
+        self, camera_end_ns: int, timed: bool = False, log: RecLogWriter | None = None
+    ) -> bool:
+        """After the camera ended: has the IMU delivered what belongs to the recording?
+
+        A timed tail ends once a sample taken ``after_camera_end_s`` after the camera's end has
+        arrived (``ImuProgress``), or, for an IMU that lags or stalls, ``imu_tail_timeout_s`` of
+        wall clock later than that, with a warning in the log and the result.
+        """
+        imu, cfg = self.imu, self.config
         if imu is None or imu.exhausted:
             return True
         if not timed and imu.finite:
             return False  # a source that ends by itself: wait for its last sample
-        return self.clock.now_ns() - camera_end_ns >= self.config.after_camera_end_s * 1e9
+        tail_ns = round(cfg.after_camera_end_s * 1e9)
+        if self._imu_progress.reaches(camera_end_ns + tail_ns):
+            return True
+        now = self.clock.now_ns()
+        if now - camera_end_ns < tail_ns + cfg.imu_tail_timeout_s * 1e9:
+            return False
+        last = self._imu_progress.last_dev_ns
+        end_dev = self._imu_progress.device_ns_of(camera_end_ns)
+        reached = (
+            "no IMU sample"
+            if last is None or end_dev is None
+            else f"IMU samples to {(last - end_dev) * 1e-9:+.3f} s"
+        )
+        msg = (
+            f"the IMU lagged: {reached} past the camera's end after waiting "
+            f"{(now - camera_end_ns) * 1e-9:.1f} s, short of the {cfg.after_camera_end_s:g} s "
+            "that cover the last exposure"
+        )
+        self._warnings.append(msg)
+        if log is not None:
+            log.write_event(now, "warning", msg)
+        return True
 
     def _flush(
         self,
