@@ -35,6 +35,7 @@ from blurtrack.geometry.kernels import (
     unproject_c,
     warp_c,
 )
+from blurtrack.geometry.ordered_track import ordered_point_track
 
 #: Motion models: exact rotation integration, or the source paper's per-axis small angles.
 ROTATION_MODELS: dict[str, Callable[..., Mat3]] = {
@@ -160,6 +161,30 @@ class BlurModel:
         tref = np.broadcast_to(np.asarray(t_ref_s, float), (n,))
         flat = self.warp(np.repeat(px, t, axis=0), np.repeat(tref, t), times.reshape(-1))
         return flat.reshape(n, t, 2)
+
+    def point_track_ordered(
+        self, pixels: np.ndarray, t_ref_s: np.ndarray, times_s: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`point_track` for times ``(N, T)`` non-decreasing along each row, integrated
+        sample to sample (:mod:`blurtrack.geometry.ordered_track`: one rotation exponential per
+        sample instead of a whole integration each; the ``small_angle`` model and times out of
+        order take :meth:`point_track`)."""
+        px = _pixels(pixels)
+        times = np.asarray(times_s, dtype=float)
+        if times.ndim == 1:
+            times = np.broadcast_to(times, (px.shape[0], times.size))
+        tref = np.broadcast_to(np.asarray(t_ref_s, float), (px.shape[0],))
+        if (
+            self.rotation_model != "exact"
+            or times.shape[1] < 2
+            or np.any(np.diff(times, axis=1) < 0)
+        ):
+            return self.point_track(px, tref, times)
+        self._check(tref, times)
+        cam = self.camera
+        return ordered_point_track(
+            px, tref, times, self.omega_cam_at, cam.intrinsics, cam.dist, self.max_substep_s
+        )
 
     def streak_endpoints(
         self,

@@ -53,8 +53,10 @@ def predict_curves(
     samples: int = CURVE_SAMPLES,
 ) -> Curves:
     """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure (one model call
-    per shutter iteration). ``frame_t_s``, ``exposure_s``: the frame's (or ``(N,)``, one per
-    dot: the streaks of many frames in one call). ``model``: a
+    per shutter iteration, each integrated along the curve's increasing times:
+    :meth:`~blurtrack.geometry.blur_model.BlurModel.point_track_ordered`). ``frame_t_s``,
+    ``exposure_s``: the frame's (or ``(N,)``, one per dot: the streaks of many frames in one
+    call). ``model``: a
     :class:`blurtrack.geometry.blur_model.BlurModel` covering the frames
     (:class:`~blurtrack.errors.CoverageError` otherwise)."""
     cam = model.camera
@@ -69,7 +71,7 @@ def predict_curves(
     t = row_t[:, None] + ex * tau
     pos = np.broadcast_to(ref[:, None, :], (n, samples, 2))
     for _ in range(SHUTTER_ITERATIONS + 1):
-        pos = model.point_track(ref, t_ref, t)
+        pos = model.point_track_ordered(ref, t_ref, t)
         t = ft + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + ex * tau
     return Curves(np.asarray(pos, float), ref)
 

@@ -235,7 +235,7 @@ def refine_frame(
     when nothing changed) and what happened. ``image``: the frame as stored, or a function
     that reads it (called only when the gate lets the frame through). ``model``: a
     :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
-    ``point_track``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
+    ``point_track_ordered``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
     the templates and the measurement (None: the frame's, ``fs.sigma_c_px``).
     ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
     p = params or DetectParams()
