@@ -194,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
             f"saturated): {s['frames_overexposed'][:10]}",
             file=sys.stderr,
         )
+    if (s.get("gyro_direction") or {}).get("status") == "contradicted":
+        print(f"  warning: {s['gyro_direction']['message']}", file=sys.stderr)
     if s["frames_without_gyro"]:
         print(
             f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "

@@ -14,6 +14,7 @@ from blurtrack.allocator import keep_heap
 from blurtrack.detect import sessioncues
 from blurtrack.detect.forkmap import Jobs, fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
@@ -197,6 +198,7 @@ def _detect_session(
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     model = shift = refined = None
     session_fit: Any = None
+    direction: GyroDirection | None = None
     gyro_checked = 0
     ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
@@ -223,13 +225,19 @@ def _detect_session(
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = covered_frames(found, timings, model)
+        if p.orientation.direction_check:
+            direction = gyro_direction(found, timings, covered, model, error_model, p.orientation)
+        if direction is not None and direction.status == "contradicted":
+            if gyro == "on":
+                raise DetectionError(direction.message(idx, refused=True))
+            covered, found_shift = [], False  # the images alone from here (module text)
         if found_shift:
             model, covered, session_fit, refined = session_model(
                 session, found, timings, idx, covered, model, p, workers
             )
         fitted = session_fit is not None and session_fit.status == "fitted"
         for k in sorted(set(range(len(found))) - set(covered)):
-            if len(found[k]) == 0:
+            if len(found[k]) == 0 or (direction is not None and not direction.usable):
                 continue
             if gyro == "on":
                 raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
@@ -333,6 +341,7 @@ def _detect_session(
         else refined.status,
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
+        "gyro_direction": None if direction is None else direction.as_dict(idx),
         "gyro_session_calibration": None
         if session_fit is None
         else {

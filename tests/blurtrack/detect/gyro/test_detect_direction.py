@@ -1,0 +1,130 @@
+"""The gyro's direction of motion checked against the frames' own continuity."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from blurtrack.detect.gyro.direction import gyro_direction, sampled_frames
+from blurtrack.detect.orientation import CUE_SUBSTEP_S, CueErrors, FrameTiming
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session import detect_frames, detect_session
+from blurtrack.errors import DetectionError
+from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.gyro import GyroTrace
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
+
+#: A half turn about the optical axis: the x and y rates' signs swapped (the pan and tilt of
+#: every streak reversed, its shape the same).
+HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def with_axes(folder: Path, T: np.ndarray) -> None:
+    """Rewrite the session's guessed camera-IMU transform."""
+    meta_path = folder / "session.yaml"
+    meta = yaml.safe_load(meta_path.read_text())
+    meta["imu"]["T_cam_imu"] = (T @ np.array(meta["imu"]["T_cam_imu"])).tolist()
+    meta_path.write_text(yaml.safe_dump(meta))
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    root = tmp_path_factory.mktemp("direction")
+    out: dict[str, Any] = {}
+    for name in ("right", "half_turn"):
+        folder = root / name
+        out["truth"] = write_synthetic_session(
+            folder, n_frames=8, seed=5, grid=(8, 6), amplitude_radps=3.0
+        )
+        if name == "half_turn":
+            with_axes(folder, HALF_TURN_Z)
+        out[name] = folder
+    return out
+
+
+def starts_right(table: Any, truth: dict[str, Any]) -> float:
+    """Fraction of the table's confidently oriented ``quality_ok`` streaks whose start is the
+    nearest true streak's start (of those whose ends the truth tells apart)."""
+    right = total = 0
+    for fr in truth["frames"]:
+        keep = table["quality_ok"] & (table["orientation_confidence"] >= 0.95)
+        rows = table[(table["frame"] == fr["index"]) & keep]
+        S = np.array([s["start"] for s in fr["streaks"]])
+        E = np.array([s["end"] for s in fr["streaks"]])
+        for s0, s1, e0, e1 in rows[["start_x", "start_y", "end_x", "end_y"]].to_numpy():
+            d_same = np.hypot(*(S - [s0, s1]).T) + np.hypot(*(E - [e0, e1]).T)
+            d_swap = np.hypot(*(S - [e0, e1]).T) + np.hypot(*(E - [s0, s1]).T)
+            j = int(np.argmin(np.minimum(d_same, d_swap)))
+            if abs(d_same[j] - d_swap[j]) < 2.0:
+                continue  # the true streak too short to tell its ends apart
+            right += int(d_same[j] < d_swap[j])
+            total += 1
+    return right / total
+
+
+def test_right_axes_are_consistent_and_the_gyro_orients(sessions: dict[str, Any]) -> None:
+    res = detect_session(load_session(sessions["right"]), workers=1)
+    d = res.summary["gyro_direction"]
+    assert d["status"] == "consistent" and d["agree"] >= 0.8 * d["decisive"] > 60
+    assert res.summary["orientation_sources"].get("gyro", 0) > 0.8 * len(res.table)
+    assert starts_right(res.table, sessions["truth"]) > 0.97
+
+
+def test_half_turned_axes_are_contradicted_and_the_images_orient(
+    sessions: dict[str, Any],
+) -> None:
+    session = load_session(sessions["half_turn"])
+    res = detect_session(session, workers=1)
+    d = res.summary["gyro_direction"]
+    assert d["status"] == "contradicted" and d["agree"] < 0.2 * d["decisive"]
+    assert "R_cam_imu" in d["message"] and d["frames_contradicted"]
+    assert "gyro" not in res.summary["orientation_sources"]
+    assert res.summary["gyro_trust_frames"] == 0 and res.summary["frames_without_gyro"] == []
+    # by continuity alone (21 ms gaps of a 3 rad/s shake: not as sure as the right gyro)
+    assert starts_right(res.table, sessions["truth"]) > 0.8
+    # negative control: without the check the gyro names the wrong end the start
+    p = DetectParams.from_dict({"orientation": {"direction_check": False}})
+    unchecked = detect_session(session, p, workers=1)
+    assert unchecked.summary["gyro_direction"] is None
+    assert starts_right(unchecked.table, sessions["truth"]) < 0.1
+    with pytest.raises(DetectionError, match="runs against the images.*--gyro on stops"):
+        detect_session(session, gyro="on", workers=1)
+
+
+def test_a_gyro_reading_zero_leaves_the_direction_undetermined(sessions: dict[str, Any]) -> None:
+    session = load_session(sessions["right"])
+    p = DetectParams()
+    idx = list(range(len(session.frames)))
+    found = list(detect_frames(session, idx, p, 1, None))
+    timings = [FrameTiming(float(session.frame_times_s[i]), 0.012) for i in idx]
+    t = np.arange(-0.1, 0.5, 1e-3)
+    still = BlurModel(
+        session.initial_calibration(),
+        GyroTrace(t, np.zeros((t.size, 3))),
+        max_substep_s=CUE_SUBSTEP_S,
+        gyro_upsample=1,
+    )
+    got = gyro_direction(found, timings, idx, still, CueErrors(), p.orientation)
+    assert got.status == "undetermined" and got.usable and got.decisive == 0
+    assert gyro_direction(found, timings, [], still, CueErrors(), p.orientation).status == (
+        "undetermined"
+    )
+
+
+def test_sampled_frames_spread_over_the_session() -> None:
+    assert sampled_frames([3, 4, 5], 16) == [3, 4, 5]
+    got = sampled_frames(list(range(100)), 5)
+    assert got == [0, 25, 50, 74, 99]
+    assert sampled_frames(list(range(10, 40)), 1) == [10]
+
+
+def test_the_agreement_thresholds_are_ordered() -> None:
+    with pytest.raises(Exception, match="direction_frame_agree must not exceed"):
+        DetectParams.from_dict(
+            {"orientation": {"direction_frame_agree": 0.6, "direction_session_agree": 0.5}}
+        )
