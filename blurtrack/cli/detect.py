@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
             f"saturated): {s['frames_overexposed'][:10]}",
             file=sys.stderr,
         )
-    if (s.get("gyro_direction") or {}).get("status") == "contradicted":
+    if (s.get("gyro_direction") or {}).get("status") in ("contradicted", "unconfirmed"):
         print(f"  warning: {s['gyro_direction']['message']}", file=sys.stderr)
     if s["frames_without_gyro"]:
         print(

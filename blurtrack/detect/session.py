@@ -226,8 +226,16 @@ def _detect_session(
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = covered_frames(found, timings, model)
         if p.orientation.direction_check:
-            direction = gyro_direction(found, timings, covered, model, error_model, p.orientation)
-        if direction is not None and direction.status == "contradicted":
+            direction = gyro_direction(
+                found,
+                timings,
+                covered,
+                model,
+                error_model,
+                p.orientation,
+                axes_known=session.meta.imu.axes_known,
+            )
+        if direction is not None and not direction.usable:
             if gyro == "on":
                 raise DetectionError(direction.message(idx, refused=True))
             covered, found_shift = [], False  # the images alone from here (module text)

@@ -18,12 +18,15 @@ leaves 0.4 %; a half turn about the x axis (pan and roll reversed, tilt not) lea
 0 % beside frames at 100 %. So the gyro is *contradicted* where a sampled frame agrees on
 less than ``orientation.direction_frame_agree`` of at least :data:`MIN_PAIRS` decisive
 streaks, or the sample as a whole on less than ``orientation.direction_session_agree``;
-detection then goes on from the images alone and says why (``--gyro on`` refuses).
+detection then goes on from the images alone and says why (``--gyro on`` refuses). So it
+does where the session says its axes are a guess (``imu.axes_known: false``, as the importers
+write for phones whose sensor axes are not published) and the images cannot confirm the
+direction either way (*unconfirmed*).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -43,7 +46,8 @@ MIN_PAIRS = 30
 @dataclass(frozen=True)
 class GyroDirection:
     """The check's outcome: ``status`` ``consistent``, ``contradicted`` or ``undetermined``
-    (too few decisive pairs: a gyro that reads zero, frames too far apart for continuity);
+    (too few decisive pairs: a gyro that reads zero, frames too far apart for continuity),
+    ``unconfirmed`` where that happens to a session whose axes are a guess;
     decisive pairs and those agreeing over the sampled frames; the sampled frames' positions
     in the session's frame list that disagree (``frames_contradicted``)."""
 
@@ -70,14 +74,21 @@ class GyroDirection:
     @property
     def usable(self) -> bool:
         """May the gyro be used beyond the time-shift scan?"""
-        return self.status != "contradicted"
+        return self.status not in ("contradicted", "unconfirmed")
 
     def message(self, frame_index: list[int], refused: bool = False) -> str:
         """One line for the user (``frame_index``: the session's frame numbers; ``refused``:
         for ``--gyro on``, which stops instead of going on without the gyro)."""
+        then = "--gyro on stops" if refused else "detection used the images alone"
+        if self.status == "unconfirmed":
+            return (
+                "the session's camera-IMU axes are a guess (imu.axes_known: false) and the "
+                f"images confirm no direction of the gyro's motion ({self.agree} of "
+                f"{self.decisive} decisive streaks agree); {then} (blurtrack calibrate "
+                "searches the axes)"
+            )
         bad = [frame_index[k] for k in self.frames_contradicted]
         where = f" (frames {bad})" if bad else ""
-        then = "--gyro on stops" if refused else "detection used the images alone"
         return (
             f"the gyro's predicted motion runs against the images on {self.decisive - self.agree}"
             f" of {self.decisive} decisive streaks{where}: R_cam_imu (or the gyro's axis signs) "
@@ -100,12 +111,30 @@ def gyro_direction(
     model: Any,
     errors: CueErrors,
     params: OrientationParams,
+    axes_known: bool = True,
 ) -> GyroDirection:
     """Check the gyro's direction of motion against the frames' continuity (module text).
 
     ``found``/``timings``: the session's first-pass frames; ``covered``: the positions the gyro
-    covers; ``model``: the blur model the cues would use; ``errors``: their error model.
+    covers; ``model``: the blur model the cues would use; ``errors``: their error model;
+    ``axes_known``: the session's ``imu.axes_known`` (false: the axes are a guess, and a
+    direction the images cannot confirm is ``unconfirmed`` rather than ``undetermined``).
     """
+    got = _checked(found, timings, covered, model, errors, params)
+    if got.status == "undetermined" and not axes_known:
+        return replace(got, status="unconfirmed")
+    return got
+
+
+def _checked(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    errors: CueErrors,
+    params: OrientationParams,
+) -> GyroDirection:
+    """:func:`gyro_direction` for axes taken as known."""
     sample = [k for k in sampled_frames(covered) if len(found[k])]
     if not sample:
         return GyroDirection("undetermined")

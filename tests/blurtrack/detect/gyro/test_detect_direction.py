@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -24,11 +26,12 @@ from blurtrack.testing.mini_session import write_synthetic_session
 HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
-def with_axes(folder: Path, T: np.ndarray) -> None:
-    """Rewrite the session's guessed camera-IMU transform."""
+def with_axes(folder: Path, T: np.ndarray, axes_known: bool = True) -> None:
+    """Rewrite the session's guessed camera-IMU transform (turned by ``T``)."""
     meta_path = folder / "session.yaml"
     meta = yaml.safe_load(meta_path.read_text())
     meta["imu"]["T_cam_imu"] = (T @ np.array(meta["imu"]["T_cam_imu"])).tolist()
+    meta["imu"]["axes_known"] = axes_known
     meta_path.write_text(yaml.safe_dump(meta))
 
 
@@ -44,6 +47,9 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         if name == "half_turn":
             with_axes(folder, HALF_TURN_Z)
         out[name] = folder
+    out["right_guess"] = root / "right_guess"
+    shutil.copytree(out["right"], out["right_guess"])
+    with_axes(out["right_guess"], np.eye(4), axes_known=False)
     return out
 
 
@@ -68,11 +74,16 @@ def starts_right(table: Any, truth: dict[str, Any]) -> float:
 
 
 def test_right_axes_are_consistent_and_the_gyro_orients(sessions: dict[str, Any]) -> None:
-    res = detect_session(load_session(sessions["right"]), workers=1)
+    session = load_session(sessions["right"])
+    res = detect_session(session, workers=1)
     d = res.summary["gyro_direction"]
     assert d["status"] == "consistent" and d["agree"] >= 0.8 * d["decisive"] > 60
     assert res.summary["orientation_sources"].get("gyro", 0) > 0.8 * len(res.table)
     assert starts_right(res.table, sessions["truth"]) > 0.97
+    # axes marked a guess: confirmed by the images, the gyro is used all the same
+    guess = detect_session(load_session(sessions["right_guess"]), workers=1)
+    assert guess.summary["gyro_direction"]["status"] == "consistent"
+    pd.testing.assert_frame_equal(guess.table, res.table)
 
 
 def test_half_turned_axes_are_contradicted_and_the_images_orient(
@@ -111,6 +122,10 @@ def test_a_gyro_reading_zero_leaves_the_direction_undetermined(sessions: dict[st
     )
     got = gyro_direction(found, timings, idx, still, CueErrors(), p.orientation)
     assert got.status == "undetermined" and got.usable and got.decisive == 0
+    # where the session's axes are a guess, a direction the images cannot confirm is not used
+    guess = gyro_direction(found, timings, idx, still, CueErrors(), p.orientation, False)
+    assert guess.status == "unconfirmed" and not guess.usable
+    assert "axes_known: false" in guess.message(idx)
     assert gyro_direction(found, timings, [], still, CueErrors(), p.orientation).status == (
         "undetermined"
     )
