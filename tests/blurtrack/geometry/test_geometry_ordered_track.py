@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blurtrack.geometry.blur_model import BlurModel
+from blurtrack.geometry.blur_model import ORDERED_MIN_SAMPLES, BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
@@ -51,8 +51,16 @@ def test_ordered_tracks_equal_the_kernels_integration(
     fine = shaking_model(2e-5, dist)  # the kernel, converged
     t_ref, times = curve_times(fine, ref, samples)
     truth = fine.point_track(ref, t_ref, times)
-    ordered = shaking_model(4e-3, dist).point_track_ordered(ref, t_ref, times)
-    kernel = shaking_model(4e-3, dist).point_track(ref, t_ref, times)
+    model = shaking_model(4e-3, dist)
+    cam = model.camera
+    ordered = ordered_point_track(
+        ref, t_ref, times, model.omega_cam_at, cam.intrinsics, cam.dist, model.max_substep_s
+    )
+    kernel = model.point_track(ref, t_ref, times)
+    if samples >= ORDERED_MIN_SAMPLES:
+        np.testing.assert_array_equal(model.point_track_ordered(ref, t_ref, times), ordered)
+    else:  # a few samples: the kernel's integration, exactly
+        np.testing.assert_array_equal(model.point_track_ordered(ref, t_ref, times), kernel)
     # the streaks move tens of px; sample to sample the integration is closer to the truth
     assert np.ptp(truth[:, :, 0], axis=1).max() > 20
     err, kernel_err = np.abs(ordered - truth).max(), np.abs(kernel - truth).max()
