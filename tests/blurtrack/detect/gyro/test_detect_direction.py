@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from blurtrack.cli import main
 from blurtrack.detect.gyro.direction import gyro_direction, sampled_frames
 from blurtrack.detect.orientation import CUE_SUBSTEP_S, CueErrors, FrameTiming
 from blurtrack.detect.params import DetectParams
@@ -143,3 +144,19 @@ def test_the_agreement_thresholds_are_ordered() -> None:
         DetectParams.from_dict(
             {"orientation": {"direction_frame_agree": 0.6, "direction_session_agree": 0.5}}
         )
+
+
+def test_the_command_says_why_and_gyro_on_stops(
+    sessions: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    folder = sessions["half_turn"]
+    out = tmp_path / "s.parquet"
+    assert main(["detect", str(folder), "--out", str(out), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    (line,) = [ln for ln in err.splitlines() if "runs against the images" in ln]
+    assert line.startswith("  warning: ") and "detection used the images alone" in line
+    written = list(tmp_path.iterdir())
+    assert main(["detect", str(folder), "--out", str(tmp_path / "on.parquet"), "--gyro", "on"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--gyro on stops" in err[0]
+    assert sorted(tmp_path.iterdir()) == sorted(written)  # nothing written on refusal
