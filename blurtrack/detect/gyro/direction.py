@@ -26,7 +26,7 @@ direction either way (*unconfirmed*).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -122,30 +122,17 @@ def gyro_direction(
     ``axes_known``: the session's ``imu.axes_known`` (false: the axes are a guess, and a
     direction the images cannot confirm is ``unconfirmed`` rather than ``undetermined``).
     """
-    got = _checked(found, timings, covered, model, errors, params)
-    if got.status == "undetermined" and not axes_known:
-        return replace(got, status="unconfirmed")
-    return got
-
-
-def _checked(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    errors: CueErrors,
-    params: OrientationParams,
-) -> GyroDirection:
-    """:func:`gyro_direction` for axes taken as known."""
+    # Too few decisive pairs: no evidence either way, which a guessed axis set cannot pass.
+    undetermined = "undetermined" if axes_known else "unconfirmed"
     sample = [k for k in sampled_frames(covered) if len(found[k])]
     if not sample:
-        return GyroDirection("undetermined")
+        return GyroDirection(undetermined)
     try:
         gyro = gyro_cues_batch(
             [found[k] for k in sample], [timings[k] for k in sample], model, errors
         )
     except CoverageError:
-        return GyroDirection("undetermined", frames_sampled=len(sample))
+        return GyroDirection(undetermined, frames_sampled=len(sample))
     lo = params.direction_llr
     decisive = agree = 0
     bad: list[int] = []
@@ -161,7 +148,7 @@ def _checked(
         if n >= MIN_PAIRS and a < params.direction_frame_agree * n:
             bad.append(k)
     if decisive < 2 * MIN_PAIRS and not bad:
-        return GyroDirection("undetermined", decisive, agree, len(sample))
+        return GyroDirection(undetermined, decisive, agree, len(sample))
     status = (
         "contradicted" if bad or agree < params.direction_session_agree * decisive else "consistent"
     )
