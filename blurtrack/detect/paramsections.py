@@ -296,7 +296,8 @@ class GyroPassParams:
     Placing and accepting (:mod:`~blurtrack.detect.gyro.gyropass`,
     :mod:`~blurtrack.detect.gyro.gyroconfirm`):
 
-    - ``shape_score_min``: the lowest score of a candidate's best predicted shape.
+    - ``shape_score_min``: the lowest score of a candidate's best predicted shape (with
+      ``shape_search``; a session-corrected curve is left to the pursuit's floors).
     - ``light_quantile``: without first-pass lines inside the frame, the typical dot's light
       is this quantile of the components' light (chains are brighter).
     - ``measured_min``: a component is replaced where at least this fraction of its

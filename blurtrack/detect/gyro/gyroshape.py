@@ -46,12 +46,11 @@ def best_shape(
     make: Any,
     inside_min: float,
     frame: tuple[int, int, int, int] | None = None,
-    search: bool = True,
 ) -> tuple[Template | None, float]:
     """The variant of curve ``pts`` (rotated, scaled) whose template explains the light in
-    component ``c``'s box best, and its support-normalised correlation there; without
-    ``search`` the curve as predicted (a calibration already corrected for the session,
-    :mod:`blurtrack.detect.gyro.sessioncalib`).
+    component ``c``'s box best, and its support-normalised correlation there (only where the
+    calibration is nominal: a calibration corrected for the session,
+    :mod:`blurtrack.detect.gyro.sessioncalib`, places the curve as predicted, without a trial).
 
     The variants are ranked by the correlation normalised over the support *and the halo*:
     the support-normalised one alone (the pursuit's) is as high for a template too small,
@@ -80,8 +79,6 @@ def best_shape(
     first = trial(0.0, 1.0)
     if first[0] is None:
         return None, -1.0
-    if not search:
-        return first[0], first[1]
     near = (first[3][0], first[3][1], first[4])
     # Coordinate search: the rotation at the nominal scale, the scale at that rotation, then
     # the rotation once more on a finer grid.
