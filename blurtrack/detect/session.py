@@ -235,7 +235,9 @@ def _detect_session(
                 p.orientation,
                 axes_known=session.meta.imu.axes_known,
             )
-        if direction is not None and not direction.usable:
+        set_aside = direction is not None and not direction.usable
+        if set_aside:
+            assert direction is not None  # set_aside implies a direction
             if gyro == "on":
                 raise DetectionError(direction.message(idx, refused=True))
             covered, found_shift = [], False  # the images alone from here (module text)
@@ -245,8 +247,8 @@ def _detect_session(
             )
         fitted = session_fit is not None and session_fit.status == "fitted"
         for k in sorted(set(range(len(found))) - set(covered)):
-            if len(found[k]) == 0 or (direction is not None and not direction.usable):
-                continue
+            if len(found[k]) == 0 or set_aside:
+                continue  # no streaks, or a gyro set aside, not one that falls short
             if gyro == "on":
                 raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
             uncovered.append(idx[k])
