@@ -14,7 +14,9 @@ Three cues, each a log-likelihood ratio (LLR, natural log) in favour of "end A i
 - ``continuity``: in the gap between exposures the dot keeps moving. Extrapolating each end
   outwards along its tangent, at the speed its brightness implies, over the gap, the previous
   frame must have an end near the extrapolated start and the next frame one near the
-  extrapolated end.
+  extrapolated end. Other dots' ends lie about too (clutter), so an end found near an
+  extrapolated point is evidence only in proportion to how unlikely a stranger's is there
+  (:func:`continuity_llr`).
 
 ``confidence = sigmoid(|LLR|)`` in [0.5, 1); ``source`` names the cue that contributed most to
 the decision (``none`` when no cue had evidence).
@@ -42,20 +44,31 @@ CUE_SUBSTEP_S = 4e-3
 class CueErrors:
     """The cues' error model for one session (:class:`~blurtrack.detect.params.OrientationParams`,
     :func:`cue_errors`): the gyro's predicted ends scatter by ``sigma_px + sigma_rel *
-    length`` (px), log brightness ratios by ``profile_sigma_log``; every LLR is clipped to
-    ``+-max_llr``."""
+    length`` (px), log brightness ratios by ``profile_sigma_log``; a dot's own end lies near
+    its extrapolated one in a neighbouring frame with probability ``continuity_present``,
+    among other ends counted within ``continuity_radius`` extrapolation uncertainties
+    (:func:`continuity_llr`); every LLR is clipped to ``+-max_llr``."""
 
     sigma_px: float = OrientationParams().gyro_sigma_px
     sigma_rel: float = OrientationParams().gyro_sigma_rel
     profile_sigma_log: float = OrientationParams().profile_sigma_log
     max_llr: float = OrientationParams().max_cue_llr
+    continuity_present: float = OrientationParams().continuity_present
+    continuity_radius: float = OrientationParams().continuity_radius
 
 
 def cue_errors(p: OrientationParams, refined: bool) -> CueErrors:
     """The error model of ``p``, with the smaller relative part where the time-shift scan
-    found the shift (``refined``)."""
+    found the shift (``refined``; the continuity cue does not depend on it)."""
     rel = p.gyro_sigma_rel_refined if refined else p.gyro_sigma_rel
-    return CueErrors(p.gyro_sigma_px, rel, p.profile_sigma_log, p.max_cue_llr)
+    return CueErrors(
+        p.gyro_sigma_px,
+        rel,
+        p.profile_sigma_log,
+        p.max_cue_llr,
+        p.continuity_present,
+        p.continuity_radius,
+    )
 
 
 @dataclass(frozen=True)
@@ -238,21 +251,48 @@ def _extrapolated_ends(
     return ext_a, ext_b, unc
 
 
-#: Query rows per block of :func:`nearest_distance` (bounds its distance matrix).
+#: Query rows per block of :func:`nearest_and_count` (bounds its distance matrix).
 NEAREST_BLOCK = 512
 
 
-def nearest_distance(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Distance ``(N,)`` from each of ``queries (N, 2)`` to the nearest of ``points (M, 2)``
-    (exhaustive, in blocks: a frame's few hundred ends need no spatial index)."""
+def nearest_and_count(
+    queries: np.ndarray, points: np.ndarray, radius: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each of ``queries (N, 2)``: the distance ``(N,)`` to the nearest of ``points (M,
+    2)`` and how many of them lie within its ``radius (N,)`` (px), exhaustively, in blocks of
+    :data:`NEAREST_BLOCK` queries."""
     out = np.empty(queries.shape[0])
+    count = np.zeros(queries.shape[0], np.int64)
     p2 = np.einsum("ij,ij->i", points, points)
     for a in range(0, queries.shape[0], NEAREST_BLOCK):
         q = queries[a : a + NEAREST_BLOCK]
         # |q - p|^2 = |q|^2 + |p|^2 - 2 q.p: one matrix product instead of two broadcasts.
-        d2 = np.min(p2[None, :] - 2.0 * (q @ points.T), axis=1) + np.einsum("ij,ij->i", q, q)
-        out[a : a + NEAREST_BLOCK] = np.sqrt(np.maximum(d2, 0.0))
-    return out
+        d2 = p2[None, :] - 2.0 * (q @ points.T) + np.einsum("ij,ij->i", q, q)[:, None]
+        out[a : a + NEAREST_BLOCK] = np.sqrt(np.maximum(np.min(d2, axis=1), 0.0))
+        r = radius[a : a + NEAREST_BLOCK]
+        count[a : a + NEAREST_BLOCK] = np.sum(d2 <= (r * r)[:, None], axis=1)
+    return out, count
+
+
+def continuity_llr(
+    d_px: np.ndarray, unc_px: np.ndarray, density_px2: np.ndarray, present: float
+) -> np.ndarray:
+    """``(N,)`` log of how much likelier the nearest neighbouring end at ``d_px`` is where the
+    dot's own end is expected (its extrapolation's uncertainty ``unc_px``) than where only
+    other dots' ends are (``density_px2``: ends per px^2 about the point).
+
+    Other ends are a Poisson field of density ``lam`` (``density_px2``, > 0), whose nearest
+    lies at ``d`` with density ``2 pi lam d exp(-pi lam d^2)``; the dot's own end is there
+    with probability ``q`` (``present``: found in the neighbouring frame, and the motion
+    through the gap as extrapolated), scattered as a 2-D Gaussian of ``unc`` about the point.
+    The nearest end's likelihood ratio of the two is ``1 - q + q exp(-d^2 / 2 unc^2) (1 + 1 /
+    (2 pi lam unc^2))``: at most ``ln(1 + q / (2 pi lam unc^2))`` where ends crowd (a
+    stranger's end is as likely there), at least ``ln(1 - q)`` far from any end (the dot's
+    own may be missing)."""
+    q = float(present)
+    crowd = 1.0 + 1.0 / (2.0 * np.pi * density_px2 * unc_px**2)
+    ratio = 1.0 - q + q * np.exp(-(d_px**2) / (2.0 * unc_px**2)) * crowd
+    return np.asarray(np.log(ratio))
 
 
 def continuity_cues(
@@ -260,10 +300,15 @@ def continuity_cues(
     timings: Sequence[FrameTiming],
     swaps: Sequence[np.ndarray] | None = None,
     cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
-    max_llr: float = CueErrors.max_llr,
+    errors: CueErrors = CueErrors(),
 ) -> list[np.ndarray]:
     """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence),
-    clipped to ``+-max_llr`` (:class:`CueErrors`).
+    clipped to ``+-errors.max_llr`` (:class:`CueErrors`).
+
+    Each neighbouring frame adds :func:`continuity_llr` at the extrapolated start less that
+    at the extrapolated end (the next frame: the other way round), the density of ends about
+    each point counted within ``errors.continuity_radius`` uncertainties of it, the nearest
+    (the dot's own, where it is there) not counted, and at least one.
 
     Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
     (a tentative orientation of every frame: True where end B is the start) only the
@@ -302,12 +347,16 @@ def continuity_cues(
             if k not in bases:
                 bases[k] = _extrapolation_basis(fs, timings[k])
             ext_a, ext_b, unc = _extrapolated_ends(fs, timings[k], gap, bases[k])
-            gate = 3.0 * unc
-            d_a = np.minimum(nearest_distance(ext_a, t), gate)
-            d_b = np.minimum(nearest_distance(ext_b, t), gate)
+            radius = errors.continuity_radius * unc
+            area = np.pi * radius**2
+            d_a, n_a = nearest_and_count(ext_a, t, radius)
+            d_b, n_b = nearest_and_count(ext_b, t, radius)
+            q = errors.continuity_present
+            at_a = continuity_llr(d_a, unc, np.maximum(n_a - 1, 1) / area, q)
+            at_b = continuity_llr(d_b, unc, np.maximum(n_b - 1, 1) / area, q)
             # Previous frame (sign +1): an end near ext_a supports "A is the start".
-            out[k] += sign * (d_b**2 - d_a**2) / (2 * unc**2)
-    return [np.clip(o, -max_llr, max_llr) for o in out]
+            out[k] += sign * (at_a - at_b)
+    return [np.clip(o, -errors.max_llr, errors.max_llr) for o in out]
 
 
 def combine(llr: np.ndarray) -> Orientation:

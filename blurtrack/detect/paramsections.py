@@ -384,6 +384,16 @@ class OrientationParams:
       speckle and noise leave ~0.3).
     - ``max_cue_llr``: every cue's LLR is clipped to +-this, so that no single cue drowns the
       others (25: odds of ~7e10, beyond any error model's validity).
+    - ``continuity_present``: the chance that a dot's own end lies near where its streak's end,
+      extrapolated through the gap, says it should in a neighbouring frame: found there, and
+      the motion through the gap as extrapolated (a turn in the gap, a dot leaving the view
+      or missed; :func:`~blurtrack.detect.orientation.continuity_llr`). It bounds what a
+      missing end says against an orientation (``ln(1 - p)``). 0.75: the log-loss of the
+      continuity-only orientation against the truth on ``hard`` seeds 1, 2, 5, 6 was lowest
+      among 0.7-0.9.
+    - ``continuity_radius``: other dots' ends about an extrapolated end are counted within
+      this many extrapolation uncertainties (each at least 2 px), their density bounding what a
+      near end says for an orientation (a stranger's end may lie as near).
     - ``direction_check``: before using the gyro, check its direction of motion against the
       frames' own continuity (:mod:`~blurtrack.detect.gyro.direction`); where it runs the
       other way (wrong camera-IMU axes) detection goes on from the images alone.
@@ -399,6 +409,8 @@ class OrientationParams:
     gyro_sigma_rel_refined: float = _num(0.12, 0.0)
     profile_sigma_log: float = _num(0.35, 0.0, lo_open=True)
     max_cue_llr: float = _num(25.0, 0.0, lo_open=True)
+    continuity_present: float = _num(0.75, 0.0, 1.0, lo_open=True, hi_open=True)
+    continuity_radius: float = _num(10.0, 1.0)
     direction_check: bool = _switch(True)
     direction_llr: float = _num(2.0, 0.0, lo_open=True)
     direction_frame_agree: float = _num(0.2, 0.0, 1.0)

@@ -206,7 +206,9 @@ def _detect_session(
 
     def continuity() -> list[np.ndarray]:
         # Of the final frames and gyro cues: ``llrs`` as bound when called.
-        return sessioncues.continuity_columns(found, timings, llrs, p.orientation.max_cue_llr)
+        return sessioncues.continuity_columns(
+            found, timings, llrs, cue_errors(p.orientation, refined=False)
+        )
 
     if inputs is not None:
         from blurtrack.geometry.blur_model import BlurModel

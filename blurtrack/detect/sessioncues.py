@@ -126,16 +126,16 @@ def _continuity_into(
     found: list[FrameStreaks],
     timings: list[FrameTiming],
     llrs: list[np.ndarray],
-    max_llr: float,
+    errors: CueErrors,
 ) -> None:
     """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
     (with the tentative orientation of all three cues) only the previous frame's ends and the
-    next frame's starts; each LLR clipped to ``+-max_llr``."""
+    next frame's starts; each LLR clipped to ``+-errors.max_llr``."""
     basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(continuity_cues(found, timings, cache=basis, max_llr=max_llr)):
+    for k, c in enumerate(continuity_cues(found, timings, cache=basis, errors=errors)):
         llrs[k][:, 2] = c
     tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, max_llr=max_llr)):
+    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, errors=errors)):
         llrs[k][:, 2] = c
 
 
@@ -143,10 +143,10 @@ def continuity_columns(
     found: list[FrameStreaks],
     timings: list[FrameTiming],
     llrs: list[np.ndarray],
-    max_llr: float,
+    errors: CueErrors,
 ) -> list[np.ndarray]:
     """The continuity column of each frame's ``llrs`` (:func:`_continuity_into` on a copy:
     ``llrs`` stays as it is, so that this may run in a worker)."""
     cols = [llr.copy() for llr in llrs]
-    _continuity_into(found, timings, cols, max_llr)
+    _continuity_into(found, timings, cols, errors)
     return [c[:, 2] for c in cols]

@@ -139,7 +139,9 @@ def gyro_direction(
     for k, g in zip(sample, gyro, strict=True):
         # The frame and its neighbours only: continuity reads nothing further.
         around = [j for j in (k - 1, k, k + 1) if 0 <= j < len(found)]
-        cont = continuity_cues([found[j] for j in around], [timings[j] for j in around])
+        cont = continuity_cues(
+            [found[j] for j in around], [timings[j] for j in around], errors=errors
+        )
         c = cont[around.index(k)]
         both = (np.abs(g[:, 0]) >= lo) & (np.abs(c) >= lo)
         n = int(both.sum())

@@ -11,7 +11,7 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import FrameTiming, combine, continuity_cues
+from blurtrack.detect.orientation import FrameTiming, combine, continuity_cues, continuity_llr
 from blurtrack.detect.session import detect_session
 from blurtrack.detect.table import EXTRA_COLUMNS, read_table, write_table
 from blurtrack.errors import CoverageError, DetectionError
@@ -140,6 +140,43 @@ def test_continuity_orients_a_chain_of_streaks() -> None:
     assert llr[1][0] < -2
     ori = combine(np.column_stack([np.zeros(1), np.zeros(1), llr[1]]))
     assert ori.swap[0] and ori.source == ["continuity"] and ori.confidence[0] > 0.9
+
+
+def test_continuity_llr_is_bounded_by_the_density_of_other_ends() -> None:
+    q, u, lam = 0.75, np.array([2.0]), np.array([1e-3])
+    at_zero = continuity_llr(np.array([0.0]), u, lam, q)[0]
+    assert at_zero == pytest.approx(np.log(1 + q / (2 * np.pi * 1e-3 * 4.0)))
+    assert continuity_llr(np.array([1e3]), u, lam, q)[0] == pytest.approx(np.log(1 - q))
+    # Falls with the distance, to the floor of a missing end.
+    d = np.linspace(0.0, 8.0, 50)
+    assert np.all(np.diff(continuity_llr(d, np.full(50, 2.0), np.full(50, 1e-3), q)) < 0)
+    # Ten times the clutter: an end right there says less, but still for.
+    crowded = continuity_llr(np.array([0.0]), u, 10 * lam, q)[0]
+    assert 0 < crowded < at_zero - 1.0
+
+
+def test_continuity_weighs_a_near_end_less_among_other_ends() -> None:
+    # The chain of test_continuity_orients_a_chain_of_streaks, frame 1 stored the right way.
+    timings = [FrameTiming(0.012 * k, 0.010) for k in range(3)]
+    chain = [([10, 50], [20, 50]), ([22, 50], [32, 50]), ([34, 50], [44, 50])]
+
+    def frame1_llr(strangers: list) -> float:
+        a0 = [chain[0][0]] + [[x, y] for x, y in strangers]
+        b0 = [chain[0][1]] + [[x + 1, y] for x, y in strangers]
+        frames = [_streaks(a0, b0), _streaks([chain[1][0]], [chain[1][1]])]
+        frames.append(_streaks([chain[2][0]], [chain[2][1]]))
+        return float(continuity_cues(frames, timings)[1][0])
+
+    lone = frame1_llr([])
+    # Other dots' tiny streaks 5-8 px about the extrapolated start (20, 50): its own end is
+    # still the nearest, and the orientation still right, but less sure.
+    ring = [[20 + 6 * np.cos(t), 50 + 6 * np.sin(t)] for t in np.linspace(0, 6, 8)]
+    crowded = frame1_llr(ring)
+    assert lone > 4.0
+    assert 0.5 < crowded < lone - 1.0
+    # Negative control: the same strangers beyond the counting radius change nothing.
+    far = [[x + 60, y + 40] for x, y in ring]
+    assert frame1_llr(far) == pytest.approx(lone, abs=1e-12)
 
 
 def test_continuity_cache_gives_the_same_cues() -> None:
