@@ -194,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
             f"saturated): {s['frames_overexposed'][:10]}",
             file=sys.stderr,
         )
+    if (s.get("gyro_readout_order") or {}).get("status") == "bottom_first":
+        print(f"  warning: {s['gyro_readout_order']['message']}", file=sys.stderr)
     if (s.get("gyro_direction") or {}).get("status") in ("contradicted", "unconfirmed"):
         print(f"  warning: {s['gyro_direction']['message']}", file=sys.stderr)
     if s["frames_without_gyro"]:

@@ -16,6 +16,13 @@ from blurtrack.detect.forkmap import Jobs, fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
 from blurtrack.detect.gyro.gyrotrust import check_frames
+from blurtrack.detect.gyro.readout import (
+    ReadoutOrder,
+    TurnedSession,
+    readout_order,
+    turned_frame,
+    turned_table,
+)
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
 from blurtrack.detect.orientation import (
@@ -147,9 +154,34 @@ def detect_session(
     """
     # One BLAS thread: the cores are this function's processes' (forkmap.one_blas_thread).
     with one_blas_thread():
-        return _detect_session(
-            session, params, gyro, frames, on_frame, refine_timeshift, workers, meanwhile
-        )
+        try:
+            return _detect_session(
+                session, params, gyro, frames, on_frame, refine_timeshift, workers, meanwhile
+            )
+        except _TurnFramesSignal as turn:
+            # The sensor reads the bottom row first: detect in the frames turned by 180
+            # degrees, where it reads the top row first, and turn the result back.
+            p = params or DetectParams()
+            once = replace(p, timeshift=replace(p.timeshift, readout_order_check=False))
+            res = _detect_session(
+                TurnedSession(session), once, gyro, frames, None, refine_timeshift, workers, None
+            )
+            res.summary["gyro_readout_order"] = turn.order.as_dict()
+            return DetectionResult(
+                turned_table(res.table, session.meta.camera.resolution),
+                res.summary,
+                [turned_frame(fs) for fs in res.frames],
+            )
+
+
+class _TurnFramesSignal(Exception):  # noqa: N818 - a signal within this module, not an error
+    """Raised by :func:`_detect_session` where the frames read the bottom row first
+    (:mod:`blurtrack.detect.gyro.readout`); :func:`detect_session` then detects again in the
+    frames turned by 180 degrees."""
+
+    def __init__(self, order: ReadoutOrder) -> None:
+        super().__init__(order.status)
+        self.order = order
 
 
 def _detect_session(
@@ -199,6 +231,7 @@ def _detect_session(
     model = shift = refined = None
     session_fit: Any = None
     direction: GyroDirection | None = None
+    order: ReadoutOrder | None = None
     gyro_checked = 0
     ok_change = 0  # quality_ok streaks after the gyro's check less before
     template_pass = TemplatePass()  # empty where the pass does not run
@@ -221,12 +254,17 @@ def _detect_session(
             else None
         )
         found_shift = shift is not None and shift.status == "found"
+        if found_shift and p.timeshift.readout_order_check:
+            # Which row the sensor reads first, from the frames (gyro/readout.py).
+            order = readout_order(found, timings, calib, trace, shift, model_gyro=up, params=p)
         if found_shift:
             assert shift is not None  # found_shift implies a shift
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = covered_frames(found, timings, model)
+        if order is not None and not order.usable:
+            raise _TurnFramesSignal(order)  # detect_session turns the frames
         if p.orientation.direction_check:
             direction = gyro_direction(
                 found,
@@ -354,6 +392,7 @@ def _detect_session(
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
         "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
         "gyro_direction": None if direction is None else direction.as_dict(idx),
+        "gyro_readout_order": None if order is None else order.as_dict(),
         "gyro_session_calibration": None
         if session_fit is None
         else {

@@ -1,0 +1,189 @@
+"""The rows' readout order decided by the frames, and detection in frames read bottom first."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from blurtrack.cli import main
+from blurtrack.detect.gyro.readout import (
+    ReadoutOrder,
+    turned_calibration,
+    turned_frame,
+    turned_table,
+)
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session import detect_session
+from blurtrack.geometry.calibration import Calibration
+from blurtrack.geometry.camera import Camera
+from blurtrack.io.session import load_session
+from blurtrack.testing.mini_session import write_synthetic_session
+
+
+def turn_session(src: Path, dst: Path) -> None:
+    """``src`` as a camera that reads the bottom row first records it: every frame turned by
+    180 degrees, session.yaml's principal point and axes right for the turned frames, its
+    readout still the same number (the order is what no session file says), truth turned."""
+    meta = yaml.safe_load((src / "session.yaml").read_text())
+    w, h = meta["camera"]["resolution"]
+    fx, fy, cx, cy = meta["camera"]["intrinsics"]
+    meta["camera"]["intrinsics"] = [fx, fy, w - 1 - cx, h - 1 - cy]
+    flip = np.diag([-1.0, -1.0, 1.0, 1.0])
+    meta["imu"]["T_cam_imu"] = (flip @ np.array(meta["imu"]["T_cam_imu"])).tolist()
+    (dst / "cam0" / "data").mkdir(parents=True)
+    (dst / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    for f in sorted((src / "cam0" / "data").iterdir()):
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(dst / "cam0" / "data" / f.name), cv2.rotate(img, cv2.ROTATE_180))
+    for name in ("cam0/data.csv", "imu0/data.csv"):
+        (dst / name).parent.mkdir(parents=True, exist_ok=True)
+        (dst / name).write_bytes((src / name).read_bytes())
+    truth = yaml.safe_load((src / "truth.yaml").read_text())
+    for fr in truth["frames"]:
+        for st in fr.get("streaks") or []:
+            for key in ("start", "end"):
+                st[key] = [w - 1 - st[key][0], h - 1 - st[key][1]]
+    (dst / "truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False))
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("readout")
+    upright = root / "upright"
+    assert main(["simulate", str(upright), "--preset", "realistic", "--frames", "4"]) == 0
+    turned = root / "turned"
+    turn_session(upright, turned)
+    return {"upright": upright, "turned": turned}
+
+
+def ok_ends(table: pd.DataFrame) -> np.ndarray:
+    """``(N, 4)`` the ``quality_ok`` streaks' start and end (frame-major order)."""
+    ok = table[table["quality_ok"]]
+    return ok[["frame", "start_x", "start_y", "end_x", "end_y"]].to_numpy(float)
+
+
+def right_ok_fraction(table: pd.DataFrame, truth: dict[str, Any]) -> tuple[float, int]:
+    """Of the ``quality_ok`` streaks, the share with both ends within 2 px of one true
+    streak's (either way round), and how many there are."""
+    right = total = 0
+    for fr in truth["frames"]:
+        rows = table[(table["frame"] == fr["index"]) & table["quality_ok"]]
+        S = np.array([s["start"] for s in fr["streaks"]])
+        E = np.array([s["end"] for s in fr["streaks"]])
+        for s0, s1, e0, e1 in rows[["start_x", "start_y", "end_x", "end_y"]].to_numpy():
+            same = np.maximum(np.hypot(*(S - [s0, s1]).T), np.hypot(*(E - [e0, e1]).T))
+            swap = np.maximum(np.hypot(*(S - [e0, e1]).T), np.hypot(*(E - [s0, s1]).T))
+            right += int(np.min(np.minimum(same, swap)) <= 2.0)
+            total += 1
+    return right / max(total, 1), total
+
+
+def test_upright_frames_read_the_top_row_first(sessions: dict[str, Path]) -> None:
+    res = detect_session(load_session(sessions["upright"]), workers=1)
+    order = res.summary["gyro_readout_order"]
+    assert order["status"] == "top_first"
+    assert order["llr_top_first"] > DetectParams().timeshift.readout_order_llr
+    assert "message" not in order
+
+
+def test_frames_read_bottom_first_are_detected_turned(sessions: dict[str, Path]) -> None:
+    upright = detect_session(load_session(sessions["upright"]), workers=1)
+    session = load_session(sessions["turned"])
+    res = detect_session(session, workers=1)
+    order = res.summary["gyro_readout_order"]
+    assert order["status"] == "bottom_first"
+    assert order["llr_top_first"] < -DetectParams().timeshift.readout_order_llr
+    assert "bottom to top" in order["message"]
+    # The table is in the stored frames' pixels, and right against their (turned) truth.
+    share, n = right_ok_fraction(res.table, session.truth)
+    assert n > 0.9 * int(upright.table["quality_ok"].sum())
+    assert share > 0.99
+    # The same streaks as the upright session's, turned.
+    w, h = session.meta.camera.resolution
+    mine = ok_ends(turned_table(res.table, (w, h)))
+    theirs = ok_ends(upright.table)
+    for fr in np.unique(theirs[:, 0]):
+        a, b = mine[mine[:, 0] == fr, 1:], theirs[theirs[:, 0] == fr, 1:]
+        d = np.min(np.abs(a[:, None, :] - b[None, :, :]).max(axis=2), axis=0)
+        assert np.median(d) < 0.05
+    assert res.summary["gyro_direction"]["status"] == "consistent"
+
+
+def test_without_the_check_bottom_first_frames_lose_their_trusted_streaks(
+    sessions: dict[str, Path],
+) -> None:
+    # Negative control: the session's order taken on trust.
+    p = DetectParams()
+    off = replace(p, timeshift=replace(p.timeshift, readout_order_check=False))
+    session = load_session(sessions["turned"])
+    res = detect_session(session, off, workers=1)
+    assert res.summary["gyro_readout_order"] is None
+    checked = detect_session(session, workers=1)
+    assert int(res.table["quality_ok"].sum()) < 0.8 * int(checked.table["quality_ok"].sum())
+
+
+def test_the_cli_says_the_frames_read_bottom_first(
+    sessions: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "t.parquet"
+    assert main(["detect", str(sessions["turned"]), "--out", str(out), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the frames' streaks fit rows read bottom to top" in err
+    assert out.is_file()
+
+
+def test_a_global_shutter_is_not_checked(tmp_path: Path) -> None:
+    write_synthetic_session(tmp_path / "s", n_frames=8, seed=5, grid=(8, 6), amplitude_radps=3.0)
+    res = detect_session(load_session(tmp_path / "s"), workers=1)
+    assert res.summary["gyro_timeshift_status"] == "found"
+    assert res.summary["gyro_readout_order"]["status"] == "global"
+
+
+def test_turning_the_calibration_mirrors_the_projection_and_undoes_itself() -> None:
+    cam = Camera(
+        resolution=(640, 480),
+        intrinsics=(500.0, 510.0, 300.0, 250.0),
+        distortion_model="radtan",
+        distortion_coeffs=(-0.1, 0.02, 0.001, -0.002),
+        readout_s=0.02,
+    )
+    R = cv2.Rodrigues(np.array([0.1, -0.2, 0.3]))[0]
+    calib = Calibration(camera=cam, R_cam_imu=R, timeshift_cam_imu_s=0.004)
+    turned = turned_calibration(calib)
+    X = np.array([[0.3, -0.2, 2.0], [-0.5, 0.4, 3.0], [0.0, 0.0, 1.0]])
+    flip = np.diag([-1.0, -1.0, 1.0])
+    uv = calib.camera.project(X)
+    uv_turned = turned.camera.project(X @ flip.T)  # the same points in the turned camera
+    np.testing.assert_allclose(uv_turned, [639.0, 479.0] - uv, atol=1e-9)
+    np.testing.assert_allclose(turned.R_cam_imu, flip @ R, atol=1e-9)
+    assert turned.camera.readout_s == cam.readout_s
+    back = turned_calibration(turned)
+    assert back.camera == calib.camera
+    np.testing.assert_allclose(back.R_cam_imu, calib.R_cam_imu, atol=1e-9)
+
+
+def test_turning_a_table_and_a_frame_twice_gives_them_back(sessions: dict[str, Path]) -> None:
+    res = detect_session(load_session(sessions["upright"]), gyro="off", workers=1)
+    table = res.table
+    once = turned_table(table, (1280, 720))
+    assert once["start_x"].iloc[0] == pytest.approx(1279.0 - table["start_x"].iloc[0])
+    assert once["mid_y"].iloc[0] == pytest.approx(719.0 - table["mid_y"].iloc[0])
+    np.testing.assert_allclose(
+        np.asarray(once["centerline"].iloc[0])[0],
+        [1279.0, 719.0] - np.asarray(table["centerline"].iloc[0]).reshape(-1, 2)[0],
+    )
+    twice = turned_table(once, (1280, 720))
+    for col in ("start_x", "start_y", "end_x", "end_y", "mid_x", "mid_y"):
+        np.testing.assert_allclose(twice[col], table[col], atol=1e-9)
+    fs = res.frames[0]
+    back = turned_frame(turned_frame(fs))
+    np.testing.assert_allclose(back.end_a, fs.end_a)
+    np.testing.assert_allclose(back.points[0], fs.points[0])
+    assert ReadoutOrder("undetermined").usable
