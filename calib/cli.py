@@ -128,6 +128,39 @@ def run_calibrate(args: argparse.Namespace) -> int:
         return _calibrate_laser(args)
 
 
+def refuse_bottom_first(args: argparse.Namespace, session: Any) -> None:
+    """Stop (:class:`~calib.errors.CalibError`) where the streak table's detection summary says
+    the frames read their bottom row first (``gyro_readout_order``,
+    :mod:`blurtrack.detect.gyro.readout`): the blur model reads the top row first, and its
+    readout, bounded at 0, cannot follow, so the fit would be wrong without saying so. No
+    summary (a table from elsewhere, ``--from-truth``): nothing to check."""
+    import json
+
+    from blurtrack.cli.detect import detect_summary_path
+    from calib.errors import CalibError
+
+    if getattr(args, "from_truth", False):
+        return
+    table = Path(args.streaks) if args.streaks else Path(args.session) / "streaks.parquet"
+    path = detect_summary_path(table, Path(session.folder))
+    if not path.is_file():
+        return
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CalibError(f"{path}: unreadable detection summary ({exc})") from None
+    order = summary.get("gyro_readout_order") if isinstance(summary, dict) else None
+    if isinstance(order, dict) and order.get("status") == "bottom_first":
+        llr = order.get("llr_top_first")
+        odds = f", log-likelihood ratio {llr:.0f}" if isinstance(llr, int | float) else ""
+        raise CalibError(
+            f"{path}: the frames read their bottom row first (detection's readout order"
+            f"{odds}); calibrate models the top "
+            "row first: import the recording again with --turn-180 (every frame turned by 180 "
+            "degrees, the principal point and T_cam_imu with them), then detect and calibrate"
+        )
+
+
 def _calibrate_laser(args: argparse.Namespace) -> int:
     from calib.centreline import CENTRE_POINTS
     from calib.data import streaks_from_table
@@ -141,6 +174,7 @@ def _calibrate_laser(args: argparse.Namespace) -> int:
 
         raise CalibError("--mask applies to natural-scene sessions (feature tracks)")
     session, table = load_session_and_streaks(args)
+    refuse_bottom_first(args, session)
     streaks = streaks_from_table(
         table, session.frames, centre_k=CENTRE_POINTS if args.centreline else 0
     )

@@ -75,6 +75,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="frames: fx,fy,cx,cy in px (default: a stated guess, fx = fy = width)",
     )
     p.add_argument(
+        "--turn-180",
+        action="store_true",
+        help="the sensor reads its bottom row first (mounted upside down; blurtrack detect "
+        "says so): store every frame turned by 180 degrees, with the principal point and the "
+        "camera axes turned alike, so that the rows read top first",
+    )
+    p.add_argument(
         "--overlays",
         type=int,
         default=0,
@@ -187,6 +194,10 @@ def run(args: argparse.Namespace) -> int:
     check_new_folder(args.out, "session folder")
     with atomic_dir(args.out) as tmp:  # a failure leaves no half session behind
         summary = IMPORTERS[args.kind](args.src, tmp, **importer_kwargs(args))
+        if args.turn_180:
+            from blurtrack.io.turn import turn_session_files
+
+            summary["turned_180"] = turn_session_files(tmp)
     session = load_session(args.out)
     axes_known = session.meta.imu.axes_known
     summary["axes_known"] = axes_known
@@ -205,6 +216,11 @@ def run(args: argparse.Namespace) -> int:
     )
     for key, text in summary["assumptions"].items():
         print(f"  assumed {key}: {text}")
+    if args.turn_180:
+        print(
+            f"  turned: {summary['turned_180']} frames by 180 degrees, the principal point and "
+            "the camera axes with them (the rows now read top first)"
+        )
     if not axes_known:
         print("  camera-IMU axes unknown: `blurtrack calibrate` searches the 24 signed axis maps")
     if args.overlays:

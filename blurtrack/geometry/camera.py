@@ -141,3 +141,30 @@ class Camera:
             distortion_coeffs=self.distortion_coeffs,
             readout_s=self.readout_s,
         )
+
+
+#: Turning the image by 180 degrees about the optical axis reverses the camera's x and y
+#: axes: a camera-frame vector ``v`` is ``TURN_180 @ v`` in the turned camera's frame.
+TURN_180 = np.diag([-1.0, -1.0, 1.0])
+
+
+def turned_camera(camera: Camera) -> Camera:
+    """``camera`` with its images turned by 180 degrees (a sensor that reads its bottom row
+    first stored so that it reads the top row first): the principal point at ``(W - 1 - cx,
+    H - 1 - cy)``, a radtan distortion's tangential terms negated (the radial ones are even
+    in ``(x, y)``); focal lengths and readout as they are. A point ``X`` (camera frame)
+    projects to ``(W - 1 - u, H - 1 - v)`` through the turned camera at ``TURN_180 @ X``.
+    Turned twice it is ``camera`` again."""
+    w, h = camera.resolution
+    fx, fy, cx, cy = camera.intrinsics
+    coeffs = tuple(camera.distortion_coeffs)
+    if camera.distortion_model == "radtan":
+        k1, k2, p1, p2 = coeffs
+        coeffs = (k1, k2, -p1, -p2)
+    return Camera(
+        resolution=(w, h),
+        intrinsics=(fx, fy, w - 1 - cx, h - 1 - cy),
+        distortion_model=camera.distortion_model,
+        distortion_coeffs=coeffs,
+        readout_s=camera.readout_s,
+    )

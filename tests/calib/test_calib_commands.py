@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -13,7 +14,9 @@ from blurtrack.cli import main
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.io import streaks as streak_table
 from blurtrack.io.calibration import calibration_to_dict, read_calibration
-from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter
+from blurtrack.io.session import ImuConfig, SessionMeta, SessionWriter, load_session
+from blurtrack.testing.turned import turn_session
+from calib.cli import refuse_bottom_first
 from calib.testing import make_problem
 
 
@@ -254,3 +257,20 @@ def test_truth_rotation_is_the_one_the_gyro_data_define() -> None:
     )
     assert np.allclose([plain["rot_x"], plain["rot_y"], plain["rot_z"]], so3_log(R), atol=1e-12)
     assert np.degrees(np.linalg.norm(rot - so3_log(R))) > 0.2
+
+
+def test_calibrate_refuses_frames_read_bottom_first(tmp_path: Path) -> None:
+    # Detection turns such frames for itself; calibration's model reads the top row first.
+    upright = tmp_path / "upright"
+    assert main(["simulate", str(upright), "--preset", "realistic", "--frames", "4"]) == 0
+    turned = tmp_path / "turned"
+    turn_session(upright, turned)
+    out = tmp_path / "calib.yaml"
+    assert main(["calibrate", str(turned), "--out", str(out)]) == 2
+    assert not out.exists()
+    summary = json.loads((turned / "derived" / "streaks.summary.json").read_text())
+    assert summary["gyro_readout_order"]["status"] == "bottom_first"
+    # Negative control: the upright session's detection summary lets the fit go on.
+    assert main(["detect", str(upright)]) == 0
+    args = argparse.Namespace(from_truth=False, streaks=None, session=str(upright))
+    refuse_bottom_first(args, load_session(upright))

@@ -32,6 +32,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.timeshift import TimeshiftEstimate, estimate_timeshift
+from blurtrack.geometry.camera import TURN_180, turned_camera
 
 #: The statuses of :class:`ReadoutOrder` (``global``: no readout, nothing to decide).
 STATUSES = ("top_first", "bottom_first", "undetermined", "global")
@@ -39,23 +40,15 @@ STATUSES = ("top_first", "bottom_first", "undetermined", "global")
 
 def turned_calibration(calib: Any) -> Any:
     """``calib`` (:class:`~blurtrack.geometry.calibration.Calibration`) for its frames turned
-    by 180 degrees about the optical axis: the principal point mirrored, the camera's x and y
-    axes reversed (``R_cam_imu`` pre-multiplied by ``diag(-1, -1, 1)``), a radtan
-    distortion's tangential terms negated (its radial ones are even); readout, time offset
-    and gyro terms unchanged. Turned twice it is ``calib`` again."""
-    cam = calib.camera
-    w, h = cam.resolution
-    fx, fy, cx, cy = cam.intrinsics
-    coeffs = tuple(cam.distortion_coeffs)
-    if cam.distortion_model == "radtan":
-        k1, k2, p1, p2 = coeffs
-        coeffs = (k1, k2, -p1, -p2)
-    flip = np.diag([-1.0, -1.0, 1.0])
-    return calib.with_(
-        intrinsics=(fx, fy, w - 1 - cx, h - 1 - cy),
-        distortion_coeffs=coeffs,
-        R_cam_imu=flip @ np.asarray(calib.R_cam_imu),
-        t_cam_imu_m=flip @ np.asarray(calib.t_cam_imu_m),
+    by 180 degrees about the optical axis: the camera turned
+    (:func:`~blurtrack.geometry.camera.turned_camera`), ``R_cam_imu`` and the lever arm
+    pre-multiplied by :data:`~blurtrack.geometry.camera.TURN_180`; time offset and gyro terms
+    unchanged. Turned twice it is ``calib`` again."""
+    return replace(
+        calib,
+        camera=turned_camera(calib.camera),
+        R_cam_imu=TURN_180 @ np.asarray(calib.R_cam_imu),
+        t_cam_imu_m=TURN_180 @ np.asarray(calib.t_cam_imu_m),
     )
 
 
@@ -150,8 +143,8 @@ class ReadoutOrder:
             f"{self.cost_top_first:.0f} over {self.n_streaks} streaks): the sensor is mounted "
             "upside down or the frames are stored turned by 180 degrees; detection turned "
             "them (the table is in the frames' own pixels), but blurtrack calibrate reads "
-            "the top row first: turn the frames, and mirror the principal point, before "
-            "calibrating"
+            "the top row first and refuses this table: import the recording again with "
+            "--turn-180"
         )
 
     def as_dict(self) -> dict[str, Any]:

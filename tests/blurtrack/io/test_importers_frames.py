@@ -177,3 +177,27 @@ def test_phone_video_imports_in_one_command(shared_data: Path, tmp_path: Path, c
     expect = [int(lines[k - 1].replace(".", "")) for k in range(100, 152)]  # 9 decimals: ns
     assert s.frames["timestamp_ns"].tolist() == expect
     assert s.meta.camera.resolution == (800, 600)
+
+
+def test_turn_180_stores_the_frames_and_the_camera_turned(tmp_path: Path, capsys) -> None:
+    src = tmp_path / "src"
+    _layout(src)
+    # A mark in each frame's top-left corner: after turning it lies bottom right.
+    for k in range(1, 7):
+        img = np.full((24, 32), 10 * k, np.uint8)
+        img[2, 3] = 250
+        cv2.imwrite(str(src / "imgs" / f"cam-{k}.png"), img)
+    k_opt = ["--intrinsics", "30,31,15,11"]
+    base = ["import", "frames", str(src)]
+    assert main([*base, str(tmp_path / "up"), "--exposure-ms", "5", *k_opt]) == 0
+    assert main([*base, str(tmp_path / "t"), "--exposure-ms", "5", "--turn-180", *k_opt]) == 0
+    assert "turned: 6 frames by 180 degrees" in capsys.readouterr().out
+    up, turned = load_session(tmp_path / "up"), load_session(tmp_path / "t")
+    for i in range(6):
+        np.testing.assert_array_equal(turned.read_image(i), up.read_image(i)[::-1, ::-1])
+    assert turned.read_image(0)[24 - 1 - 2, 32 - 1 - 3] == 250
+    assert turned.meta.camera.intrinsics == (30.0, 31.0, 32 - 1 - 15.0, 24 - 1 - 11.0)
+    T_up, T_turned = up.meta.imu.T_cam_imu, turned.meta.imu.T_cam_imu
+    np.testing.assert_allclose(T_turned, np.diag([-1.0, -1.0, 1.0, 1.0]) @ T_up)
+    np.testing.assert_array_equal(turned.frame_times_s, up.frame_times_s)
+    np.testing.assert_array_equal(turned.omega_radps, up.omega_radps)

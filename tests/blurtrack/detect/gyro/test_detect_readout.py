@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
 
 from blurtrack.cli import main
 from blurtrack.detect.gyro.readout import (
@@ -25,32 +24,7 @@ from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
-
-
-def turn_session(src: Path, dst: Path) -> None:
-    """``src`` as a camera that reads the bottom row first records it: every frame turned by
-    180 degrees, session.yaml's principal point and axes right for the turned frames, its
-    readout still the same number (the order is what no session file says), truth turned."""
-    meta = yaml.safe_load((src / "session.yaml").read_text())
-    w, h = meta["camera"]["resolution"]
-    fx, fy, cx, cy = meta["camera"]["intrinsics"]
-    meta["camera"]["intrinsics"] = [fx, fy, w - 1 - cx, h - 1 - cy]
-    flip = np.diag([-1.0, -1.0, 1.0, 1.0])
-    meta["imu"]["T_cam_imu"] = (flip @ np.array(meta["imu"]["T_cam_imu"])).tolist()
-    (dst / "cam0" / "data").mkdir(parents=True)
-    (dst / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
-    for f in sorted((src / "cam0" / "data").iterdir()):
-        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        cv2.imwrite(str(dst / "cam0" / "data" / f.name), cv2.rotate(img, cv2.ROTATE_180))
-    for name in ("cam0/data.csv", "imu0/data.csv"):
-        (dst / name).parent.mkdir(parents=True, exist_ok=True)
-        (dst / name).write_bytes((src / name).read_bytes())
-    truth = yaml.safe_load((src / "truth.yaml").read_text())
-    for fr in truth["frames"]:
-        for st in fr.get("streaks") or []:
-            for key in ("start", "end"):
-                st[key] = [w - 1 - st[key][0], h - 1 - st[key][1]]
-    (dst / "truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False))
+from blurtrack.testing.turned import turn_session
 
 
 @pytest.fixture(scope="module")
