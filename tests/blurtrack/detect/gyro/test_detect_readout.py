@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from blurtrack.cli import main
 from blurtrack.detect.gyro.readout import (
@@ -156,3 +157,17 @@ def test_turning_a_table_and_a_frame_twice_gives_them_back(sessions: dict[str, P
     np.testing.assert_allclose(back.end_a, fs.end_a)
     np.testing.assert_allclose(back.points[0], fs.points[0])
     assert ReadoutOrder("undetermined").usable
+
+
+def test_a_global_shutter_said_to_roll_is_not_turned(tmp_path: Path) -> None:
+    # Neither order fits a readout the sensor does not have: undetermined, never turned.
+    folder = tmp_path / "clean"
+    assert main(["simulate", str(folder), "--preset", "clean", "--frames", "6"]) == 0
+    meta = yaml.safe_load((folder / "session.yaml").read_text())
+    assert meta["camera"]["readout_s"] == 0.0
+    meta["camera"]["readout_s"] = 0.03
+    (folder / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    res = detect_session(load_session(folder), workers=1)
+    order = res.summary["gyro_readout_order"]
+    assert order["status"] == "undetermined"
+    assert abs(order["llr_top_first"]) < DetectParams().timeshift.readout_order_llr
