@@ -266,11 +266,15 @@ def nearest_and_count(
     p2 = np.einsum("ij,ij->i", points, points)
     for a in range(0, queries.shape[0], NEAREST_BLOCK):
         q = queries[a : a + NEAREST_BLOCK]
-        # |q - p|^2 = |q|^2 + |p|^2 - 2 q.p: one matrix product instead of two broadcasts.
-        d2 = p2[None, :] - 2.0 * (q @ points.T) + np.einsum("ij,ij->i", q, q)[:, None]
-        out[a : a + NEAREST_BLOCK] = np.sqrt(np.maximum(np.min(d2, axis=1), 0.0))
+        q2 = np.einsum("ij,ij->i", q, q)
+        # |q - p|^2 = |q|^2 + |p|^2 - 2 q.p: one matrix product instead of two broadcasts,
+        # |q|^2 added per row after the reductions (one temporary, updated in place).
+        g = q @ points.T
+        g *= -2.0
+        g += p2
+        out[a : a + NEAREST_BLOCK] = np.sqrt(np.maximum(np.min(g, axis=1) + q2, 0.0))
         r = radius[a : a + NEAREST_BLOCK]
-        count[a : a + NEAREST_BLOCK] = np.sum(d2 <= (r * r)[:, None], axis=1)
+        count[a : a + NEAREST_BLOCK] = np.count_nonzero(g <= (r * r - q2)[:, None], axis=1)
     return out, count
 
 

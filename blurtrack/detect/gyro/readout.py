@@ -52,10 +52,11 @@ def turned_calibration(calib: Any) -> Any:
     )
 
 
-def turned_frame(fs: FrameStreaks) -> FrameStreaks:
-    """``fs`` turned by 180 degrees: its ends, time midpoints and centre lines at ``(W - 1 -
-    x, H - 1 - y)`` (lengths, profiles along the lines and flags do not change). Turned
-    twice it is ``fs`` again."""
+def turned_frame(fs: FrameStreaks, lines: bool = True) -> FrameStreaks:
+    """``fs`` turned by 180 degrees: its ends, time midpoints and (``lines``) centre lines at
+    ``(W - 1 - x, H - 1 - y)`` (lengths, profiles along the lines and flags do not change;
+    without ``lines`` the centre lines are left as they are, for what reads only the ends,
+    like the time-shift scan). Turned twice it is ``fs`` again."""
     if len(fs) == 0:
         return fs
     h, w = fs.shape
@@ -65,7 +66,7 @@ def turned_frame(fs: FrameStreaks) -> FrameStreaks:
         end_a=at - fs.end_a,
         end_b=at - fs.end_b,
         time_mid=at - fs.time_mid,
-        points=[at - p for p in fs.points],
+        points=[at - p for p in fs.points] if lines else fs.points,
     )
 
 
@@ -194,7 +195,7 @@ def readout_order(
     if not np.isfinite(top):
         return ReadoutOrder("undetermined", top, float("nan"), n)
     turned = estimate_timeshift(
-        [turned_frame(fs) for fs in found],
+        [turned_frame(fs, lines=False) for fs in found],
         timings,
         turned_calibration(calib),
         trace,
