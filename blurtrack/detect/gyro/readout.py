@@ -118,7 +118,7 @@ class TurnedSession:
 class ReadoutOrder:
     """The check's outcome: ``status`` (:data:`STATUSES`: ``top_first``, the session's order,
     ``bottom_first``, ``undetermined``, ``global``), the two scans' least costs
-    (``cost_top_first``, ``cost_bottom_first``; NaN where a scan found nothing) and their
+    (``cost_top_first``, ``cost_bottom_first``; NaN where a scan had too few streaks) and their
     log-likelihood ratio for the top row first (``llr``), and the streaks they used."""
 
     status: str
@@ -167,9 +167,12 @@ def _finite_or_none(v: float) -> float | None:
 
 
 def _least(est: TimeshiftEstimate | None) -> float:
-    if est is None or est.status != "found":
+    """A scan's least cost over its grid (NaN: no scan). A flat scan counts too: an order
+    under which no shift fits says so by its cost."""
+    if est is None:
         return float("nan")
-    return float(np.min(est.cost))
+    finite = est.cost[np.isfinite(est.cost)]
+    return float(np.min(finite)) if finite.size else float("nan")
 
 
 def readout_order(
