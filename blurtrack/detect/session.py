@@ -254,8 +254,9 @@ def _detect_session(
             else None
         )
         found_shift = shift is not None and shift.status == "found"
-        if found_shift and p.timeshift.readout_order_check:
-            # Which row the sensor reads first, from the frames (gyro/readout.py).
+        if shift is not None and p.timeshift.readout_order_check:
+            # Which row the sensor reads first, from the frames (gyro/readout.py); also where
+            # the scan found no shift: the other order may.
             order = readout_order(found, timings, calib, trace, shift, model_gyro=up, params=p)
         if found_shift:
             assert shift is not None  # found_shift implies a shift

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -171,3 +172,18 @@ def test_a_global_shutter_said_to_roll_is_not_turned(tmp_path: Path) -> None:
     order = res.summary["gyro_readout_order"]
     assert order["status"] == "undetermined"
     assert abs(order["llr_top_first"]) < DetectParams().timeshift.readout_order_llr
+
+
+def test_a_gyro_reading_zero_decides_no_order(sessions: dict[str, Path], tmp_path: Path) -> None:
+    # Both scans are flat: the same least cost either way round, nothing decided.
+    folder = tmp_path / "zero"
+    shutil.copytree(sessions["upright"], folder)
+    csv = folder / "imu0" / "data.csv"
+    head, *rows = csv.read_text().splitlines()
+    zeroed = [",".join([r.split(",")[0], "0", "0", "0", *r.split(",")[4:]]) for r in rows]
+    csv.write_text("\n".join([head, *zeroed]) + "\n")
+    res = detect_session(load_session(folder), workers=1)
+    assert res.summary["gyro_timeshift_status"] == "undetermined"
+    order = res.summary["gyro_readout_order"]
+    assert order["status"] == "undetermined"
+    assert order["llr_top_first"] == pytest.approx(0.0, abs=1.0)
