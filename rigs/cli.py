@@ -43,6 +43,13 @@ def _add_session_options(p: argparse.ArgumentParser) -> None:
         help="exposure to assume where the camera does not report one",
     )
     g.add_argument("--target", choices=("laser-grid", "natural"), default="laser-grid")
+    g.add_argument(
+        "--turn-180",
+        action="store_true",
+        help="the camera reads its bottom row first (mounted upside down; blurtrack detect "
+        "says so): write the session's frames turned by 180 degrees, the principal point and "
+        "camera axes with them (the log keeps the frames as recorded)",
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -108,6 +115,20 @@ def _options(args: argparse.Namespace) -> Any:  # rigs.convert.ConvertOptions (l
     )
 
 
+def _log_to_session(log: Path, folder: Path, options: Any, turn: bool) -> Any:
+    """:func:`rigs.convert.log_to_session` into ``folder`` (the command's unpublished output),
+    its frames then turned by 180 degrees where ``turn`` (:mod:`blurtrack.io.turn`)."""
+    from rigs.convert import log_to_session
+
+    conv = log_to_session(log, folder, options)
+    if not turn:
+        return conv
+    from blurtrack.io.turn import turn_session_files
+
+    turned = turn_session_files(folder)
+    return dataclasses.replace(conv, notes=[*conv.notes, f"{turned} frames turned by 180 degrees"])
+
+
 def _check_new_folder(folder: Path) -> None:
     from blurtrack.io.guard import check_new_folder
 
@@ -121,7 +142,6 @@ def _write_summary(folder: Path, summary: dict[str, Any]) -> None:
 def run_record(args: argparse.Namespace) -> int:
     from blurtrack.io.guard import check_output
     from rigs.camera import open_camera
-    from rigs.convert import log_to_session
     from rigs.errors import RigError
     from rigs.imu import open_imu
     from rigs.recorder import Recorder, RecorderConfig, RecorderStatus
@@ -213,7 +233,9 @@ def run_record(args: argparse.Namespace) -> int:
     if not args.no_convert:
         try:
             with atomic_dir(out) as tmp:  # a full disk leaves no half session behind
-                conv = dataclasses.replace(log_to_session(log_path, tmp, options), folder=out)
+                conv = dataclasses.replace(
+                    _log_to_session(log_path, tmp, options, args.turn_180), folder=out
+                )
         except RigError as exc:
             if result.error is None:
                 raise
@@ -239,7 +261,6 @@ def run_record(args: argparse.Namespace) -> int:
 
 def run_recover(args: argparse.Namespace) -> int:
     from blurtrack.io.guard import check_output
-    from rigs.convert import log_to_session
     from rigs.errors import RigError
     from rigs.recover import recover_log
 
@@ -258,7 +279,9 @@ def run_recover(args: argparse.Namespace) -> int:
         )
     if args.session is not None:
         with atomic_dir(args.session) as tmp:  # a full disk leaves no half session behind
-            conv = dataclasses.replace(log_to_session(out, tmp, options), folder=args.session)
+            conv = dataclasses.replace(
+                _log_to_session(out, tmp, options, args.turn_180), folder=args.session
+            )
         _write_summary(
             args.session,
             {

@@ -281,3 +281,33 @@ def test_unplug_without_frames_keeps_the_log(
     k = scan_log(tmp_path / "session.mcap").imu_index
     np.testing.assert_array_equal(k, np.arange(k.size))
     assert 0 < k.size <= 100
+
+
+def test_recover_writes_the_session_turned_and_keeps_the_log(tmp_path: Path) -> None:
+    # A camera mounted upside down: --turn-180 turns the session's frames, never the log's.
+    imu = open_imu("sim://imu?rate=1000&realtime=0&samples=1500&seed=3")
+    frames = [
+        np.arange(24 * 32, dtype=np.uint16).reshape(24, 32).astype(np.uint8) + i for i in range(4)
+    ]
+    cam = VirtualCamera(
+        lambda t: frames[min(int(t * 10), 3)],
+        VirtualCameraConfig(fps=10, exposure_s=0.005, n_frames=4, realtime=False),
+    )
+    log = tmp_path / "rec.mcap"
+    result = Recorder(log, imu, cam, {"imu_url": "sim"}, RecorderConfig()).run()
+    imu.close()
+    assert result.error is None
+    before = log.read_bytes()
+    k = ["--intrinsics", "30,31,15,11"]
+    assert cli_main(["recover", str(log), "--session", str(tmp_path / "up"), *k]) == 0
+    argv = ["recover", str(log), "--out", str(tmp_path / "r2.mcap"), "--turn-180", *k]
+    assert cli_main([*argv, "--session", str(tmp_path / "turned")]) == 0
+    assert log.read_bytes() == before
+    up, turned = load_session(tmp_path / "up"), load_session(tmp_path / "turned")
+    assert len(turned.frames) == len(up.frames) == 4
+    for i in range(4):
+        np.testing.assert_array_equal(turned.read_image(i), up.read_image(i)[::-1, ::-1])
+    assert turned.meta.camera.intrinsics == (30.0, 31.0, 16.0, 12.0)
+    np.testing.assert_allclose(
+        turned.meta.imu.T_cam_imu, np.diag([-1.0, -1.0, 1.0, 1.0]) @ up.meta.imu.T_cam_imu
+    )
