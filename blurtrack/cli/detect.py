@@ -168,6 +168,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  camera-IMU time shift: {1e3 * s['gyro_timeshift_s']:+.2f} ms ({how})")
     elif s["gyro_timeshift_status"] != "no gyro":
         print(f"  camera-IMU time shift: {s['gyro_timeshift_status']}")
+    order = s.get("gyro_readout_order") or {}
+    if order.get("status") in ("top_first", "bottom_first", "undetermined"):
+        words = {"top_first": "top first", "bottom_first": "bottom first"}
+        llr = order.get("llr_top_first")
+        odds = "" if llr is None else f" (log-likelihood ratio {llr:+.0f} for the top first)"
+        print(f"  rows read: {words.get(order['status'], 'undetermined')}{odds}")
     sc = s["gyro_session_calibration"]
     if sc is not None and sc["status"] == "fitted":
         print(

@@ -110,8 +110,9 @@ def test_the_cli_says_the_frames_read_bottom_first(
 ) -> None:
     out = tmp_path / "t.parquet"
     assert main(["detect", str(sessions["turned"]), "--out", str(out), "--workers", "1"]) == 0
-    err = capsys.readouterr().err
-    assert "warning: the frames' streaks fit rows read bottom to top" in err
+    got = capsys.readouterr()
+    assert "warning: the frames' streaks fit rows read bottom to top" in got.err
+    assert "  rows read: bottom first (log-likelihood ratio -" in got.out
     assert out.is_file()
 
 
