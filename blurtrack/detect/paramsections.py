@@ -1,6 +1,7 @@
 """The stage sections of :class:`blurtrack.detect.params.DetectParams`: one frozen,
 self-validating dataclass per stage folder (``lines``, ``separation``, ``quality``,
-``gyro_pass``), each field range-checked from its metadata (:func:`check_section`).
+``gyro_pass``), each field range-checked from its metadata
+(:func:`~blurtrack.detect.paramfields.check_section`).
 
 Defaults are the values the detector was tuned with; the measurements behind them are in the
 field descriptions (``hard``/``dense``/``realistic``: the simulator's presets; ``night1``,
@@ -10,90 +11,15 @@ else a ratio (to a plateau, a peak, a length, a cross-section sigma) unless name
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass
 
-from blurtrack.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class _Range:
-    """The values a numeric field takes: ``lo``..``hi`` (open where ``*_open``), integers only
-    with ``integer``, infinity only with ``infinite``."""
-
-    lo: float
-    hi: float
-    lo_open: bool
-    hi_open: bool
-    integer: bool
-    infinite: bool
-
-    def holds(self, v: Any) -> bool:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            return False
-        if self.integer and not isinstance(v, int):
-            return False
-        if math.isnan(v) or (math.isinf(v) and not self.infinite):
-            return False
-        above = v > self.lo if self.lo_open else v >= self.lo
-        below = v < self.hi if self.hi_open else v <= self.hi
-        return above and below
-
-    def text(self) -> str:
-        kind = "an integer " if self.integer else ""
-        if math.isinf(self.hi):
-            return f"{kind}{'>' if self.lo_open else '>='} {self.lo:g}"
-        left, right = "(" if self.lo_open else "[", ")" if self.hi_open else "]"
-        return f"{kind}in {left}{self.lo:g}, {self.hi:g}{right}"
-
-
-def _num(
-    default: float,
-    lo: float,
-    hi: float = math.inf,
-    *,
-    lo_open: bool = False,
-    hi_open: bool = False,
-    infinite: bool = False,
-) -> Any:
-    """A float field with its range (see :class:`_Range`)."""
-    return field(
-        default=default, metadata={"range": _Range(lo, hi, lo_open, hi_open, False, infinite)}
-    )
-
-
-def _int(default: int, lo: int) -> Any:
-    """An integer field of at least ``lo``."""
-    return field(
-        default=default, metadata={"range": _Range(lo, math.inf, False, True, True, False)}
-    )
-
-
-def _switch(default: bool) -> Any:
-    """A true/false field."""
-    return field(default=default, metadata={"switch": True})
-
-
-def check_section(obj: Any, section: str) -> None:
-    """Raise a one-line :class:`ConfigError` naming ``detect <section>.<field>`` for the
-    first field of ``obj`` outside its range (metadata of :func:`_num`, :func:`_int`,
-    :func:`_switch`)."""
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        if f.metadata.get("switch"):
-            if not isinstance(v, bool):
-                raise ConfigError(f"detect {section}.{f.name} must be true or false, got {v!r}")
-            continue
-        rng: _Range = f.metadata["range"]
-        if not rng.holds(v):
-            raise ConfigError(f"detect {section}.{f.name} must be {rng.text()}, got {v!r}")
-
-
-def check_order(obj: Any, section: str, low: str, high: str) -> None:
-    """One-line :class:`ConfigError` unless ``obj.low <= obj.high``."""
-    if not getattr(obj, low) <= getattr(obj, high):
-        raise ConfigError(f"detect {section}.{low} must not exceed {section}.{high}")
+from blurtrack.detect.paramfields import (
+    check_order,
+    check_section,
+    int_field,
+    num_field,
+    switch_field,
+)
 
 
 @dataclass(frozen=True)
@@ -122,12 +48,12 @@ class LinesParams:
       fast middle of one streak also dims it, hence the length test).
     """
 
-    lit_fraction: float = _num(0.25, 0.0, 1.0, lo_open=True, hi_open=True)
-    tail_fraction: float = _num(0.1, 0.0, 1.0, lo_open=True, hi_open=True)
-    tail_min_px: float = _num(6.0, 0.0, infinite=True)
-    median_floor: float = _num(0.05, 0.0, 1.0, hi_open=True)
-    gap_level: float = _num(0.3, 0.0, 1.0, lo_open=True, hi_open=True)
-    long_factor: float = _num(1.6, 1.0)
+    lit_fraction: float = num_field(0.25, 0.0, 1.0, lo_open=True, hi_open=True)
+    tail_fraction: float = num_field(0.1, 0.0, 1.0, lo_open=True, hi_open=True)
+    tail_min_px: float = num_field(6.0, 0.0, infinite=True)
+    median_floor: float = num_field(0.05, 0.0, 1.0, hi_open=True)
+    gap_level: float = num_field(0.3, 0.0, 1.0, lo_open=True, hi_open=True)
+    long_factor: float = num_field(1.6, 1.0)
 
     def __post_init__(self) -> None:
         check_section(self, "lines")
@@ -206,33 +132,33 @@ class SeparationParams:
       every dot draws about the same curve, so they are remnants of chains or blobs.
     """
 
-    residual_max: float = _num(0.5, 0.0, 1.0, lo_open=True)
-    overlap_fraction: float = _num(0.1, 0.0, 1.0)
-    area_factor: float = _num(1.6, 1.0)
-    neighbours: int = _int(6, 1)
-    halo_max: float = _num(0.25, 0.0)
-    halo_max_whole: float = _num(1.0, 0.0)
-    stub_fraction: float = _num(0.5, 0.0, 1.0)
-    stub_min_px: float = _num(20.0, 0.0)
-    score_min: float = _num(0.8, 0.0, 1.0, lo_open=True)
-    amp_min: float = _num(0.6, 0.0, lo_open=True)
-    suppress: float = _num(0.4, 0.0)
-    left_min: float = _num(0.5, 0.0, 1.0)
-    amp_keep: float = _num(0.4, 0.0)
-    reach_fraction: float = _num(0.2, 0.0, lo_open=True)
-    reach_min_px: int = _int(3, 1)
-    reach_max_px: int = _int(8, 1)
-    inside_min: float = _num(0.3, 0.0, 1.0, lo_open=True)
-    modal_min_area_px: int = _int(40, 1)
-    modal_cluster_log: float = _num(0.25, 0.0, lo_open=True)
-    fragment_fraction: float = _num(0.75, 0.0, 1.0, lo_open=True)
-    fragment_min_px: float = _num(20.0, 0.0)
-    anchor_amp_min: float = _num(0.05, 0.0, lo_open=True)
-    anchor_score_min: float = _num(0.65, 0.0, 1.0, lo_open=True)
-    anchor_cover_min: float = _num(0.75, 0.0, 1.0, lo_open=True)
-    same_light_fraction: float = _num(0.3, 0.0, lo_open=True)
-    spot_fraction: float = _num(0.2, 0.0, 1.0)
-    spot_min_px: float = _num(20.0, 0.0)
+    residual_max: float = num_field(0.5, 0.0, 1.0, lo_open=True)
+    overlap_fraction: float = num_field(0.1, 0.0, 1.0)
+    area_factor: float = num_field(1.6, 1.0)
+    neighbours: int = int_field(6, 1)
+    halo_max: float = num_field(0.25, 0.0)
+    halo_max_whole: float = num_field(1.0, 0.0)
+    stub_fraction: float = num_field(0.5, 0.0, 1.0)
+    stub_min_px: float = num_field(20.0, 0.0)
+    score_min: float = num_field(0.8, 0.0, 1.0, lo_open=True)
+    amp_min: float = num_field(0.6, 0.0, lo_open=True)
+    suppress: float = num_field(0.4, 0.0)
+    left_min: float = num_field(0.5, 0.0, 1.0)
+    amp_keep: float = num_field(0.4, 0.0)
+    reach_fraction: float = num_field(0.2, 0.0, lo_open=True)
+    reach_min_px: int = int_field(3, 1)
+    reach_max_px: int = int_field(8, 1)
+    inside_min: float = num_field(0.3, 0.0, 1.0, lo_open=True)
+    modal_min_area_px: int = int_field(40, 1)
+    modal_cluster_log: float = num_field(0.25, 0.0, lo_open=True)
+    fragment_fraction: float = num_field(0.75, 0.0, 1.0, lo_open=True)
+    fragment_min_px: float = num_field(20.0, 0.0)
+    anchor_amp_min: float = num_field(0.05, 0.0, lo_open=True)
+    anchor_score_min: float = num_field(0.65, 0.0, 1.0, lo_open=True)
+    anchor_cover_min: float = num_field(0.75, 0.0, 1.0, lo_open=True)
+    same_light_fraction: float = num_field(0.3, 0.0, lo_open=True)
+    spot_fraction: float = num_field(0.2, 0.0, 1.0)
+    spot_min_px: float = num_field(20.0, 0.0)
 
     def __post_init__(self) -> None:
         check_section(self, "separation")
@@ -259,12 +185,12 @@ class QualityParams:
       pixels; a quarter saturated is a lit scene or an exposure far too long).
     """
 
-    shape_tol_px: float = _num(3.0, 0.0, lo_open=True)
-    shape_tol_rel: float = _num(0.25, 0.0)
-    min_reference: int = _int(5, 3)
-    thick_width_ratio: float = _num(2.0, 1.0)
-    merged_width: float = _num(1.5, 1.0)
-    overexposed_fraction: float = _num(0.25, 0.0, 1.0, hi_open=True)
+    shape_tol_px: float = num_field(3.0, 0.0, lo_open=True)
+    shape_tol_rel: float = num_field(0.25, 0.0)
+    min_reference: int = int_field(5, 3)
+    thick_width_ratio: float = num_field(2.0, 1.0)
+    merged_width: float = num_field(1.5, 1.0)
+    overexposed_fraction: float = num_field(0.25, 0.0, 1.0, hi_open=True)
 
     def __post_init__(self) -> None:
         check_section(self, "quality")
@@ -344,25 +270,25 @@ class GyroPassParams:
       92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10.
     """
 
-    hairpin_chord: float = _num(0.8, 0.0, 1.0, lo_open=True)
-    min_arc_px: float = _num(12.0, 0.0)
-    tol_px: float = _num(2.5, 0.0)
-    tol_rel: float = _num(0.1, 0.0)
-    bad_fraction: float = _num(0.0, 0.0, 1.0, hi_open=True)
-    border_candidates: bool = _switch(True)
-    clip_at_border: bool = _switch(True)
-    shape_score_min: float = _num(0.8, 0.0, 1.0)
-    light_quantile: float = _num(0.4, 0.0, 1.0)
-    measured_min: float = _num(0.5, 0.0, 1.0)
-    accept_min: float = _num(0.35, 0.0, 1.0)
-    shape_shift_factor: float = _num(2.0, 1.0)
-    old_lines_margin: float = _num(1.5, 0.0, lo_open=True)
-    chain_factor: float = _num(1.25, 1.0)
-    lit_median_factor: float = _num(3.0, 0.0, lo_open=True)
-    arms_chord: float = _num(0.8, 0.0, 1.0, lo_open=True)
-    clip_choice: bool = _switch(True)
-    shape_search: bool = _switch(True)
-    session_calibration: bool = _switch(True)
+    hairpin_chord: float = num_field(0.8, 0.0, 1.0, lo_open=True)
+    min_arc_px: float = num_field(12.0, 0.0)
+    tol_px: float = num_field(2.5, 0.0)
+    tol_rel: float = num_field(0.1, 0.0)
+    bad_fraction: float = num_field(0.0, 0.0, 1.0, hi_open=True)
+    border_candidates: bool = switch_field(True)
+    clip_at_border: bool = switch_field(True)
+    shape_score_min: float = num_field(0.8, 0.0, 1.0)
+    light_quantile: float = num_field(0.4, 0.0, 1.0)
+    measured_min: float = num_field(0.5, 0.0, 1.0)
+    accept_min: float = num_field(0.35, 0.0, 1.0)
+    shape_shift_factor: float = num_field(2.0, 1.0)
+    old_lines_margin: float = num_field(1.5, 0.0, lo_open=True)
+    chain_factor: float = num_field(1.25, 1.0)
+    lit_median_factor: float = num_field(3.0, 0.0, lo_open=True)
+    arms_chord: float = num_field(0.8, 0.0, 1.0, lo_open=True)
+    clip_choice: bool = switch_field(True)
+    shape_search: bool = switch_field(True)
+    session_calibration: bool = switch_field(True)
 
     def __post_init__(self) -> None:
         check_section(self, "gyro_pass")
@@ -404,17 +330,17 @@ class OrientationParams:
       0.47 on the worst ``hard`` frame, 0.87-1.0 per session; a half turn: 0.004).
     """
 
-    gyro_sigma_px: float = _num(1.5, 0.0, lo_open=True)
-    gyro_sigma_rel: float = _num(0.25, 0.0)
-    gyro_sigma_rel_refined: float = _num(0.12, 0.0)
-    profile_sigma_log: float = _num(0.35, 0.0, lo_open=True)
-    max_cue_llr: float = _num(25.0, 0.0, lo_open=True)
-    continuity_present: float = _num(0.75, 0.0, 1.0, lo_open=True, hi_open=True)
-    continuity_radius: float = _num(10.0, 1.0)
-    direction_check: bool = _switch(True)
-    direction_llr: float = _num(2.0, 0.0, lo_open=True)
-    direction_frame_agree: float = _num(0.2, 0.0, 1.0)
-    direction_session_agree: float = _num(0.5, 0.0, 1.0)
+    gyro_sigma_px: float = num_field(1.5, 0.0, lo_open=True)
+    gyro_sigma_rel: float = num_field(0.25, 0.0)
+    gyro_sigma_rel_refined: float = num_field(0.12, 0.0)
+    profile_sigma_log: float = num_field(0.35, 0.0, lo_open=True)
+    max_cue_llr: float = num_field(25.0, 0.0, lo_open=True)
+    continuity_present: float = num_field(0.75, 0.0, 1.0, lo_open=True, hi_open=True)
+    continuity_radius: float = num_field(10.0, 1.0)
+    direction_check: bool = switch_field(True)
+    direction_llr: float = num_field(2.0, 0.0, lo_open=True)
+    direction_frame_agree: float = num_field(0.2, 0.0, 1.0)
+    direction_session_agree: float = num_field(0.5, 0.0, 1.0)
 
     def __post_init__(self) -> None:
         check_section(self, "orientation")
@@ -451,15 +377,15 @@ class TimeshiftParams:
       the frames turned.
     """
 
-    scan_min_length_px: float = _num(5.0, 0.0)
-    scan_sigma_rel: float = _num(0.1, 0.0)
-    scan_min_contrast: float = _num(9.0, 0.0)
-    refit_min_length_px: float = _num(15.0, 0.0)
-    refit_min_streaks: int = _int(20, 1)
-    readout_rel: float = _num(0.15, 0.0, 1.0, hi_open=True)
-    min_row_spread: float = _num(0.15, 0.0, infinite=True)
-    readout_order_check: bool = _switch(True)
-    readout_order_llr: float = _num(20.0, 0.0, lo_open=True)
+    scan_min_length_px: float = num_field(5.0, 0.0)
+    scan_sigma_rel: float = num_field(0.1, 0.0)
+    scan_min_contrast: float = num_field(9.0, 0.0)
+    refit_min_length_px: float = num_field(15.0, 0.0)
+    refit_min_streaks: int = int_field(20, 1)
+    readout_rel: float = num_field(0.15, 0.0, 1.0, hi_open=True)
+    min_row_spread: float = num_field(0.15, 0.0, infinite=True)
+    readout_order_check: bool = switch_field(True)
+    readout_order_llr: float = num_field(20.0, 0.0, lo_open=True)
 
     def __post_init__(self) -> None:
         check_section(self, "timeshift")
