@@ -258,14 +258,14 @@ def _detect_session(
             # Which row the sensor reads first, from the frames (gyro/readout.py); also where
             # the scan found no shift: the other order may.
             order = readout_order(found, timings, calib, trace, shift, model_gyro=up, params=p)
+            if not order.usable:
+                raise _TurnFramesSignal(order)  # detect_session turns the frames
         if found_shift:
             assert shift is not None  # found_shift implies a shift
             calib = calib.with_(timeshift_cam_imu_s=shift.timeshift_s)
         model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
         error_model = cue_errors(p.orientation, refined=found_shift)
         covered = covered_frames(found, timings, model)
-        if order is not None and not order.usable:
-            raise _TurnFramesSignal(order)  # detect_session turns the frames
         if p.orientation.direction_check:
             direction = gyro_direction(
                 found,

@@ -32,6 +32,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.timeshift import TimeshiftEstimate, estimate_timeshift
+from blurtrack.errors import DetectionError
 from blurtrack.geometry.camera import TURN_180, turned_camera
 
 #: The statuses of :class:`ReadoutOrder` (``global``: no readout, nothing to decide).
@@ -125,6 +126,12 @@ class ReadoutOrder:
     cost_top_first: float = float("nan")
     cost_bottom_first: float = float("nan")
     n_streaks: int = 0
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise DetectionError(
+                f"readout order status must be one of {STATUSES}, got {self.status!r}"
+            )
 
     @property
     def llr(self) -> float:
