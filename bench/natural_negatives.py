@@ -13,7 +13,9 @@ streaks called ``point``. Shaken, every extended source (a window, a sign, a whi
 the very streak a point light would beside it, only wider or larger: the condition of the
 night photographs that issue 45 is judged on.
 
-Usage: ``python bench/natural_negatives.py --split test --count 100 [--shake]``
+Usage: ``python bench/natural_negatives.py --split test --count 100 [--shake]``; any folder of
+photographs (``*.jpg``, ``*.png``) with ``--images DIR`` (night photographs of lit signs and
+windows: every ``quality_ok`` there is to be looked at, for some of their lights are points).
 """
 
 from __future__ import annotations
@@ -40,8 +42,9 @@ from blurtrack.synth.photometry import decode_srgb8, encode_srgb8  # noqa: E402
 DATA = ROOT.parent / "shared" / "data" / "backgrounds" / "bsds500"
 SHAKE = ROOT.parent / "shared" / "data" / "real" / "gyrodeblurnet-shake" / "gyro_train.txt"
 #: The shaken photographs: a pinhole of this focal length (px; a 50 degree view across the
-#: 481 px side), an exposure of this long (s; a night photograph's 1/15 s at hand-held rates
-#: of ~0.7 rad/s: kernels 10-35 px across, median 20), and the exposures ``(power, gain)`` of
+#: 481 px side, scaled with a larger photograph's longer side), an exposure of this long (s; a
+#: night photograph's 1/15 s at hand-held rates of ~0.7 rad/s: kernels 10-35 px across, median
+#: 20, on the 481 px photographs), and the exposures ``(power, gain)`` of
 #: the linear light ``gain * light ** power``: a quarter, twice (the brightest regions blow
 #: out), and a night scene (the cube leaves the bright regions lit on a dark ground, as lit
 #: windows and signs are, and four times their light blows them out).
@@ -126,30 +129,36 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="test", choices=("train", "val", "test"))
     ap.add_argument("--count", type=int, default=100)
+    ap.add_argument("--images", type=Path, default=None, help="a folder of photographs instead")
     ap.add_argument("--shake", action="store_true", help="also the shaken night exposures")
+    ap.add_argument("--shakes", type=int, default=1, help="shakes per photograph (--shake)")
     ap.add_argument("--hits", type=Path, default=None, help="write the frames with quality_ok here")
     args = ap.parse_args()
-    files = sorted((DATA / args.split).glob("*.jpg"))[: args.count]
+    folder = args.images if args.images is not None else DATA / args.split
+    files = sorted(f for f in folder.glob("*") if f.suffix.lower() in (".jpg", ".jpeg", ".png"))
+    files = files[: args.count]
     if not files:
-        print(f"no photographs under {DATA / args.split}", file=sys.stderr)
+        print(f"no photographs under {folder}", file=sys.stderr)
         return 2
     trace = read_shake_trace(SHAKE) if args.shake else None
     shakes = [(f"shaken_p{p:g}_x{g:g}", p, g) for p, g in SHAKE_EXPOSURES] if args.shake else []
     names = ["as_stored", "dimmed"] + [n for n, _, _ in shakes]
     out: dict[str, list[dict[str, Any]]] = {name: [] for name in names}
     rng = np.random.default_rng(0)
-    for k, f in enumerate(files):
+    for k, f in enumerate(files * max(args.shakes, 1) if args.shake else files):
         img = cv2.imread(str(f), cv2.IMREAD_COLOR)
         if img is None:
             print(f"cannot decode {f.name}", file=sys.stderr)
             return 2
-        variants = [("as_stored", img), ("dimmed", dimmed(img, k))]
+        first = k < len(files)  # as stored and dimmed once; each round of shakes its own kernel
+        variants = [("as_stored", img), ("dimmed", dimmed(img, k))] if first else []
         if trace is not None:
             while True:  # a window of the trace without a dropout
                 t0 = float(rng.uniform(trace.t_s[0], trace.t_s[-1] - SHAKE_EXPOSURE_S))
                 if trace.covers(t0, t0 + SHAKE_EXPOSURE_S):
                     break
-            kern = shake_kernel(trace, t0, SHAKE_EXPOSURE_S, SHAKE_FOCAL_PX)
+            focal = SHAKE_FOCAL_PX * max(max(img.shape[:2]) / 481.0, 1.0)
+            kern = shake_kernel(trace, t0, SHAKE_EXPOSURE_S, focal)
             variants += [(n, shaken(img, kern, p, g, k)) for n, p, g in shakes]
         for name, im in variants:
             row = {"image": f.name, **measure(im)}
@@ -158,7 +167,7 @@ def main() -> int:
                 print(f"{name} {f.name}: {row}", file=sys.stderr)
                 if args.hits is not None:
                     args.hits.mkdir(parents=True, exist_ok=True)
-                    cv2.imwrite(str(args.hits / f"{name}-{f.stem}.png"), im)
+                    cv2.imwrite(str(args.hits / f"{name}-{f.stem}-{k}.png"), im)
     result = {name: {"pooled": pooled(rows), "photos": rows} for name, rows in out.items()}
     print(json.dumps(result, indent=1))
     return 0

@@ -173,8 +173,9 @@ class QualityParams:
     - ``shape_tol_px``, ``shape_tol_rel``: a streak's start-to-end vector may deviate from
       the frame's consensus by ``max(shape_tol_px, shape_tol_rel * |consensus|)`` and be
       ``quality_ok``; separation takes the same tolerance for its candidates and references.
-    - ``min_reference``: the fewest unflagged streaks for a consensus (an affine field has 6
-      unknowns, 2 per vector: at least 3; 5 leave redundancy for the robust fit).
+    - ``min_reference``: the fewest unflagged streaks for a consensus, both to fit it and,
+      for ``quality_ok``, within the shape tolerance of the fitted field (an affine field has
+      6 unknowns, 2 per vector: at least 3; 5 leave redundancy for the robust fit).
     - ``thick_width_ratio``: saturated streaks wider than this times the frame's median width
       are ``thick_saturated``.
     - ``merged_width``: streaks wider than this times the frame's cross-section sigma are

@@ -24,10 +24,12 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   ``point``, none of ``clipped``, ``merged``, ``crossing``, ``looped``, ``thick_saturated``,
   no neighbour's light just beyond an end, and a shape within
   ``max(shape_tol_px, shape_tol_rel |c|)`` of the consensus. A frame without a consensus
-  (fewer than ``quality.min_reference`` clean point lights) has no ``quality_ok`` streak: no
-  other streak says that a line is a dot's blur rather than a highlight or a ridge of texture
-  (``ends_unsure``; the gyro, which predicts the shape, may confirm it). A saturated core
-  alone does not disqualify: its ends are measured on the unclipped profile.
+  (fewer than ``quality.min_reference`` clean point lights, or fewer than that many of them
+  within the tolerance of the fitted field: the robust fit always returns a field, which
+  only the streaks that agree with it make a consensus) has no ``quality_ok`` streak: no
+  other streak says that a line is a dot's blur rather than a highlight, a ridge of texture
+  or a sign's letter (``ends_unsure``; the gyro, which predicts the shape, may confirm it).
+  A saturated core alone does not disqualify: its ends are measured on the unclipped profile.
 - ``reason``: why (the first that applies, in the order of :data:`REASONS`), ``ok`` when
   ``quality_ok``.
 
@@ -274,9 +276,15 @@ def _frame_quality(
     ok = point & ~(flagged | thick | lit_end | at_border)
     long_ = short_ = bent = np.zeros(len(v), bool)
     # The consensus from point lights only: an extended source's lines say nothing of the
-    # dots' curve. Without one (fewer than ``q.min_reference`` clean point lights) no other
-    # streak of the frame says that a streak is a dot's blur, not a highlight or an edge.
-    field = consensus_field(v, mid, point & ~(flagged | thick), q, resign=True)
+    # dots' curve. Without one (fewer than ``q.min_reference`` clean point lights, voting or
+    # agreeing) no other streak of the frame says that a streak is a dot's blur, not a
+    # highlight, an edge or a letter.
+    voters = point & ~(flagged | thick)
+    field = consensus_field(v, mid, voters, q, resign=True)
+    if field is not None and int(np.sum(voters & (field.dev <= shape_tolerance(field.c, q)))) < (
+        q.min_reference
+    ):
+        field = None  # fitted, but too few clean point lights agree with it: no consensus
     unchecked = np.full(len(v), field is None)
     ok &= ~unchecked
     if field is not None:

@@ -93,6 +93,37 @@ def test_too_few_streaks_give_no_consensus_and_nothing_is_ok() -> None:
     assert q.quality_ok.tolist() == [True, False, True, True, True, True]
 
 
+def _strokes(n_agree: int, n_other: int, seed: int = 1) -> pd.DataFrame:
+    """``n_agree`` streaks drawing one vector, and ``n_other`` of a sign's strokes: lines of
+    every direction and length, each a point light's width."""
+    d = _frame(n=n_agree + n_other, seed=seed)
+    rng = np.random.default_rng(seed)
+    ang = np.linspace(0.0, np.pi, n_other, endpoint=False) + 0.3
+    length = rng.uniform(15.0, 60.0, n_other)
+    v = np.column_stack([np.cos(ang), np.sin(ang)]) * length[:, None]
+    rows = np.arange(n_agree, n_agree + n_other)
+    mid = d.loc[rows, ["mid_x", "mid_y"]].to_numpy()
+    d.loc[rows, ["start_x", "start_y"]] = mid - v / 2
+    d.loc[rows, ["end_x", "end_y"]] = mid + v / 2
+    return d
+
+
+def test_a_field_few_streaks_agree_with_is_no_consensus() -> None:
+    # A sign of strokes, each drawn as thin as a point light's streak: the robust fit returns
+    # a field, but only the streaks that agree with it make a consensus. Four agreeing (one
+    # under the fewest voters) among twelve other strokes: nothing is quality_ok, and the
+    # shape deviation is not reported.
+    q = add_quality(_strokes(n_agree=4, n_other=12))
+    assert not q.quality_ok.any()
+    assert set(q.reason) == {"ends_unsure"}
+    assert q["shape_deviation_px"].isna().all()
+    # Negative control: five agreeing (the fewest voters) among the same strokes make one;
+    # those five are ok and the strokes are off it.
+    q = add_quality(_strokes(n_agree=5, n_other=12))
+    assert q.quality_ok.tolist() == [True] * 5 + [False] * 12
+    assert set(q.reason[5:]) <= {"chained", "fragment", "ends_unsure"}
+
+
 def test_usable_falls_back_to_flags_for_older_tables() -> None:
     d = pd.DataFrame({"clipped": [False, True, False], "merged": [False, False, True]})
     assert streaks.usable(d).tolist() == [True, False, False]
