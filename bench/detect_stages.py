@@ -11,6 +11,9 @@ session is detected once with the full pipeline and once with each stage switche
   (the nominal calibration, the template time-shift refinement and the shape search instead
   of the session's fitted calibration error);
 - ``no_artefact_filter``: ``DetectParams(artefact_ratio=0)`` (ringing/blooming components kept);
+- ``no_clip_choice``: ``DetectParams(gyro_pass=GyroPassParams(clip_choice=False))`` (the
+  template pass measures each placement once, on the neighbours' templates subtracted as
+  they are, not also on that difference clipped at zero);
 - ``no_shift_refine``: ``detect_session(refine_timeshift=False)`` (the session's time offset
   is not re-fitted from the streaks before orientation);
 - ``no_gyro``: ``detect_session(gyro="off")`` (orientation and every gyro stage off).
@@ -58,6 +61,7 @@ VARIANTS: dict[str, tuple[DetectParams, dict[str, Any]]] = {
         {},
     ),
     "no_artefact_filter": (DetectParams(artefact_ratio=0.0), {}),
+    "no_clip_choice": (DetectParams(gyro_pass=GyroPassParams(clip_choice=False)), {}),
     "no_shift_refine": (DetectParams(), {"refine_timeshift": False}),
     "no_gyro": (DetectParams(), {"gyro": "off"}),
 }
