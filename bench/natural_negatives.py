@@ -35,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 from blurtrack.detect import detect_frame  # noqa: E402
 from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
+from blurtrack.features.blur_estimate import rasterize  # noqa: E402
 from blurtrack.geometry.gyro import GyroTrace  # noqa: E402
 from blurtrack.io.shake import read_shake_trace  # noqa: E402
 from blurtrack.synth.photometry import decode_srgb8, encode_srgb8  # noqa: E402
@@ -65,25 +66,15 @@ def shake_kernel(trace: GyroTrace, t0_s: float, exposure_s: float, focal_px: flo
     """The blur kernel (2-D, sum 1) of a rotation-only shake at the image centre: the path of a
     point at infinity over ``[t0_s, t0_s + exposure_s]`` of the real ``trace`` (rad/s, camera
     axes x right, y down, z forward; small angles, the roll about the centre moves it not),
-    ``focal_px`` away, splatted bilinearly at 0.5 ms steps."""
+    ``focal_px`` away, sampled at 0.5 ms steps and splatted bilinearly
+    (:func:`blurtrack.features.blur_estimate.rasterize`)."""
     t = np.arange(t0_s, t0_s + exposure_s, 5e-4)
     w = trace.omega_at(t)
     ang = np.cumsum(w, axis=0) * 5e-4
     # A rotation about +y moves a point at infinity along -x in the image, about +x along +y.
-    x, y = -focal_px * ang[:, 1], focal_px * ang[:, 0]
-    x, y = x - x.min(), y - y.min()
-    size = int(np.ceil(max(x.max(), y.max()))) + 3
-    k = np.zeros((size, size), np.float64)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
-    for dx, dy, wgt in (
-        (0, 0, (1 - fx) * (1 - fy)),
-        (1, 0, fx * (1 - fy)),
-        (0, 1, (1 - fx) * fy),
-        (1, 1, fx * fy),
-    ):
-        np.add.at(k, (y0 + dy, x0 + dx), wgt)
-    return k / k.sum()
+    path = np.column_stack([-focal_px * ang[:, 1], focal_px * ang[:, 0]])
+    extent = float(np.max(path.max(axis=0) - path.min(axis=0)))
+    return rasterize(path, 2 * (int(np.ceil(extent)) // 2) + 5)
 
 
 def shaken(img: np.ndarray, kernel: np.ndarray, power: float, gain: float, seed: int) -> np.ndarray:
