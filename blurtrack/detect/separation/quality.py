@@ -13,7 +13,7 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   that a wrong start/end does not count as a shape error (and, where a strong roll turns the
   vectors across the frame, from neighbour to neighbour and then against the fitted field,
   whichever field more streaks agree with); NaN when fewer than
-  ``quality.min_reference`` streaks can vote.
+  ``quality.min_reference`` streaks can vote, or agree with the fitted field (below).
 - ``thick_saturated``: saturated and wider than ``quality.thick_width_ratio`` x the frame's
   dot width (the median of its unsaturated streaks', or of all where fewer than
   ``quality.min_reference`` are unsaturated): a blown-out core whose centre line and ends are
