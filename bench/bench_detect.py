@@ -55,9 +55,11 @@ MATCH_GATE_PX = 4.0  # mean endpoint distance (either orientation) for a match
 TRUST_GATE_PX = 2.0
 
 
-def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarray) -> np.ndarray:
-    """``(n, m)`` px: the farther of the two ends of detections ``s, e (n, 2)`` from those of
-    true streaks ``S, E (m, 2)``, in whichever orientation fits better."""
+def end_distances(
+    s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(n, m)`` px each: the farther of the two ends of detections ``s, e (n, 2)`` from those
+    of true streaks ``S, E (m, 2)``, the same way round and swapped."""
     same = np.maximum(
         np.linalg.norm(s[:, None] - S[None], axis=2),
         np.linalg.norm(e[:, None] - E[None], axis=2),
@@ -66,7 +68,13 @@ def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarra
         np.linalg.norm(s[:, None] - E[None], axis=2),
         np.linalg.norm(e[:, None] - S[None], axis=2),
     )
-    return np.minimum(same, swap)
+    return same, swap
+
+
+def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """``(n, m)`` px: the farther of the two ends of detections ``s, e (n, 2)`` from those of
+    true streaks ``S, E (m, 2)``, in whichever orientation fits better."""
+    return np.minimum(*end_distances(s, e, S, E))
 
 
 def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_detect import TRUST_GATE_PX, simulate  # noqa: E402
+from bench_detect import TRUST_GATE_PX, end_distances, simulate, truth_arrays  # noqa: E402
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
@@ -55,21 +55,12 @@ def oriented_against_truth(
     ok: list[np.ndarray] = []
     for fr in truth.get("frames", []):
         rows = table[table["frame"] == fr["index"]]
-        st = fr.get("streaks") or []
-        if not st or not len(rows):
+        S, E, _, _ = truth_arrays(fr)
+        if not len(S) or not len(rows):
             continue
-        S = np.array([x["start"] for x in st], float)
-        E = np.array([x["end"] for x in st], float)
         a = rows[["start_x", "start_y"]].to_numpy(float)
         b = rows[["end_x", "end_y"]].to_numpy(float)
-        same = np.maximum(
-            np.linalg.norm(a[:, None] - S[None], axis=2),
-            np.linalg.norm(b[:, None] - E[None], axis=2),
-        )
-        swapped = np.maximum(
-            np.linalg.norm(a[:, None] - E[None], axis=2),
-            np.linalg.norm(b[:, None] - S[None], axis=2),
-        )
+        same, swapped = end_distances(a, b, S, E)
         best = np.minimum(same, swapped)
         j = np.argmin(best, axis=1)
         i = np.arange(len(rows))

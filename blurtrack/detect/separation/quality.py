@@ -281,15 +281,14 @@ def _frame_quality(
     # highlight, an edge or a letter.
     voters = point & ~(flagged | thick)
     field = consensus_field(v, mid, voters, q, resign=True)
-    if field is not None and int(np.sum(voters & (field.dev <= shape_tolerance(field.c, q)))) < (
-        q.min_reference
-    ):
-        field = None  # fitted, but too few clean point lights agree with it: no consensus
+    if field is not None:
+        tol = shape_tolerance(field.c, q)
+        if int(np.sum(voters & (field.dev <= tol))) < q.min_reference:
+            field = None  # fitted, but too few clean point lights agree with it: no consensus
     unchecked = np.full(len(v), field is None)
     ok &= ~unchecked
     if field is not None:
         dev = field.dev
-        tol = shape_tolerance(field.c, q)
         bent = dev > tol
         c_len = np.hypot(*field.c.T)
         length = np.hypot(*v.T)
