@@ -54,11 +54,15 @@ SHAKE_EXPOSURE_S = 1.0 / 15.0
 SHAKE_EXPOSURES = ((1.0, 0.25), (1.0, 2.0), (3.0, 4.0))
 
 
-def dimmed(img: np.ndarray, seed: int) -> np.ndarray:
-    """``img`` at a quarter of its light, with the shot and read noise of a dark 8-bit frame."""
+def dark_noise(x: np.ndarray, seed: int) -> np.ndarray:
+    """``x`` (8-bit code values, float) with the shot and read noise of a dark 8-bit frame."""
     rng = np.random.default_rng(seed)
-    x = img.astype(np.float64) * 0.25
-    x = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.5 * x + 1.0)
+    return np.asarray(x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.5 * np.clip(x, 0, None) + 1.0))
+
+
+def dimmed(img: np.ndarray, seed: int) -> np.ndarray:
+    """``img`` at a quarter of its light, with :func:`dark_noise`."""
+    x = dark_noise(img.astype(np.float64) * 0.25, seed)
     return np.clip(np.round(x), 0, 255).astype(np.uint8)
 
 
@@ -79,13 +83,10 @@ def shake_kernel(trace: GyroTrace, t0_s: float, exposure_s: float, focal_px: flo
 
 def shaken(img: np.ndarray, kernel: np.ndarray, power: float, gain: float, seed: int) -> np.ndarray:
     """``img`` (8-bit sRGB) in linear light raised to ``power``, blurred by ``kernel``, exposed
-    at ``gain`` (clipped at full scale), with the shot and read noise of :func:`dimmed`, 8-bit
-    sRGB again."""
+    at ``gain`` (clipped at full scale), with :func:`dark_noise`, 8-bit sRGB again."""
     lin = decode_srgb8(img).astype(np.float32) ** np.float32(power)
     blurred = cv2.filter2D(lin, -1, kernel.astype(np.float32), borderType=cv2.BORDER_REFLECT)
-    rng = np.random.default_rng(seed)
-    x = blurred.astype(np.float64) * gain * 255.0
-    x = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.5 * np.clip(x, 0, None) + 1.0)
+    x = dark_noise(blurred.astype(np.float64) * gain * 255.0, seed)
     return encode_srgb8(np.clip(x / 255.0, 0.0, 1.0))
 
 
