@@ -8,6 +8,11 @@ file.
 - ``width_ratio``: the streak's measured cross-section sigma (saturated streaks: from the
   flanks of the clipped cross-sections) over ``psf``. A point light's cross-section is the PSF
   all along (ratio 1).
+- ``own_width_ratio``: the same ratio against the streak's own edges, from the flat top of
+  its median unsaturated cross-section (:mod:`blurtrack.detect.flattop`): a frame of letters'
+  strokes has the strokes' width as ``psf``, but a stroke's top is flat where a point light's
+  is the PSF's peak. Wider than ``extended_width_ratio`` against its own edges the source is
+  extended, whatever ``width_ratio`` says.
 - ``fill``: the lit area (pixels above the segmentation threshold) of the streak's connected
   component over the area its streaks would light if each were a point light: at every
   centre-line point a Gaussian cross-section of sigma ``psf`` carrying the measured
@@ -45,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.detect.context import FrameContext
+from blurtrack.detect.flattop import frame_own_width_ratio
 from blurtrack.detect.lines.sampling import sample_image
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.params import SourceParams
@@ -76,6 +82,7 @@ class Evidence:
     """Per-streak measurements (one row per streak, see the module docstring)."""
 
     width_ratio: np.ndarray
+    own_width_ratio: np.ndarray
     fill: np.ndarray
     end_light: np.ndarray
     component: np.ndarray
@@ -92,6 +99,7 @@ class Evidence:
         return Evidence(
             z,
             z.copy(),
+            z.copy(),
             np.zeros((0, 2)),
             np.zeros(0, np.int64),
             np.zeros(0, np.int64),
@@ -102,6 +110,7 @@ class Evidence:
     def take(self, rows: np.ndarray) -> Evidence:
         return Evidence(
             self.width_ratio[rows],
+            self.own_width_ratio[rows],
             self.fill[rows],
             self.end_light[rows],
             self.component[rows],
@@ -236,22 +245,36 @@ def classify_source(
     fill: np.ndarray,
     p: SourceParams,
     contrast: np.ndarray | None = None,
+    own_width_ratio: np.ndarray | None = None,
+    psf_extended: bool = False,
 ) -> np.ndarray:
     """``(N,)`` object array of ``point``, ``extended`` or ``undetermined``: extended where the
     streak is far wider than the PSF or its lit region far larger than a point light's;
     point where both are within a point light's spread and (given ``contrast``) the streak
     is bright enough for the fill to tell (:func:`min_contrast`); undetermined otherwise (and
-    where a measurement is missing)."""
+    where a measurement is missing). ``own_width_ratio`` (where measured): the width against
+    the streak's own edges; above ``extended_width_ratio`` the source is extended too.
+    ``psf_extended``: the frame's PSF is an extended source's
+    (:class:`~blurtrack.detect.flattop.OwnWidths`); a point light must then also measure
+    within ``point_width_ratio`` against its own edges."""
     wr = np.where(np.isfinite(width_ratio), width_ratio, np.inf)
     fl = np.where(np.isfinite(fill), fill, np.inf)
     out = np.full(wr.size, "undetermined", object)
     point = (wr <= p.point_width_ratio) & (fl <= p.point_fill)
+    wide = np.isfinite(width_ratio) & (width_ratio > p.extended_width_ratio)
+    if own_width_ratio is not None:
+        # The same two limits against the streak's own edges: wider than
+        # ``extended_width_ratio`` is extended (no dot, nor two dots half a PSF apart, is);
+        # where the frame's PSF is itself an extended source's, a point light must also
+        # measure within ``point_width_ratio`` against its own edges.
+        own = np.nan_to_num(own_width_ratio, nan=np.inf if psf_extended else 0.0)
+        wide |= np.isfinite(own) & (own > p.extended_width_ratio)
+        if psf_extended:
+            point &= own <= p.point_width_ratio
     if contrast is not None:
         point &= np.nan_to_num(contrast, nan=0.0) >= min_contrast(p)
     out[point] = "point"
-    ext = (np.isfinite(width_ratio) & (width_ratio > p.extended_width_ratio)) | (
-        np.isfinite(fill) & (fill > p.extended_fill)
-    )
+    ext = wide | (np.isfinite(fill) & (fill > p.extended_fill))
     out[ext] = "extended"
     return out
 
@@ -289,7 +312,18 @@ def assess(
             ratio = comps.areas / expected
         fill[has] = ratio[comp[has]]
     width_ratio = np.asarray(width_px, float) / psf
+    own = frame_own_width_ratio(
+        smooth,
+        ctx.signal,
+        ctx.saturation,
+        ctx.smooth_sigma_px,
+        points,
+        width_px,
+        psf,
+        p.point_width_ratio,
+        p.extended_width_ratio,
+    )
     light = _end_light(smooth, points, np.asarray(plateau, float), profile, psf)
     contrast = _contrast(smooth, points, threshold)
-    source = classify_source(width_ratio, fill, p, contrast)
-    return Evidence(width_ratio, fill, light, comp, shared, source, contrast)
+    source = classify_source(width_ratio, fill, p, contrast, own.ratio, own.psf_extended)
+    return Evidence(width_ratio, own.ratio, fill, light, comp, shared, source, contrast)
