@@ -33,6 +33,7 @@ from functools import cache
 import cv2
 import numpy as np
 
+from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.sampling import sample_image
 
 #: Width at 90 % of the peak over the width at half the peak, for a Gaussian cross-section.
@@ -233,42 +234,39 @@ class OwnWidths:
 
 
 def frame_own_width_ratio(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    saturation: float,
-    smooth_sigma_px: float,
-    points: list[np.ndarray],
-    width_px: np.ndarray,
-    psf: float,
-    point_limit: float,
-    extended_limit: float,
+    ctx: FrameContext, points: list[np.ndarray], width_px: np.ndarray, psf: float
 ) -> OwnWidths:
-    """:func:`own_width_ratio` of a frame's streaks where its point spread ``psf`` (the median
-    of ``width_px``) is not a point light's; all NaN where it is.
+    """:func:`own_width_ratio` of a frame's streaks (``points``, ``width_px`` as measured on
+    the frame ``ctx``) where its point spread ``psf`` (the median of ``width_px``) is not a
+    point light's; all NaN where it is.
 
     Against a point light's ``psf`` the widths tell what the streaks' own edges would: a band
     measuring more than a limit against its own edges measures more than that against the
     spread of its edges, which is the optics'. So the own edges are needed only where ``psf``
     is not a point light's: the :data:`PSF_CHECK` streaks whose widths lie nearest ``psf``
     (its reference) are measured first, and where the median of their own ratios is within
-    ``point_limit`` (``source.point_width_ratio``) the frame's ``psf`` is a point light's (a
-    laser-dot frame: one sampling of a few lines); above ``extended_limit``
-    (``source.extended_width_ratio``) an extended source's."""
+    ``source.point_width_ratio`` the frame's ``psf`` is a point light's (a laser-dot frame:
+    one sampling of a few lines); above ``source.extended_width_ratio`` an extended
+    source's."""
+    sp = ctx.params.source
+    smooth = ctx.smooth
     n = len(points)
     w = np.asarray(width_px, float)
-    near_clip = near_saturation(signal, saturation, smooth_sigma_px)
+    near_clip = None
+    if ctx.sat_comp is not None:  # some pixel of the frame is saturated
+        near_clip = near_saturation(ctx.signal, ctx.saturation, ctx.smooth_sigma_px)
     d = np.where(np.isfinite(w), np.abs(w - psf), np.inf)
     ref = np.argsort(d, kind="stable")[:PSF_CHECK]
     own_ref = own_width_ratio(smooth, near_clip, [points[i] for i in ref], psf)
     med = float(np.nanmedian(own_ref)) if np.isfinite(own_ref).any() else float("nan")
-    if not med > point_limit:
+    if not med > sp.point_width_ratio:
         return OwnWidths(np.full(n, np.nan), False)
     if n > PSF_CHECK:
         own = own_width_ratio(smooth, near_clip, points, psf)
     else:
         own = np.full(n, np.nan)
         own[ref] = own_ref
-    return OwnWidths(own, bool(med > extended_limit))
+    return OwnWidths(own, bool(med > sp.extended_width_ratio))
 
 
 def own_ratio_of_profiles(prof: np.ndarray) -> np.ndarray:

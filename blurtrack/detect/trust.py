@@ -312,17 +312,7 @@ def assess(
             ratio = comps.areas / expected
         fill[has] = ratio[comp[has]]
     width_ratio = np.asarray(width_px, float) / psf
-    own = frame_own_width_ratio(
-        smooth,
-        ctx.signal,
-        ctx.saturation,
-        ctx.smooth_sigma_px,
-        points,
-        width_px,
-        psf,
-        p.point_width_ratio,
-        p.extended_width_ratio,
-    )
+    own = frame_own_width_ratio(ctx, points, width_px, psf)
     light = _end_light(smooth, points, np.asarray(plateau, float), profile, psf)
     contrast = _contrast(smooth, points, threshold)
     source = classify_source(width_ratio, fill, p, contrast, own.ratio, own.psf_extended)

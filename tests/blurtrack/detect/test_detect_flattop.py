@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from blurtrack.detect import detect_frame
+from blurtrack.detect import DetectParams, detect_frame
+from blurtrack.detect.context import frame_context
 from blurtrack.detect.flattop import (
     POINT_RATIO,
     STEP_PX,
@@ -20,6 +21,7 @@ from blurtrack.detect.flattop import (
     own_width_ratio,
     width_ratio_of,
 )
+from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.detect.trust import classify_source
@@ -123,11 +125,12 @@ def test_a_laser_dot_frame_is_not_measured_again() -> None:
         for k in range(6)
         for j in range(5)
     ]
-    img = _image(curves, [], 1, 0.0).astype(np.float32)
-    fs = detect_frame(quantise(img, np.uint8))
-    got = frame_own_width_ratio(
-        _smooth(img), img, 1.0, 1.0, fs.points, fs.width_px, fs.sigma_c_px, 1.5, 2.0
-    )
+    img = quantise(_image(curves, [], 1, 0.0), np.uint8)
+    fs = detect_frame(img)
+    p = DetectParams()
+    prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    ctx = frame_context(prep, p)
+    got = frame_own_width_ratio(ctx, fs.points, fs.width_px, fs.sigma_c_px)
     assert len(fs) == 30 and np.isnan(got.ratio).all() and not got.psf_extended
 
 
