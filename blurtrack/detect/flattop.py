@@ -60,6 +60,9 @@ _DIRECTIONS = np.stack(
 PSF_CHECK = 16
 #: The cross-section's peak is sought this near the centre line (px).
 PEAK_REACH_PX = 1.0
+#: A mean cross-section whose peak (over its minimum) is under this many noise sigmas of the
+#: smoothed image holds no light to measure (the background's own fluctuations are as "flat").
+NOISE_SIGMAS = 3.0
 #: Sample spacing across the line (px).
 STEP_PX = 0.5
 #: Sections with a saturated pixel of the unsmoothed signal within the smoothing's reach of
@@ -213,12 +216,15 @@ def own_width_ratio(
     near_clip: np.ndarray | None,
     points: list[np.ndarray],
     psf: float,
+    noise: float = 0.0,
 ) -> np.ndarray:
     """``(N,)`` each streak's cross-section rms width over the sigma of its own edges, from the
     flat top of its mean cross-section (module docstring); NaN where not measured.
-    ``psf``: the frame's cross-section sigma in ``smooth`` (sets the window only)."""
+    ``psf``: the frame's cross-section sigma in ``smooth`` (sets the window only); ``noise``:
+    its noise sigma (a section's peak under :data:`NOISE_SIGMAS` of it is no light to measure:
+    NaN)."""
     prof = mean_sections(smooth, near_clip, points, psf)
-    return own_ratio_of_profiles(prof)
+    return own_ratio_of_profiles(prof, NOISE_SIGMAS * noise)
 
 
 @dataclass(frozen=True)
@@ -257,21 +263,23 @@ def frame_own_width_ratio(
         near_clip = near_saturation(ctx.signal, ctx.saturation, ctx.smooth_sigma_px)
     d = np.where(np.isfinite(w), np.abs(w - psf), np.inf)
     ref = np.argsort(d, kind="stable")[:PSF_CHECK]
-    own_ref = own_width_ratio(smooth, near_clip, [points[i] for i in ref], psf)
+    noise = ctx.noise_smooth
+    own_ref = own_width_ratio(smooth, near_clip, [points[i] for i in ref], psf, noise)
     med = float(np.nanmedian(own_ref)) if np.isfinite(own_ref).any() else float("nan")
     if not med > sp.point_width_ratio:
         return OwnWidths(np.full(n, np.nan), False)
     if n > PSF_CHECK:
-        own = own_width_ratio(smooth, near_clip, points, psf)
+        own = own_width_ratio(smooth, near_clip, points, psf, noise)
     else:
         own = np.full(n, np.nan)
         own[ref] = own_ref
     return OwnWidths(own, bool(med > sp.extended_width_ratio))
 
 
-def own_ratio_of_profiles(prof: np.ndarray) -> np.ndarray:
+def own_ratio_of_profiles(prof: np.ndarray, floor: float = 0.0) -> np.ndarray:
     """``(N,)`` the width ratio against its own edges of each cross-section ``prof (N, K)``,
-    centred and sampled :data:`STEP_PX` apart (NaN rows: NaN)."""
+    centred and sampled :data:`STEP_PX` apart (NaN rows, and rows whose peak is not above
+    ``floor``: NaN)."""
     n = len(prof)
     out = np.full(n, np.nan)
     has = np.isfinite(prof[:, 0]) if n else np.zeros(0, bool)
@@ -293,7 +301,7 @@ def own_ratio_of_profiles(prof: np.ndarray) -> np.ndarray:
     inside = (k > left[:, None]) & (k < right[:, None])
     centre = np.argmax(np.where(inside, v, -np.inf), axis=1)
     peak = v[rows, centre]
-    good = peak > 0
+    good = peak > max(floor, 0.0)
     w90 = _crossings(v, centre, 0.9 * peak)
     w50 = _crossings(v, centre, 0.5 * peak)
     # A band still above half its peak at the window's edge is wider than the window (more

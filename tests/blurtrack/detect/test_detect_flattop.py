@@ -172,3 +172,27 @@ def test_a_frame_of_lit_bars_has_no_point_light(thick: int) -> None:
     assert not np.any(source == "point"), source
     assert np.mean(source == "extended") >= 0.7
     assert not ok.any()
+
+
+def test_no_streaks_single_points_and_unmeasured_widths_give_no_evidence() -> None:
+    img = quantise(_image([], BARS, 16, 0.6), np.uint8)
+    p = DetectParams()
+    prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    ctx = frame_context(prep, p)
+    none = frame_own_width_ratio(ctx, [], np.zeros(0), 2.0)
+    assert none.ratio.shape == (0,) and not none.psf_extended
+    # A spot off the lit bars (background only), a spot on a bar's flat middle and a line
+    # along a bar, their widths not measured (NaN): the background holds no light to
+    # measure, the spot is as flat as the bar.
+    pts = [
+        np.array([[5.0, 5.0]]),
+        np.array([[30.0, 95.0]]),
+        line([160.0, 40.0], [290.0, 40.0], 131),
+    ]
+    got = frame_own_width_ratio(ctx, pts, np.full(3, np.nan), 2.0)
+    assert got.ratio.shape == (3,)
+    own = own_width_ratio(ctx.smooth, None, pts, 2.0, ctx.noise_smooth)
+    assert np.isnan(own[0]) and np.isnan(got.ratio[0])
+    assert own[1] > SourceParams().extended_width_ratio
+    assert own[2] > SourceParams().extended_width_ratio
+    assert np.isfinite(own_width_ratio(ctx.smooth, None, pts[:1], 2.0)[0])  # negative control
