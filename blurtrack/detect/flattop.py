@@ -26,7 +26,6 @@ beyond the window is wider than the window: as flat as the curve goes.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import cache
 
@@ -34,6 +33,7 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.context import FrameContext
+from blurtrack.detect.lines.normal import normal_cdf
 from blurtrack.detect.lines.sampling import sample_image
 
 #: Width at 90 % of the peak over the width at half the peak, for a Gaussian cross-section.
@@ -41,7 +41,7 @@ POINT_RATIO = float(np.sqrt(np.log(10.0 / 9.0) / np.log(2.0)))
 #: Centre-line points whose cross-sections are sampled per streak (a short line: directions
 #: through its middle point).
 SECTIONS = 8
-#: Fewest unsaturated cross-sections that give a median.
+#: Fewest unsaturated cross-sections that give a mean.
 MIN_SECTIONS = 5
 #: The sampled window reaches this many frame PSF sigmas either side of the centre line (a
 #: band up to ~12 sigmas wide has its half level inside).
@@ -114,15 +114,7 @@ def _ratio_curve() -> tuple[np.ndarray, np.ndarray]:
     sigmas)."""
     b = np.linspace(0.0, 20.0, 201)
     x = np.arange(-30.0, 30.0 + 1e-9, 0.02)
-    s2 = np.sqrt(2.0)
-    # erf tabulated once (the detect command imports no scipy) and interpolated.
-    z = np.linspace(-45.0, 45.0, 18001)
-    table = np.array([math.erf(t) for t in z.tolist()])
-
-    def erf(u: np.ndarray) -> np.ndarray:
-        return np.interp(u, z, table)
-
-    v = 0.5 * (erf((x[None, :] + b[:, None]) / s2) - erf((x[None, :] - b[:, None]) / s2))
+    v = normal_cdf(x[None, :] + b[:, None]) - normal_cdf(x[None, :] - b[:, None])
     v[0] = np.exp(-0.5 * x * x)
     centre = np.full(b.size, x.size // 2)
     peak = v[:, x.size // 2]
@@ -190,10 +182,10 @@ def mean_sections(
     # fraction of its light, well under the 50 % level, across the section).
     keep = ~clipped
     count = keep.sum(axis=1)
-    med = np.einsum("usk,us->uk", v, keep.astype(v.dtype)) / np.maximum(count, 1)[:, None]
-    med -= med.min(axis=1, keepdims=True)
+    mean = np.einsum("usk,us->uk", v, keep.astype(v.dtype)) / np.maximum(count, 1)[:, None]
+    mean -= mean.min(axis=1, keepdims=True)
     ok = count >= MIN_SECTIONS
-    out[use[ok]] = med[ok]
+    out[use[ok]] = mean[ok]
     return out
 
 
@@ -268,11 +260,11 @@ def frame_own_width_ratio(
     med = float(np.nanmedian(own_ref)) if np.isfinite(own_ref).any() else float("nan")
     if not med > sp.point_width_ratio:
         return OwnWidths(np.full(n, np.nan), False)
-    if n > PSF_CHECK:
-        own = own_width_ratio(smooth, near_clip, points, psf, noise)
-    else:
-        own = np.full(n, np.nan)
-        own[ref] = own_ref
+    own = np.full(n, np.nan)
+    own[ref] = own_ref
+    rest = np.setdiff1d(np.arange(n), ref)  # the reference is measured already
+    if rest.size:
+        own[rest] = own_width_ratio(smooth, near_clip, [points[i] for i in rest], psf, noise)
     return OwnWidths(own, bool(med > sp.extended_width_ratio))
 
 

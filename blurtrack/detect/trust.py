@@ -9,7 +9,7 @@ file.
   flanks of the clipped cross-sections) over ``psf``. A point light's cross-section is the PSF
   all along (ratio 1).
 - ``own_width_ratio``: the same ratio against the streak's own edges, from the flat top of
-  its median unsaturated cross-section (:mod:`blurtrack.detect.flattop`): a frame of letters'
+  its mean unsaturated cross-section (:mod:`blurtrack.detect.flattop`): a frame of letters'
   strokes has the strokes' width as ``psf``, but a stroke's top is flat where a point light's
   is the PSF's peak. Wider than ``extended_width_ratio`` against its own edges the source is
   extended, whatever ``width_ratio`` says.
