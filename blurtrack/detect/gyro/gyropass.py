@@ -19,8 +19,10 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 1. **Candidates** (at least ``gyro_pass.min_arc_px`` of predicted arc; components touching
    the border too, ``gyro_pass.border_candidates``): in a
    hairpin frame every component whose predicted curve, placed with its light centroid on
-   the component's, is a hairpin; elsewhere components that do not have exactly one line
-   matching the prediction.
+   the component's, is a hairpin; elsewhere every component. A first-pass line within the
+   gate's tolerance of its prediction is no proof of its ends (a path that hooks inside a
+   saturated end: the first pass's line runs straight into the blob); such a line stays
+   where it fits the placed curve better than the new one (step 5).
 2. **Shape**: the session normally corrects its nominal calibration before the pass
    (:mod:`blurtrack.detect.gyro.sessioncalib`: intrinsics, ``R_cam_imu``, time offset, readout
    and gyro bias fitted to the first pass's ``quality_ok`` streaks), and the predicted curve
@@ -280,20 +282,24 @@ def refine_frame(
         & (arc >= gp.min_arc_px)
         & ((chord < gp.hairpin_chord * arc) | (not hairpin))
     )
-    # Every long component of a hairpin frame is a candidate: a line that the first pass
-    # measured well stays (below: the better of the two against the fitted curve). In other
-    # frames, components whose lines are not one line matching the prediction.
+    # Every long component of a frame the gate lets through is a candidate: a line that the
+    # first pass measured well stays (below: the better of the two against the placed curve).
+    # One first-pass line near its prediction is no proof of its ends: where the dot's path
+    # hooks inside a saturated end, the first pass draws its line straight into the blob, an
+    # end 2 px off and well within the gate's tolerance of the prediction (``hard`` seed 11
+    # frame 6). Such a component holds one dot: one placement (a second would slip along
+    # the line, its template still mostly on the light) and no sweep.
     cand = long_.copy()
     own = _line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)
     tol = gp.tol_px + gp.tol_rel * arc
+    one_dot = np.zeros(C, bool)
     if not hairpin:
-        ok1 = np.zeros(C, bool)
         one = own >= 0
         o = own[one]
         mis1 = mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])
-        ok1[o[mis1 <= tol[o]]] = True
-        cand &= ~((n_lines == 1) & ok1)
+        one_dot[o[mis1 <= tol[o]]] = True
+        one_dot &= n_lines == 1
     if not cand.any():
         return fs, FrameOutcome("skipped")
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
@@ -328,7 +334,7 @@ def refine_frame(
     placements: list[Placement] = []
     order = np.flatnonzero(cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
-    templates: dict[int, Template] = {}  # each pursued candidate's shape
+    templates: dict[int, Template] = {}  # the shapes the sweeps pursue again
     norms = InsideNorms(in_frame)  # the sweeps pursue and refit over the same regions again
     for c in order.tolist():
         if gp.shape_search:
@@ -342,9 +348,11 @@ def refine_frame(
             # same placements again (hard seeds 1-11: the same tables within 0.2 points, 10 %
             # less CPU).
             tpl = make(pts[c] + P, with_raw=True)
-        templates[c] = tpl
+        limit = 1 if one_dot[c] else None
+        if limit is None:
+            templates[c] = tpl
         placements += pursue(
-            residual, comps_p, c, tpl, comp_of_label, sp, sp.halo_max, in_frame, norms
+            residual, comps_p, c, tpl, comp_of_label, sp, sp.halo_max, in_frame, norms, limit
         )
     n_cand = int(cand.sum())
     if not placements:

@@ -58,6 +58,7 @@ def pursue(
     halo_max: float,
     frame: tuple[int, int, int, int] | None = None,
     norms: InsideNorms | None = None,
+    limit: int | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
     it updates in place). Each placement belongs to the component that holds most of the
@@ -69,7 +70,8 @@ def pursue(
     reaching past the border is scored and scaled by its template's part inside the frame
     (a streak leaving the frame), and needs at least ``sp.inside_min`` of its template
     inside.
-    ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``)."""
+    ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``).
+    ``limit``: at most this many placements (the best first; None: as many as fit)."""
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box
@@ -118,6 +120,8 @@ def pursue(
             # A streak's template lies in the dark: no blob or wider streak fits it.
             if score >= sp.score_min and halo <= halo_max * den:
                 picked.append((iy, ix, float(num[iy, ix]) / t2))
+                if limit is not None and len(out) + len(picked) >= limit:
+                    break
                 ry, rx = sy, sx
             else:
                 ry, rx = FAIL_SUPPRESS_PX, FAIL_SUPPRESS_PX
@@ -134,6 +138,8 @@ def pursue(
             out.append(Placement(tpl, shift, a, int(np.argmax(light)) if light.size else c))
             win -= a * tpl.smooth
             np.maximum(win, 0.0, out=win)
+        if limit is not None and len(out) >= limit:
+            break
         # Another round only if the candidate's box still holds a good part of a template.
         left = residual[y : y + h, x : x + w]
         if float(np.sum(left * left)) < sp.left_min * sp.amp_min**2 * tpl.norm2:
