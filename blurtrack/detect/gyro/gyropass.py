@@ -19,10 +19,12 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 1. **Candidates** (at least ``gyro_pass.min_arc_px`` of predicted arc; components touching
    the border too, ``gyro_pass.border_candidates``): in a
    hairpin frame every component whose predicted curve, placed with its light centroid on
-   the component's, is a hairpin; elsewhere every component. A first-pass line within the
-   gate's tolerance of its prediction is no proof of its ends (a path that hooks inside a
-   saturated end: the first pass's line runs straight into the blob); such a line stays
-   where it fits the placed curve better than the new one (step 5).
+   the component's, is a hairpin; elsewhere every component. A first-pass line within
+   ``tol_px + tol_rel * arc`` of its placed curve is no proof of its ends (a path that hooks
+   inside a saturated end: the first pass's line runs straight into the blob); such a
+   component (one line, so one dot) gets one placement of its own template and no sweep,
+   and its line stays only where it fits the placed curve ``old_lines_margin`` times better
+   than the new one (step 5).
 2. **Shape**: the session normally corrects its nominal calibration before the pass
    (:mod:`blurtrack.detect.gyro.sessioncalib`: intrinsics, ``R_cam_imu``, time offset, readout
    and gyro bias fitted to the first pass's ``quality_ok`` streaks), and the predicted curve
@@ -34,7 +36,8 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 3. **Pursuit and joint fit** with that template, exactly as in separation
    (:func:`blurtrack.detect.separation.pursuit.pursue`,
    :func:`blurtrack.detect.separation.refit.refit`); then up to :data:`SWEEPS` more pursuits of
-   every candidate's template over what the refitted placements leave, each followed by the joint
+   every candidate's template but a one-line component's (step 1) over what the refitted
+   placements leave, each followed by the joint
    refit of all (:func:`_sweep`); components whose light the placements explain are candidates for
    replacement. Where a candidate touches the border the images are padded with zeros beyond the
    frame and a placement may reach past it (``gyro_pass.clip_at_border``: scored and scaled by its
@@ -53,8 +56,9 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
    placed curve's (and whose shape does not match it within twice that, :func:`_confirmed`)
    is dropped (its component keeps its first-pass lines), and a component
-   keeps its first-pass lines unless the new streaks fit the placed curves better (per
-   placement, the nearest old line against the new one); a frame where fewer than
+   keeps its first-pass lines only where they fit the placed curves ``old_lines_margin``
+   times better than the new streaks (per placement, the nearest old line against the new
+   one); a frame where fewer than
    ``gyro_pass.accept_min`` of the measured placements survive keeps
    its first pass entirely (a wrong prior, e.g. a gyro of the wrong sign, draws shapes the
    image does not hold; :mod:`blurtrack.detect.gyro.gyroconfirm` holds these checks).
@@ -108,7 +112,7 @@ def _sweep(
     frame: tuple[int, int, int, int] | None,
     norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray]:
-    """Up to :data:`SWEEPS` more pursuits of every candidate's template over the light the
+    """Up to :data:`SWEEPS` more pursuits of each of ``templates`` over the light the
     placements so far (jointly refitted) leave, each followed by the joint refit of all:
     the placements and the residual (``norms``: the norms of
     :func:`~blurtrack.detect.separation.templates.inside_norm2` over ``frame``,
@@ -283,12 +287,13 @@ def refine_frame(
         & ((chord < gp.hairpin_chord * arc) | (not hairpin))
     )
     # Every long component of a frame the gate lets through is a candidate: a line that the
-    # first pass measured well stays (below: the better of the two against the placed curve).
-    # One first-pass line near its prediction is no proof of its ends: where the dot's path
-    # hooks inside a saturated end, the first pass draws its line straight into the blob, an
-    # end 2 px off and well within the gate's tolerance of the prediction (``hard`` seed 11
-    # frame 6). Such a component holds one dot: one placement (a second would slip along
-    # the line, its template still mostly on the light) and no sweep.
+    # first pass measured well stays (below: where it fits the placed curve old_lines_margin
+    # times better than the new one). One first-pass line near its placed curve is no proof
+    # of its ends: where the dot's path hooks inside a saturated end, the first pass draws
+    # its line straight into the blob, an end 2 px off and well within ``tol`` (``hard`` seed
+    # 11 frame 6). Such a component holds one dot: its own template gets one placement (a
+    # second would slip along the line, its template still mostly on the light) and no
+    # sweep.
     cand = long_.copy()
     own = _line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)

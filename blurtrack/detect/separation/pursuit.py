@@ -71,7 +71,10 @@ def pursue(
     (a streak leaving the frame), and needs at least ``sp.inside_min`` of its template
     inside.
     ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``).
-    ``limit``: at most this many placements (the best first; None: as many as fit)."""
+    ``limit``: at most this many placements (at least 1; the best first; None: as many as
+    fit)."""
+    if limit is not None and limit < 1:
+        raise ValueError(f"pursue: limit must be at least 1, got {limit}")
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box

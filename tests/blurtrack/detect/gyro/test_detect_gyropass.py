@@ -412,7 +412,7 @@ def _worse_end_px(fs, curves: list[np.ndarray]) -> np.ndarray:
     return np.array(out)
 
 
-def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks() -> None:
+def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks(monkeypatch) -> None:
     # Saturated streaks whose paths hook by 3 px as the dot slows to its exposure-end stop:
     # the first pass draws each line straight into the blown-out end. Two dots whose streaks
     # touch make a chain that misses its prediction, so the gate lets the frame through.
@@ -431,11 +431,23 @@ def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks() -> N
     curves = [tracks[i] for i in single]
     first = detect_frame(image)
     before = _worse_end_px(first, curves)
-    # Negative control: every first-pass line lies within the gate's tolerance of its
-    # prediction (no mismatch singles it out), yet its hooked end is off.
+    # Negative control: every first-pass line lies within the tolerance of its prediction
+    # (no mismatch singles it out), yet its hooked end is off.
     assert np.all(before < GyroPassParams().tol_px)
     assert np.all(before > 0.6) and np.sum(before > 1.2) >= 2
+    limits: list[int | None] = []
+    real = gyropass.pursue
+
+    def spy(*args, **kwargs):
+        limits.append(args[9] if len(args) > 9 else kwargs.get("limit"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(gyropass, "pursue", spy)
     out, what = refine_frame(image, first, FrameTiming(T0, EXP), model)
     assert what.status == "refined"
+    # Each single line's component was pursued once, for one placement (one dot; no sweep:
+    # a second placement would slide along the line, which
+    # test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border would count).
+    assert limits.count(1) == len(single)
     after = _worse_end_px(out, curves)
     assert np.all(after < 0.5)
