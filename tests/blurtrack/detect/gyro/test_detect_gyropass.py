@@ -27,18 +27,23 @@ T0, EXP = 0.05, 0.04
 REACH_PX, DRIFT_PX = 20.0, 3.0
 
 
-def _model(sign: float = 1.0, readout_s: float = 0.0) -> BlurModel:
-    """A rotation about the camera's y axis that goes out and back within the exposure
-    (``REACH_PX`` at mid-exposure) and a slow one about x (``DRIFT_PX`` over the exposure)."""
+def _rig(t: np.ndarray, omega: np.ndarray, readout_s: float = 0.0) -> BlurModel:
+    """The test camera (``W x H``, focal ``F``, centred) with the gyro trace ``omega (T, 3)``
+    at times ``t``, axes aligned and no time offset."""
     cam = Camera(
         resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2), readout_s=readout_s
     )
+    calib = Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0)
+    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+
+
+def _model(sign: float = 1.0, readout_s: float = 0.0) -> BlurModel:
+    """A rotation about the camera's y axis that goes out and back within the exposure
+    (``REACH_PX`` at mid-exposure) and a slow one about x (``DRIFT_PX`` over the exposure)."""
     t = np.arange(0.0, 0.2, 1e-3)
     wy = REACH_PX * np.pi / (F * EXP) * np.cos(np.pi * (t - T0) / EXP)
     wx = np.full_like(t, DRIFT_PX / (F * EXP))
-    omega = sign * np.stack([wx, wy, 0.0 * t], axis=1)
-    calib = Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0)
-    return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
+    return _rig(t, sign * np.stack([wx, wy, 0.0 * t], axis=1), readout_s)
 
 
 def _frame() -> tuple[np.ndarray, list[np.ndarray]]:
@@ -54,18 +59,22 @@ def _frame() -> tuple[np.ndarray, list[np.ndarray]]:
     return quantise(image), curves
 
 
-def _matched(fs, curves: list[np.ndarray], tol: float) -> int:
-    """True streaks with a detection whose both ends (either order) lie within ``tol``."""
+def _worse_end_px(fs, curves: list[np.ndarray]) -> np.ndarray:
+    """Per true curve, the worse end's distance (px) of the detection nearest it (either
+    order; infinite without detections)."""
     det = np.stack([fs.end_a, fs.end_b], axis=1)
-    found = 0
+    out = []
     for c in curves:
         e = np.stack([c[0], c[-1]])
-        d = np.minimum(
-            np.hypot(*(det - e[None]).transpose(2, 0, 1)).max(axis=1),
-            np.hypot(*(det - e[None, ::-1]).transpose(2, 0, 1)).max(axis=1),
-        )
-        found += int(np.any(d < tol))
-    return found
+        same = np.hypot(*(det - e[None]).transpose(2, 0, 1)).max(axis=1)
+        swap = np.hypot(*(det - e[None, ::-1]).transpose(2, 0, 1)).max(axis=1)
+        out.append(float(np.min(np.minimum(same, swap), initial=np.inf)))
+    return np.array(out)
+
+
+def _matched(fs, curves: list[np.ndarray], tol: float) -> int:
+    """True streaks with a detection whose both ends (either order) lie within ``tol``."""
+    return int(np.sum(_worse_end_px(fs, curves) < tol))
 
 
 @pytest.fixture(scope="module")
@@ -108,14 +117,9 @@ def test_a_wrong_sign_gyro_is_refused(hairpins) -> None:
 
 def _pan_model(blur_px: float) -> BlurModel:
     """A steady pan about camera y that draws ``blur_px`` long streaks in one exposure."""
-    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
     t = np.arange(0.0, 0.2, 1e-3)
     omega = np.stack([0.0 * t, np.full_like(t, blur_px / (F * EXP)), 0.0 * t], axis=1)
-    return BlurModel(
-        Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
-        GyroTrace(t, omega),
-        gyro_upsample=1,
-    )
+    return _rig(t, omega)
 
 
 def test_straight_streaks_are_left_to_the_first_pass() -> None:
@@ -388,28 +392,11 @@ def _hook_model(length_px: float, hook_px: float, ramp: float) -> BlurModel:
     """A pan about camera y drawing ``length_px`` along -x that, over the last ``ramp`` of
     the exposure, slows to a stop while a rotation about x turns the path ``hook_px`` along
     y: every dot's streak ends in a hook, its slow end the brightest part."""
-    cam = Camera(resolution=(W, H), intrinsics=(F, F, (W - 1) / 2, (H - 1) / 2))
     t = np.arange(0.0, 0.2, 1e-4)
     s = np.clip((t - (T0 + (1.0 - ramp) * EXP)) / (ramp * EXP), 0.0, 1.0)
     wy = length_px / (F * EXP * (1.0 - ramp / 2)) * (1.0 - s)
     wx = hook_px / (F * EXP * ramp / 2) * s
-    return BlurModel(
-        Calibration(camera=cam, R_cam_imu=np.eye(3), timeshift_cam_imu_s=0.0),
-        GyroTrace(t, np.stack([wx, wy, 0.0 * t], axis=1)),
-        gyro_upsample=1,
-    )
-
-
-def _worse_end_px(fs, curves: list[np.ndarray]) -> np.ndarray:
-    """Per true curve, the worse end's distance (px) of the detection nearest it."""
-    det = np.stack([fs.end_a, fs.end_b], axis=1)
-    out = []
-    for c in curves:
-        e = np.stack([c[0], c[-1]])
-        same = np.hypot(*(det - e[None]).transpose(2, 0, 1)).max(axis=1)
-        swap = np.hypot(*(det - e[None, ::-1]).transpose(2, 0, 1)).max(axis=1)
-        out.append(float(np.min(np.minimum(same, swap))))
-    return np.array(out)
+    return _rig(t, np.stack([wx, wy, 0.0 * t], axis=1))
 
 
 def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks(monkeypatch) -> None:
