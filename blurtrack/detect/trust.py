@@ -247,6 +247,7 @@ def classify_source(
     contrast: np.ndarray | None = None,
     own_width_ratio: np.ndarray | None = None,
     psf_extended: bool = False,
+    unmeasured: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(N,)`` object array of ``point``, ``extended`` or ``undetermined``: extended where the
     streak is far wider than the PSF or its lit region far larger than a point light's;
@@ -256,8 +257,12 @@ def classify_source(
     the streak's own edges; above ``extended_width_ratio`` the source is extended too.
     ``psf_extended``: the frame's PSF is an extended source's
     (:class:`~blurtrack.detect.flattop.OwnWidths`); a point light must then also measure
-    within ``point_width_ratio`` against its own edges."""
+    within ``point_width_ratio`` against its own edges. ``unmeasured``: ``(N,)`` the streaks
+    whose width no cross-section can give (two blown-out arms of one hairpin, whose clipped
+    cores run into each other): their fill and contrast alone decide ``point``."""
     wr = np.where(np.isfinite(width_ratio), width_ratio, np.inf)
+    if unmeasured is not None:
+        wr = np.where(np.asarray(unmeasured, bool), 0.0, wr)
     fl = np.where(np.isfinite(fill), fill, np.inf)
     out = np.full(wr.size, "undetermined", object)
     point = (wr <= p.point_width_ratio) & (fl <= p.point_fill)
@@ -286,11 +291,12 @@ def assess(
     plateau: np.ndarray,
     width_px: np.ndarray,
     psf: float,
+    unmeasured: np.ndarray | None = None,
 ) -> Evidence:
     """The :class:`Evidence` of a frame's streaks (``points``, ``profile``, ``plateau``,
     ``width_px`` as in :class:`~blurtrack.detect.frame.FrameStreaks`) on the frame ``ctx``
     (its smoothed image, components, threshold and ``params.source``) with cross-section
-    sigma ``psf``."""
+    sigma ``psf``; ``unmeasured``: as in :func:`classify_source`."""
     smooth, comps, threshold, p = ctx.smooth, ctx.comps, ctx.threshold, ctx.params.source
     n = len(points)
     if n == 0:
@@ -315,5 +321,7 @@ def assess(
     own = frame_own_width_ratio(ctx, points, width_px, psf)
     light = _end_light(smooth, points, np.asarray(plateau, float), profile, psf)
     contrast = _contrast(smooth, points, threshold)
-    source = classify_source(width_ratio, fill, p, contrast, own.ratio, own.psf_extended)
+    source = classify_source(
+        width_ratio, fill, p, contrast, own.ratio, own.psf_extended, unmeasured
+    )
     return Evidence(width_ratio, own.ratio, fill, light, comp, shared, source, contrast)

@@ -50,8 +50,14 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
     half = 0.5 * cum[-1]
     j = int(np.clip(np.searchsorted(cum, half), 1, len(cum) - 1))
     f = (half - cum[j - 1]) / max(cum[j] - cum[j - 1], 1e-12)
+    saturated = bool(m.saturated[list(rows)].any())
     widths = m.width_px[list(rows)]
     widths = widths[np.isfinite(widths)]  # NaN where neither arm's width was measured
+    if saturated:
+        # The arms lie 2-4 px apart and a blown-out core is wider: the clipped plateau runs
+        # from one arm into the other, and an arm's image (the frame less the other arm's
+        # unclipped template) has no cross-section of its own. No width is measured.
+        widths = widths[:0]
     return {
         "end_a": pts[0],
         "end_b": pts[-1],
@@ -61,9 +67,10 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
         "width_px": float(widths.mean()) if widths.size else float("nan"),
         "points": pts,
         "profile": prof,
-        "saturated": bool(m.saturated[list(rows)].any()),
+        "saturated": saturated,
         "crossing": bool(m.crossing[list(rows)].any()),
         "short": False,
+        "arms": True,
     }
 
 
@@ -101,7 +108,7 @@ def _measure_once(
             continue  # an arm split or lost: not measured whole
         if len(idx) == 1:
             r = got[0][0]
-            out[j] = {n: getattr(m, n)[r] for n in _FIELDS}
+            out[j] = {n: getattr(m, n)[r] for n in _FIELDS} | {"arms": False}
         else:
             turn = q.tpl.points[turn_index(q.tpl.points)] + q.shift
             out[j] = _joined(m, (got[0][0], got[1][0]), turn)
@@ -179,6 +186,7 @@ def measure_placements(
         short=arr("short", (), bool),
         sigma_c=sigma_c,
         sigma_raw=sigma_raw,
+        arms=arr("arms", (), bool),
     )
 
 
@@ -241,8 +249,14 @@ def as_streaks(
     points = [fs.points[i] for i in k] + (list(new["points"]) if n_new else [])
     profile = [fs.profile[i] for i in k] + (list(new["profile"]) if n_new else [])
     width = cat("width_px")
+    # Two blown-out arms have no width to measure (:func:`_joined`): their fill decides
+    # whether they are a point light's, and they are not ``merged``: the other light
+    # alongside is their own other arm.
+    unmeasured = np.zeros(len(width), bool)
+    if n_new and m is not None and m.arms is not None:
+        unmeasured[len(k) :] = m.arms & m.saturated & ~np.isfinite(m.width_px)
     # Measured again over the new set: the neighbours of the old streaks have changed.
-    evidence = assess(ctx, points, profile, cat("plateau"), width, fs.sigma_c_px)
+    evidence = assess(ctx, points, profile, cat("plateau"), width, fs.sigma_c_px, unmeasured)
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),

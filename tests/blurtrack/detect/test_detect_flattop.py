@@ -24,7 +24,7 @@ from blurtrack.detect.flattop import (
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import frame_quality
-from blurtrack.detect.trust import classify_source
+from blurtrack.detect.trust import classify_source, min_contrast
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
 SIGMA = 1.5  # the optics' spread (px)
@@ -162,6 +162,22 @@ def test_own_widths_widen_past_the_limit_and_veto_where_the_psf_is_extended() ->
     got = classify_source(wr, fill, p, None, own, psf_extended=True)
     assert list(got) == ["undetermined", "point", "undetermined", "extended", "extended"]
     assert list(classify_source(wr, fill, p)) == ["point"] * 5  # negative control
+
+
+def test_where_no_width_is_measured_the_fill_decides() -> None:
+    # Two blown-out arms of one hairpin have no width of their own (NaN): unmeasured, the
+    # lit area decides point or extended; a NaN width otherwise leaves the source open.
+    p = SourceParams()
+    wr = np.full(3, np.nan)
+    fill = np.array([1.0, 0.5 * (p.point_fill + p.extended_fill), 2.0 * p.extended_fill])
+    contrast = np.full(3, 2.0 * min_contrast(p))
+    got = classify_source(wr, fill, p, contrast, unmeasured=np.ones(3, bool))
+    assert list(got) == ["point", "undetermined", "extended"]
+    # ... and a faint one is still no point light
+    faint = classify_source(wr, fill, p, 0.4 * contrast, unmeasured=np.ones(3, bool))
+    assert list(faint) == ["undetermined", "undetermined", "extended"]
+    # negative control: without the mask the missing width leaves all but the large light open
+    assert list(classify_source(wr, fill, p, contrast)) == ["undetermined"] * 2 + ["extended"]
 
 
 @pytest.mark.parametrize("thick", [12, 16])

@@ -388,6 +388,26 @@ def test_one_dots_light_is_a_components_light_per_line_not_a_chains() -> None:
     assert gyropass._dot_light(light, border, none, quantile) == former
 
 
+def test_blown_out_hairpins_are_point_lights_not_touching() -> None:
+    # The twelve hairpins blown out (peak ~3.7x white): each arm's clipped core runs into the
+    # other arm's, 3 px away, so neither arm has a cross-section of its own. The pass
+    # measures no width for them (NaN), nor calls them merged; the lit area says point.
+    model = _model()
+    _, curves = _frame()
+    bright = quantise(render_streaks((H, W), curves, 12.0, 1.3, noise=0.004, seed=4))
+    assert np.mean(bright == 255) > 0.005
+    out, what = refine_frame(bright, detect_frame(bright), FrameTiming(T0, EXP), model)
+    assert what.status == "refined" and out.evidence is not None
+    assert _matched(out, curves, 1.5) == len(curves) == len(out)
+    assert out.flags["saturated"].all() and np.isnan(out.width_px).all()
+    assert not out.flags["merged"].any()
+    assert list(out.evidence.source) == ["point"] * len(curves)
+    # Negative control: unsaturated, the arms' widths are measured (a single dot's).
+    image, _ = _frame()
+    dim, _ = refine_frame(image, detect_frame(image), FrameTiming(T0, EXP), model)
+    assert np.all(np.abs(dim.width_px / dim.sigma_c_px - 1.0) < 0.15)
+
+
 def _hook_model(length_px: float, hook_px: float, ramp: float) -> BlurModel:
     """A pan about camera y drawing ``length_px`` along -x that, over the last ``ramp`` of
     the exposure, slows to a stop while a rotation about x turns the path ``hook_px`` along
