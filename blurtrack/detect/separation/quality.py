@@ -203,15 +203,21 @@ def consensus_field(
         dev = np.minimum(np.hypot(*(v - c).T), np.hypot(*(v + c).T))
         return int(np.sum(voters & (dev <= tol)))
 
-    starts = [(sign, voters)]
-    if int(np.sum(voters & near)) >= q.min_reference:
-        starts.append((sign, voters & near))
+    starts: list[Callable[[], tuple[np.ndarray, np.ndarray]]] = [lambda: (sign, voters)]
+    close = voters & near
+    # (A start equal to the first would fit the very same field.)
+    if int(close.sum()) >= q.min_reference and not np.array_equal(close, voters):
+        starts.append(lambda: (sign, close))
     # A strong roll turns the vectors across the frame, so one axis's sign splits the field:
     # (resign) a third start takes each voter's sign from its nearest signed neighbour.
     if resign:
-        starts.append((_propagated_signs(v, mid, voters), voters))
+        starts.append(lambda: (_propagated_signs(v, mid, voters), voters))
+    n_voters = int(voters.sum())
     best: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-    for sg, start in starts:
+    for make_start in starts:
+        if best is not None and best[0] == n_voters:
+            break  # every voter agrees: no later start can win (it must do strictly better)
+        sg, start = make_start()
         coef, use = _robust_affine(X, v * sg, voters, start, q.min_reference)
         for _ in range(RESIGN_ROUNDS if resign else 0):  # signs re-chosen against the field
             new_sg = np.where(np.sum(v * (X @ coef), axis=1) < 0, -1.0, 1.0)[:, None]

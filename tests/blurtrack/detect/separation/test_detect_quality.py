@@ -175,6 +175,32 @@ def test_one_axis_signs_split_a_strong_roll() -> None:
     assert np.max(old.dev) > 3.0 and np.max(new.dev) < 1e-6
 
 
+def test_later_starts_are_tried_only_where_a_voter_disagrees(monkeypatch) -> None:
+    # Where the first start's field holds every voter no later start can win (it must do
+    # strictly better): the neighbours' signs are not propagated. The roll frame needs them.
+    from blurtrack.detect.params import QualityParams
+    from blurtrack.detect.separation import quality
+
+    calls: list[int] = []
+    real = quality._propagated_signs
+
+    def counted(*a):
+        calls.append(1)
+        return real(*a)
+
+    monkeypatch.setattr(quality, "_propagated_signs", counted)
+    d = _frame(14)
+    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+    mid = d[["mid_x", "mid_y"]].to_numpy(float)
+    field = quality.consensus_field(v, mid, np.ones(len(d), bool), QualityParams(), resign=True)
+    assert field is not None and np.max(field.dev) < 1e-6 and not calls
+    r = _roll_frame()
+    v = r[["end_x", "end_y"]].to_numpy(float) - r[["start_x", "start_y"]].to_numpy(float)
+    mid = r[["mid_x", "mid_y"]].to_numpy(float)
+    field = quality.consensus_field(v, mid, np.ones(len(r), bool), QualityParams(), resign=True)
+    assert field is not None and np.max(field.dev) < 1e-6 and calls == [1]
+
+
 def test_a_saturated_frame_measures_the_dot_width_on_all_its_streaks() -> None:
     # Every streak saturated (width measured on the flanks, 2.0) but two faint ones (1.0):
     # two widths do not say the dot's width, so none is thick.
