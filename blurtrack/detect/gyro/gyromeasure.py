@@ -207,11 +207,18 @@ _FIELDS = (
 
 
 def as_streaks(
-    fs: FrameStreaks, keep: np.ndarray, m: Measured | None, ctx: FrameContext
+    fs: FrameStreaks,
+    keep: np.ndarray,
+    m: Measured | None,
+    ctx: FrameContext,
+    psf: float | None = None,
 ) -> FrameStreaks:
     """The template pass's frame: rows ``keep`` of the first pass's ``fs`` followed by the
-    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``."""
+    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``. ``psf``:
+    the cross-section sigma the streaks' widths are held to (``merged``, the source's width
+    ratio): the one the templates and the measurement used (None: ``fs.sigma_c_px``)."""
     comps, p = ctx.comps, ctx.params
+    psf = fs.sigma_c_px if psf is None else float(psf)
     k = np.flatnonzero(keep)
     if m is None or len(m) == 0:
         new: dict[str, Any] = {}
@@ -222,7 +229,7 @@ def as_streaks(
             "clipped": ctx.clipped(m.end_a, m.end_b),
             "saturated": m.saturated,
             "crossing": m.crossing,
-            "merged": ctx.merged(m.width_px, fs.sigma_c_px),
+            "merged": ctx.merged(m.width_px, psf),
             "looped": m.looped,
             "faint": comps.peaks[m.own] < p.faint_snr * ctx.noise_smooth,
         }
@@ -256,7 +263,7 @@ def as_streaks(
     if n_new and m is not None and m.arms is not None:
         unmeasured[len(k) :] = m.arms & m.saturated & ~np.isfinite(m.width_px)
     # Measured again over the new set: the neighbours of the old streaks have changed.
-    evidence = assess(ctx, points, profile, cat("plateau"), width, fs.sigma_c_px, unmeasured)
+    evidence = assess(ctx, points, profile, cat("plateau"), width, psf, unmeasured)
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),

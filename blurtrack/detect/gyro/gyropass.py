@@ -423,5 +423,5 @@ def refine_frame(
     long_pred = pred_arc >= sp.spot_min_px
     keep_old &= ~(long_pred & (fs.length_px < sp.spot_fraction * pred_arc))
     keep_old &= ~(long_pred & (fs.length_px > gp.chain_factor * pred_arc))
-    out = as_streaks(fs, keep_old, m, ctx)
+    out = as_streaks(fs, keep_old, m, ctx, sig_s)
     return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))

@@ -4,6 +4,8 @@ its own trail, which the image-only first pass measures as one line down the mid
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -406,6 +408,25 @@ def test_blown_out_hairpins_are_point_lights_not_touching() -> None:
     image, _ = _frame()
     dim, _ = refine_frame(image, detect_frame(image), FrameTiming(T0, EXP), model)
     assert np.all(np.abs(dim.width_px / dim.sigma_c_px - 1.0) < 0.15)
+
+
+def test_the_pass_holds_widths_to_the_sigma_it_measured_with(hairpins) -> None:
+    # A frame whose own sigma came out narrow (its unsaturated lines faint fragments, whose
+    # cores alone rise over the noise: hard seed 17 frame 4, 1.03 px against 1.87 in the
+    # other frames): the pass measures with the session's sigma and holds the widths to it,
+    # so its dots of the optics' width are neither merged nor of undetermined source.
+    image, curves, first = hairpins
+    narrow = dataclasses.replace(first, sigma_c_px=0.55 * first.sigma_c_px)
+    out, what = refine_frame(
+        image, narrow, FrameTiming(T0, EXP), _model(), sigma_c=first.sigma_c_px
+    )
+    assert what.status == "refined" and out.evidence is not None
+    assert _matched(out, curves, 1.0) >= len(curves) - 1
+    assert not out.flags["merged"].any()
+    assert list(out.evidence.source) == ["point"] * len(out)
+    # Negative control: against the frame's own sigma every one of them is wider than a dot.
+    limit = DetectParams().quality.merged_width * narrow.sigma_c_px
+    assert np.all(out.width_px > limit)
 
 
 def _hook_model(length_px: float, hook_px: float, ramp: float) -> BlurModel:
