@@ -235,8 +235,8 @@ def frame_own_width_ratio(
     ctx: FrameContext, points: list[np.ndarray], width_px: np.ndarray, psf: float
 ) -> OwnWidths:
     """:func:`own_width_ratio` of a frame's streaks (``points``, ``width_px`` as measured on
-    the frame ``ctx``) where its point spread ``psf`` (the median of ``width_px``) is not a
-    point light's; all NaN where it is.
+    the frame ``ctx``) where its point spread ``psf`` (the median of ``width_px``; for the
+    gyro pass's streaks, the session's) is not a point light's; all NaN where it is.
 
     Against a point light's ``psf`` the widths tell what the streaks' own edges would: a band
     measuring more than a limit against its own edges measures more than that against the

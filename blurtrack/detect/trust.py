@@ -45,7 +45,7 @@ file.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -105,6 +105,15 @@ class Evidence:
             np.zeros(0, np.int64),
             np.zeros(0, object),
             z.copy(),
+        )
+
+    @staticmethod
+    def concat(parts: list[Evidence]) -> Evidence:
+        """The rows of ``parts`` one after the other."""
+        if not parts:
+            return Evidence.empty()
+        return Evidence(
+            *(np.concatenate([getattr(e, f.name) for e in parts]) for f in fields(Evidence))
         )
 
     def take(self, rows: np.ndarray) -> Evidence:
@@ -259,7 +268,8 @@ def classify_source(
     (:class:`~blurtrack.detect.flattop.OwnWidths`); a point light must then also measure
     within ``point_width_ratio`` against its own edges. ``unmeasured``: ``(N,)`` the streaks
     whose width no cross-section can give (two blown-out arms of one hairpin, whose clipped
-    cores run into each other): their fill and contrast alone decide ``point``."""
+    cores run into each other): the width against ``psf`` does not count against ``point``
+    for them; the fill, the contrast and the own edges decide as for every streak."""
     wr = np.where(np.isfinite(width_ratio), width_ratio, np.inf)
     if unmeasured is not None:
         wr = np.where(np.asarray(unmeasured, bool), 0.0, wr)

@@ -23,7 +23,7 @@ from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaics
 from blurtrack.detect.separation.templates import Placement
-from blurtrack.detect.trust import assess
+from blurtrack.detect.trust import Evidence, assess
 
 
 def _end_mismatch(d: dict[str, Any], s: np.ndarray, e: np.ndarray) -> float:
@@ -70,7 +70,7 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
         "saturated": saturated,
         "crossing": bool(m.crossing[list(rows)].any()),
         "short": False,
-        "arms": True,
+        "width_unmeasured": saturated,
     }
 
 
@@ -108,7 +108,7 @@ def _measure_once(
             continue  # an arm split or lost: not measured whole
         if len(idx) == 1:
             r = got[0][0]
-            out[j] = {n: getattr(m, n)[r] for n in _FIELDS} | {"arms": False}
+            out[j] = {n: getattr(m, n)[r] for n in _FIELDS} | {"width_unmeasured": False}
         else:
             turn = q.tpl.points[turn_index(q.tpl.points)] + q.shift
             out[j] = _joined(m, (got[0][0], got[1][0]), turn)
@@ -186,7 +186,7 @@ def measure_placements(
         short=arr("short", (), bool),
         sigma_c=sigma_c,
         sigma_raw=sigma_raw,
-        arms=arr("arms", (), bool),
+        width_unmeasured=arr("width_unmeasured", (), bool),
     )
 
 
@@ -211,14 +211,15 @@ def as_streaks(
     keep: np.ndarray,
     m: Measured | None,
     ctx: FrameContext,
-    psf: float | None = None,
+    psf: float,
 ) -> FrameStreaks:
     """The template pass's frame: rows ``keep`` of the first pass's ``fs`` followed by the
-    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``. ``psf``:
-    the cross-section sigma the streaks' widths are held to (``merged``, the source's width
-    ratio): the one the templates and the measurement used (None: ``fs.sigma_c_px``)."""
+    measured streaks ``m`` (flags as the first pass sets them) on the frame ``ctx``. Each
+    streak is held to the cross-section sigma it was measured with (``merged`` and all the
+    evidence of :func:`~blurtrack.detect.trust.assess`): the measured ones to ``psf``, the
+    one of the templates and the measurement, the kept first-pass lines to the frame's own
+    ``fs.sigma_c_px``, as the first pass flagged them."""
     comps, p = ctx.comps, ctx.params
-    psf = fs.sigma_c_px if psf is None else float(psf)
     k = np.flatnonzero(keep)
     if m is None or len(m) == 0:
         new: dict[str, Any] = {}
@@ -260,10 +261,15 @@ def as_streaks(
     # whether they are a point light's, and they are not ``merged``: the other light
     # alongside is their own other arm.
     unmeasured = np.zeros(len(width), bool)
-    if n_new and m is not None and m.arms is not None:
-        unmeasured[len(k) :] = m.arms & m.saturated & ~np.isfinite(m.width_px)
+    if n_new and m is not None and m.width_unmeasured is not None:
+        unmeasured[len(k) :] = m.width_unmeasured
     # Measured again over the new set: the neighbours of the old streaks have changed.
-    evidence = assess(ctx, points, profile, cat("plateau"), width, psf, unmeasured)
+    plateau = cat("plateau")
+    evidence = assess(ctx, points, profile, plateau, width, psf, unmeasured)
+    if len(k) and n_new and psf != fs.sigma_c_px:
+        kept = assess(ctx, points, profile, plateau, width, fs.sigma_c_px, unmeasured)
+        rows = np.arange(len(width))
+        evidence = Evidence.concat([kept.take(rows[: len(k)]), evidence.take(rows[len(k) :])])
     return FrameStreaks(
         shape=fs.shape,
         end_a=cat("end_a"),

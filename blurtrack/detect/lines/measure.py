@@ -36,8 +36,8 @@ class Measured:
 
     ``own``: component index per streak; ``src``: index of the input line it came from;
     ``sigma_c``: the cross-section sigma used (measured from the widths unless fixed);
-    ``sigma_raw``: that of the unsmoothed signal (saturated streaks); ``arms`` below; the rest
-    as in :class:`~blurtrack.detect.frame.FrameStreaks`.
+    ``sigma_raw``: that of the unsmoothed signal (saturated streaks); ``width_unmeasured``
+    below; the rest as in :class:`~blurtrack.detect.frame.FrameStreaks`.
     """
 
     own: np.ndarray
@@ -56,9 +56,10 @@ class Measured:
     short: np.ndarray
     sigma_c: float
     sigma_raw: float
-    #: ``(N,)`` bool: measured as the two arms of one hairpin (the gyro pass,
-    #: :mod:`blurtrack.detect.gyro.gyromeasure`); None: no streak was.
-    arms: np.ndarray | None = None
+    #: ``(N,)`` bool: streaks whose width no cross-section gives (``width_px`` NaN: the two
+    #: arms of a hairpin with a blown-out arm, :mod:`blurtrack.detect.gyro.gyromeasure`);
+    #: None: not recorded (the first pass), none such.
+    width_unmeasured: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.own.size)
@@ -155,11 +156,11 @@ def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measure
 
     arrays = ("own", "src", "end_a", "end_b", "time_mid", "plateau", "length_px", "width_px")
     flags = ("saturated", "crossing", "looped", "short")
-    arms = None
-    if any(x.arms is not None for x in parts):
-        arms = np.concatenate(
+    unmeasured = None
+    if any(x.width_unmeasured is not None for x in parts):
+        unmeasured = np.concatenate(
             [
-                np.zeros(len(x), bool)[i] if x.arms is None else x.arms[i]
+                np.zeros(len(x), bool)[i] if x.width_unmeasured is None else x.width_unmeasured[i]
                 for x, i in zip(parts, idx, strict=True)
             ]
         )
@@ -169,5 +170,5 @@ def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measure
         profile=lst("profile"),
         sigma_c=a.sigma_c,
         sigma_raw=a.sigma_raw,
-        arms=arms,
+        width_unmeasured=unmeasured,
     )

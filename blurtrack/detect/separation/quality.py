@@ -17,7 +17,9 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
 - ``thick_saturated``: saturated and wider than ``quality.thick_width_ratio`` x the frame's
   dot width (the median of its unsaturated streaks', or of all where fewer than
   ``quality.min_reference`` are unsaturated): a blown-out core whose centre line and ends are
-  unreliable.
+  unreliable. A streak without a measured width (NaN: a hairpin of two blown-out arms, whose
+  arms the gyro pass measured apart) is not thick, and the widths that are NaN do not count
+  in the frame's dot width.
 - ``source``: ``point``, ``extended`` or ``undetermined``, from the frame's image
   (:mod:`blurtrack.detect.trust`); a table without that evidence is ``undetermined``.
 - ``quality_ok``: one whole point-light streak with trustworthy ends: ``source`` is

@@ -5,6 +5,8 @@ times the dot's width), blurred by the same PSF."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
-from blurtrack.detect.trust import min_contrast
+from blurtrack.detect.trust import Evidence, min_contrast
 from blurtrack.errors import ConfigError, DetectionError
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
@@ -159,6 +161,20 @@ def test_a_streak_near_the_threshold_is_not_called_a_point_light(flux, point) ->
     else:
         assert np.all(c < min_contrast(SourceParams())) and np.all(c > 1.0)
         assert not np.any(source == "point") and not ok.any()
+
+
+def test_evidence_split_and_joined_again_is_the_same() -> None:
+    img = render_streaks(SHAPE, _points(), 0.6, SIGMA, 0.03, 0.004, 1)
+    ev = detect_frame(quantise(img, np.uint16), DetectParams(psf_sigma_px=SIGMA)).evidence
+    assert ev is not None and len(ev) == 12
+    rows = np.arange(len(ev))
+    joined = Evidence.concat([ev.take(rows[:5]), ev.take(rows[5:])])
+    for f in dataclasses.fields(Evidence):
+        np.testing.assert_array_equal(getattr(joined, f.name), getattr(ev, f.name))
+    # the other way round, the rows come back swapped
+    swapped = Evidence.concat([ev.take(rows[5:]), ev.take(rows[:5])])
+    np.testing.assert_array_equal(swapped.fill, np.concatenate([ev.fill[5:], ev.fill[:5]]))
+    assert len(Evidence.concat([])) == 0
 
 
 def test_expected_area_and_end_frames_are_those_of_each_streak_alone() -> None:

@@ -20,7 +20,7 @@ from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.geometry.gyro import GyroTrace
-from blurtrack.testing.streak_frames import quantise, render_streaks
+from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
 W, H = 480, 360
 F = 400.0
@@ -427,6 +427,28 @@ def test_the_pass_holds_widths_to_the_sigma_it_measured_with(hairpins) -> None:
     # Negative control: against the frame's own sigma every one of them is wider than a dot.
     limit = DetectParams().quality.merged_width * narrow.sigma_c_px
     assert np.all(out.width_px > limit)
+
+
+def test_kept_first_pass_lines_stay_held_to_the_frames_sigma() -> None:
+    # Two straight lines beside the hairpins: no hairpin template fits them, so the refined
+    # frame keeps their first-pass lines. Those were measured (and flagged) against the
+    # frame's own sigma and stay judged against it; the pass's streaks against the sigma the
+    # pass measured with. (Against the session's sigma the two lines would be point lights.)
+    _, curves = _frame()
+    extra = [line((395.0, 330.0), (445.0, 335.0)), line((20.0, 20.0), (20.0, 60.0))]
+    image = quantise(render_streaks((H, W), curves + extra, 0.6, 1.3, noise=0.004, seed=4))
+    first = detect_frame(image)
+    narrow = dataclasses.replace(first, sigma_c_px=0.55 * first.sigma_c_px)
+    timing = FrameTiming(T0, EXP)
+    out, what = refine_frame(image, narrow, timing, _model(), sigma_c=first.sigma_c_px)
+    assert what.status == "refined" and out.evidence is not None
+    kept, new = ~out.along_curve, out.along_curve
+    assert kept.sum() == 2 and new.sum() == len(curves)
+    ratio = out.evidence.width_ratio
+    np.testing.assert_allclose(ratio[kept], out.width_px[kept] / narrow.sigma_c_px)
+    np.testing.assert_allclose(ratio[new], out.width_px[new] / first.sigma_c_px)
+    assert list(out.evidence.source[kept]) == ["undetermined"] * 2
+    assert np.all(np.abs(out.width_px[kept] / first.sigma_c_px - 1.0) < 0.1)
 
 
 def _hook_model(length_px: float, hook_px: float, ramp: float) -> BlurModel:
