@@ -53,18 +53,17 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
     saturated = bool(m.saturated[list(rows)].any())
     widths = m.width_px[list(rows)]
     widths = widths[np.isfinite(widths)]  # NaN where neither arm's width was measured
-    if saturated:
-        # The arms lie 2-4 px apart and a blown-out core is wider: the clipped plateau runs
-        # from one arm into the other, and an arm's image (the frame less the other arm's
-        # unclipped template) has no cross-section of its own. No width is measured.
-        widths = widths[:0]
+    # Blown out, no width: the arms lie 2-4 px apart and a blown-out core is wider, so the
+    # clipped plateau runs from one arm into the other, and an arm's image (the frame less
+    # the other arm's unclipped template) has no cross-section of its own.
+    width = float(widths.mean()) if widths.size and not saturated else float("nan")
     return {
         "end_a": pts[0],
         "end_b": pts[-1],
         "time_mid": pts[j - 1] + f * (pts[j] - pts[j - 1]),
         "plateau": np.array([parts[0][2][0], parts[1][2][1]]),
         "length_px": float(m.length_px[rows[0]] + m.length_px[rows[1]]),
-        "width_px": float(widths.mean()) if widths.size else float("nan"),
+        "width_px": width,
         "points": pts,
         "profile": prof,
         "saturated": saturated,
