@@ -302,9 +302,10 @@ def continuity_llr(
 def continuity_cues(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
-    swaps: Sequence[np.ndarray] | None = None,
+    swaps: Sequence[np.ndarray | None] | None = None,
     cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     errors: CueErrors = CueErrors(),
+    only: range | None = None,
 ) -> list[np.ndarray]:
     """Per frame, ``(N,)`` LLRs of the continuity cue (0 where no neighbour has evidence),
     clipped to ``+-errors.max_llr`` (:class:`CueErrors`).
@@ -319,7 +320,9 @@ def continuity_cues(
     previous frame's ends and the next frame's starts count, which removes the ambiguity of
     a dot that reverses in the gap between exposures. ``cache``: per frame index, its
     :func:`_extrapolation_basis` (filled here; pass the same dict to calls on the same,
-    unchanged frames to compute it once).
+    unchanged frames to compute it once). ``only``: the frames to compute (the others' LLRs
+    stay 0; with ``swaps``, only those of the frames next to them are read), so that the
+    frames may be computed in parts: each frame's LLRs are the same as computed with all.
     """
     out = [np.zeros(len(fs)) for fs in frames]
     bases = {} if cache is None else cache
@@ -330,12 +333,16 @@ def continuity_cues(
             return None
         if swaps is None:
             return np.concatenate([fs.end_a, fs.end_b])
-        sw = swaps[k][:, None]
+        sw_k = swaps[k]
+        if sw_k is None:
+            raise ValueError(f"continuity_cues: frame {k}'s tentative orientation is needed")
+        sw = sw_k[:, None]
         starts = np.where(sw, fs.end_b, fs.end_a)
         ends = np.where(sw, fs.end_a, fs.end_b)
         return ends if want == "ends" else starts
 
-    for k, fs in enumerate(frames):
+    for k in range(len(frames)) if only is None else only:
+        fs = frames[k]
         if len(fs) == 0:
             continue
         for nb, sign in ((k - 1, 1.0), (k + 1, -1.0)):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -237,10 +238,10 @@ def _detect_session(
     template_pass = TemplatePass()  # empty where the pass does not run
     continued: Jobs | None = None  # the continuity cues, where the check's workers compute them
 
-    def continuity() -> list[np.ndarray]:
+    def continuity(part: range | None = None) -> list[np.ndarray]:
         # Of the final frames and gyro cues: ``llrs`` as bound when called.
         return sessioncues.continuity_columns(
-            found, timings, llrs, cue_errors(p.orientation, refined=False)
+            found, timings, llrs, cue_errors(p.orientation, refined=False), part
         )
 
     if inputs is not None:
@@ -333,7 +334,9 @@ def _detect_session(
             # Where the session's calibration was fitted and the template pass changed no
             # frame, the model is already fitted over the very streaks the check would fit.
             unchanged = not template_pass.frames.get("refined")
-            continued = Jobs([continuity])
+            # In a part per worker (the same columns as all at once).
+            ranges = sessioncues.continuity_parts(len(found), workers)
+            continued = Jobs([partial(continuity, r) for r in ranges])
             gyro_checked = check_frames(
                 found,
                 timings,
@@ -347,7 +350,9 @@ def _detect_session(
                 jobs=continued,
             )
             ok_change = _count_ok(found) - image_ok
-    columns = continued.results[0] if continued is not None else continuity()
+    columns = (
+        [c for got in continued.results for c in got] if continued is not None else continuity()
+    )
     for llr, col in zip(llrs, columns, strict=True):
         llr[:, 2] = col
     parts = []

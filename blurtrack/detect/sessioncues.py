@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 from functools import partial
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -127,16 +128,24 @@ def _continuity_into(
     timings: list[FrameTiming],
     llrs: list[np.ndarray],
     errors: CueErrors,
+    only: range,
 ) -> None:
-    """The continuity column of ``llrs`` (in place), twice: any neighbouring end first, then
-    (with the tentative orientation of all three cues) only the previous frame's ends and the
-    next frame's starts; each LLR clipped to ``+-errors.max_llr``."""
+    """The continuity column of ``llrs`` (in place) of the frames ``only`` (steps of 1),
+    twice: any neighbouring end first, then (with the tentative orientation of all three cues)
+    only the previous frame's ends and the next frame's starts; each LLR clipped to
+    ``+-errors.max_llr``. The first time also computes the frames next to ``only``, whose
+    tentative orientation the second reads: each frame's column is the same as computed with
+    all the frames at once."""
+    n = len(found)
+    near = range(max(only.start - 1, 0), min(only.stop + 1, n))
     basis: dict[int, Any] = {}  # the frames do not change between the two passes
-    for k, c in enumerate(continuity_cues(found, timings, cache=basis, errors=errors)):
-        llrs[k][:, 2] = c
-    tentative = [combine(llr).swap for llr in llrs]
-    for k, c in enumerate(continuity_cues(found, timings, tentative, cache=basis, errors=errors)):
-        llrs[k][:, 2] = c
+    first = continuity_cues(found, timings, cache=basis, errors=errors, only=near)
+    for k in near:
+        llrs[k][:, 2] = first[k]
+    tentative = [combine(llrs[k]).swap if k in near else None for k in range(n)]
+    second = continuity_cues(found, timings, tentative, cache=basis, errors=errors, only=only)
+    for k in only:
+        llrs[k][:, 2] = second[k]
 
 
 def continuity_columns(
@@ -144,9 +153,23 @@ def continuity_columns(
     timings: list[FrameTiming],
     llrs: list[np.ndarray],
     errors: CueErrors,
+    only: range | None = None,
 ) -> list[np.ndarray]:
-    """The continuity column of each frame's ``llrs`` (:func:`_continuity_into` on a copy:
-    ``llrs`` stays as it is, so that this may run in a worker)."""
+    """The continuity column of the frames ``only`` (default: all; steps of 1) of ``llrs``
+    (:func:`_continuity_into` on a copy: ``llrs`` stays as it is, so that this may run in a
+    worker, and several parts in several workers: :func:`continuity_parts`)."""
+    part = range(len(found)) if only is None else only
+    if part.step != 1:
+        raise ValueError("continuity_columns computes frames in steps of 1")
     cols = [llr.copy() for llr in llrs]
-    _continuity_into(found, timings, cols, errors)
-    return [c[:, 2] for c in cols]
+    if len(part):
+        _continuity_into(found, timings, cols, errors, part)
+    return [cols[k][:, 2] for k in part]
+
+
+def continuity_parts(n_frames: int, parts: int) -> list[range]:
+    """``n_frames`` frames cut into at most ``parts`` consecutive ranges of near-equal size
+    (:func:`continuity_columns`'s parts, one per worker)."""
+    m = max(1, min(parts, n_frames))
+    cuts = [round(i * n_frames / m) for i in range(m + 1)]
+    return [range(a, b) for a, b in pairwise(cuts)]

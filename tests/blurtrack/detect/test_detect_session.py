@@ -261,3 +261,38 @@ def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
     assert res.summary["gyro_timeshift_refinement"] == "not needed"
     assert res.summary["gyro_timeshift_s"] == res.summary["gyro_timeshift_scan_s"]
     assert res.summary["gyro_readout_s"] == session.initial_calibration().camera.readout_s
+
+
+def test_continuity_in_parts_is_the_same_as_all_at_once() -> None:
+    from blurtrack.detect.orientation import CueErrors
+    from blurtrack.detect.sessioncues import continuity_columns, continuity_parts
+
+    # Two dots moving right at 1000 px/s, 10 ms exposures every 12 ms, over 7 frames; some
+    # streaks stored reversed, and gyro LLRs that disagree with some, so that the second
+    # (tentative-orientation) pass reads the neighbouring frames' first-pass columns.
+    timings = [FrameTiming(0.012 * k, 0.010) for k in range(7)]
+    frames, llrs = [], []
+    for k in range(7):
+        a = [[10 + 12 * k, 50], [300 + 12 * k, 80 + k]]
+        b = [[20 + 12 * k, 50], [310 + 12 * k, 81 + k]]
+        rev = [k % 3 == 1, k % 2 == 0]
+        a2 = [bb if r else aa for aa, bb, r in zip(a, b, rev, strict=True)]
+        b2 = [aa if r else bb for aa, bb, r in zip(a, b, rev, strict=True)]
+        frames.append(_streaks(a2, b2))
+        llr = np.zeros((2, 3))
+        llr[:, 0] = [0.5 if k % 2 else -0.5, -1.0 if k == 3 else 0.2]
+        llrs.append(llr)
+    errors = CueErrors()
+    whole = continuity_columns(frames, timings, llrs, errors)
+    assert any(abs(c).max() > 1 for c in whole)
+    for parts in (1, 2, 3, 7, 9):
+        ranges = continuity_parts(len(frames), parts)
+        assert [k for r in ranges for k in r] == list(range(7))
+        got = [c for r in ranges for c in continuity_columns(frames, timings, llrs, errors, r)]
+        for a, b in zip(whole, got, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert all(llr[:, 2].tolist() == [0.0, 0.0] for llr in llrs)  # the input stays as it was
+    # Negative control: a part computed on its own frames alone (no neighbours beyond it)
+    # is not the same at its edges.
+    alone = continuity_columns(frames[:3], timings[:3], llrs[:3], errors)
+    assert not np.array_equal(alone[2], whole[2])
