@@ -31,6 +31,7 @@ from blurtrack.geometry.kernels import (
     relative_rotation,
     relative_rotation_small_angle,
     rolling_endpoint_c,
+    rolling_endpoint_np,
     transpose3,
     unproject_c,
     warp_c,
@@ -222,6 +223,23 @@ class BlurModel:
             float(np.max(np.maximum(np.abs(span_hi - tref), np.abs(tref - span_lo)), initial=0.0)),
             self.max_substep_s,
         )
+        if self.rotation_model == "exact":
+            # Both ends in one call, the rotation carried through the row-time iteration.
+            u, v, t = rolling_endpoint_np(
+                np.concatenate([px[:, 0], px[:, 0]]),
+                np.concatenate([px[:, 1], px[:, 1]]),
+                np.concatenate([tref, tref]),
+                np.concatenate([ft, ft]),
+                np.concatenate([0.0 * exp, exp]),
+                cam.readout_s,
+                cam.height,
+                self.omega_cam_at,
+                cam.intrinsics,
+                cam.dist,
+                nsub,
+            )
+            uv = np.stack([u, v], axis=1)
+            return uv[:n], uv[n:], t[:n], t[n:]
         out = []
         for offset in (0.0 * exp, exp):
             u, v, t = rolling_endpoint_c(

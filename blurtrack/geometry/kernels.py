@@ -340,3 +340,40 @@ def rolling_endpoint_c(
         t = row_start_c(frame_t_s, v, readout_s, height) + offset_s
     u, v = warp_c(u_ref, v_ref, t_ref_s, t, omega_cam_at, intrinsics, dist, n_sub, ops, rotation)
     return u, v, t
+
+
+def rolling_endpoint_np(
+    u_ref: np.ndarray,
+    v_ref: np.ndarray,
+    t_ref_s: np.ndarray,
+    frame_t_s: np.ndarray,
+    offset_s: np.ndarray,
+    readout_s: float,
+    height: int,
+    omega_cam_at: OmegaFn,
+    intrinsics: Sequence[float],
+    dist: Sequence[float],
+    n_sub: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rolling_endpoint_c` on numpy arrays ``(N,)``, the rotation carried from iterate to
+    iterate: ``R(t_ref -> t_k+1) = R(t_ref -> t_k) R(t_k -> t_k+1)``.
+
+    The first iterate's rotation is integrated as the kernel does (``n_sub`` sub-steps); each
+    fixed-point update then moves the row time by the row's shift times ``readout / height``
+    (under a millisecond; the iteration contracts by ``readout * speed / height`` per step), one
+    midpoint sub-step. The same solve, to an integration error of the kernel's class (the tests
+    compare both with a fine integration), at a third of its rotation exponentials: the kernel
+    integrates every iterate afresh.
+    """
+    rx, ry, rz = unproject_c(u_ref, v_ref, intrinsics, dist)
+    t = row_start_c(frame_t_s, v_ref, readout_s, height) + offset_s
+    R = relative_rotation(t_ref_s, t, omega_cam_at, n_sub)
+    for k in range(ROW_TIME_ITERATIONS + 1):
+        X, Y, Z = matvec3(transpose3(R), (rx, ry, rz))
+        u, v = project_c(X, Y, Z, intrinsics, dist)
+        if k == ROW_TIME_ITERATIONS:
+            break
+        t_next = row_start_c(frame_t_s, v, readout_s, height) + offset_s
+        R = matmul3(R, relative_rotation(t, t_next, omega_cam_at, 1))
+        t = t_next
+    return u, v, t
