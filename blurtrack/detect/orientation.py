@@ -316,7 +316,8 @@ def continuity_cues(
     (the dot's own, where it is there) not counted, and at least one.
 
     Without ``swaps`` any end of a neighbouring frame may continue a streak. With ``swaps``
-    (a tentative orientation of every frame: True where end B is the start) only the
+    (a tentative orientation per frame, True where end B is the start; None for a frame whose
+    neighbours are not computed, ``only``) only the
     previous frame's ends and the next frame's starts count, which removes the ambiguity of
     a dot that reverses in the gap between exposures. ``cache``: per frame index, its
     :func:`_extrapolation_basis` (filled here; pass the same dict to calls on the same,

@@ -159,8 +159,8 @@ def continuity_columns(
     (:func:`_continuity_into` on a copy: ``llrs`` stays as it is, so that this may run in a
     worker, and several parts in several workers: :func:`continuity_parts`)."""
     part = range(len(found)) if only is None else only
-    if part.step != 1:
-        raise ValueError("continuity_columns computes frames in steps of 1")
+    if part.step != 1 or part.start < 0 or part.stop > len(found):
+        raise ValueError(f"continuity_columns: frames {part} are not a run of the {len(found)}")
     cols = [llr.copy() for llr in llrs]
     if len(part):
         _continuity_into(found, timings, cols, errors, part)

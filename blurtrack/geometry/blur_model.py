@@ -237,6 +237,7 @@ class BlurModel:
                 cam.intrinsics,
                 cam.dist,
                 nsub,
+                self.max_substep_s,
             )
             uv = np.stack([u, v], axis=1)
             return uv[:n], uv[n:], t[:n], t[n:]

@@ -354,26 +354,33 @@ def rolling_endpoint_np(
     intrinsics: Sequence[float],
     dist: Sequence[float],
     n_sub: int,
+    max_substep_s: float = DEFAULT_MAX_SUBSTEP_S,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`rolling_endpoint_c` on numpy arrays ``(N,)``, the rotation carried from iterate to
-    iterate: ``R(t_ref -> t_k+1) = R(t_ref -> t_k) R(t_k -> t_k+1)``.
+    """:func:`rolling_endpoint_c` on numpy arrays ``(N,)`` (the ``exact`` rotation model), the
+    rotation carried from iterate to iterate: ``R(t_ref -> t_k+1) = R(t_ref -> t_k) R(t_k ->
+    t_k+1)``.
 
     The first iterate's rotation is integrated as the kernel does (``n_sub`` sub-steps); each
-    fixed-point update then moves the row time by the row's shift times ``readout / height``
-    (under a millisecond; the iteration contracts by ``readout * speed / height`` per step), one
-    midpoint sub-step. The same solve, to an integration error of the kernel's class (the tests
-    compare both with a fine integration), at a third of its rotation exponentials: the kernel
-    integrates every iterate afresh.
+    fixed-point update then integrates only the row time's change, in as many sub-steps as its
+    longest needs (none longer than ``max_substep_s``, nor than the first iterate's sub-steps;
+    the change contracts by ``readout * speed / height`` per iterate, so after the first
+    update one sub-step does). The same solve, to the kernel's integration error (the tests
+    compare both with a fine integration), at about ``(n_sub + 4) / (5 n_sub)`` of its rotation
+    exponentials: the kernel integrates every iterate afresh.
     """
     rx, ry, rz = unproject_c(u_ref, v_ref, intrinsics, dist)
-    t = row_start_c(frame_t_s, v_ref, readout_s, height) + offset_s
-    R = relative_rotation(t_ref_s, t, omega_cam_at, n_sub)
+    t_s = row_start_c(frame_t_s, v_ref, readout_s, height) + offset_s
+    R = relative_rotation(t_ref_s, t_s, omega_cam_at, n_sub)
+    # The first iterate's sub-step: updates take sub-steps no longer than it.
+    first_h = float(np.nanmax(np.abs(t_s - t_ref_s), initial=0.0)) / max(n_sub, 1)
+    step_s = min(max_substep_s, first_h) if first_h > 0 else max_substep_s
     for k in range(ROW_TIME_ITERATIONS + 1):
         X, Y, Z = matvec3(transpose3(R), (rx, ry, rz))
         u, v = project_c(X, Y, Z, intrinsics, dist)
         if k == ROW_TIME_ITERATIONS:
             break
-        t_next = row_start_c(frame_t_s, v, readout_s, height) + offset_s
-        R = matmul3(R, relative_rotation(t, t_next, omega_cam_at, 1))
-        t = t_next
-    return u, v, t
+        t_next_s = row_start_c(frame_t_s, v, readout_s, height) + offset_s
+        m = n_substeps(float(np.nanmax(np.abs(t_next_s - t_s), initial=0.0)), step_s)
+        R = matmul3(R, relative_rotation(t_s, t_next_s, omega_cam_at, m))
+        t_s = t_next_s
+    return u, v, t_s

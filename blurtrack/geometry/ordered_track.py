@@ -89,8 +89,9 @@ def ordered_point_track(
     ray = np.stack([rx, ry, rz], axis=-1)  # (N, 3)
     P_ref = P[np.arange(n), at]  # (N, 3, 3)
     v = np.einsum("nij,nj->ni", P_ref, ray)
-    # X_s[n, s, i] = sum_j P[n, s, j, i] v[n, j], summed in j's order (einsum's very sums, at
-    # half its time), only at the samples' columns (the reference's left out).
+    # X_s[n, s, i] = sum_j P[n, s, j, i] v[n, j], summed in j's order (einsum's values on this
+    # build, up to the sign of a zero; at half its time), only at the samples' columns (the
+    # reference's left out).
     at_sample = col != at[:, None]  # (N, T + 1): True at the T samples' columns of each row
     Q = P[at_sample].reshape(n, T, 3, 3)
     X = Q[:, :, 0, :] * v[:, None, 0, None] + Q[:, :, 1, :] * v[:, None, 1, None]

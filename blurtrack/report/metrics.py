@@ -95,9 +95,8 @@ def predict_end(
     """End ``(N, 2)`` of the streaks that start at ``start (N, 2)`` at ``t_ref_s`` (camera clock).
 
     The same fixed-point row-time solve as :func:`blurtrack.geometry.kernels.rolling_endpoint_c`
-    (and as
-    many iterations), through :meth:`BlurModel.warp` so that the model's ``rotation_model`` is
-    honoured (``BlurModel.streak_endpoints`` always integrates exactly).
+    (and as many iterations), anchored at the measured start, through :meth:`BlurModel.warp`
+    (the model's ``rotation_model`` and sub-steps).
     """
     cam = model.calib.camera
     t = cam.row_start_s(frame_t_s, start[:, 1]) + exposure_s
