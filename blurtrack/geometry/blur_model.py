@@ -110,7 +110,10 @@ class BlurModel:
         return self._omega_fn(np.asarray(t_cam_s, dtype=float))  # type: ignore[attr-defined]
 
     def _check(self, *times: np.ndarray) -> None:
-        if not self.check_coverage:
+        """Raise :class:`CoverageError` unless the gyro covers every time given (camera clock;
+        no times, nothing to cover)."""
+        times = tuple(t for t in times if np.size(t))
+        if not self.check_coverage or not times:
             return
         lo = min(float(np.min(t)) for t in times)
         hi = max(float(np.max(t)) for t in times)

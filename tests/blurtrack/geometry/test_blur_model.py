@@ -224,3 +224,17 @@ def test_bad_inputs_raise_one_line_errors() -> None:
         GyroTrace(np.array([0.0, 1.0]), np.array([[0, np.nan, 0], [0, 0, 0]]))
     with pytest.raises(GeometryError, match="increasing"):
         GyroTrace(np.array([0.0, 0.0]), np.zeros((2, 3)))
+
+
+def test_no_points_give_empty_predictions() -> None:
+    # A frame without dots: every prediction is empty, none raises (the coverage check has
+    # no time to test).
+    m = model((0.6, 0.2, 0.0))
+    none = np.zeros((0, 2))
+    start, end, ts, te = m.streak_endpoints(none, 0.5, 0.5, 0.02)
+    assert start.shape == end.shape == (0, 2) and ts.shape == te.shape == (0,)
+    assert m.warp(none, np.zeros(0), np.zeros(0)).shape == (0, 2)
+    assert m.point_track_ordered(none, np.zeros(0), np.zeros((0, 17))).shape == (0, 17, 2)
+    # Negative control: one point outside the gyro's span still raises.
+    with pytest.raises(CoverageError):
+        m.streak_endpoints(np.array([[10.0, 10.0]]), 1e6, 1e6, 0.02)
