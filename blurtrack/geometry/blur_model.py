@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -226,44 +227,30 @@ class BlurModel:
             float(np.max(np.maximum(np.abs(span_hi - tref), np.abs(tref - span_lo)), initial=0.0)),
             self.max_substep_s,
         )
-        if self.rotation_model == "exact":
-            # Both ends in one call, the rotation carried through the row-time iteration.
-            u, v, t = rolling_endpoint_np(
-                np.concatenate([px[:, 0], px[:, 0]]),
-                np.concatenate([px[:, 1], px[:, 1]]),
-                np.concatenate([tref, tref]),
-                np.concatenate([ft, ft]),
-                np.concatenate([0.0 * exp, exp]),
-                cam.readout_s,
-                cam.height,
-                self.omega_cam_at,
-                cam.intrinsics,
-                cam.dist,
-                nsub,
-                self.max_substep_s,
+        # Both ends in one call (start: the row's start of exposure; end: its end); the exact
+        # model carries the rotation through the row-time iteration.
+        solve = (
+            partial(rolling_endpoint_np, max_substep_s=self.max_substep_s)
+            if self.rotation_model == "exact"
+            else partial(
+                rolling_endpoint_c, ops=NUMPY_OPS, rotation=ROTATION_MODELS[self.rotation_model]
             )
-            uv = np.stack([u, v], axis=1)
-            return uv[:n], uv[n:], t[:n], t[n:]
-        out = []
-        for offset in (0.0 * exp, exp):
-            u, v, t = rolling_endpoint_c(
-                px[:, 0],
-                px[:, 1],
-                tref,
-                ft,
-                offset,
-                cam.readout_s,
-                cam.height,
-                self.omega_cam_at,
-                cam.intrinsics,
-                cam.dist,
-                nsub,
-                NUMPY_OPS,
-                ROTATION_MODELS[self.rotation_model],
-            )
-            out.append((np.stack([u, v], axis=1), t))
-        (start, t_s), (end, t_e) = out
-        return start, end, t_s, t_e
+        )
+        u, v, t = solve(
+            np.concatenate([px[:, 0], px[:, 0]]),
+            np.concatenate([px[:, 1], px[:, 1]]),
+            np.concatenate([tref, tref]),
+            np.concatenate([ft, ft]),
+            np.concatenate([0.0 * exp, exp]),
+            cam.readout_s,
+            cam.height,
+            self.omega_cam_at,
+            cam.intrinsics,
+            cam.dist,
+            nsub,
+        )
+        uv = np.stack([u, v], axis=1)
+        return uv[:n], uv[n:], t[:n], t[n:]
 
     def default_reference_time(self, frame_t_s: float, exposure_s: float) -> float:
         """Mid-exposure of the centre row: the default time of the sharp reference image."""
