@@ -21,7 +21,7 @@ from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaics
+from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaic
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import Evidence, assess
 
@@ -76,21 +76,18 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
 def _measure_once(
     ctx: FrameContext,
     placements: list[Placement],
-    flat: list[Placement],
+    ls: LineSet,
     arm_of: list[tuple[int, int]],
     sig: tuple[float, float],
     mosaic: tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray],
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
-    """Per placement index, its streak measured on ``mosaic``, the mosaic of ``flat`` (the
-    placements, hairpins as their two arms ``arm_of``;
-    :func:`~blurtrack.detect.separation.separate.placement_mosaics`), frame coordinates,
-    placements not measured whole absent; and the cross-section sigmas used."""
+    """Per placement index, its streak measured on ``mosaic`` (the mosaic of the placements,
+    hairpins as their two arms ``arm_of``;
+    :func:`~blurtrack.detect.separation.separate.placement_mosaic`) along the lines ``ls``,
+    frame coordinates, placements not measured whole absent; and the cross-section sigmas
+    used."""
     sig_s, sig_r = sig
-    mos_s, mos_r, lines, back = mosaic
-    # Arms of one hairpin share light by design: each takes its whole placement's flag.
-    whole_cross = overlapping_placements(placements, ctx.params.separation.overlap_fraction)
-    cross = np.array([bool(whole_cross[j]) for j, _ in arm_of])
-    ls = LineSet(lines, [q.comp for q in flat], cross.tolist(), [False] * len(flat))
+    mos_s, mos_r, _, back = mosaic
     lit_median_factor = ctx.params.gyro_pass.lit_median_factor
     m = measure_lines(ctx.on(mos_s, mos_r), ls, sig_s, False, sig_r, lit_median_factor)
     off = back[m.src]
@@ -149,13 +146,19 @@ def measure_placements(
             flat.append(q)
             arm_of.append((j, -1))
     sig = (sig_s, sig_r)
-    # The plain and the clipped mosaic in one pass (the neighbours' templates warped once).
     pad = int(np.ceil(6.0 * sig_s)) + 8
-    clips = (False, True) if gp.clip_choice else (False,)
-    mosaics = placement_mosaics(ctx.smooth, ctx.signal, flat, pad, clips)
-    found, sigma_c, sigma_raw = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[0])
+    mosaic = placement_mosaic(ctx.smooth, ctx.signal, flat, pad)
+    # Arms of one hairpin share light by design: each takes its whole placement's flag.
+    whole_cross = overlapping_placements(placements, ctx.params.separation.overlap_fraction)
+    cross = [bool(whole_cross[j]) for j, _ in arm_of]
+    ls = LineSet(mosaic[2], [q.comp for q in flat], cross, [False] * len(flat))
+    found, sigma_c, sigma_raw = _measure_once(ctx, placements, ls, arm_of, sig, mosaic)
     if gp.clip_choice:
-        clipped = _measure_once(ctx, placements, flat, arm_of, sig, mosaics[1])[0]
+        # The clipped own images: the same mosaic clipped at zero in place (its zeros
+        # between tiles stay zero), the neighbours' templates warped once.
+        for img in mosaic[:2]:
+            np.maximum(img, 0.0, out=img)
+        clipped = _measure_once(ctx, placements, ls, arm_of, sig, mosaic)[0]
         for j, c in clipped.items():
             o = found.get(j)
             s, e = placed_ends[j]

@@ -40,7 +40,7 @@ def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
     def para(a: float, b: float, c: float) -> float:
         den = a - 2.0 * b + c
-        return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+        return float(min(max(0.5 * (a - c) / den, -0.5), 0.5)) if den < 0 else 0.0
 
     h, w = score.shape
     fx = para(score[iy, ix - 1], score[iy, ix], score[iy, ix + 1]) if 0 < ix < w - 1 else 0.0
@@ -91,7 +91,7 @@ def pursue(
     # region holds less light than the template at that amplitude: no filter to run (a
     # thousandth below the bound: the filter sums in float32).
     floor = sp.amp_min**2 * tpl.norm2 * (1.0 if frame is None else sp.inside_min)
-    if float(np.sum(np.square(region, dtype=np.float64))) < 0.999 * floor:
+    if cv2.norm(region, cv2.NORM_L2SQR) < 0.999 * floor:
         return []
     out: list[Placement] = []
     norm = float(np.sqrt(tpl.norm2))

@@ -99,12 +99,15 @@ def _peak(num: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
     h, w = num.shape
     if not (0 < iy < h - 1 and 0 < ix < w - 1):
         return 0.0, 0.0
-    c = _QUAD @ num[iy - 1 : iy + 2, ix - 1 : ix + 2].ravel().astype(np.float64)
-    hess = np.array([[2.0 * c[3], c[4]], [c[4], 2.0 * c[5]]])
-    if not (hess[0, 0] < 0 and np.linalg.det(hess) > 0):
+    c = (_QUAD @ num[iy - 1 : iy + 2, ix - 1 : ix + 2].ravel().astype(np.float64)).tolist()
+    # The Hessian [[a, b], [b, d]] and its stationary point by Cramer's rule (2 x 2).
+    a, b, d = 2.0 * c[3], c[4], 2.0 * c[5]
+    det = a * d - b * b
+    if not (a < 0 and det > 0):
         return 0.0, 0.0
-    fx, fy = np.linalg.solve(hess, -c[1:3])
-    return float(np.clip(fx, -1.0, 1.0)), float(np.clip(fy, -1.0, 1.0))
+    fx = (b * c[2] - d * c[1]) / det
+    fy = (b * c[1] - a * c[2]) / det
+    return min(max(fx, -1.0), 1.0), min(max(fy, -1.0), 1.0)
 
 
 def refit(

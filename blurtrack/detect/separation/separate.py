@@ -95,24 +95,14 @@ def overlapping_placements(pl: list[Placement], overlap_fraction: float) -> np.n
 
 
 def placement_mosaic(
-    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int, clip: bool = False
+    smooth: np.ndarray, signal: np.ndarray, pl: list[Placement], pad: int
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
-    """Each placement's own image (frame minus the other placements' templates; with
-    ``clip`` no pixel below zero: where the neighbours' templates cover more than the light,
-    and where the background-subtracted frame itself is below zero) tiled into one mosaic;
-    returns the smoothed and raw mosaics, the placed lines in mosaic coordinates and per
-    placement the offset from mosaic back to frame coordinates."""
-    return placement_mosaics(smooth, signal, pl, pad, (clip,))[0]
-
-
-def placement_mosaics(
-    smooth: np.ndarray,
-    signal: np.ndarray,
-    pl: list[Placement],
-    pad: int,
-    clips: tuple[bool, ...] = (False, True),
-) -> list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]]:
-    """:func:`placement_mosaic` once per entry of ``clips``, the own images built once.
+    """Each placement's own image (the frame minus the other placements' templates) tiled
+    into one mosaic, ``pad`` px of zeros around each; returns the smoothed and raw mosaics,
+    the placed lines in mosaic coordinates and per placement the offset from mosaic back to
+    frame coordinates. (The mosaics clipped at zero in place are the own images with no
+    pixel below zero: where the neighbours' templates cover more than the light, and where
+    the background-subtracted frame itself is below zero.)
 
     Each neighbour's template is warped to its sub-pixel place and scaled by its amplitude
     once, onto its own tile of ``(h + 1, w + 1)`` px (as
@@ -135,10 +125,8 @@ def placement_mosaics(
         tiles.append((cx, cy))
         cx += b[2] + pad
         row_h = max(row_h, b[3])
-    mosaics = [
-        (np.zeros((cy + row_h, width), np.float32), np.zeros((cy + row_h, width), np.float32))
-        for _ in clips
-    ]
+    mos_s = np.zeros((cy + row_h, width), np.float32)
+    mos_r = np.zeros((cy + row_h, width), np.float32)
     lines: list[np.ndarray] = []
     back = np.zeros((len(pl), 2))
     # Which templates reach into which placement's box (the others cannot matter there).
@@ -154,8 +142,9 @@ def placement_mosaics(
     shifts = [(float(p.shift[0]), float(p.shift[1])) for p in pl]
     for k, (p, (ox, oy, bw, bh), (tx, ty)) in enumerate(zip(pl, boxes, tiles, strict=True)):
         fx0, fy0, fx1, fy1 = max(ox, 0), max(oy, 0), min(ox + bw, W), min(oy + bh, H)
-        own_s = np.zeros((bh, bw), np.float32)
-        own_r = np.zeros((bh, bw), np.float32)
+        # The own images are the mosaics' tiles (views; the tiles do not overlap).
+        own_s = mos_s[ty : ty + bh, tx : tx + bw]
+        own_r = mos_r[ty : ty + bh, tx : tx + bw]
         if fx1 > fx0 and fy1 > fy0:
             own_s[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = smooth[fy0:fy1, fx0:fx1]
             own_r[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = signal[fy0:fy1, fx0:fx1]
@@ -176,12 +165,9 @@ def placement_mosaics(
                 continue
             own_s[b0:b1, a0:a1] -= t_s[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
             own_r[b0:b1, a0:a1] -= t_r[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0]
-        for clip, (mos_s, mos_r) in zip(clips, mosaics, strict=True):
-            mos_s[ty : ty + bh, tx : tx + bw] = np.maximum(own_s, 0.0) if clip else own_s
-            mos_r[ty : ty + bh, tx : tx + bw] = np.maximum(own_r, 0.0) if clip else own_r
         back[k] = (ox - tx, oy - ty)
         lines.append(p.tpl.points + p.shift - back[k])
-    return [(mos_s, mos_r, lines, back) for mos_s, mos_r in mosaics]
+    return mos_s, mos_r, lines, back
 
 
 def _placed_tile(q: Placement) -> tuple[int, int, np.ndarray, np.ndarray]:

@@ -64,9 +64,9 @@ def finish(
         raw,
         sup,
         halo,
-        float(np.sum(sm * sm)),
+        cv2.norm(sm, cv2.NORM_L2SQR),
         pts,
-        int(sup.sum()),
+        cv2.countNonZero(sup),
     )
 
 
