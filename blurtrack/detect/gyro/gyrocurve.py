@@ -84,10 +84,9 @@ def similar_curve(pts: np.ndarray, z: complex) -> np.ndarray:
     return np.stack([w.real + c[0], w.imag + c[1]], axis=1)
 
 
-def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
-    """The curve ``pts`` (uniform in time, unit total light) blurred by ``sigma`` on the grid
-    ``[x0, x0 + w) x [y0, y0 + h)``: bilinear splats (variance ~1/6 px^2 per axis) then the rest
-    of the Gaussian."""
+def _splat(pts: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """The curve ``pts`` (uniform in time, unit total light) as bilinear splats (variance
+    ~1/6 px^2 per axis) on the grid ``[x0, x0 + w) x [y0, y0 + h)``, ``(h, w)`` float64."""
     u, v = pts[:, 0] - x0, pts[:, 1] - y0
     iu, iv = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
     fu, fv = u - iu, v - iv
@@ -103,9 +102,19 @@ def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> 
         ok = (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
         flat, k = cv[ok] * w + cu[ok], k[ok]
     img = np.bincount(flat, k, h * w).astype(np.float64, copy=False)
-    img = img.reshape(h, w)
+    return img.reshape(h, w)
+
+
+def _blurred(splat: np.ndarray, sigma: float) -> np.ndarray:
+    """Splats (:func:`_splat`) blurred to a Gaussian of ``sigma`` px in all."""
     s = float(np.sqrt(max(sigma * sigma - 1.0 / 6.0, 0.09)))
-    return np.asarray(cv2.GaussianBlur(img, (0, 0), s, borderType=cv2.BORDER_CONSTANT))
+    return np.asarray(cv2.GaussianBlur(splat, (0, 0), s, borderType=cv2.BORDER_CONSTANT))
+
+
+def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """The curve ``pts`` (uniform in time, unit total light) blurred by ``sigma`` on the grid
+    ``[x0, x0 + w) x [y0, y0 + h)``: bilinear splats then the rest of the Gaussian."""
+    return _blurred(_splat(pts, x0, y0, w, h), sigma)
 
 
 def curve_template(
@@ -127,7 +136,8 @@ def curve_template(
     x0, y0 = math.floor(lo[0]) - pad, math.floor(lo[1]) - pad
     x1, y1 = math.ceil(hi[0]) + pad + 1, math.ceil(hi[1]) + pad + 1
     w, h = x1 - x0, y1 - y0
-    sm = _render(pts, sigma_smooth, x0, y0, w, h)
+    splat = _splat(pts, x0, y0, w, h)
+    sm = _blurred(splat, sigma_smooth)
     sup = sm > SUPPORT_LEVEL * sm.max()
     vals = sm[sup]
     tot = float(np.sum(vals))
@@ -149,7 +159,7 @@ def curve_template(
             np.minimum(out, ceiling, out=out)
         return np.where(sup, out, 0.0).astype(np.float32)
 
-    raw = scaled(_render(pts, sigma_raw, x0, y0, w, h)) if with_raw else None
+    raw = scaled(_blurred(splat, sigma_raw)) if with_raw else None
     return finish((x0, y0, w, h), scaled(sm), raw, sup.astype(np.float32), np.asarray(pts, float))
 
 
@@ -171,8 +181,9 @@ def arm_templates(
     x, y, w, h = tpl.box
     out = []
     parts = (pts[: k + 1][::-1], pts[k:])
-    share = [_render(q, sigma_smooth, x, y, w, h) * len(q) for q in parts]
-    share_r = [_render(q, sigma_raw, x, y, w, h) * len(q) for q in parts]
+    splats = [_splat(q, x, y, w, h) for q in parts]
+    share = [_blurred(q, sigma_smooth) * len(p) for q, p in zip(splats, parts, strict=True)]
+    share_r = [_blurred(q, sigma_raw) * len(p) for q, p in zip(splats, parts, strict=True)]
     tot = share[0] + share[1] + 1e-30
     tot_r = share_r[0] + share_r[1] + 1e-30
     for q, s, sr in zip(parts, share, share_r, strict=True):
