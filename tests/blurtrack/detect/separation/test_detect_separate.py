@@ -3,6 +3,7 @@ filter (blurtrack.detect.lines.segment.drop_artefacts), on exactly rendered fram
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from blurtrack.detect import DetectParams, detect_frame
@@ -152,3 +153,78 @@ def test_a_collapsed_line_is_measured_again_with_the_template() -> None:
     no_stubs = DetectParams(separation=SeparationParams(stub_fraction=0.0))
     again = sep.separate(replace(ctx, params=no_stubs), m, folded)
     assert again.replaced is None or not again.replaced[c]
+
+
+def _own_image(img: np.ndarray, pl: list, k: int, pad: int, raw: bool) -> np.ndarray:
+    """Placement ``k``'s own image straight from the definition: the frame less every other
+    placement's template warped to its sub-pixel place over the whole frame (float64), cut to
+    the placement's box plus ``pad`` (zeros past the frame)."""
+    H, W = img.shape
+    rest = img.astype(np.float64)
+    for j, q in enumerate(pl):
+        if j == k:
+            continue
+        x, y, w, h = q.tpl.box
+        m = np.array([[1.0, 0.0, x + q.shift[0]], [0.0, 1.0, y + q.shift[1]]])
+        src = q.tpl.raw if raw else q.tpl.smooth  # float32, as stored
+        moved = cv2.warpAffine(src, m, (W, H), flags=cv2.INTER_LINEAR, borderValue=0.0)
+        rest -= q.amp * moved.astype(np.float64)
+    p = pl[k]
+    x, y, w, h = p.tpl.box
+    ox, oy = int(np.floor(x + p.shift[0])) - pad, int(np.floor(y + p.shift[1])) - pad
+    out = np.zeros((h + 2 * pad + 1, w + 2 * pad + 1))
+    fx0, fy0 = max(ox, 0), max(oy, 0)
+    fx1, fy1 = min(ox + out.shape[1], W), min(oy + out.shape[0], H)
+    out[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox] = rest[fy0:fy1, fx0:fx1]
+    return out
+
+
+def test_the_mosaic_holds_each_placements_own_image_and_clips_in_place() -> None:
+    from blurtrack.detect.gyro.gyrocurve import curve_template
+    from blurtrack.detect.separation.separate import placement_mosaic
+    from blurtrack.detect.separation.templates import Placement
+
+    rng = np.random.default_rng(5)
+    H, W = 90, 140
+    smooth = rng.normal(0.0, 0.02, (H, W)).astype(np.float32)
+    signal = rng.normal(0.0, 0.03, (H, W)).astype(np.float32)
+    t = np.linspace(0.0, 1.0, 65)[:, None]
+    # Three streaks side by side (their templates overlap), one reaching past the left border.
+    starts = [(20.0, 20.0), (24.5, 23.2), (-6.0, 50.0)]
+    pl = []
+    for i, (x, y) in enumerate(starts):
+        curve = np.array([x, y]) + t * np.array([38.0, 14.0])
+        tpl = curve_template(curve, 1.6, 1.2, 30.0, None, with_raw=True)
+        frac = rng.uniform(-0.5, 0.5, 2)  # sub-pixel shifts
+        pl.append(Placement(tpl, frac, 0.7 + 0.2 * i, i))
+    pad = 6
+    mos_s, mos_r, lines, back = placement_mosaic(smooth, signal, pl, pad)
+    tiles = []
+    for k, p in enumerate(pl):
+        x, y, w, h = p.tpl.box
+        ox, oy = int(np.floor(x + p.shift[0])) - pad, int(np.floor(y + p.shift[1])) - pad
+        tx, ty = round(float(ox - back[k, 0])), round(float(oy - back[k, 1]))
+        tiles.append((slice(ty, ty + h + 2 * pad + 1), slice(tx, tx + w + 2 * pad + 1)))
+        np.testing.assert_allclose(lines[k] + back[k], p.tpl.points + p.shift, atol=1e-9)
+    # The mosaic outside the tiles is zero (each own image lies in its zeros).
+    inside = np.zeros(mos_s.shape, bool)
+    for tile in tiles:
+        assert not inside[tile].any()  # the tiles do not overlap
+        inside[tile] = True
+    assert not mos_s[~inside].any() and not mos_r[~inside].any()
+    for k, tile in enumerate(tiles):
+        own_s = _own_image(smooth, pl, k, pad, raw=False)
+        own_r = _own_image(signal, pl, k, pad, raw=True)
+        np.testing.assert_allclose(mos_s[tile], own_s, atol=2e-6)
+        np.testing.assert_allclose(mos_r[tile], own_r, atol=2e-6)
+    # Negative control: the neighbours' templates were subtracted (the first streak's own
+    # image is not the frame's crop).
+    crop = _own_image(smooth, pl[:1], 0, pad, raw=False)
+    assert np.abs(mos_s[tiles[0]] - crop).max() > 0.1
+    # Clipped in place, the mosaic holds each own image clipped at zero, its gaps still zero.
+    for img in (mos_s, mos_r):
+        np.maximum(img, 0.0, out=img)
+    for k, tile in enumerate(tiles):
+        own_s = np.maximum(_own_image(smooth, pl, k, pad, raw=False), 0.0)
+        np.testing.assert_allclose(mos_s[tile], own_s, atol=2e-6)
+    assert not mos_s[~inside].any()
