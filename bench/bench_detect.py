@@ -253,11 +253,17 @@ def baseline_files(paths: list[Path]) -> None:
 
 
 def command_speed(
-    folder: Path, repeat: int, work: Path, before: Path | None = None
+    folder: Path,
+    repeat: int,
+    work: Path,
+    before: Path | None = None,
+    params: Path | None = None,
+    gyro: str = "auto",
 ) -> dict[str, Any]:
     """Wall and CPU time of ``blurtrack detect`` (subprocess) against the file baseline,
     interleaved; with ``before``, also that of the code tree at ``before`` (another checkout,
-    run with the same interpreter), so that both are timed under the same load."""
+    run with the same interpreter), so that both are timed under the same load. ``params``
+    (a YAML file) and ``gyro`` go to every command as ``--params`` and ``--gyro``."""
     cv2.setNumThreads(1)
     session = load_session(folder)
     paths = [session.image_path(i) for i in range(len(session.frames))]
@@ -286,7 +292,11 @@ def command_speed(
                 "--out",
                 str(out),
                 "--force",
+                "--gyro",
+                gyro,
             ]
+            if params is not None:
+                cmd += ["--params", str(params.resolve())]
             # As installed: bytecode cached (pip compiles on install). A machine that sets
             # PYTHONDONTWRITEBYTECODE (these do) would compile every module on every run,
             # ~0.15 s of the command that no user pays; the first repeat writes the caches.
@@ -301,7 +311,13 @@ def command_speed(
     med = {k: float(np.median(v)) for k, v in times.items()}
     med_cpu = {k: float(np.median(v)) for k, v in cpu.items()}
     n = len(paths)
-    res: dict[str, Any] = {"frames": n, "cores": os.cpu_count(), "load_1min": os.getloadavg()[0]}
+    res: dict[str, Any] = {
+        "frames": n,
+        "cores": os.cpu_count(),
+        "load_1min": os.getloadavg()[0],
+        "gyro": gyro,
+        "params": None if params is None else str(params),
+    }
     for k, v in med.items():
         res[f"{k}_s"] = v
         res[f"{k}_fps"] = n / v
@@ -388,7 +404,9 @@ def main() -> int:
                 r = {
                     "preset": preset,
                     "seed": seed,
-                    **command_speed(folder, args.repeat, args.work, args.before),
+                    **command_speed(
+                        folder, args.repeat, args.work, args.before, args.params, args.gyro
+                    ),
                 }
                 print(json.dumps(r), file=sys.stderr)
                 runs.append(r)
