@@ -111,12 +111,6 @@ def _blurred(splat: np.ndarray, sigma: float) -> np.ndarray:
     return np.asarray(cv2.GaussianBlur(splat, (0, 0), s, borderType=cv2.BORDER_CONSTANT))
 
 
-def _render(pts: np.ndarray, sigma: float, x0: int, y0: int, w: int, h: int) -> np.ndarray:
-    """The curve ``pts`` (uniform in time, unit total light) blurred by ``sigma`` on the grid
-    ``[x0, x0 + w) x [y0, y0 + h)``: bilinear splats then the rest of the Gaussian."""
-    return _blurred(_splat(pts, x0, y0, w, h), sigma)
-
-
 def curve_template(
     pts: np.ndarray,
     sigma_smooth: float,

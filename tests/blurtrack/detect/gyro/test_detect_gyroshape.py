@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect.gyro import gyroshape
-from blurtrack.detect.gyro.gyrocurve import _render, curve_template
+from blurtrack.detect.gyro.gyrocurve import _blurred, _splat, curve_template
 from blurtrack.detect.gyro.gyroshape import DEN_FLOOR, SHIFT_WINDOW_PX, _trial
 from blurtrack.detect.params import SeparationParams
 
@@ -48,7 +48,7 @@ def test_render_is_the_splatted_curve_blurred(sigma: float) -> None:
         x0, y0 = int(rng.integers(15, 35)), int(rng.integers(10, 30))
         w, h = int(rng.integers(4, 40)), int(rng.integers(4, 40))
         ref = _splat_blur(pts, sigma, x0, y0, w, h)
-        got = _render(pts, sigma, x0, y0, w, h)
+        got = _blurred(_splat(pts, x0, y0, w, h), sigma)
         assert got.shape == ref.shape
         assert np.abs(got - ref).max() <= 1e-15 * max(ref.max(), 1e-300)
 
