@@ -54,7 +54,8 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    nearer its placed curve, ``gyro_pass.clip_choice``: a choice
    between two segmentations, both lines the image's.)
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
-   placed curve's (and whose shape does not match it within twice that, :func:`_confirmed`)
+   placed curve's (and whose shape does not match it within twice that,
+   :func:`~blurtrack.detect.gyro.gyroconfirm.confirmed`)
    is dropped (its component keeps its first-pass lines), and a component
    keeps its first-pass lines only where they fit the placed curves ``old_lines_margin``
    times better than the new streaks (per placement, the nearest old line against the new
@@ -72,14 +73,14 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.context import frame_context
+from blurtrack.detect.context import FrameContext, frame_context
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.lines.measure import combine
+from blurtrack.detect.lines.measure import Measured, combine
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams, GyroPassParams, SeparationParams
@@ -199,7 +200,7 @@ def gate(
     ``curves_out``: gets the predicted curves ``(n_inside, GATE_SAMPLES, 2)`` of the streaks
     inside the frame, where the model predicts them (the gyro check's, for a frame the pass
     leaves as it was)."""
-    inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
+    inside = _inside(fs)
     if not inside.any():
         return None
     # On the first pass's midpoints, with curves of GATE_SAMPLES: the ends and the midpoint
@@ -246,20 +247,102 @@ def refine_frame(
     ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
     p = params or DetectParams()
     gp, sp = p.gyro_pass, p.separation
-    inside = ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
     hairpin = gate(fs, timing, model, gp, gate_curves)
     if hairpin is None:
         return fs, FrameOutcome("skipped")
+    ctx = _frame_context(image, p)
+    # 1. Candidates.
+    cands = _candidates(ctx, fs, timing, model, gp, hairpin)
+    if cands is None:
+        return fs, FrameOutcome("skipped")
+    n_cand = cands.n_cand
+    # 2. Shape (the templates' cross-sections and light; the images, padded at the border).
+    prof = _profile(ctx, fs, cands, p, sigma_c)
+    canvas = _canvas(ctx, cands, prof, gp)
+    # 3. Pursuit of each candidate's template, joint fit and sweeps.
+    pur = _pursue_candidates(cands, canvas, prof, gp, sp)
+    if not pur.placements:
+        return fs, FrameOutcome("refused", n_cand)
+    placements, residual = _joint_fit(canvas, pur, sp)
+    replaced, placements = _explained(cands, canvas, placements, residual, sp)
+    if not placements:
+        return fs, FrameOutcome("refused", n_cand)
+    # 4. Measurement on each placement's own image.
+    meas = _measure(ctx, cands, placements, prof, gp)
+    # 5. Refusal; first-pass lines kept where they fit better.
+    whole = _accepted_components(cands, meas, replaced, placements, gp)
+    if whole is None:
+        return fs, FrameOutcome("refused", n_cand)
+    whole = _keep_old_lines(fs, cands, meas, whole, gp)
+    m = combine(meas.m, whole[meas.m.own] & meas.good)
+    keep_old = _first_pass_kept(fs, timing, model, cands, whole, gp, sp)
+    out = as_streaks(fs, keep_old, m, ctx, prof.sig_s_px)
+    return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))
+
+
+def _inside(fs: FrameStreaks) -> np.ndarray:
+    """``(N,)`` bool: the first-pass streaks inside the frame (not ``clipped``)."""
+    return ~fs.flags["clipped"] if len(fs) else np.zeros(0, bool)
+
+
+def _frame_context(image: np.ndarray | Callable[[], np.ndarray], p: DetectParams) -> FrameContext:
+    """The frame prepared as the first pass prepares it (``image``: the frame as stored, or a
+    function that reads it)."""
     if callable(image):
         image = image()
-    ctx = frame_context(
+    return frame_context(
         prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
     )
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    """Step 1: the frame's components, their placed predicted curves and which of them the
+    pass pursues (``C`` components, ``N`` first-pass streaks, ``S`` samples per curve)."""
+
+    comps: Components
+    #: ``(n_px,)`` the component index of each of ``comps``' pixels.
+    pix: np.ndarray
+    #: ``(C,)`` each component's light (smoothed image units summed over its pixels).
+    comp_light: np.ndarray
+    #: ``(C,)`` bool: the component touches the frame's border.
+    border: np.ndarray
+    #: ``(C, S, 2)`` px: each component's predicted curve placed with its light centroid on
+    #: the component's.
+    pts_px: np.ndarray
+    #: ``(C,)`` px: ``tol_px + tol_rel * arc`` of each placed curve.
+    tol_px: np.ndarray
+    #: ``(C,)`` bool: the candidates.
+    cand: np.ndarray
+    #: ``(C,)`` bool: components of one dot (one placement of their own template, no sweep).
+    one_dot: np.ndarray
+    #: ``(N,)`` the component of each first-pass streak (-1: none; :func:`_line_owner`).
+    own: np.ndarray
+    #: ``(C,)`` the number of first-pass streaks of each component.
+    n_lines: np.ndarray
+
+    @property
+    def n_cand(self) -> int:
+        """The number of candidates."""
+        return int(self.cand.sum())
+
+
+def _candidates(
+    ctx: FrameContext,
+    fs: FrameStreaks,
+    timing: FrameTiming,
+    model: Any,
+    gp: GyroPassParams,
+    hairpin: bool,
+) -> _Candidates | None:
+    """Step 1 (see the module text): the candidates of a frame the gate let through
+    (``hairpin``: whether it is a hairpin frame); None where the frame has no component, the
+    gyro does not cover it or no component is a candidate."""
     H, W = ctx.shape
     comps = ctx.comps
     C = comps.ids.size
     if C == 0:
-        return fs, FrameOutcome("skipped")
+        return None
     pix = np.repeat(np.arange(C), comps.areas)
     lw = np.bincount(pix, comps.values, C)
     centre = (
@@ -277,7 +360,7 @@ def refine_frame(
     try:
         curves: Curves = predict_curves(model, centre, timing.t_s, timing.exposure_s)
     except CoverageError:
-        return fs, FrameOutcome("skipped")
+        return None
     # Each curve placed with its light centroid (its mean: uniform in time) on the component's.
     pts = curves.pts - curves.pts.mean(axis=1, keepdims=True) + centre[:, None, :]
     arc, chord = curves.arc, curves.chord
@@ -306,19 +389,77 @@ def refine_frame(
         one_dot[o[mis1 <= tol[o]]] = True
         one_dot &= n_lines == 1
     if not cand.any():
-        return fs, FrameOutcome("skipped")
+        return None
+    return _Candidates(comps, pix, lw, border, pts, tol, cand, one_dot, own, n_lines)
+
+
+@dataclass(frozen=True)
+class _Profile:
+    """Step 2: what the frame's templates share, their cross-sections (px) and one dot's
+    light (:func:`_dot_light`); ``ceiling``: the saturation level (None: nothing saturated)."""
+
+    #: The smoothed image's cross-section sigma.
+    sig_s_px: float
+    #: The unsmoothed one (the raw template's).
+    sig_r_px: float
+    dot_light: float
+    ceiling: float | None
+
+    def template(self, curve: np.ndarray, with_raw: bool = False) -> Template:
+        """The template of the placed curve ``curve (S, 2)`` (px; with its unsmoothed image
+        where ``with_raw``)."""
+        return curve_template(
+            curve, self.sig_s_px, self.sig_r_px, self.dot_light, self.ceiling, with_raw
+        )
+
+
+def _profile(
+    ctx: FrameContext,
+    fs: FrameStreaks,
+    cands: _Candidates,
+    p: DetectParams,
+    sigma_c: float | None,
+) -> _Profile:
+    """Step 2: the templates' cross-sections (``sigma_c``: the smoothed one, None: the
+    frame's) and light."""
     # The smoothed image's cross-section and the unsmoothed one (the raw template).
     sig_s = fs.sigma_c_px if sigma_c is None else float(sigma_c)
     sig_r = float(np.sqrt(max(sig_s**2 - p.smooth_sigma_px**2, 0.25)))
-    dot_light = _dot_light(lw, border, n_lines, gp.light_quantile)
+    dot_light = _dot_light(
+        cands.comp_light, cands.border, cands.n_lines, p.gyro_pass.light_quantile
+    )
     ceiling = ctx.saturation if ctx.sat_comp is not None else None
+    return _Profile(sig_s, sig_r, dot_light, ceiling)
 
-    def make(curve: np.ndarray, with_raw: bool = False) -> Template:
-        return curve_template(curve, sig_s, sig_r, dot_light, ceiling, with_raw)
 
+@dataclass(frozen=True)
+class _Canvas:
+    """The images the pursuit and the fits work on: the candidates' light, padded with
+    ``pad_px`` px of zeros beyond the frame where a candidate touches the border (else 0)."""
+
+    pad_px: int
+    #: The components in the padded images' coordinates.
+    comps: Components
+    #: The frame in the padded images ``(x0, y0, x1, y1)`` (None: not padded).
+    in_frame: tuple[int, int, int, int] | None
+    #: ``(n_px,)`` bool: the component pixels that are the candidates'.
+    pix_cand: np.ndarray
+    #: ``(H + 2 pad_px, W + 2 pad_px)`` float32: the candidates' light.
+    light: np.ndarray
+    #: ``(max label + 1,)`` the component index of each label (-1: none).
+    comp_of_label: np.ndarray
+
+
+def _canvas(ctx: FrameContext, cands: _Candidates, prof: _Profile, gp: GyroPassParams) -> _Canvas:
+    """Steps 2 and 3: the candidates' light image, padded at the border
+    (``gyro_pass.clip_at_border``)."""
+    H, W = ctx.shape
+    comps, cand, border = cands.comps, cands.cand, cands.border
+    C = comps.ids.size
     # Border candidates: the images padded with zeros beyond the frame, so that a placement
     # may reach past the border (a streak leaving the frame: its curve cut at the border).
-    P = _pad_px(pts[cand], max(sig_s, sig_r)) if gp.clip_at_border and (cand & border).any() else 0
+    sig = max(prof.sig_s_px, prof.sig_r_px)
+    P = _pad_px(cands.pts_px[cand], sig) if gp.clip_at_border and (cand & border).any() else 0
     comps_p = comps
     in_frame: tuple[int, int, int, int] | None = None  # the frame in the padded images
     if P:
@@ -330,65 +471,192 @@ def refine_frame(
             boxes=comps.boxes + np.array([P, P, 0, 0], comps.boxes.dtype),
         )
         in_frame = (P, P, P + W, P + H)
-    pix_cand = cand[pix]
+    pix_cand = cand[cands.pix]
     light = np.zeros((H + 2 * P, W + 2 * P), np.float32)
     light[comps_p.ys[pix_cand], comps_p.xs[pix_cand]] = comps.values[pix_cand]
-    residual = light.copy()
     comp_of_label = np.full(int(comps.labels.max()) + 1, -1, np.int64)
     comp_of_label[comps.ids] = np.arange(C)
+    return _Canvas(P, comps_p, in_frame, pix_cand, light, comp_of_label)
+
+
+def _shape(
+    c: int,
+    cands: _Candidates,
+    canvas: _Canvas,
+    prof: _Profile,
+    gp: GyroPassParams,
+    sp: SeparationParams,
+) -> Template | None:
+    """Step 2: candidate ``c``'s template (padded coordinates, with its unsmoothed image);
+    None where the shape search (``gyro_pass.shape_search``) finds none that fits."""
+    P = canvas.pad_px
+    if gp.shape_search:
+        tpl, score = best_shape(
+            canvas.light,
+            canvas.comps,
+            c,
+            cands.pts_px[c] + P,
+            prof.template,
+            sp.inside_min,
+            canvas.in_frame,
+        )
+        if tpl is None or score < gp.shape_score_min:
+            return None
+        return prof.template(tpl.points, with_raw=True)  # the same, with its unsmoothed image
+    # The session-corrected curve as predicted: the pursuit's own floors (correlation,
+    # amplitude, halo) decide where it fits; a trial of its one shape first ranked the
+    # same placements again (hard seeds 1-11: the same tables within 0.2 points, 10 %
+    # less CPU).
+    return prof.template(cands.pts_px[c] + P, with_raw=True)
+
+
+@dataclass(frozen=True)
+class _Pursuit:
+    """Step 3's first pursuit: the placements (padded coordinates), the light they leave
+    (``residual``, as ``_Canvas.light``), the templates the sweeps pursue again (by
+    component) and the norms remembered over the frame's pursuits and refits."""
+
+    placements: list[Placement]
+    residual: np.ndarray
+    templates: dict[int, Template]
+    norms: InsideNorms
+
+
+def _pursue_candidates(
+    cands: _Candidates,
+    canvas: _Canvas,
+    prof: _Profile,
+    gp: GyroPassParams,
+    sp: SeparationParams,
+) -> _Pursuit:
+    """Step 3: the pursuit of each candidate's template (:func:`_shape`), the largest
+    components first; a one-dot component's for one placement."""
+    comps = cands.comps
+    residual = canvas.light.copy()
     placements: list[Placement] = []
-    order = np.flatnonzero(cand)
+    order = np.flatnonzero(cands.cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     templates: dict[int, Template] = {}  # the shapes the sweeps pursue again
-    norms = InsideNorms(in_frame)  # the sweeps pursue and refit over the same regions again
+    norms = InsideNorms(canvas.in_frame)  # the sweeps pursue and refit over the same regions again
     for c in order.tolist():
-        if gp.shape_search:
-            tpl, score = best_shape(light, comps_p, c, pts[c] + P, make, sp.inside_min, in_frame)
-            if tpl is None or score < gp.shape_score_min:
-                continue
-            tpl = make(tpl.points, with_raw=True)  # the same, with its unsmoothed image
-        else:
-            # The session-corrected curve as predicted: the pursuit's own floors (correlation,
-            # amplitude, halo) decide where it fits; a trial of its one shape first ranked the
-            # same placements again (hard seeds 1-11: the same tables within 0.2 points, 10 %
-            # less CPU).
-            tpl = make(pts[c] + P, with_raw=True)
-        limit = 1 if one_dot[c] else None
+        tpl = _shape(c, cands, canvas, prof, gp, sp)
+        if tpl is None:
+            continue
+        limit = 1 if cands.one_dot[c] else None
         if limit is None:
             templates[c] = tpl
         placements += pursue(
-            residual, comps_p, c, tpl, comp_of_label, sp, sp.halo_max, in_frame, norms, limit
+            residual,
+            canvas.comps,
+            c,
+            tpl,
+            canvas.comp_of_label,
+            sp,
+            sp.halo_max,
+            canvas.in_frame,
+            norms,
+            limit,
         )
-    n_cand = int(cand.sum())
-    if not placements:
-        return fs, FrameOutcome("refused", n_cand)
-    placements, model_img = refit(light, placements, sp, in_frame, norms)
+    return _Pursuit(placements, residual, templates, norms)
+
+
+def _joint_fit(
+    canvas: _Canvas, pur: _Pursuit, sp: SeparationParams
+) -> tuple[list[Placement], np.ndarray]:
+    """Step 3: the joint refit of the pursuit's placements, then the sweeps (:func:`_sweep`):
+    the placements and the light they leave (padded coordinates)."""
+    light, in_frame, norms = canvas.light, canvas.in_frame, pur.norms
+    residual = pur.residual
+    placements, model_img = refit(light, pur.placements, sp, in_frame, norms)
     if model_img is not None or SWEEPS:
         # (Where the refit moved nothing the sweep starts from the placements' sub-pixel
         # templates, as the refit paints them, not the pursuit's integer ones.)
         model_img = model_image(light, placements) if model_img is None else model_img
         residual = np.maximum(light - model_img, 0.0)
-    placements, residual = _sweep(
-        light, residual, placements, templates, comps_p, comp_of_label, sp, in_frame, norms
+    return _sweep(
+        light,
+        residual,
+        placements,
+        pur.templates,
+        canvas.comps,
+        canvas.comp_of_label,
+        sp,
+        in_frame,
+        norms,
     )
+
+
+def _explained(
+    cands: _Candidates,
+    canvas: _Canvas,
+    placements: list[Placement],
+    residual: np.ndarray,
+    sp: SeparationParams,
+) -> tuple[np.ndarray, list[Placement]]:
+    """Step 3: the ``(C,)`` bool candidates whose light the placements explain
+    (``separation.residual_max``) and their placements, in frame coordinates."""
+    comps, pix, pix_cand = cands.comps, cands.pix, canvas.pix_cand
+    C = comps.ids.size
+    P = canvas.pad_px
     vals = comps.values[pix_cand]
-    res = residual[comps_p.ys[pix_cand], comps_p.xs[pix_cand]].astype(np.float64)
+    res = residual[canvas.comps.ys[pix_cand], canvas.comps.xs[pix_cand]].astype(np.float64)
     before = np.bincount(pix[pix_cand], vals * vals, C)
     after = np.bincount(pix[pix_cand], res * res, C)
-    replaced = cand & (after <= sp.residual_max * before)
+    replaced = cands.cand & (after <= sp.residual_max * before)
     # Back to frame coordinates (a template's box plus its shift).
     placements = [
         Placement(q.tpl, q.shift - P, q.amp, q.comp) for q in placements if replaced[q.comp]
     ]
-    if not placements:
-        return fs, FrameOutcome("refused", n_cand)
+    return replaced, placements
+
+
+@dataclass(frozen=True)
+class _Measurement:
+    """Step 4: the placements' measured lines (``m``, ``M`` rows; ``m.src`` indexes the
+    placements, ``m.own`` their components) against their placed curves' ends."""
+
+    m: Measured
+    #: ``(M, 2)`` px: the placed curve's first end of each measured line.
+    ps: np.ndarray
+    #: ``(M, 2)`` px: its last end.
+    pe: np.ndarray
+    #: ``(M,)`` px: the end-to-end mismatch of each line and its placed curve.
+    mis_new: np.ndarray
+    #: ``(M,)`` bool: the image confirms the placed curve's shape.
+    good: np.ndarray
+
+
+def _measure(
+    ctx: FrameContext,
+    cands: _Candidates,
+    placements: list[Placement],
+    prof: _Profile,
+    gp: GyroPassParams,
+) -> _Measurement:
+    """Step 4: each placement measured on its own image (frame coordinates) and checked
+    against its placed curve."""
+    H, W = ctx.shape
     # Each measured line against its placement's curve: the image must confirm the shape.
     # A placed curve reaching past the border is cut there (its line ends at the border).
     placed_ends = np.array([cut_at_border(q.tpl.points + q.shift, W, H) for q in placements])
-    m = measure_placements(ctx, placements, placed_ends, sig_s, sig_r)
+    m = measure_placements(ctx, placements, placed_ends, prof.sig_s_px, prof.sig_r_px)
     ps, pe = placed_ends[m.src, 0].reshape(-1, 2), placed_ends[m.src, 1].reshape(-1, 2)
     mis_new = mismatch(m.end_a, m.end_b, ps, pe)
-    good = confirmed(m.end_a, m.end_b, ps, pe, tol[m.own], gp.shape_shift_factor)
+    good = confirmed(m.end_a, m.end_b, ps, pe, cands.tol_px[m.own], gp.shape_shift_factor)
+    return _Measurement(m, ps, pe, mis_new, good)
+
+
+def _accepted_components(
+    cands: _Candidates,
+    meas: _Measurement,
+    replaced: np.ndarray,
+    placements: list[Placement],
+    gp: GyroPassParams,
+) -> np.ndarray | None:
+    """Step 5: ``(C,)`` bool, the components replaced whole; None where the frame keeps its
+    first pass (``gyro_pass.accept_min``)."""
+    C = cands.comps.ids.size
+    m, good = meas.m, meas.good
     # Components replaced only where every placement of theirs was measured and confirmed.
     n_place = np.bincount([q.comp for q in placements], minlength=C)
     n_good = np.bincount(m.own[good], minlength=C)
@@ -397,7 +665,22 @@ def refine_frame(
     n_meas = np.bincount(m.own, minlength=C)
     whole = replaced & (n_good == n_meas) & (n_meas > 0) & (n_meas >= gp.measured_min * n_place)
     if not accepted(int(n_good[whole].sum()), len(m), gp.accept_min):
-        return fs, FrameOutcome("refused", int(cand.sum()))
+        return None
+    return whole
+
+
+def _keep_old_lines(
+    fs: FrameStreaks,
+    cands: _Candidates,
+    meas: _Measurement,
+    whole: np.ndarray,
+    gp: GyroPassParams,
+) -> np.ndarray:
+    """Step 5: ``whole`` (``(C,)`` bool, a copy) less the components whose first-pass lines
+    stay."""
+    whole = whole.copy()
+    C = cands.comps.ids.size
+    own, n_lines, m = cands.own, cands.n_lines, meas.m
     # A component's first-pass lines stay where they fit its placed curves clearly better
     # (gyro_pass.old_lines_margin) than the new streaks: per placement, the nearest of the
     # component's old lines against its new line.
@@ -408,20 +691,36 @@ def refine_frame(
         for j, r in enumerate(has_old.tolist()):
             li = lines[own[lines] == m.own[r]]
             k = np.full(li.size, r)
-            old_best[j] = float(np.min(mismatch(fs.end_a[li], fs.end_b[li], ps[k], pe[k])))
+            old_best[j] = float(
+                np.min(mismatch(fs.end_a[li], fs.end_b[li], meas.ps[k], meas.pe[k]))
+            )
         comp = m.own[has_old]
         cost_old = np.bincount(comp, old_best, C)
-        cost_new = np.bincount(comp, mis_new[has_old], C)
+        cost_new = np.bincount(comp, meas.mis_new[has_old], C)
         whole[comp[gp.old_lines_margin * cost_old[comp] <= cost_new[comp]]] = False
-    m = combine(m, whole[m.own] & good)
+    return whole
+
+
+def _first_pass_kept(
+    fs: FrameStreaks,
+    timing: FrameTiming,
+    model: Any,
+    cands: _Candidates,
+    whole: np.ndarray,
+    gp: GyroPassParams,
+    sp: SeparationParams,
+) -> np.ndarray:
+    """Step 5: ``(N,)`` bool, the first-pass streaks that stay (those outside the components
+    ``whole`` replaces, less remnants and unsplit chains)."""
+    own = cands.own
     keep_old = ~((own >= 0) & whole[np.maximum(own, 0)])
     # A remaining first-pass spot far shorter than its predicted curve is a remnant (of a
     # chain, a blob), as frame.py drops those far shorter than the image consensus; a line
     # far longer is a chain of several dots' streaks that the pass could not split.
+    inside = _inside(fs)
     pred_arc = np.zeros(len(fs))
     pred_arc[inside] = predict_curves(model, fs.time_mid[inside], timing.t_s, timing.exposure_s).arc
     long_pred = pred_arc >= sp.spot_min_px
     keep_old &= ~(long_pred & (fs.length_px < sp.spot_fraction * pred_arc))
     keep_old &= ~(long_pred & (fs.length_px > gp.chain_factor * pred_arc))
-    out = as_streaks(fs, keep_old, m, ctx, sig_s)
-    return out, FrameOutcome("refined", n_cand, int(whole.sum()), len(m))
+    return keep_old
