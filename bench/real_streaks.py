@@ -43,7 +43,7 @@ def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
     components, measured along their skeletons), dominant direction; None without one."""
     p = DetectParams()
     ctx = frame_context(
-        prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
+        prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour), p
     )
     out = component_references(ctx, sigma_c, sigma_c)
     if out is None:

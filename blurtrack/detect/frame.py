@@ -204,7 +204,7 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     """
     p = params or DetectParams()
     keep_heap()  # once per process: no page faults for per-frame buffers
-    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
+    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour)
     ctx = frame_context(prep, p)
     sat_frac = float(np.count_nonzero(prep.saturated)) / (ctx.shape[0] * ctx.shape[1])
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5

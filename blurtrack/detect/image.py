@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -13,6 +14,41 @@ _BOX = np.ones((3, 3), np.uint8)  # the 8-neighbourhood (and centre) for local m
 #: Block size (px) of the background map: large against a streak's width (the trimmed mean per
 #: block sees past the streaks), small against vignetting and ambient gradients.
 BACKGROUND_BLOCK_PX = 32
+#: How a colour frame becomes one channel (``DetectParams.colour``): ``auto``, the luma of the
+#: light's colour where the frame's light is one colour (:func:`light_colour`), else the
+#: brightest channel per pixel; ``max``, always the brightest channel per pixel.
+COLOURS = ("auto", "max")
+#: Luma's weights (B, G, R; ITU-R BT.601): the Y that JPEG, H.264 and H.265 store at full
+#: resolution, while they store the colour differences at half of it in each direction (4:2:0
+#: chroma subsampling: a red laser's red channel is mostly colour difference).
+LUMA_BGR = (0.114, 0.587, 0.299)
+#: A frame's light is one colour where, over half of the bright pixels, its strongest channel
+#: carries more than this times the light of each other channel. A laser's light reaches the
+#: other channels only through the colour filters' overlap and the demosaicing and chroma
+#: subsampling that mix neighbouring pixels (the simulated red laser through an RGGB sensor and
+#: JPEG: 2.4-4.0 at the median); a white or warm light's channels lie within a factor of about
+#: 1.5 of each other after white balance (the real night photographs: 0.9-1.5).
+ONE_COLOUR_RATIO = 2.0
+#: ... and that channel is the strongest of at least this share of the bright pixels (lights of
+#: two colours are not one colour, whichever holds more of the bright pixels).
+ONE_COLOUR_SHARE = 0.9
+#: The bright pixels: unsaturated, and above this fraction of the way from the background to
+#: the frame's 99.9th percentile (the lights' cores, least mixed with their surroundings by
+#: demosaicing and chroma subsampling).
+BRIGHT_FRACTION = 0.75
+#: Fewest bright pixels that tell the light's colour (a few dots' cores).
+BRIGHT_MIN_PX = 50
+
+
+class FrameLight(NamedTuple):
+    """A colour frame's light of one colour (:func:`light_colour`): ``colour_bgr`` ``(3,)``
+    relative to its strongest channel, and the frame's background ``background_bgr`` ``(3,)``
+    (raw units, each channel's median over a sparse sample)."""
+
+    colour_bgr: np.ndarray
+    background_bgr: np.ndarray
+
+
 _DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])  # the 8-neighbour ring (row offsets)
 _DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])  # ... (column offsets)
 
@@ -41,24 +77,80 @@ class PreparedFrame:
     hot_pixels: int
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
+def to_gray(image: np.ndarray, colour: str = "auto") -> np.ndarray:
     """Validate a stored frame and reduce it to one channel, keeping its dtype.
 
-    Accepts ``uint8`` or ``uint16``, gray ``(H, W)`` or colour ``(H, W, 3|4)`` (BGR[A]). Colour
-    uses the brightest channel, so a laser of any colour keeps its full contrast and its
-    saturation is seen.
+    Accepts ``uint8`` or ``uint16``, gray ``(H, W)`` or colour ``(H, W, 3|4)`` (BGR[A]).
+    ``colour`` (:data:`COLOURS`): ``auto`` takes the luma of the frame's light where that light
+    is one colour (a laser, :func:`light_colour`), scaled so that the light's strongest
+    channel keeps its values and clipped at the dtype's maximum where that channel saturates:
+    luma is the one component compressed frames keep at full resolution, and it averages the
+    channels' noise. Otherwise (lights of several colours, or ``max``) it takes the brightest
+    channel of each pixel, so that a light of any colour keeps its full contrast and its
+    saturation is seen (the maximum of the channels' noise raises faint light, which moves a
+    streak's half-level ends outwards by ~0.1 px on the simulated red laser).
     """
     if not isinstance(image, np.ndarray) or image.ndim not in (2, 3):
         raise DetectionError("a frame must be a 2-D gray or 3-D colour array")
     if image.dtype not in (np.uint8, np.uint16):
         raise DetectionError(f"unsupported frame dtype {image.dtype} (need uint8 or uint16)")
+    if colour not in COLOURS:
+        raise DetectionError(f"colour must be one of {COLOURS}, got {colour!r}")
     if image.ndim == 3:
         if image.shape[2] not in (1, 3, 4):
             raise DetectionError(f"unsupported number of channels {image.shape[2]}")
-        image = image[:, :, :3].max(axis=2) if image.shape[2] > 1 else image[:, :, 0]
+        if image.shape[2] == 1:
+            image = image[:, :, 0]
+        else:
+            bgr = image[:, :, :3]
+            light = light_colour(bgr) if colour == "auto" and min(image.shape[:2]) >= 8 else None
+            image = bgr.max(axis=2) if light is None else _luma_of(bgr, light)
     if min(image.shape) < 8:
         raise DetectionError(f"frame too small: {image.shape}")
     return np.ascontiguousarray(image)
+
+
+def light_colour(bgr: np.ndarray) -> FrameLight | None:
+    """The light of a colour frame where it is one colour (a laser: :data:`ONE_COLOUR_RATIO`,
+    :data:`ONE_COLOUR_SHARE`), else None (lights of several colours, or fewer than
+    :data:`BRIGHT_MIN_PX` bright pixels).
+
+    ``bgr``: ``(H, W, 3)`` uint8 or uint16. The light's colour is each channel's median over the
+    bright pixels (:data:`BRIGHT_FRACTION`) less its background."""
+    top = np.iinfo(bgr.dtype).max
+    background = np.median(bgr.reshape(-1, 3)[::97], axis=0).astype(np.float64)
+    brightest = cv2.max(cv2.max(bgr[:, :, 0], bgr[:, :, 1]), bgr[:, :, 2])
+    high = float(np.percentile(brightest.ravel()[::7], 99.9))
+    base = float(background.max())
+    if not high > base:
+        return None
+    bright = (brightest > base + BRIGHT_FRACTION * (high - base)) & (brightest < top)
+    if int(np.count_nonzero(bright)) < BRIGHT_MIN_PX:
+        return None
+    values = bgr[bright].astype(np.float64) - background  # (P, 3)
+    light = np.median(values, axis=0)
+    strongest = int(np.argmax(light))
+    others = np.max(np.delete(values, strongest, axis=1), axis=1)
+    own = values[:, strongest]
+    if not (
+        np.median(own - ONE_COLOUR_RATIO * others) > 0
+        and np.quantile(own - others, 1.0 - ONE_COLOUR_SHARE) > 0
+    ):
+        return None
+    return FrameLight(light / light[strongest], background)
+
+
+def _luma_of(bgr: np.ndarray, light: FrameLight) -> np.ndarray:
+    """``(H, W)`` in ``bgr``'s dtype: the luma (:data:`LUMA_BGR`) of the light above the
+    background over the luma of its colour, plus the strongest channel's background, so that
+    the light's strongest channel keeps its values; rounded, and clipped at the dtype's
+    maximum (where that channel saturates, this passes the maximum too: the frame's clip)."""
+    weights = np.asarray(LUMA_BGR, np.float64)
+    scale = weights / float(weights @ light.colour_bgr)
+    strongest = int(np.argmax(light.colour_bgr))
+    offset = float(light.background_bgr[strongest] - scale @ light.background_bgr)
+    out = cv2.transform(np.ascontiguousarray(bgr), np.append(scale, offset).reshape(1, 4))
+    return out.reshape(bgr.shape[:2])
 
 
 def _weighted_median(values: np.ndarray, counts: np.ndarray) -> float:
@@ -190,9 +282,11 @@ def prepare_frame(
     smooth_sigma_px: float,
     hot_pixel_ratio: float,
     saturation_level: float | None = None,
+    colour: str = "auto",
 ) -> PreparedFrame:
-    """Convert, subtract the background, remove hot pixels and pre-smooth a frame."""
-    raw = to_gray(image)
+    """Convert (``colour``: :func:`to_gray`), subtract the background, remove hot pixels and
+    pre-smooth a frame."""
+    raw = to_gray(image, colour)
     top = float(np.iinfo(raw.dtype).max)
     level = top if saturation_level is None else float(saturation_level)
     saturated = raw >= level if raw.max() >= level else np.zeros((1, 1), bool)

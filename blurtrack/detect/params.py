@@ -9,6 +9,7 @@ from typing import Any
 
 import yaml
 
+from blurtrack.detect.image import COLOURS
 from blurtrack.detect.paramsections import (
     GyroPassParams,
     LinesParams,
@@ -108,6 +109,9 @@ class DetectParams:
     - ``hot_pixel_ratio``: a pixel brighter than its brightest 8-neighbour by this factor
       (above background) is a hot pixel and is replaced by that neighbour.
     - ``saturation_level``: raw value treated as saturated (``None``: the dtype's maximum).
+    - ``colour``: how a colour frame becomes one channel (:func:`blurtrack.detect.image.to_gray`):
+      ``auto``, the luma of the frame's light where that light is one colour (a laser), else
+      the brightest channel per pixel; ``max``, always the brightest channel per pixel.
     - ``border_margin_px``: endpoints closer than this to the border are flagged ``clipped``.
     - ``max_streaks``: hard cap of streaks per frame (bad input guard).
     - ``artefact_ratio``, ``artefact_gap_px``: a component whose peak is below
@@ -134,6 +138,7 @@ class DetectParams:
     faint_snr: float = 25.0
     hot_pixel_ratio: float = 3.0
     saturation_level: float | None = None
+    colour: str = "auto"
     border_margin_px: float = 2.0
     max_streaks: int = 5000
     artefact_ratio: float = 0.06
@@ -160,6 +165,8 @@ class DetectParams:
             raise ConfigError(f"detect psf_sigma_px not in [0.3, 10]: {self.psf_sigma_px!r}")
         if self.saturation_level is not None and not self.saturation_level > 0:
             raise ConfigError("detect parameter saturation_level must be positive")
+        if self.colour not in COLOURS:
+            raise ConfigError(f"detect parameter colour must be one of {COLOURS}: {self.colour!r}")
         if int(self.min_area_px) != self.min_area_px or self.min_area_px < 1:
             raise ConfigError(f"detect min_area_px must be an integer >= 1: {self.min_area_px!r}")
         if not self.border_margin_px >= 0:

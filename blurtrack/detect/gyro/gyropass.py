@@ -291,7 +291,8 @@ def _frame_context(image: np.ndarray | Callable[[], np.ndarray], p: DetectParams
     if callable(image):
         image = image()
     return frame_context(
-        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level), p
+        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour),
+        p,
     )
 
 

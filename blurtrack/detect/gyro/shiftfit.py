@@ -236,7 +236,11 @@ def refine_timeshift(
 
     def one(k: int) -> tuple[np.ndarray, np.ndarray]:
         prep = prepare_frame(
-            read_smooth(k), params.smooth_sigma_px, params.hot_pixel_ratio, params.saturation_level
+            read_smooth(k),
+            params.smooth_sigma_px,
+            params.hot_pixel_ratio,
+            params.saturation_level,
+            params.colour,
         )
         ref = found[k].time_mid[sel[k]]
         try:
