@@ -22,6 +22,19 @@ detection then goes on from the images alone and says why (``--gyro on`` refuses
 does where the session says its axes are a guess (``imu.axes_known: false``, as the importers
 write for phones whose sensor axes are not published) and the images cannot confirm the
 direction either way (*unconfirmed*).
+
+Continuity's premise, that a dot goes on the way it went, fails where the shake turns back in
+the gap between two exposures or within the exposure (the streak's visible end is then a turn,
+not where the dot was at the exposure's start or end): there the images name the wrong end, as
+a wrong axis would (``phone`` seed 6, frame 5, the last, with one neighbour: 9 of 54 decisive
+starts right by continuity, 200 of 200 by the gyro). Whether the motion turns does not depend
+on the axes: the image velocities at two times are mapped alike by an error of the axes' signs
+or order (a rotation or reflection of the rates keeps the angle between them, exactly at the
+image centre and to first order elsewhere), so the gyro tells it whichever way its axes are.
+The streaks whose predicted motion turns back (two successive velocities at an obtuse angle)
+within their exposure (:data:`TURN_SAMPLES` samples) or from the last to the first
+:data:`GAP_TANGENT_FRACTION` of the exposures about a gap that continuity reads are left out
+of the check.
 """
 
 from __future__ import annotations
@@ -43,6 +56,14 @@ SAMPLE_FRAMES = 12
 #: Fewest decisive streaks for a frame's (and, twice that, the sample's) agreement to count:
 #: at 30 pairs a frame agreeing on 50 % falls under 20 % with a probability of ~1e-4.
 MIN_PAIRS = 30
+#: The stretch of each exposure next to a gap (a fraction of the exposure) over which a dot's
+#: predicted motion into and out of the gap is taken: the streak's end that continuity
+#: extrapolates (its tangent over the last few px).
+GAP_TANGENT_FRACTION = 0.25
+#: Samples of a dot's predicted path over its exposure for the turn test: 8 steps of 1/8 of the
+#: exposure (a turn and back within one step is missed: the shake's dominant 5-15 Hz turn twice
+#: in 30-100 ms, over 2.5 ms steps at the simulator's 20 ms exposures).
+TURN_SAMPLES = 9
 
 
 @dataclass(frozen=True)
@@ -144,6 +165,7 @@ def gyro_direction(
         )
         c = cont[around.index(k)]
         both = (np.abs(g[:, 0]) >= lo) & (np.abs(c) >= lo)
+        both &= ~_turning(found[k], k, around, timings, model)
         n = int(both.sum())
         a = int(np.sum(both & (np.sign(g[:, 0]) == np.sign(c))))
         decisive, agree = decisive + n, agree + a
@@ -155,3 +177,50 @@ def gyro_direction(
         "contradicted" if bad or agree < params.direction_session_agree * decisive else "consistent"
     )
     return GyroDirection(status, decisive, agree, len(sample), bad)
+
+
+def _turning(
+    fs: FrameStreaks, k: int, around: list[int], timings: list[FrameTiming], model: Any
+) -> np.ndarray:
+    """``(N,)`` bool: the streaks of frame ``k`` (``fs``) whose predicted motion turns back
+    within their exposure or in the gap between its exposure and a neighbour's in ``around``
+    (positions in ``timings``): two successive image velocities at an obtuse angle, over the
+    exposure's :data:`TURN_SAMPLES` samples, or over the last :data:`GAP_TANGENT_FRACTION` of
+    the earlier exposure and the first of the later one. Each streak's row exposes at its own
+    time (the readout), in both frames alike. All False where the model does not cover the
+    times."""
+    n = len(fs)
+    if n == 0:
+        return np.zeros(0, bool)
+    cam = model.camera
+    row = cam.readout_s * np.clip(fs.time_mid[:, 1], 0, cam.height - 1) / cam.height
+    own = timings[k]
+    t_ref = own.t_s + row + 0.5 * own.exposure_s
+    spans = [own.t_s + row[:, None] + np.linspace(0.0, own.exposure_s, TURN_SAMPLES)[None, :]]
+    for j in around:
+        if j == k:
+            continue
+        early, late = (timings[j], timings[k]) if j < k else (timings[k], timings[j])
+        end = early.t_s + early.exposure_s + row
+        start = late.t_s + row
+        spans.append(
+            np.stack(
+                [
+                    end - GAP_TANGENT_FRACTION * early.exposure_s,
+                    end,
+                    start,
+                    start + GAP_TANGENT_FRACTION * late.exposure_s,
+                ],
+                axis=1,
+            )
+        )
+    try:
+        tracks = [model.point_track(fs.time_mid, t_ref, t) for t in spans]
+    except CoverageError:
+        return np.zeros(n, bool)
+    steps = np.diff(tracks[0], axis=1)  # (N, TURN_SAMPLES - 1, 2)
+    turns = np.any(np.sum(steps[:, 1:] * steps[:, :-1], axis=2) < 0, axis=1)
+    for track in tracks[1:]:
+        into, out_of = track[:, 1] - track[:, 0], track[:, 3] - track[:, 2]
+        turns |= np.sum(into * out_of, axis=1) < 0
+    return turns

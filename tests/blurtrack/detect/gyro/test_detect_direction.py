@@ -160,3 +160,47 @@ def test_the_command_says_why_and_gyro_on_stops(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--gyro on stops" in err[0]
     assert sorted(tmp_path.iterdir()) == sorted(written)  # nothing written on refusal
+
+
+class _LineMotion:
+    """A stand-in blur model: every point moves along ``direction`` by ``offset(t)`` px (no
+    readout), so its image velocity is ``offset'(t) direction``."""
+
+    def __init__(self, offset: Any, direction: tuple[float, float] = (1.0, 0.0)) -> None:
+        self.offset = offset
+        self.direction = np.asarray(direction, float)
+        self.camera = type("Cam", (), {"readout_s": 0.0, "height": 100})()
+
+    def point_track(self, pixels: np.ndarray, t_ref: np.ndarray, times: np.ndarray) -> np.ndarray:
+        shift = self.offset(times) - self.offset(np.asarray(t_ref)[:, None])
+        return pixels[:, None, :] + shift[..., None] * self.direction
+
+
+@pytest.mark.parametrize("direction", [(1.0, 0.0), (-1.0, 0.0), (0.6, -0.8)])
+def test_turns_within_an_exposure_or_in_a_gap_are_told_whichever_way_the_axes_are(
+    direction: tuple[float, float],
+) -> None:
+    """Frames 0, 1, 2 of 20 ms every 33 ms: a motion that runs one way throughout turns
+    nowhere; one that turns back in the middle of frame 1's exposure, or in the gap between
+    frames 0 and 1, turns there; the same for the image velocity in any direction (an axis
+    sign or order error maps every velocity alike)."""
+    from blurtrack.detect.gyro.direction import _turning
+
+    fs = type(
+        "FS", (), {"time_mid": np.array([[20.0, 50.0], [60.0, 30.0]]), "__len__": lambda s: 2}
+    )()
+    timings = [FrameTiming(k / 30.0, 0.02) for k in range(3)]
+    mid1 = timings[1].t_s + 0.01
+    gap01 = 0.5 * (timings[0].t_s + 0.02 + timings[1].t_s)
+    cases = {
+        "straight": (lambda t: 300.0 * t, [False, False]),
+        "turn in the exposure": (lambda t: -3000.0 * (t - mid1) ** 2, [True, True]),
+        "turn in the gap": (lambda t: 300.0 * np.abs(t - gap01), [True, True]),
+    }
+    for name, (offset, expected) in cases.items():
+        got = _turning(fs, 1, [0, 1, 2], timings, _LineMotion(offset, direction))
+        assert got.tolist() == expected, name
+    # Negative control: the gap turn is not in frame 1's own exposure, nor in its gap to
+    # frame 2, so with only that neighbour nothing turns.
+    offset = cases["turn in the gap"][0]
+    assert _turning(fs, 1, [1, 2], timings, _LineMotion(offset, direction)).tolist() == [False] * 2
