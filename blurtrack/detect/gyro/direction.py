@@ -215,7 +215,7 @@ def _turning(
             )
         )
     try:
-        tracks = [model.point_track(fs.time_mid, t_ref, t) for t in spans]
+        tracks = [model.point_track_ordered(fs.time_mid, t_ref, t) for t in spans]
     except CoverageError:
         return np.zeros(n, bool)
     steps = np.diff(tracks[0], axis=1)  # (N, TURN_SAMPLES - 1, 2)

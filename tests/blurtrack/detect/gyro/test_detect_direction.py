@@ -175,6 +175,8 @@ class _LineMotion:
         shift = self.offset(times) - self.offset(np.asarray(t_ref)[:, None])
         return pixels[:, None, :] + shift[..., None] * self.direction
 
+    point_track_ordered = point_track
+
 
 @pytest.mark.parametrize("direction", [(1.0, 0.0), (-1.0, 0.0), (0.6, -0.8)])
 def test_turns_within_an_exposure_or_in_a_gap_are_told_whichever_way_the_axes_are(
