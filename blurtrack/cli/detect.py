@@ -181,6 +181,13 @@ def run(args: argparse.Namespace) -> int:
             f"{sc['residual_after_px']:.2f} px off the image's at the median "
             f"({sc['voters']} quality_ok streaks)"
         )
+    light = s.get("light_colour") or {}
+    if light.get("frames"):
+        b, g, r = light["bgr"]
+        print(
+            f"  colour: {len(light['frames'])} of {s['frames']} frames measured on the luma of "
+            f"their one-colour light (B, G, R = {b:.2f}, {g:.2f}, {r:.2f})"
+        )
     tp, comps = s["gyro_template_frames"], s["gyro_template_components"]
     if tp.get("refined"):
         print(

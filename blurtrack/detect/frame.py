@@ -65,6 +65,10 @@ class FrameStreaks:
     #: may lift (:func:`blurtrack.detect.separation.quality.one_doubt`), set with ``quality``; the
     #: gyro's check confirms them where it measures their start-to-end vector right.
     one_doubt: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    #: The colour (B, G, R, relative to its strongest channel) of the frame's one-colour
+    #: light where the frame was measured on that light's luma
+    #: (:func:`blurtrack.detect.image.to_gray`); None: a gray frame, or the brightest channel.
+    light_bgr: tuple[float, float, float] | None = None
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])
@@ -210,13 +214,17 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
     sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))
     if ctx.comps.ids.size == 0:
-        return _empty(ctx.shape, sigma_c, prep.noise, prep.hot_pixels, sat_frac)
-    m, folded = _first_pass(ctx, sigma_c)
-    if p.separate and len(m):
-        m = _separated(ctx, m, folded)
-    if len(m) == 0:
-        return _empty(ctx.shape, m.sigma_c, prep.noise, prep.hot_pixels, sat_frac)
-    return _frame_streaks(ctx, m, prep.noise, prep.hot_pixels, sat_frac)
+        fs = _empty(ctx.shape, sigma_c, prep.noise, prep.hot_pixels, sat_frac)
+    else:
+        m, folded = _first_pass(ctx, sigma_c)
+        if p.separate and len(m):
+            m = _separated(ctx, m, folded)
+        if len(m) == 0:
+            fs = _empty(ctx.shape, m.sigma_c, prep.noise, prep.hot_pixels, sat_frac)
+        else:
+            fs = _frame_streaks(ctx, m, prep.noise, prep.hot_pixels, sat_frac)
+    fs.light_bgr = prep.light_bgr
+    return fs
 
 
 def _first_pass(ctx: FrameContext, sigma_c: float) -> tuple[Measured, np.ndarray]:

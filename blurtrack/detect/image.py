@@ -65,6 +65,9 @@ class PreparedFrame:
     - ``noise_smooth``: noise sigma of ``smooth``.
     - ``saturation``: the saturation level in ``signal`` units (after background subtraction).
     - ``hot_pixels``: how many hot pixels were replaced.
+    - ``light_bgr``: the colour (B, G, R, relative to its strongest channel) of a colour
+      frame's one-colour light, where the frame was measured on that light's luma
+      (:func:`to_gray`); None otherwise.
     """
 
     signal: np.ndarray
@@ -75,6 +78,7 @@ class PreparedFrame:
     noise_smooth: float
     saturation: float
     hot_pixels: int
+    light_bgr: tuple[float, float, float] | None = None
 
 
 def to_gray(image: np.ndarray, colour: str = "auto") -> np.ndarray:
@@ -90,6 +94,13 @@ def to_gray(image: np.ndarray, colour: str = "auto") -> np.ndarray:
     saturation is seen (the maximum of the channels' noise raises faint light, which moves a
     streak's half-level ends outwards by ~0.1 px on the simulated red laser).
     """
+    return _gray_and_light(image, colour)[0]
+
+
+def _gray_and_light(image: np.ndarray, colour: str) -> tuple[np.ndarray, FrameLight | None]:
+    """:func:`to_gray`'s frame and the light whose luma it is (None: the brightest channel,
+    or a gray frame)."""
+    light: FrameLight | None = None
     if not isinstance(image, np.ndarray) or image.ndim not in (2, 3):
         raise DetectionError("a frame must be a 2-D gray or 3-D colour array")
     if image.dtype not in (np.uint8, np.uint16):
@@ -112,7 +123,7 @@ def to_gray(image: np.ndarray, colour: str = "auto") -> np.ndarray:
             image = brightest if light is None else _luma_of(bgr, light)
     if min(image.shape) < 8:
         raise DetectionError(f"frame too small: {image.shape}")
-    return np.ascontiguousarray(image)
+    return np.ascontiguousarray(image), light
 
 
 def light_colour(bgr: np.ndarray) -> FrameLight | None:
@@ -301,7 +312,7 @@ def prepare_frame(
 ) -> PreparedFrame:
     """Convert (``colour``: :func:`to_gray`), subtract the background, remove hot pixels and
     pre-smooth a frame."""
-    raw = to_gray(image, colour)
+    raw, light = _gray_and_light(image, colour)
     top = float(np.iinfo(raw.dtype).max)
     level = top if saturation_level is None else float(saturation_level)
     saturated = raw >= level if raw.max() >= level else np.zeros((1, 1), bool)
@@ -330,4 +341,11 @@ def prepare_frame(
         noise_smooth=float(noise_smooth),
         saturation=level / top - background,
         hot_pixels=hot,
+        light_bgr=None
+        if light is None
+        else (
+            float(light.colour_bgr[0]),
+            float(light.colour_bgr[1]),
+            float(light.colour_bgr[2]),
+        ),
     )

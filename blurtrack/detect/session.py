@@ -582,6 +582,7 @@ def _summary(
             for c in ("clipped", "saturated", "merged", "crossing", "looped", "faint")
         },
         "hot_pixels": int(sum(fs.hot_pixels for fs in found)),
+        "light_colour": _light_colour(found, idx),
         "table_version": TABLE_VERSION,
         "quality_ok": int(table["quality_ok"].sum()),
         "source": {s: int((table["source"] == s).sum()) for s in SOURCES},
@@ -595,4 +596,16 @@ def _summary(
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),
         "params": p.to_dict(),
+    }
+
+
+def _light_colour(found: list[FrameStreaks], idx: list[int]) -> dict[str, Any]:
+    """For the summary: the frames measured on the luma of their one-colour light
+    (``frames``, the session's frame numbers) and the light's median colour (B, G, R relative
+    to its strongest channel; None without such frames)."""
+    one = [k for k, fs in enumerate(found) if fs.light_bgr is not None]
+    colours = np.array([found[k].light_bgr for k in one], float).reshape(-1, 3)
+    return {
+        "frames": [idx[k] for k in one],
+        "bgr": np.round(np.median(colours, axis=0), 3).tolist() if one else None,
     }

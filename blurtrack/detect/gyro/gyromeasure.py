@@ -294,4 +294,5 @@ def as_streaks(
         saturated_fraction=fs.saturated_fraction,
         evidence=evidence,
         along_curve=np.concatenate([along[k], np.ones(n_new, bool)]) if n_new else along[k],
+        light_bgr=fs.light_bgr,
     )

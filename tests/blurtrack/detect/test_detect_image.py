@@ -106,6 +106,8 @@ def test_a_red_laser_in_a_chroma_subsampled_jpeg_is_measured_on_luma(seed: int) 
     jpeg = cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
     auto = detect_frame(jpeg, DetectParams(colour="auto"))
     brightest = detect_frame(jpeg, DetectParams(colour="max"))
+    assert auto.light_bgr is not None and auto.light_bgr[2] == 1.0  # red, the strongest
+    assert brightest.light_bgr is None
     e_auto, e_max = _median_end_error(auto, curves), _median_end_error(brightest, curves)
     assert e_auto < 0.3
     assert e_max > 2 * e_auto

@@ -648,3 +648,25 @@ def test_a_session_fitted_model_is_tested_as_it_is(
         np.testing.assert_array_equal(ok0 & ~np.asarray(after.quality[2], bool), ok0 & (r > tol))
         demoted += int(np.sum(ok0 & (r > tol)))
     assert demoted > 0
+
+
+def test_a_red_laser_session_says_its_frames_were_measured_on_the_lights_luma(
+    session_folder: Path, tmp_path: Path, capsys
+) -> None:
+    import shutil
+
+    folder = tmp_path / "red"
+    shutil.copytree(session_folder, folder)
+    # A red laser on a colour sensor: the green and blue channels see 0.18 and 0.06 of it.
+    _rewrite_frames(
+        folder,
+        lambda k, img: np.dstack([img * 0.06, img * 0.18, img]).round().astype(np.uint8),
+    )
+    s = detect_session(load_session(folder), gyro="off", refine_timeshift=False).summary
+    assert s["light_colour"]["frames"] == list(range(len(load_session(folder).frames)))
+    np.testing.assert_allclose(s["light_colour"]["bgr"], [0.06, 0.18, 1.0], atol=0.03)
+    assert main(["detect", str(folder), "--out", str(tmp_path / "r.parquet"), "--gyro", "off"]) == 0
+    assert "frames measured on the luma of their one-colour light" in capsys.readouterr().out
+    # Gray frames: none.
+    gray = detect_session(load_session(session_folder), gyro="off", refine_timeshift=False)
+    assert gray.summary["light_colour"] == {"frames": [], "bgr": None}
