@@ -107,22 +107,18 @@ def _gray_and_light(image: np.ndarray, colour: str) -> tuple[np.ndarray, FrameLi
         raise DetectionError(f"unsupported frame dtype {image.dtype} (need uint8 or uint16)")
     if colour not in COLOURS:
         raise DetectionError(f"colour must be one of {COLOURS}, got {colour!r}")
+    if image.ndim == 3 and image.shape[2] not in (1, 3, 4):
+        raise DetectionError(f"unsupported number of channels {image.shape[2]}")
+    if min(image.shape[:2]) < 8:
+        raise DetectionError(f"frame too small: {image.shape[:2]}")
     if image.ndim == 3:
-        if image.shape[2] not in (1, 3, 4):
-            raise DetectionError(f"unsupported number of channels {image.shape[2]}")
         if image.shape[2] == 1:
             image = image[:, :, 0]
         else:
             bgr = image[:, :, :3]
             brightest = _brightest(bgr)
-            light = (
-                _one_colour(bgr, brightest)
-                if colour == "auto" and min(image.shape[:2]) >= 8
-                else None
-            )
+            light = _one_colour(bgr, brightest) if colour == "auto" else None
             image = brightest if light is None else _luma_of(bgr, light)
-    if min(image.shape) < 8:
-        raise DetectionError(f"frame too small: {image.shape}")
     return np.ascontiguousarray(image), light
 
 
