@@ -21,7 +21,7 @@ from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
-from blurtrack.detect.separation.separate import overlapping_placements, placement_mosaic
+from blurtrack.detect.separation.mosaic import overlapping_placements, placement_mosaic
 from blurtrack.detect.separation.templates import Placement
 from blurtrack.detect.trust import Evidence, assess
 
@@ -83,7 +83,7 @@ def _measure_once(
 ) -> tuple[dict[int, dict[str, Any]], float, float]:
     """Per placement index, its streak measured on ``mosaic`` (the mosaic of the placements,
     hairpins as their two arms ``arm_of``;
-    :func:`~blurtrack.detect.separation.separate.placement_mosaic`) along the lines ``ls``,
+    :func:`~blurtrack.detect.separation.mosaic.placement_mosaic`) along the lines ``ls``,
     frame coordinates, placements not measured whole absent; and the cross-section sigmas
     used."""
     sig_s, sig_r = sig

@@ -452,7 +452,7 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
     import dataclasses
     from functools import partial
 
-    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrostages as m
     from blurtrack.detect.gyro import gyrotrust
 
     inputs: list[tuple] = []
@@ -513,7 +513,7 @@ def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
     import copy
     import dataclasses
 
-    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrostages as m
     from blurtrack.detect.gyro import gyrotrust
 
     inputs: list[tuple] = []
@@ -608,7 +608,7 @@ def test_a_session_fitted_model_is_tested_as_it_is(
     import copy
     import dataclasses
 
-    from blurtrack.detect import session as m
+    from blurtrack.detect.gyro import gyrostages as m
     from blurtrack.detect.gyro import gyrotrust
     from blurtrack.detect.gyro.gyrocurve import predict_curves
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect import detect_frame
-from blurtrack.detect.gyro import gyroconfirm, gyropass
+from blurtrack.detect.gyro import gyrocandidates, gyroconfirm, gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -378,7 +378,7 @@ def test_one_dots_light_is_a_components_light_per_line_not_a_chains() -> None:
     border[-2:] = True
     light[-2:] = 40.0  # streaks leaving the frame: part of a dot
     quantile = GyroPassParams().light_quantile
-    est = gyropass._dot_light(light, border, n_lines, quantile)
+    est = gyrocandidates.one_dot_light(light, border, n_lines, quantile)
     assert abs(est - 155.0) < 5.0
     # Negative control: the former estimate (the 0.4 quantile of the components' light) is
     # two dots', at which the pursuit sees every dot at amplitude 0.5, under amp_min.
@@ -387,7 +387,7 @@ def test_one_dots_light_is_a_components_light_per_line_not_a_chains() -> None:
     assert 155.0 / former < DetectParams().separation.amp_min
     # Without any first-pass line inside the frame the quantile stands.
     none = np.zeros_like(n_lines)
-    assert gyropass._dot_light(light, border, none, quantile) == former
+    assert gyrocandidates.one_dot_light(light, border, none, quantile) == former
 
 
 def test_blown_out_hairpins_are_point_lights_not_touching() -> None:

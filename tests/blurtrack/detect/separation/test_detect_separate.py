@@ -181,7 +181,7 @@ def _own_image(img: np.ndarray, pl: list, k: int, pad: int, raw: bool) -> np.nda
 
 def test_the_mosaic_holds_each_placements_own_image_and_clips_in_place() -> None:
     from blurtrack.detect.gyro.gyrocurve import curve_template
-    from blurtrack.detect.separation.separate import placement_mosaic
+    from blurtrack.detect.separation.mosaic import placement_mosaic
     from blurtrack.detect.separation.templates import Placement
 
     rng = np.random.default_rng(5)

@@ -1,0 +1,259 @@
+"""The gyro's stages of detecting a session (:func:`blurtrack.detect.session.detect_session`,
+after every frame's first pass): the time-shift scan and the readout order, the gyro's
+direction against the images, the session calibration, the template pass with the gyro cues,
+and the gyro's check of the ``quality_ok`` ends, with the continuity cue computed meanwhile."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from blurtrack.detect import sessioncues
+from blurtrack.detect.forkmap import Jobs
+from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
+from blurtrack.detect.gyro.gyrotrust import check_frames
+from blurtrack.detect.gyro.readout import ReadoutOrder, readout_order
+from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
+from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
+from blurtrack.detect.orientation import CUE_SUBSTEP_S, FrameTiming, cue_errors
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.timeshift import estimate_timeshift
+from blurtrack.errors import CoverageError, DetectionError
+
+
+class TurnFramesSignal(Exception):  # noqa: N818 - a signal to detect_session, not an error
+    """Raised by :func:`gyro_stages` where the frames read the bottom row first
+    (:mod:`blurtrack.detect.gyro.readout`); :func:`detect_session` then detects again in the
+    frames turned by 180 degrees."""
+
+    def __init__(self, order: ReadoutOrder) -> None:
+        super().__init__(order.status)
+        self.order = order
+
+
+def _count_ok(frames: list[FrameStreaks]) -> int:
+    """The frames' ``quality_ok`` streaks as they stand (none where not computed)."""
+    return sum(int(np.count_nonzero(fs.quality[2])) for fs in frames if fs.quality is not None)
+
+
+@dataclass
+class GyroOutcome:
+    """What the gyro's stages found and did (:func:`gyro_stages`; as here where the session
+    has no gyro or it is off): the blur model of the frames, the time-shift scan, its
+    refinement and the session calibration's fit, the gyro's direction and the readout
+    order, the template pass, the frames the gyro does not cover (indices), the frames it
+    checked, the change in ``quality_ok`` by the check, and the continuity cues' jobs where
+    the check's workers computed them."""
+
+    model: Any = None
+    shift: Any = None
+    refined: Any = None
+    session_fit: Any = None
+    direction: GyroDirection | None = None
+    order: ReadoutOrder | None = None
+    template_pass: TemplatePass = field(default_factory=TemplatePass)
+    uncovered: list[int] = field(default_factory=list)
+    checked: int = 0
+    ok_change: int = 0  # quality_ok streaks after the gyro's check less before
+    continued: Jobs | None = None
+
+
+def gyro_stages(
+    session: Any,
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    idx: list[int],
+    inputs: tuple[Any, Any],
+    up: Any,
+    p: DetectParams,
+    gyro: str,
+    refine_timeshift: bool,
+    workers: int,
+) -> tuple[GyroOutcome, list[np.ndarray]]:
+    """The gyro's stages over the first pass's frames ``found`` (changed in place by the
+    template pass and the check): the time-shift scan and the readout order, the gyro's
+    direction, the session calibration, the template pass with the gyro cues, and the
+    check. ``inputs``: the session's initial calibration and gyro trace; ``up``: the trace
+    resampled. Returns what they did and the frames' cue columns ``(N, 3)`` (the gyro's
+    two filled where it covers the frame; the continuity cue's still 0)."""
+    from blurtrack.geometry.blur_model import BlurModel
+
+    g = GyroOutcome()
+    calib, trace = inputs
+    g.shift, g.order = _scan(found, timings, calib, trace, up, p, refine_timeshift)
+    found_shift = g.shift is not None and g.shift.status == "found"
+    if found_shift:
+        calib = calib.with_(timeshift_cam_imu_s=g.shift.timeshift_s)
+    model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
+    error_model = cue_errors(p.orientation, refined=found_shift)
+    covered = covered_frames(found, timings, model)
+    if p.orientation.direction_check:
+        g.direction = gyro_direction(
+            found,
+            timings,
+            covered,
+            model,
+            error_model,
+            p.orientation,
+            axes_known=session.meta.imu.axes_known,
+        )
+    set_aside = g.direction is not None and not g.direction.usable
+    if set_aside:
+        assert g.direction is not None  # set_aside implies a direction
+        if gyro == "on":
+            raise DetectionError(g.direction.message(idx, refused=True))
+        covered, found_shift = [], False  # the images alone from here (module text)
+    if found_shift:
+        model, covered, g.session_fit, g.refined = session_model(
+            session, found, timings, idx, covered, model, p, workers
+        )
+    g.model = model
+    fitted = g.session_fit is not None and g.session_fit.status == "fitted"
+    for k in sorted(set(range(len(found))) - set(covered)):
+        if len(found[k]) == 0 or set_aside:
+            continue  # no streaks, or a gyro set aside, not one that falls short
+        if gyro == "on":
+            raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+        g.uncovered.append(idx[k])
+    g.template_pass, cues = _template_pass(
+        session, found, timings, idx, covered, model, error_model, p, fitted, workers
+    )
+    llrs = [np.zeros((len(fs), 3)) for fs in found]
+    for k, llr in zip(covered, cues, strict=True):
+        if llr is None:
+            if gyro == "on":
+                raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
+            g.uncovered.append(idx[k])
+        else:
+            llrs[k][:, 0:2] = llr
+    g.uncovered.sort()
+    if found_shift:
+        # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
+        # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
+        g.checked, g.ok_change, g.continued = _check(
+            found, timings, covered, model, llrs, p, fitted, g.template_pass, workers
+        )
+    return g, llrs
+
+
+def _scan(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    calib: Any,
+    trace: Any,
+    up: Any,
+    p: DetectParams,
+    refine_timeshift: bool,
+) -> tuple[Any, ReadoutOrder | None]:
+    """The time-shift scan (None where not asked for) and which row the sensor reads first
+    (None where not checked). Raises :class:`TurnFramesSignal` where the frames read the
+    bottom row first."""
+    shift = (
+        estimate_timeshift(found, timings, calib, trace, model_gyro=up, params=p)
+        if refine_timeshift
+        else None
+    )
+    order: ReadoutOrder | None = None
+    if shift is not None and p.timeshift.readout_order_check:
+        # Which row the sensor reads first, from the frames (gyro/readout.py); also where
+        # the scan found no shift: the other order may.
+        order = readout_order(found, timings, calib, trace, shift, model_gyro=up, params=p)
+        if not order.usable:
+            raise TurnFramesSignal(order)  # detect_session turns the frames
+    return shift, order
+
+
+def _template_pass(
+    session: Any,
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    idx: list[int],
+    covered: list[int],
+    model: Any,
+    error_model: Any,
+    p: DetectParams,
+    fitted: bool,
+    workers: int,
+) -> tuple[TemplatePass, list[np.ndarray | None]]:
+    """The second pass (the gyro's predicted shape as the template; ``found`` changed in
+    place), where asked for and the gyro covers a frame, and the gyro cues of the
+    ``covered`` frames (``(N, 2)`` each; None for a frame the gyro does not cover after
+    all)."""
+    template_pass = TemplatePass()  # empty where the pass does not run
+    cues: list[np.ndarray | None] | None = None
+    if p.gyro_template and covered:
+        # The gyro cues of the first-pass frames, batch by batch in the pass's workers
+        # ahead of its frames (with one worker: before the pass, so that the table does
+        # not depend on the count); after the pass only the frames it changed are
+        # computed again.
+        first = list(found)
+        early = sessioncues.cue_jobs(first, timings, covered, model, error_model)
+        # Where the session's calibration was corrected, the curves are the dots': no
+        # rotations and scales to search (the search stands in for a nominal calibration).
+        p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
+        template_pass = refine_frames(
+            session, found, timings, idx, covered, model, p_pass, workers, early
+        )
+        got = sessioncues.cues_of_jobs(early, first, timings, covered, model, error_model)
+        if got is not None:
+            cues = sessioncues.recomputed_where_changed(
+                got, first, found, timings, covered, model, error_model
+            )
+    if cues is None:
+        cues = sessioncues.gyro_llrs(found, timings, covered, model, error_model)
+    return template_pass, cues
+
+
+def _check(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    llrs: list[np.ndarray],
+    p: DetectParams,
+    fitted: bool,
+    template_pass: TemplatePass,
+    workers: int,
+) -> tuple[int, int, Jobs]:
+    """The gyro's check of the ``quality_ok`` ends (``found``'s quality changed in place):
+    its predictions and the continuity cues in the workers, its fit here meanwhile (the
+    check changes only the frames' quality, which continuity does not read). Returns the
+    frames checked, the change in ``quality_ok`` and the continuity cues' jobs (done)."""
+    image_ok = _count_ok(found)
+    # Where the session's calibration was fitted and the template pass changed no frame,
+    # the model is already fitted over the very streaks the check would fit.
+    unchanged = not template_pass.frames.get("refined")
+    # In a part per worker (the same columns as all at once).
+    ranges = sessioncues.continuity_parts(len(found), workers)
+    continued = Jobs([partial(continuity, found, timings, llrs, p, r) for r in ranges])
+    checked = check_frames(
+        found,
+        timings,
+        covered,
+        model,
+        p.source,
+        workers,
+        None,
+        template_pass.curves,
+        fitted=fitted and unchanged,
+        jobs=continued,
+    )
+    return checked, _count_ok(found) - image_ok, continued
+
+
+def continuity(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    llrs: list[np.ndarray],
+    p: DetectParams,
+    part: range | None = None,
+) -> list[np.ndarray]:
+    """The continuity cue's column of the frames ``part`` (all: None), from the final
+    frames and their gyro cues (``llrs``' first two columns)."""
+    return sessioncues.continuity_columns(
+        found, timings, llrs, cue_errors(p.orientation, refined=False), part
+    )
