@@ -31,8 +31,9 @@ starts right by continuity, 200 of 200 by the gyro). Whether the motion turns do
 on the axes: the image velocities at two times are mapped alike by an error of the axes' signs
 or order (a rotation or reflection of the rates keeps the angle between them, exactly at the
 image centre and to first order elsewhere), so the gyro tells it whichever way its axes are.
-The streaks whose predicted motion turns back (two successive velocities at an obtuse angle)
-within their exposure (:data:`TURN_SAMPLES` samples) or from the last to the first
+The streaks whose predicted motion turns back (two of its velocities at an obtuse angle, any
+two: a gradual turn back rotates the velocity a little from sample to sample) within their
+exposure (:data:`TURN_SAMPLES` samples) or from the last to the first
 :data:`GAP_TANGENT_FRACTION` of the exposures about a gap that continuity reads are left out
 of the check.
 """
@@ -184,8 +185,8 @@ def _turning(
 ) -> np.ndarray:
     """``(N,)`` bool: the streaks of frame ``k`` (``fs``) whose predicted motion turns back
     within their exposure or in the gap between its exposure and a neighbour's in ``around``
-    (positions in ``timings``): two successive image velocities at an obtuse angle, over the
-    exposure's :data:`TURN_SAMPLES` samples, or over the last :data:`GAP_TANGENT_FRACTION` of
+    (positions in ``timings``): two image velocities at an obtuse angle, any two of the
+    exposure's :data:`TURN_SAMPLES` samples' steps, or over the last :data:`GAP_TANGENT_FRACTION` of
     the earlier exposure and the first of the later one. Each streak's row exposes at its own
     time (the readout), in both frames alike. All False where the model does not cover the
     times."""
@@ -219,7 +220,9 @@ def _turning(
     except CoverageError:
         return np.zeros(n, bool)
     steps = np.diff(tracks[0], axis=1)  # (N, TURN_SAMPLES - 1, 2)
-    turns = np.any(np.sum(steps[:, 1:] * steps[:, :-1], axis=2) < 0, axis=1)
+    # Any two of the exposure's velocities, not only successive ones: a gradual turn back
+    # rotates the velocity by less than a right angle from step to step.
+    turns = np.any(np.einsum("nid,njd->nij", steps, steps) < 0, axis=(1, 2))
     for track in tracks[1:]:
         into, out_of = track[:, 1] - track[:, 0], track[:, 3] - track[:, 2]
         turns |= np.sum(into * out_of, axis=1) < 0

@@ -206,3 +206,42 @@ def test_turns_within_an_exposure_or_in_a_gap_are_told_whichever_way_the_axes_ar
     # frame 2, so with only that neighbour nothing turns.
     offset = cases["turn in the gap"][0]
     assert _turning(fs, 1, [1, 2], timings, _LineMotion(offset, direction)).tolist() == [False] * 2
+
+
+class _ArcMotion:
+    """A stand-in blur model: every point moves on a circle of ``radius_px``, its angle
+    ``rate * (t - t0)`` (no readout), the image motion then mapped by ``M`` (an error of the
+    axes' signs or order maps every velocity alike)."""
+
+    def __init__(self, rate: float, t0: float, M: np.ndarray, radius_px: float = 20.0) -> None:
+        self.rate, self.t0, self.M, self.radius = rate, t0, M, radius_px
+        self.camera = type("Cam", (), {"readout_s": 0.0, "height": 100})()
+
+    def _at(self, t: np.ndarray) -> np.ndarray:
+        a = self.rate * (np.asarray(t, float) - self.t0)
+        return self.radius * np.stack([np.cos(a), np.sin(a)], axis=-1) @ self.M.T
+
+    def point_track(self, pixels: np.ndarray, t_ref: np.ndarray, times: np.ndarray) -> np.ndarray:
+        return pixels[:, None, :] + self._at(times) - self._at(np.asarray(t_ref))[:, None, :]
+
+    point_track_ordered = point_track
+
+
+@pytest.mark.parametrize(
+    "M", [np.eye(2), np.array([[-1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.0, 0.0]])]
+)
+def test_a_gradual_turn_back_within_the_exposure_is_a_turn(M: np.ndarray) -> None:
+    """A dot whose velocity turns by 135 degrees over the exposure in even steps (17 degrees
+    from one of the 9 samples to the next: no two successive steps at an obtuse angle) has
+    turned back: its first and last velocities are; by 60 degrees it has not (the negative
+    control). Frame 1 alone (no neighbour: no gap to read), any axis mapping ``M``."""
+    from blurtrack.detect.gyro.direction import _turning
+
+    fs = type(
+        "FS", (), {"time_mid": np.array([[20.0, 50.0], [60.0, 30.0]]), "__len__": lambda s: 2}
+    )()
+    timings = [FrameTiming(k / 30.0, 0.02) for k in range(3)]
+    t0 = timings[1].t_s
+    for degrees, expected in ((135.0, True), (60.0, False)):
+        motion = _ArcMotion(np.radians(degrees) / 0.02, t0, M)
+        assert _turning(fs, 1, [1], timings, motion).tolist() == [expected] * 2, degrees
