@@ -58,8 +58,9 @@ class SourceParams:
       :mod:`blurtrack.detect.gyro.gyrotrust`): the two share the contract's 2 px end gate.
       The measured start-to-end vector may be off the gyro's prediction (corrected by the
       session's fitted first-order calibration error) by three quarters of it (an end ``e``
-      px off moves the vector ``e``); the predicted start or end may lie inside the path's
-      extremities (a hairpin: the visible ends are the turns) by the quarter left.
+      px off moves the vector ``e``); the predicted start or end may lie from the path's
+      extremity beyond it (a hairpin or a hook: the visible ends are the turns) by the
+      quarter left.
     - ``gyro_confirm_tol_px`` (with a gyro): a streak the image doubts (a lit end, a blown-out
       core, a shape off the consensus, a crossing) is confirmed only where its vector is this
       near the prediction. The vector bounds the doubted end's error only up to the other

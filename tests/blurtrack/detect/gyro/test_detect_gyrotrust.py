@@ -114,6 +114,25 @@ def test_hairpin_depth_of_simple_paths() -> None:
     assert d == pytest.approx([0.0, 2.5, 0.0], abs=1e-9)
 
 
+def test_hairpin_depth_of_a_sideways_hook_is_the_distance_to_the_visible_end() -> None:
+    """A path that starts 3 px below its line, runs up 3 px, back 1 px along it and then 10 px
+    along it (a hook at the start, as a shake turning at the exposure's start draws it): the
+    image's line ends at the hook's corner (-1, 0), the start lies sqrt(10) px from it. Along
+    the chord alone (the former depth) it is 0.42 px inside, under the 0.5 px tolerance."""
+    s = np.linspace(0.0, 1.0, 31)[:, None]
+    hook = np.vstack([[0.0, 3.0], [0.0, 0.0], [-1.0, 0.0], [10.0, 0.0]])
+    seg = np.hypot(*np.diff(hook, axis=0).T)
+    at = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
+    path = np.hstack([np.interp(s, at, hook[:, 0]), np.interp(s, at, hook[:, 1])])
+    d = hairpin_depth(path[None])[0]
+    assert d == pytest.approx(np.sqrt(10.0), abs=0.05)
+    chord = (path[-1] - path[0]) / np.hypot(*(path[-1] - path[0]))
+    assert float(path[0] @ chord - np.min(path @ chord)) < 0.5  # the former, along the chord
+    # A path bending sideways without doubling back along its chord: no depth.
+    arc = np.hstack([10.0 * s, 3.0 * s**2])
+    assert hairpin_depth(arc[None])[0] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_the_vector_residual_sees_an_end_off_through_a_common_similarity() -> None:
     rng = np.random.default_rng(3)
     p = rng.normal(0.0, 15.0, (40, 2))
