@@ -13,7 +13,10 @@ Frames are refined where the prediction says the first pass cannot be right: *ha
 frames* (the median predicted curve at the first-pass midpoints has a chord under
 ``gyro_pass.hairpin_chord`` of its arc) and frames where some long first-pass streak misses its
 prediction (either orientation, placed at its time midpoint) by more than
-``tol_px + tol_rel * arc`` (chains and fragments of long streaks). Frames where neither holds
+``tol_px + tol_rel * arc`` (chains and fragments of long streaks), or where more than
+``gyro_pass.hook_fraction`` of them hook or double back within the exposure by more than
+``source.hairpin_depth_px`` (their visible ends are the turns, which the gyro's check
+refuses; measured along their curves they are the ends). Frames where none holds
 are returned untouched (``realistic``, ``clean``: bit-identical tables).
 
 1. **Candidates** (:mod:`blurtrack.detect.gyro.gyrocandidates`; at least
@@ -89,6 +92,7 @@ from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
+from blurtrack.detect.gyro.gyrotrust import hairpin_depth
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import Measured, combine
 from blurtrack.detect.lines.segment import Components
@@ -160,6 +164,7 @@ def gate(
     model: Any,
     gp: GyroPassParams,
     curves_out: list[np.ndarray] | None = None,
+    hook_depth_px: float | None = None,
 ) -> bool | None:
     """Whether the pass has work on a frame, from its first-pass streaks alone (one model
     call, no image work): None where it has none (no streak inside the frame, none long, the
@@ -167,7 +172,8 @@ def gate(
     a hairpin frame), else whether it is a hairpin frame. ``gp``: the pass's parameters.
     ``curves_out``: gets the predicted curves ``(n_inside, GATE_SAMPLES, 2)`` of the streaks
     inside the frame, where the model predicts them (the gyro check's, for a frame the pass
-    leaves as it was)."""
+    leaves as it was). ``hook_depth_px``: the check's hairpin depth (``source.hairpin_depth_px``;
+    None: frames are not let through for their hooks, ``gp.hook_fraction``)."""
     inside = inside_frame(fs)
     if not inside.any():
         return None
@@ -192,9 +198,19 @@ def gate(
         g_pts = curves.pts - curves.pts[:, mid, None] + fs.time_mid[inside, None]
         a, b = fs.end_a[inside], fs.end_b[inside]
         bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > gp.tol_px + gp.tol_rel * curves.arc
-        if not float(np.mean(bad[g_long])) > gp.bad_fraction:
+        if not float(np.mean(bad[g_long])) > gp.bad_fraction and not _hooked(
+            curves.pts[g_long], hook_depth_px, gp.hook_fraction
+        ):
             return None
     return hairpin
+
+
+def _hooked(pts: np.ndarray, depth_px: float | None, fraction: float) -> bool:
+    """Whether more than ``fraction`` of the curves ``pts (N, S, 2)`` hook or double back by
+    more than ``depth_px`` (:func:`~blurtrack.detect.gyro.gyrotrust.hairpin_depth`; None: no)."""
+    if depth_px is None or pts.shape[0] == 0:
+        return False
+    return float(np.mean(hairpin_depth(pts) > depth_px)) > fraction
 
 
 def refine_frame(
@@ -215,7 +231,7 @@ def refine_frame(
     ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
     p = params or DetectParams()
     gp, sp = p.gyro_pass, p.separation
-    hairpin = gate(fs, timing, model, gp, gate_curves)
+    hairpin = gate(fs, timing, model, gp, gate_curves, p.source.hairpin_depth_px)
     if hairpin is None:
         return fs, FrameOutcome("skipped")
     ctx = _frame_context(image, p)

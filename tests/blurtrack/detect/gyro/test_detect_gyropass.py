@@ -501,3 +501,59 @@ def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks(monkey
     assert limits.count(1) == len(single)
     after = _worse_end_px(out, curves)
     assert np.all(after < 0.5)
+
+
+class _PathMotion:
+    """A stand-in blur model: every point follows the polyline ``corners`` (px, relative)
+    at constant speed over the exposure ``[T0, T0 + EXP]`` (no readout)."""
+
+    def __init__(self, corners: list[list[float]]) -> None:
+        c = np.asarray(corners, float)
+        seg = np.hypot(*np.diff(c, axis=0).T)
+        self.at = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
+        self.c = c
+        self.camera = type("Cam", (), {"readout_s": 0.0, "height": H})()
+
+    def _offset(self, t: np.ndarray) -> np.ndarray:
+        s = np.clip((np.asarray(t, float) - T0) / EXP, 0.0, 1.0)
+        return np.stack(
+            [np.interp(s, self.at, self.c[:, 0]), np.interp(s, self.at, self.c[:, 1])], -1
+        )
+
+    def point_track_ordered(
+        self, pixels: np.ndarray, t_ref: np.ndarray, times: np.ndarray
+    ) -> np.ndarray:
+        return pixels[:, None, :] + self._offset(times) - self._offset(t_ref)[:, None, :]
+
+
+def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
+    """Streaks whose first-pass ends sit exactly on their predicted ends (nothing to refine by
+    the mismatch test), on a path that starts with a 3 px hook sideways (chord 0.81 of the arc:
+    not a hairpin frame): the gate lets the frame through for its hooks (the check's depth on
+    the gate's 17 samples, 3.4 px, over 0.5 px) and not without the depth tolerance; a
+    straight path is let through neither way (negative control)."""
+    mids = np.array([[100.0, 100.0], [200.0, 150.0], [300.0, 200.0]])
+    timing = FrameTiming(T0, EXP)
+    gp = GyroPassParams()
+    for corners, hooked in (
+        ([[0, 3], [0, 0], [-2, 0], [30, 0]], True),
+        ([[0, 0], [37, 0]], False),
+    ):
+        model = _PathMotion(corners)
+        curves = predict_curves(model, mids, T0, EXP, gyropass.GATE_SAMPLES)
+        mid = curves.pts.shape[1] // 2
+        placed = curves.pts - curves.pts[:, mid, None] + mids[:, None]
+        fs = type(
+            "FS",
+            (),
+            {
+                "flags": {"clipped": np.zeros(3, bool)},
+                "time_mid": mids,
+                "end_a": placed[:, 0],
+                "end_b": placed[:, -1],
+                "__len__": lambda s: 3,
+            },
+        )()
+        assert gyropass.gate(fs, timing, model, gp) is None
+        got = gyropass.gate(fs, timing, model, gp, hook_depth_px=0.5)
+        assert got is (False if hooked else None), corners
