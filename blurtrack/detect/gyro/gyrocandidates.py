@@ -6,7 +6,7 @@ candidates' light image, padded beyond the border where a candidate touches it."
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -14,11 +14,19 @@ from blurtrack.detect.context import FrameContext
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
+from blurtrack.detect.gyro.gyrotrust import hairpin_depth
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.detect.separation.templates import HALO_PX, Template
 from blurtrack.errors import CoverageError
+
+#: Why the gate (:func:`~blurtrack.detect.gyro.gyropass.gate`) lets a frame through: its
+#: median predicted curve is a hairpin (``hairpin``: every component whose curve is one a
+#: candidate), a long first-pass streak misses its prediction (``mismatch``: every long
+#: component), or more than ``gyro_pass.hook_fraction`` of its long streaks hook (``hooks``:
+#: the components whose curves hook).
+GateReason = Literal["hairpin", "mismatch", "hooks"]
 
 
 def inside_frame(fs: FrameStreaks) -> np.ndarray:
@@ -106,11 +114,14 @@ def candidates(
     timing: FrameTiming,
     model: Any,
     gp: GyroPassParams,
-    hairpin: bool,
+    reason: GateReason,
+    hook_depth_px: float = 0.5,
 ) -> Candidates | None:
     """Step 1 (see the module text): the candidates of a frame the gate let through
-    (``hairpin``: whether it is a hairpin frame); None where the frame has no component, the
-    gyro does not cover it or no component is a candidate."""
+    (``reason``: why, :data:`GateReason`; ``hook_depth_px``: for ``hooks``, the depth over
+    which a component's curve hooks, :func:`~blurtrack.detect.gyro.gyrotrust.hairpin_depth`);
+    None where the frame has no component, the gyro does not cover it or no component is a
+    candidate."""
     H, W = ctx.shape
     comps = ctx.comps
     C = comps.ids.size
@@ -137,11 +148,11 @@ def candidates(
     # Each curve placed with its light centroid (its mean: uniform in time) on the component's.
     pts = curves.pts - curves.pts.mean(axis=1, keepdims=True) + centre[:, None, :]
     arc, chord = curves.arc, curves.chord
-    long_ = (
-        (~border | gp.border_candidates)
-        & (arc >= gp.min_arc_px)
-        & ((chord < gp.hairpin_chord * arc) | (not hairpin))
-    )
+    long_ = (~border | gp.border_candidates) & (arc >= gp.min_arc_px)
+    if reason == "hairpin":
+        long_ &= chord < gp.hairpin_chord * arc
+    elif reason == "hooks":  # only the components whose dots hook: the others' ends are right
+        long_ &= hairpin_depth(curves.pts) > hook_depth_px
     # Every long component of a frame the gate lets through is a candidate: a line that the
     # first pass measured well stays (below: where it fits the placed curve old_lines_margin
     # times better than the new one). One first-pass line near its placed curve is no proof
@@ -155,7 +166,7 @@ def candidates(
     n_lines = np.bincount(own[own >= 0], minlength=C)
     tol = gp.tol_px + gp.tol_rel * arc
     one_dot = np.zeros(C, bool)
-    if not hairpin:
+    if reason != "hairpin":
         one = own >= 0
         o = own[one]
         mis1 = mismatch(fs.end_a[one], fs.end_b[one], pts[o, 0], pts[o, -1])

@@ -23,7 +23,8 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    ``gyro_pass.min_arc_px`` of predicted arc; components touching
    the border too, ``gyro_pass.border_candidates``): in a
    hairpin frame every component whose predicted curve, placed with its light centroid on
-   the component's, is a hairpin; elsewhere every component. A first-pass line within
+   the component's, is a hairpin; in a frame let through for its hooks every component whose
+   curve hooks; elsewhere every component. A first-pass line within
    ``tol_px + tol_rel * arc`` of its placed curve is no proof of its ends (a path that hooks
    inside a saturated end: the first pass's line runs straight into the blob); such a
    component (one line, so one dot) gets one placement of its own template and no sweep,
@@ -82,6 +83,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocandidates import (
     Candidates,
     Canvas,
+    GateReason,
     TemplateProfile,
     candidate_canvas,
     candidates,
@@ -165,11 +167,12 @@ def gate(
     gp: GyroPassParams,
     curves_out: list[np.ndarray] | None = None,
     hook_depth_px: float | None = None,
-) -> bool | None:
+) -> GateReason | None:
     """Whether the pass has work on a frame, from its first-pass streaks alone (one model
     call, no image work): None where it has none (no streak inside the frame, none long, the
-    gyro not covering it, or every long streak matching its prediction in a frame that is not
-    a hairpin frame), else whether it is a hairpin frame. ``gp``: the pass's parameters.
+    gyro not covering it, or every long streak matching its prediction and few hooking in a
+    frame that is not a hairpin frame), else why it has (:data:`GateReason`). ``gp``: the
+    pass's parameters.
     ``curves_out``: gets the predicted curves ``(n_inside, GATE_SAMPLES, 2)`` of the streaks
     inside the frame, where the model predicts them (the gyro check's, for a frame the pass
     leaves as it was). ``hook_depth_px``: the check's hairpin depth (``source.hairpin_depth_px``;
@@ -190,19 +193,19 @@ def gate(
     g_long = curves.arc >= gp.min_arc_px
     if not g_long.any():
         return None
-    hairpin = float(np.median(curves.chord[g_long] / curves.arc[g_long])) < gp.hairpin_chord
-    if not hairpin:
-        # Streaks the first pass measured far from the prediction (placed at their time
-        # midpoints): chains and fragments of long streaks.
-        mid = curves.pts.shape[1] // 2
-        g_pts = curves.pts - curves.pts[:, mid, None] + fs.time_mid[inside, None]
-        a, b = fs.end_a[inside], fs.end_b[inside]
-        bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > gp.tol_px + gp.tol_rel * curves.arc
-        if not float(np.mean(bad[g_long])) > gp.bad_fraction and not _hooked(
-            curves.pts[g_long], hook_depth_px, gp.hook_fraction
-        ):
-            return None
-    return hairpin
+    if float(np.median(curves.chord[g_long] / curves.arc[g_long])) < gp.hairpin_chord:
+        return "hairpin"
+    # Streaks the first pass measured far from the prediction (placed at their time
+    # midpoints): chains and fragments of long streaks.
+    mid = curves.pts.shape[1] // 2
+    g_pts = curves.pts - curves.pts[:, mid, None] + fs.time_mid[inside, None]
+    a, b = fs.end_a[inside], fs.end_b[inside]
+    bad = mismatch(a, b, g_pts[:, 0], g_pts[:, -1]) > gp.tol_px + gp.tol_rel * curves.arc
+    if float(np.mean(bad[g_long])) > gp.bad_fraction:
+        return "mismatch"
+    if _hooked(curves.pts[g_long], hook_depth_px, gp.hook_fraction):
+        return "hooks"
+    return None
 
 
 def _hooked(pts: np.ndarray, depth_px: float | None, fraction: float) -> bool:
@@ -231,12 +234,12 @@ def refine_frame(
     ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
     p = params or DetectParams()
     gp, sp = p.gyro_pass, p.separation
-    hairpin = gate(fs, timing, model, gp, gate_curves, p.source.hairpin_depth_px)
-    if hairpin is None:
+    reason = gate(fs, timing, model, gp, gate_curves, p.source.hairpin_depth_px)
+    if reason is None:
         return fs, FrameOutcome("skipped")
     ctx = _frame_context(image, p)
     # 1. Candidates.
-    cands = candidates(ctx, fs, timing, model, gp, hairpin)
+    cands = candidates(ctx, fs, timing, model, gp, reason, p.source.hairpin_depth_px)
     if cands is None:
         return fs, FrameOutcome("skipped")
     n_cand = cands.n_cand
