@@ -153,14 +153,14 @@ def candidates(
         long_ &= chord < gp.hairpin_chord * arc
     elif reason == "hooks":  # only the components whose dots hook: the others' ends are right
         long_ &= hairpin_depth(curves.pts) > hook_depth_px
-    # Every long component of a frame the gate lets through is a candidate: a line that the
-    # first pass measured well stays (below: where it fits the placed curve old_lines_margin
-    # times better than the new one). One first-pass line near its placed curve is no proof
-    # of its ends: where the dot's path hooks inside a saturated end, the first pass draws
-    # its line straight into the blob, an end 2 px off and well within ``tol`` (``hard`` seed
-    # 11 frame 6). Such a component holds one dot: its own template gets one placement (a
-    # second would slip along the line, its template still mostly on the light) and no
-    # sweep.
+    # Every long component of a frame the gate lets through for a hairpin or a mismatch is a
+    # candidate: a line that the first pass measured well stays (below: where it fits the
+    # placed curve old_lines_margin times better than the new one). One first-pass line near
+    # its placed curve is no proof of its ends: where the dot's path hooks inside a saturated
+    # end, the first pass draws its line straight into the blob, an end 2 px off and well
+    # within ``tol`` (``hard`` seed 11 frame 6). Such a component holds one dot: its own
+    # template gets one placement (a second would slip along the line, its template still
+    # mostly on the light) and no sweep.
     cand = long_.copy()
     own = line_owner(fs, comps)
     n_lines = np.bincount(own[own >= 0], minlength=C)
