@@ -203,7 +203,7 @@ class GyroPassParams:
     pursuit and replacement also read ``separation.score_min``, ``amp_min``, ``halo_max``,
     ``residual_max`` and the remnant rule ``separation.spot_*``.
 
-    Which frames and components (:func:`~blurtrack.detect.gyro.gyropass.gate`):
+    Which frames and components (:func:`~blurtrack.detect.gyro.gyrogate.gate`):
 
     - ``hairpin_chord``: frames whose median predicted chord is under this fraction of the
       arc are hairpin frames (every component a candidate).

@@ -21,7 +21,7 @@ from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.detect.separation.templates import HALO_PX, Template
 from blurtrack.errors import CoverageError
 
-#: Why the gate (:func:`~blurtrack.detect.gyro.gyropass.gate`) lets a frame through: its
+#: Why the gate (:func:`~blurtrack.detect.gyro.gyrogate.gate`) lets a frame through: its
 #: median predicted curve is a hairpin (``hairpin``: every component whose curve is one a
 #: candidate), a long first-pass streak misses its prediction (``mismatch``: every long
 #: component), or more than ``gyro_pass.hook_fraction`` of its long streaks hook (``hooks``:
@@ -115,7 +115,7 @@ def candidates(
     model: Any,
     gp: GyroPassParams,
     reason: GateReason,
-    hook_depth_px: float = 0.5,
+    hook_depth_px: float,
 ) -> Candidates | None:
     """Step 1 (see the module text): the candidates of a frame the gate let through
     (``reason``: why, :data:`GateReason`; ``hook_depth_px``: for ``hooks``, the depth over

@@ -37,7 +37,8 @@ class TemplatePass:
     replaced: int = 0
     streaks: int = 0
     #: Per frame the pass left as it was (its position in ``found``): the gate's predicted
-    #: curves ``(n_inside, GATE_SAMPLES, 2)`` of its streaks inside the frame, for the check.
+    #: curves ``(n_inside, gyrogate.GATE_SAMPLES, 2)`` of its streaks inside the frame, for the
+    #: check.
     curves: dict[int, np.ndarray] = field(default_factory=dict)
 
 

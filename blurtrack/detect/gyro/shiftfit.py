@@ -44,7 +44,7 @@ import numpy as np
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import curve_template, predict_curves
-from blurtrack.detect.gyro.gyropass import gate
+from blurtrack.detect.gyro.gyrogate import gate
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams

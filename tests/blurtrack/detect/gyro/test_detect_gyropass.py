@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect import detect_frame
-from blurtrack.detect.gyro import gyrocandidates, gyroconfirm, gyropass
+from blurtrack.detect.gyro import gyrocandidates, gyroconfirm, gyrogate, gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -352,9 +352,9 @@ def test_the_gates_coarse_curves_have_the_full_curves_ends_and_middle() -> None:
     model = _model(readout_s=0.02)
     dots = np.array([[40.0, 30.0], [200.0, 150.0], [390.0, 270.0]])
     full = predict_curves(model, dots, T0, EXP)
-    gate = predict_curves(model, dots, T0, EXP, gyropass.GATE_SAMPLES)
+    gate = predict_curves(model, dots, T0, EXP, gyrogate.GATE_SAMPLES)
     S, G = full.pts.shape[1], gate.pts.shape[1]
-    assert G == gyropass.GATE_SAMPLES < S and G % 2 == 1
+    assert G == gyrogate.GATE_SAMPLES < S and G % 2 == 1
     # the same instants: integrated along 17 or 65 samples, they agree to a few thousandths
     # of a px (the gate's tolerance is 2.5 px; a sample half a step off would move ~1 px)
     np.testing.assert_allclose(
@@ -540,7 +540,7 @@ def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
         ([[0, 0], [37, 0]], False),
     ):
         model = _PathMotion(corners)
-        curves = predict_curves(model, mids, T0, EXP, gyropass.GATE_SAMPLES)
+        curves = predict_curves(model, mids, T0, EXP, gyrogate.GATE_SAMPLES)
         mid = curves.pts.shape[1] // 2
         placed = curves.pts - curves.pts[:, mid, None] + mids[:, None]
         fs = type(
@@ -554,6 +554,6 @@ def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
                 "__len__": lambda s: 3,
             },
         )()
-        assert gyropass.gate(fs, timing, model, gp) is None
-        got = gyropass.gate(fs, timing, model, gp, hook_depth_px=0.5)
+        assert gyrogate.gate(fs, timing, model, gp) is None
+        got = gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5)
         assert got == ("hooks" if hooked else None), corners
