@@ -224,7 +224,10 @@ class GyroPassParams:
       the turns, which the check refuses; the pass measures them along their curves. Not 0: a
       frame's one or two hooks cost the pass over the whole frame for a few streaks
       (``dense`` seed 1, 20 frames: 0 refines 3 frames for +0.02 point of coverage at +40 %
-      CPU; 0.05 none).
+      CPU; 0.05 none). Where the session's calibration was corrected, also where more than
+      this fraction of them have start-to-end vectors more than ``source.gyro_vector_tol_px``
+      off the corrected prediction (the check's test; ``vectors``: the components of those
+      lines are the candidates).
     - ``border_candidates``: components touching the border are candidates too: on frames of
       long streaks the chains run into the border (``hard`` seed 3 frame 7: 50 of 65
       components, 88 % of the light).
@@ -282,6 +285,22 @@ class GyroPassParams:
       91.33 / 94.85, 89.12 / 93.21, 84.88 / 91.48, 97.68 / 99.10; as they are 97.73 / 98.86,
       92.14 / 94.85, 89.16 / 92.52, 84.17 / 90.85, 97.72 / 99.19; the choice 97.87 / 98.77,
       92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10.
+    - ``time_law``: a placement's short streak (no plateau at its ends) is fitted under its
+      predicted curve's time law (:mod:`~blurtrack.detect.lines.lawfit`: where along the chord
+      the dot is at each time; the start, length and light stay the image's) instead of a
+      density the blur lets it fit (linear below 5 sigmas): a dot slowing towards both ends
+      piles light there, which a linear density reads as a longer streak (``dense`` seed 9:
+      the right streaks the check refused were 1.4 px too long at the median). Held-out
+      ``dense`` seeds 6 / 9 / 12 ok-coverage %: 96.57 / 92.24 / 96.30 without, 97.08 / 94.42 /
+      96.47 with (and ``min_arm_px`` 0).
+    - ``min_arm_px``: with ``time_law``, a hairpin placement (``arms_chord``) is measured as
+      two arms only where both arms run at least this far; a shorter return is a hook, one
+      line whose law runs past the end and back (an arm of 0.7 px has no edge to fit: its
+      end landed 1-2 px off). ``dense`` seeds 9 / 8 / 6 / 12 ok-coverage %: 0 (arms as
+      before) 94.42 / 94.04 / 97.08 / 96.47; 1: 95.44 / 94.43 / 97.39 / 96.64; 1.5: 96.70 /
+      94.67 / 97.79 / 96.74; 2: 96.46 / 94.63 / 97.66 / 96.71; 2.5: 96.12 / 94.63 / 95.96 /
+      96.54; 3: 96.05 / 94.63 / 95.76 / 96.47; 6: 95.99 / 94.63 / 96.74 / 96.47; precision
+      within one streak at each.
     """
 
     hairpin_chord: float = num_field(0.8, 0.0, 1.0, lo_open=True)
@@ -302,6 +321,8 @@ class GyroPassParams:
     lit_median_factor: float = num_field(3.0, 0.0, lo_open=True)
     arms_chord: float = num_field(0.8, 0.0, 1.0, lo_open=True)
     clip_choice: bool = switch_field(True)
+    time_law: bool = switch_field(True)
+    min_arm_px: float = num_field(2.0, 0.0)
     shape_search: bool = switch_field(True)
     session_calibration: bool = switch_field(True)
 

@@ -25,8 +25,10 @@ from blurtrack.errors import CoverageError
 #: median predicted curve is a hairpin (``hairpin``: every component whose curve is one a
 #: candidate), a long first-pass streak misses its prediction (``mismatch``: every long
 #: component), or more than ``gyro_pass.hook_fraction`` of its long streaks hook (``hooks``:
-#: the components whose curves hook).
-GateReason = Literal["hairpin", "mismatch", "hooks"]
+#: the components whose curves hook), or, with the session's corrected model, more than that
+#: fraction of their start-to-end vectors miss the prediction by the check's tolerance
+#: (``vectors``: the components of those lines).
+GateReason = Literal["hairpin", "mismatch", "hooks", "vectors"]
 
 
 def inside_frame(fs: FrameStreaks) -> np.ndarray:
@@ -116,6 +118,7 @@ def candidates(
     gp: GyroPassParams,
     reason: GateReason,
     hook_depth_px: float,
+    vector_off: np.ndarray | None = None,
 ) -> Candidates | None:
     """Step 1 (see the module text): the candidates of a frame the gate let through
     (``reason``: why, :data:`GateReason`; ``hook_depth_px``: for ``hooks``, the depth over
@@ -161,8 +164,13 @@ def candidates(
     # within ``tol`` (``hard`` seed 11 frame 6). Such a component holds one dot: its own
     # template gets one placement (a second would slip along the line, its template still
     # mostly on the light) and no sweep.
-    cand = long_.copy()
     own = line_owner(fs, comps)
+    if reason == "vectors" and vector_off is not None:
+        # Only the components of lines whose vectors miss the prediction.
+        hit = np.zeros(C, bool)
+        hit[own[(own >= 0) & vector_off]] = True
+        long_ &= hit
+    cand = long_.copy()
     n_lines = np.bincount(own[own >= 0], minlength=C)
     tol = gp.tol_px + gp.tol_rel * arc
     one_dot = np.zeros(C, bool)

@@ -31,6 +31,7 @@ def gate(
     gp: GyroPassParams,
     curves_out: list[np.ndarray] | None = None,
     hook_depth_px: float | None = None,
+    vector_tol_px: float | None = None,
 ) -> GateReason | None:
     """Whether the pass has work on a frame, from its first-pass streaks alone (one model
     call, no image work): None where it has none (no streak inside the frame, none long, the
@@ -40,7 +41,10 @@ def gate(
     ``curves_out``: gets the predicted curves ``(n_inside, GATE_SAMPLES, 2)`` of the streaks
     inside the frame, where the model predicts them (the gyro check's, for a frame the pass
     leaves as it was). ``hook_depth_px``: the check's hairpin depth (``source.hairpin_depth_px``;
-    None: frames are not let through for their hooks, ``gp.hook_fraction``)."""
+    None: frames are not let through for their hooks, ``gp.hook_fraction``).
+    ``vector_tol_px``: where ``model`` is the session's corrected one, the check's vector
+    tolerance (``source.gyro_vector_tol_px``): frames are let through where more than
+    ``gp.hook_fraction`` of the long streaks' vectors miss by more (None: not tested)."""
     inside = inside_frame(fs)
     if not inside.any():
         return None
@@ -69,7 +73,19 @@ def gate(
         return "mismatch"
     if _hooked(curves.pts[g_long], hook_depth_px, gp.hook_fraction):
         return "hooks"
+    if vector_tol_px is not None:
+        off = vector_residual(a, b, curves.pts) > vector_tol_px
+        if float(np.mean(off[g_long])) > gp.hook_fraction:
+            return "vectors"
     return None
+
+
+def vector_residual(a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Orientation-free distance (px) of the measured vectors ``b - a`` from the predicted
+    curves' start-to-end vectors (``pts (N, S, 2)``): the gyro check's residual where the
+    model is the session's corrected one."""
+    m, p = b - a, pts[:, -1] - pts[:, 0]
+    return np.asarray(np.minimum(np.hypot(*(m - p).T), np.hypot(*(m + p).T)))
 
 
 def _hooked(pts: np.ndarray, depth_px: float | None, fraction: float) -> bool:

@@ -20,6 +20,8 @@ from blurtrack.detect.context import FrameContext
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import arm_templates, turn_index
+from blurtrack.detect.lines.endpoints import plateau_extent
+from blurtrack.detect.lines.lawfit import time_law
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.separation.mosaic import overlapping_placements, placement_mosaic
 from blurtrack.detect.separation.templates import Placement
@@ -73,6 +75,23 @@ def _joined(m: Measured, rows: tuple[int, int], turn: np.ndarray) -> dict[str, A
     }
 
 
+#: ``arm_of``'s arm for a placement measured as one line: a whole curve, or a hairpin whose
+#: short return makes it a hook (:func:`_arms`), measured only under its law.
+WHOLE, HOOK = -1, -2
+
+
+def _arms(pts: np.ndarray, k: int, arc: float, sigma_px: float, gp: Any) -> bool:
+    """Whether a hairpin turning at sample ``k`` is measured as two arms: always without the
+    time law; with it, unless one arm runs under ``gyro_pass.min_arm_px`` on a curve short
+    enough to be fitted whole (no plateau, :func:`~blurtrack.detect.lines.endpoints.plateau_extent`
+    at ``sigma_px``), whose law then runs past the end and back. A longer curve's ends are edge
+    fits, which find the light's extremity, not where the dot turned back."""
+    if not gp.time_law or arc >= plateau_extent(sigma_px):
+        return True
+    arms = (pts[: k + 1], pts[k:])
+    return min(float(np.sum(np.hypot(*np.diff(q, axis=0).T))) for q in arms) >= gp.min_arm_px
+
+
 def _measure_once(
     ctx: FrameContext,
     placements: list[Placement],
@@ -104,6 +123,10 @@ def _measure_once(
             continue  # an arm split or lost: not measured whole
         if len(idx) == 1:
             r = got[0][0]
+            if arm_of[idx[0]][1] == HOOK and not m.short[r]:
+                # A hook's ends are where its law puts them; edge fits (the line came out
+                # long: light of a neighbour left in its own image) find the extremity.
+                continue
             out[j] = {n: getattr(m, n)[r] for n in _FIELDS} | {"width_unmeasured": False}
         else:
             turn = q.tpl.points[turn_index(q.tpl.points)] + q.shift
@@ -138,20 +161,31 @@ def measure_placements(
         k = turn_index(pts)
         chord = float(np.hypot(*(pts[-1] - pts[0])))
         arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
-        if 3 <= k <= len(pts) - 4 and chord < gp.arms_chord * arc:
+        hairpin = 3 <= k <= len(pts) - 4 and chord < gp.arms_chord * arc
+        if hairpin and _arms(pts, k, arc, sig_s, gp):
             a1, a2 = arm_templates(q.tpl, sig_s, sig_r)
             flat += [Placement(a1, q.shift, q.amp, q.comp), Placement(a2, q.shift, q.amp, q.comp)]
             arm_of += [(j, 0), (j, 1)]
         else:
             flat.append(q)
-            arm_of.append((j, -1))
+            arm_of.append((j, HOOK if hairpin else WHOLE))
     sig = (sig_s, sig_r)
     pad = int(np.ceil(6.0 * sig_s)) + 8
     mosaic = placement_mosaic(ctx.smooth, ctx.signal, flat, pad)
     # Arms of one hairpin share light by design: each takes its whole placement's flag.
     whole_cross = overlapping_placements(placements, ctx.params.separation.overlap_fraction)
     cross = [bool(whole_cross[j]) for j, _ in arm_of]
-    ls = LineSet(mosaic[2], [q.comp for q in flat], cross, [False] * len(flat))
+    # A whole placement's streak is its predicted curve's (uniform in time): its law spreads
+    # the light between the ends; an arm's is half a hairpin, left to the density fit.
+    law = (
+        [
+            time_law(q.tpl.points) if arm < 0 else None
+            for q, (_, arm) in zip(flat, arm_of, strict=True)
+        ]
+        if gp.time_law
+        else None
+    )
+    ls = LineSet(mosaic[2], [q.comp for q in flat], cross, [False] * len(flat), law)
     found, sigma_c, sigma_raw = _measure_once(ctx, placements, ls, arm_of, sig, mosaic)
     if gp.clip_choice:
         # The clipped own images: the same mosaic clipped at zero in place (its zeros

@@ -91,7 +91,7 @@ from blurtrack.detect.gyro.gyrocandidates import (
 )
 from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrogate import gate
+from blurtrack.detect.gyro.gyrogate import gate, vector_residual
 from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
@@ -162,6 +162,7 @@ def refine_frame(
     params: DetectParams | None = None,
     sigma_c: float | None = None,
     gate_curves: list[np.ndarray] | None = None,
+    vector_tol_px: float | None = None,
 ) -> tuple[FrameStreaks, FrameOutcome]:
     """The second pass on one frame (see the module text): the frame's streaks (``fs`` itself
     when nothing changed) and what happened. ``image``: the frame as stored, or a function
@@ -169,15 +170,25 @@ def refine_frame(
     :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
     ``point_track_ordered``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
     the templates and the measurement (None: the frame's, ``fs.sigma_c_px``).
-    ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame."""
+    ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame.
+    ``vector_tol_px``: where ``model`` is the session's corrected one, the check's vector
+    tolerance, for the gate's ``vectors`` test (None: not tested)."""
     p = params or DetectParams()
     gp, sp = p.gyro_pass, p.separation
-    reason = gate(fs, timing, model, gp, gate_curves, p.source.hairpin_depth_px)
+    curves_seen: list[np.ndarray] = [] if gate_curves is None else gate_curves
+    reason = gate(fs, timing, model, gp, curves_seen, p.source.hairpin_depth_px, vector_tol_px)
     if reason is None:
         return fs, FrameOutcome("skipped")
     ctx = _frame_context(image, p)
     # 1. Candidates.
-    cands = candidates(ctx, fs, timing, model, gp, reason, p.source.hairpin_depth_px)
+    off = None
+    if reason == "vectors" and curves_seen:
+        inside = inside_frame(fs)
+        off = np.zeros(len(fs), bool)
+        off[inside] = (
+            vector_residual(fs.end_a[inside], fs.end_b[inside], curves_seen[-1]) > vector_tol_px
+        )
+    cands = candidates(ctx, fs, timing, model, gp, reason, p.source.hairpin_depth_px, off)
     if cands is None:
         return fs, FrameOutcome("skipped")
     n_cand = cands.n_cand

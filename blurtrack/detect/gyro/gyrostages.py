@@ -196,7 +196,7 @@ def _template_pass(
         # rotations and scales to search (the search stands in for a nominal calibration).
         p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
         template_pass = refine_frames(
-            session, found, timings, idx, covered, model, p_pass, workers, early
+            session, found, timings, idx, covered, model, p_pass, workers, early, fitted
         )
         got = sessioncues.cues_of_jobs(early, first, timings, covered, model, error_model)
         if got is not None:

@@ -52,13 +52,15 @@ def refine_frames(
     params: DetectParams,
     workers: int = 1,
     jobs: Jobs | None = None,
+    fitted: bool = False,
 ) -> TemplatePass:
     """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
     is updated in place; ``idx`` their frame indices, the images re-read from ``session``
     only for the frames the gate lets through), in ``workers`` forked processes (the same
     result as in one). ``jobs``: side work on the frames as they were (the first pass's
     cues), computed in the same workers ahead of the frames (before any frame without
-    workers; :class:`~blurtrack.detect.forkmap.Jobs`)."""
+    workers; :class:`~blurtrack.detect.forkmap.Jobs`). ``fitted``: ``model`` is the session's
+    corrected one (the gate then also tests the streaks' vectors, ``vectors``)."""
     out = TemplatePass()
     # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
     # (measured on lines down the middle of both arms) is too wide. The session's median.
@@ -70,7 +72,14 @@ def refine_frames(
         fs = found[k]
         seen: list[np.ndarray] = []
         out, what = refine_frame(
-            partial(session.read_image, idx[k]), fs, timings[k], model, params, sigma_c, seen
+            partial(session.read_image, idx[k]),
+            fs,
+            timings[k],
+            model,
+            params,
+            sigma_c,
+            seen,
+            params.source.gyro_vector_tol_px if fitted else None,
         )
         if out is fs:
             return None, what, seen[0] if seen else None

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blurtrack.detect.lines.lawfit import fit_law
 from blurtrack.detect.lines.normal import normal_cdf
 from blurtrack.detect.lines.ragged import row_nanmedian
 from blurtrack.detect.lines.shortfit import fit_short
@@ -43,6 +44,13 @@ EDGE_LOW_SIGMAS = 1.5
 #: ... "rises again": by more than the edge's own erf can hold anywhere past that minimum,
 #: ``Phi(-EDGE_LOW_SIGMAS)`` = 6.7 % of the plateau; the edge alone falls monotonically.
 EDGE_RISE = float(normal_cdf(np.array(-EDGE_LOW_SIGMAS)))
+
+
+def plateau_extent(sigma: float) -> float:
+    """The shortest lit extent (samples, between the quarter-level crossings) on which both
+    ends get edge fits (a plateau inside each edge's inset, and the fit window); a shorter
+    streak is fitted whole (its moments, then the short or the law fit)."""
+    return 2.0 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW
 
 
 @dataclass(frozen=True)
@@ -278,13 +286,18 @@ def reverse_rows(A: np.ndarray, lens: np.ndarray) -> np.ndarray:
     return np.take_along_axis(A, src, axis=1)
 
 
-def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
+def fit_edges(
+    A: np.ndarray, lens: np.ndarray, sigma: np.ndarray, law: np.ndarray | None = None
+) -> EdgeFit:
     """Endpoints of every streak from its uniformly sampled profile.
 
     Args:
         A: ``(N, L)`` profiles, zero-padded past ``lens``.
         lens: ``(N,)`` number of samples per row.
         sigma: ``(N,)`` edge sigma per row in index units.
+        law: ``(N, K)`` predicted time laws (NaN rows: none), oriented along the rows: short
+            streaks with one are fitted under it (:func:`~blurtrack.detect.lines.lawfit.fit_law`)
+            instead of a quadratic density.
     """
     N = A.shape[0]
     peak = A.max(axis=1)
@@ -303,7 +316,7 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
     # the half-level ends) must hold both insets and the window; the rest is short anyway.
     c4, has4 = _first_crossing(AA, lens2, 0.25 * guess2)
     extent = (lens - 1) - c4[N:] - c4[:N]
-    cand = has4[:N] & has4[N:] & (extent >= 2 * PLATEAU_INSET_SIGMAS * sigma + PLATEAU_WINDOW)
+    cand = has4[:N] & has4[N:] & (extent >= plateau_extent(sigma))  # type: ignore[arg-type]
     p2, P2, ok2 = np.zeros(2 * N), np.ones(2 * N), np.zeros(2 * N, bool)
     sel = np.flatnonzero(np.concatenate([cand, cand]))
     if sel.size:
@@ -343,6 +356,17 @@ def fit_edges(A: np.ndarray, lens: np.ndarray, sigma: np.ndarray) -> EdgeFit:
         a_fit, L_fit, c0 = fit_short(
             y * w_c, w_c, sigma[sel], s_lo[sel] - first, s_hi[sel] - s_lo[sel]
         )
+        if law is not None:
+            has = np.flatnonzero(np.isfinite(law[sel]).all(axis=1))
+            if has.size:
+                a_fit[has], L_fit[has], c0[has] = fit_law(
+                    y[has] * w_c[has],
+                    w_c[has],
+                    sigma[sel][has],
+                    law[sel][has],
+                    a_fit[has],
+                    L_fit[has],
+                )
         s_lo[sel], s_hi[sel], level[sel] = a_fit + first, a_fit + first + L_fit, c0
     pos_a = np.where(short, s_lo, pa)
     pos_b = np.where(short, s_hi, pb)

@@ -13,21 +13,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.detect.context import FrameContext
-from blurtrack.detect.lines.centreline import raw_profiles, refine_lines, trim_lines
+from blurtrack.detect.lines.centreline import (
+    RefinedLines,
+    raw_profiles,
+    refine_lines,
+    trim_lines,
+)
 from blurtrack.detect.lines.endpoints import fit_edges, unclip_profiles
 from blurtrack.detect.lines.gaps import split_at_gaps
+from blurtrack.detect.lines.lawfit import LAW_SAMPLES
 from blurtrack.detect.lines.ragged import Ragged, to_matrix
 
 
 @dataclass
 class LineSet:
     """Coarse lines with their bookkeeping: ``owner`` (component index), ``crossing`` and
-    ``looped`` per line; ``lines`` a list of ``(n, 2)`` arrays or a :class:`Ragged`."""
+    ``looped`` per line; ``lines`` a list of ``(n, 2)`` arrays or a :class:`Ragged`.
+    ``law``: per line, None or the predicted time law of its streak
+    (:func:`~blurtrack.detect.lines.lawfit.time_law`, oriented from the line's first point):
+    a short streak with one is fitted under it (:func:`~blurtrack.detect.lines.lawfit.fit_law`)."""
 
     lines: Ragged | list[np.ndarray]
     owner: list[int]
     crossing: list[bool]
     looped: list[bool]
+    law: list[np.ndarray | None] | None = None
 
 
 @dataclass
@@ -117,7 +127,7 @@ def measure_lines(
             A[line_sat, : raw.shape[1]] = unclip_profiles(raw, saturation, sig_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
     edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + 1.0 / 6.0), sigma_c)
-    fit = fit_edges(A, lens, edge_sigma / ref.step)
+    fit = fit_edges(A, lens, edge_sigma / ref.step, _laws(ls, ref, parent))
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
     trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)
@@ -140,6 +150,33 @@ def measure_lines(
         sigma_c=sigma_c,
         sigma_raw=sig_raw,
     )
+
+
+def _laws(ls: LineSet, ref: RefinedLines, parent: np.ndarray) -> np.ndarray | None:
+    """``(N, LAW_SAMPLES)`` time laws of the refined lines (NaN rows: none), oriented along
+    each refined line; None where no line has one. A line cut at a gap has none: the law is
+    its whole streak's."""
+    if ls.law is None or not any(x is not None for x in ls.law):
+        return None
+    n_of = np.bincount(parent, minlength=len(ls.law))
+    first = ref.lines.points[ref.lines.starts]
+    out = np.full((parent.size, LAW_SAMPLES), np.nan)
+    for i, j in enumerate(parent.tolist()):
+        law = ls.law[j]
+        if law is None or n_of[j] != 1:
+            continue
+        coarse = np.asarray(ls.lines[j] if isinstance(ls.lines, list) else _line(ls.lines, j))
+        # Refining keeps a line's direction but extends its ends: its first point lies
+        # nearer the coarse line's first point than its last one unless the line turned.
+        d0 = float(np.hypot(*(first[i] - coarse[0])))
+        d1 = float(np.hypot(*(first[i] - coarse[-1])))
+        out[i] = law if d0 <= d1 else 1.0 - law
+    return out
+
+
+def _line(r: Ragged, j: int) -> np.ndarray:
+    s = int(r.starts[j])
+    return r.points[s : s + int(r.sizes[j])]
 
 
 def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:

@@ -557,3 +557,59 @@ def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
         assert gyrogate.gate(fs, timing, model, gp) is None
         got = gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5)
         assert got == ("hooks" if hooked else None), corners
+
+
+def test_the_gate_lets_through_a_frame_whose_vectors_miss_the_corrected_prediction() -> None:
+    """Straight 6 px streaks, within the mismatch tolerance of their prediction (2.5 px), but
+    measured 1.6 px too long (a first-pass density fit of a dot that slows at both ends): with
+    the session-corrected model the gate lets the frame through for its vectors; without a
+    corrected model (no tolerance) it does not, nor where the lines are right (negative
+    control)."""
+    mids = np.array([[100.0, 100.0], [200.0, 150.0], [300.0, 200.0], [400.0, 250.0]])
+    timing = FrameTiming(T0, EXP)
+    gp = GyroPassParams()
+    model = _PathMotion([[0, 0], [6, 0]])
+    curves = predict_curves(model, mids, T0, EXP, gyrogate.GATE_SAMPLES)
+    for stretch, expected in ((0.8, "vectors"), (0.0, None)):
+        a = mids - np.array([3.0 + stretch, 0.0])
+        b = mids + np.array([3.0 + stretch, 0.0])
+        fs = type(
+            "FS",
+            (),
+            {
+                "flags": {"clipped": np.zeros(4, bool)},
+                "time_mid": mids,
+                "end_a": a,
+                "end_b": b,
+                "__len__": lambda s: 4,
+            },
+        )()
+        assert gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5) is None
+        got = gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5, vector_tol_px=1.5)
+        assert got == expected, stretch
+    res = gyrogate.vector_residual(a, b, curves.pts)
+    np.testing.assert_allclose(res, 0.0, atol=1e-9)
+    # Orientation-free: a reversed line is the same vector.
+    np.testing.assert_allclose(gyrogate.vector_residual(b, a, curves.pts), 0.0, atol=1e-9)
+
+
+def test_a_short_return_is_a_hook_measured_as_one_line_a_long_one_has_arms() -> None:
+    """A 6 px curve that runs 0.7 px past its end and back is one line under its law; with
+    a 3 px return, or on a curve long enough for edge fits, or without the law, two arms."""
+    from blurtrack.detect.gyro.gyromeasure import _arms
+
+    def curve(out_px: float, back_px: float) -> np.ndarray:
+        x = np.concatenate(
+            [np.linspace(0, out_px, 50), np.linspace(out_px, out_px - back_px, 16)[1:]]
+        )
+        return np.stack([x, np.zeros_like(x)], axis=1)
+
+    gp = GyroPassParams()
+    sigma = 1.3
+    for out_px, back_px, arms in ((6.7, 0.7, False), (8.0, 3.0, True), (30.0, 0.7, True)):
+        pts = curve(out_px, back_px)
+        arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+        assert _arms(pts, 49, arc, sigma, gp) is arms, (out_px, back_px)
+    pts = curve(6.7, 0.7)
+    arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+    assert _arms(pts, 49, arc, sigma, dataclasses.replace(gp, time_law=False)) is True
