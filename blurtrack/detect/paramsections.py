@@ -285,7 +285,8 @@ class GyroPassParams:
       91.33 / 94.85, 89.12 / 93.21, 84.88 / 91.48, 97.68 / 99.10; as they are 97.73 / 98.86,
       92.14 / 94.85, 89.16 / 92.52, 84.17 / 90.85, 97.72 / 99.19; the choice 97.87 / 98.77,
       92.27 / 95.21, 89.96 / 92.75, 84.60 / 91.08, 97.72 / 99.10.
-    - ``time_law``: a placement's short streak (no plateau at its ends) is fitted under its
+    - ``time_law``: a placement's short streak (no plateau at its ends), and a longer one,
+      unsaturated and not crossing, whose dot rests near an end, is fitted under its
       predicted curve's time law (:mod:`~blurtrack.detect.lines.lawfit`: where along the chord
       the dot is at each time; the start, length and light stay the image's) instead of a
       density the blur lets it fit (linear below 5 sigmas): a dot slowing towards both ends

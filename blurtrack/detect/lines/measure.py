@@ -31,7 +31,8 @@ class LineSet:
     ``looped`` per line; ``lines`` a list of ``(n, 2)`` arrays or a :class:`Ragged`.
     ``law``: per line, None or the predicted time law of its streak
     (:func:`~blurtrack.detect.lines.lawfit.time_law`, oriented from the line's first point):
-    a short streak with one is fitted under it (:func:`~blurtrack.detect.lines.lawfit.fit_law`)."""
+    a short streak with one is fitted under it (:func:`~blurtrack.detect.lines.lawfit.fit_law`),
+    and a longer one unsaturated and not crossing where its dot rests near an end."""
 
     lines: Ragged | list[np.ndarray]
     owner: list[int]
@@ -127,7 +128,7 @@ def measure_lines(
             A[line_sat, : raw.shape[1]] = unclip_profiles(raw, saturation, sig_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
     edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + 1.0 / 6.0), sigma_c)
-    fit = fit_edges(A, lens, edge_sigma / ref.step, _laws(ls, ref, parent))
+    fit = fit_edges(A, lens, edge_sigma / ref.step, _laws(ls, ref, parent), ~line_sat & ~crossing)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
     trimmed = trim_lines(ref, pos_a, pos_b, edge_sigma / ref.step)

@@ -161,3 +161,41 @@ def test_short_streaks_measured_under_their_law_in_either_direction(reverse: boo
         for k, c in enumerate(curves)
     ]
     assert max(err) > 0.4
+
+
+def test_a_long_streak_whose_dot_rests_at_its_start_is_fitted_under_its_law() -> None:
+    """A 14 px streak whose dot starts at rest and gathers speed as ``t**3`` (half the
+    exposure within 15 % of the chord from the start). Edge fits put the start at the half
+    level of the resting spot's peak, 1.5 px outwards; under its law the start is the dot's.
+    Negative controls: the same streak where the row may not be fitted whole (saturated or
+    crossing: ``law_whole`` false) keeps its edge fits, and a constant-speed streak with a
+    law keeps them too (its dot rests nowhere)."""
+    s = np.arange(44, dtype=np.float64)
+    rest = T**3  # starts at rest
+    uniform = T
+    A = np.stack([300 * _profile(s, 15.0, 14.0, 1.4, f) for f in (rest, rest, uniform)])
+    lens = np.full(3, 44)
+    sigma = np.full(3, 1.4)
+    law = np.stack([np.interp(np.linspace(0, 1, LAW_SAMPLES), T, f) for f in (rest, rest, uniform)])
+    whole = np.array([True, False, True])
+    fit = fit_edges(A, lens, sigma, law, whole)
+    edges = fit_edges(A, lens, sigma)
+    assert not edges.short.any()
+    assert edges.pos_a[0] < 15.0 - 1.0  # the edge fit's start: outwards of the resting dot
+    assert fit.pos_a[0] == pytest.approx(15.0, abs=0.03)
+    assert fit.pos_b[0] == pytest.approx(29.0, abs=0.03)
+    assert fit.short[0] and not fit.short[1] and not fit.short[2]
+    for k in (1, 2):
+        assert fit.pos_a[k] == edges.pos_a[k] and fit.pos_b[k] == edges.pos_b[k]
+
+
+def test_a_streak_too_long_for_its_laws_samples_keeps_its_edge_fits() -> None:
+    """60 px at a 1.4 px sigma: the law's 33 samples lie 1.9 px apart, more than half a
+    sigma, and their blurred sum would be lumpy; the resting dot's streak keeps its edge fits."""
+    s = np.arange(90, dtype=np.float64)
+    A = 300 * _profile(s, 15.0, 60.0, 1.4, T**3)[None]
+    law = np.interp(np.linspace(0, 1, LAW_SAMPLES), T, T**3)[None]
+    fit = fit_edges(A, np.array([90]), np.array([1.4]), law, np.array([True]))
+    edges = fit_edges(A, np.array([90]), np.array([1.4]))
+    assert not fit.short[0]
+    assert fit.pos_a[0] == edges.pos_a[0] and fit.pos_b[0] == edges.pos_b[0]
