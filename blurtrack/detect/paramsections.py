@@ -224,10 +224,10 @@ class GyroPassParams:
       the turns, which the check refuses; the pass measures them along their curves. Not 0: a
       frame's one or two hooks cost the pass over the whole frame for a few streaks
       (``dense`` seed 1, 20 frames: 0 refines 3 frames for +0.02 point of coverage at +40 %
-      CPU; 0.05 none). Where the session's calibration was corrected, also where more than
-      this fraction of them have start-to-end vectors more than ``source.gyro_vector_tol_px``
-      off the corrected prediction (the check's test; ``vectors``: the components of those
-      lines are the candidates).
+      CPU; 0.05 none). With ``time_law``, where the session's calibration was corrected,
+      also where more than this fraction of them have start-to-end vectors more than
+      ``source.gyro_vector_tol_px`` off the corrected prediction (the check's test;
+      ``vectors``: the components of those lines are the candidates).
     - ``border_candidates``: components touching the border are candidates too: on frames of
       long streaks the chains run into the border (``hard`` seed 3 frame 7: 50 of 65
       components, 88 % of the light).

@@ -43,8 +43,9 @@ def gate(
     leaves as it was). ``hook_depth_px``: the check's hairpin depth (``source.hairpin_depth_px``;
     None: frames are not let through for their hooks, ``gp.hook_fraction``).
     ``vector_tol_px``: where ``model`` is the session's corrected one, the check's vector
-    tolerance (``source.gyro_vector_tol_px``): frames are let through where more than
-    ``gp.hook_fraction`` of the long streaks' vectors miss by more (None: not tested)."""
+    tolerance (``source.gyro_vector_tol_px``): with ``gp.time_law``, frames are let through
+    where more than ``gp.hook_fraction`` of the long streaks' vectors miss by more (None: not
+    tested)."""
     inside = inside_frame(fs)
     if not inside.any():
         return None
@@ -73,7 +74,7 @@ def gate(
         return "mismatch"
     if _hooked(curves.pts[g_long], hook_depth_px, gp.hook_fraction):
         return "hooks"
-    if vector_tol_px is not None:
+    if vector_tol_px is not None and gp.time_law:  # the pass measures them under their laws
         off = vector_residual(a, b, curves.pts) > vector_tol_px
         if float(np.mean(off[g_long])) > gp.hook_fraction:
             return "vectors"

@@ -587,6 +587,11 @@ def test_the_gate_lets_through_a_frame_whose_vectors_miss_the_corrected_predicti
         assert gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5) is None
         got = gyrogate.gate(fs, timing, model, gp, hook_depth_px=0.5, vector_tol_px=1.5)
         assert got == expected, stretch
+        # Without the time law the pass would measure them as the first pass did.
+        no_law = dataclasses.replace(gp, time_law=False)
+        assert (
+            gyrogate.gate(fs, timing, model, no_law, hook_depth_px=0.5, vector_tol_px=1.5) is None
+        )
     res = gyrogate.vector_residual(a, b, curves.pts)
     np.testing.assert_allclose(res, 0.0, atol=1e-9)
     # Orientation-free: a reversed line is the same vector.
