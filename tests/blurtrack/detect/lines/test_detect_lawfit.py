@@ -123,20 +123,17 @@ def _frame_and_curves() -> tuple[np.ndarray, list[np.ndarray]]:  # 16-bit, unsat
 
 
 def _measure(img: np.ndarray, curves: list[np.ndarray], with_law: bool, reverse: bool):  # type: ignore[no-untyped-def]
-    from blurtrack.detect.context import FrameContext
+    from blurtrack.detect.context import frame_context
     from blurtrack.detect.image import prepare_frame
     from blurtrack.detect.lines.measure import LineSet, measure_lines
-    from blurtrack.detect.lines.segment import find_components
 
     p = DetectParams()
     prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level)
-    thr = max(p.threshold_snr * prep.noise_smooth, p.min_threshold)
-    comps = find_components(prep.smooth, thr, p.min_area_px, p.max_streaks)
-    ctx = FrameContext(
-        prep.smooth, prep.signal, prep.saturation, None, comps, thr, prep.noise_smooth, p
-    )
+    ctx = frame_context(prep, p)
+    comps = ctx.comps
     lines = [c[::-1] if reverse else c for c in curves]
-    owner = [int(comps.labels[round(c[200, 1]), round(c[200, 0])]) - 1 for c in curves]
+    labels = [comps.labels[round(c[200, 1]), round(c[200, 0])] for c in curves]
+    owner = [int(np.flatnonzero(comps.ids == lab)[0]) for lab in labels]
     law = [time_law(c) for c in lines] if with_law else None
     sigma_c = float(np.sqrt(1.3**2 + p.smooth_sigma_px**2))
     ls = LineSet(lines, owner, [False] * len(lines), [False] * len(lines), law)
