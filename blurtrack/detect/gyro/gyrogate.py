@@ -75,10 +75,20 @@ def gate(
     if _hooked(curves.pts[g_long], hook_depth_px, gp.hook_fraction):
         return "hooks"
     if vector_tol_px is not None and gp.time_law:  # the pass measures them under their laws
-        off = vector_residual(a, b, curves.pts) > vector_tol_px
+        off = vectors_missed(fs, curves.pts, vector_tol_px)[inside]
         if float(np.mean(off[g_long])) > gp.hook_fraction:
             return "vectors"
     return None
+
+
+def vectors_missed(fs: FrameStreaks, pts: np.ndarray, tol_px: float) -> np.ndarray:
+    """``(len(fs),)`` bool: the streaks inside the frame whose start-to-end vectors miss their
+    predicted curves ``pts (n_inside, S, 2)`` (the gate's) by more than ``tol_px``
+    (:func:`vector_residual`)."""
+    inside = inside_frame(fs)
+    off = np.zeros(len(fs), bool)
+    off[inside] = vector_residual(fs.end_a[inside], fs.end_b[inside], pts) > tol_px
+    return off
 
 
 def vector_residual(a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -88,8 +88,12 @@ def _arms(pts: np.ndarray, k: int, arc: float, sigma_px: float, gp: Any) -> bool
     fits, which find the light's extremity, not where the dot turned back."""
     if not gp.time_law or arc >= plateau_extent(sigma_px):
         return True
-    arms = (pts[: k + 1], pts[k:])
-    return min(float(np.sum(np.hypot(*np.diff(q, axis=0).T))) for q in arms) >= gp.min_arm_px
+    return min(_arc(pts[: k + 1]), _arc(pts[k:])) >= gp.min_arm_px
+
+
+def _arc(pts: np.ndarray) -> float:
+    """The arc length (px) of the polyline ``pts (S, 2)``."""
+    return float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
 
 
 def _measure_once(
@@ -160,7 +164,7 @@ def measure_placements(
         pts = q.tpl.points
         k = turn_index(pts)
         chord = float(np.hypot(*(pts[-1] - pts[0])))
-        arc = float(np.sum(np.hypot(*np.diff(pts, axis=0).T)))
+        arc = _arc(pts)
         hairpin = 3 <= k <= len(pts) - 4 and chord < gp.arms_chord * arc
         if hairpin and _arms(pts, k, arc, sig_s, gp):
             a1, a2 = arm_templates(q.tpl, sig_s, sig_r)

@@ -9,22 +9,19 @@ wrong lines and no image template corrects them. Once the session's time shift i
 blur model predicts every dot's curve (:mod:`blurtrack.detect.gyro.gyrocurve`), and that curve,
 rendered with the frame's cross-section and brightness, is the template.
 
-Frames are refined where the prediction says the first pass cannot be right: *hairpin
-frames* (the median predicted curve at the first-pass midpoints has a chord under
-``gyro_pass.hairpin_chord`` of its arc) and frames where some long first-pass streak misses its
-prediction (either orientation, placed at its time midpoint) by more than
-``tol_px + tol_rel * arc`` (chains and fragments of long streaks), or where more than
-``gyro_pass.hook_fraction`` of them hook or double back within the exposure by more than
-``source.hairpin_depth_px`` (their visible ends are the turns, which the gyro's check
-refuses; measured along their curves they are the ends). Frames where none holds
-are returned untouched (``realistic``, ``clean``: bit-identical tables).
+Frames are refined where the prediction says the first pass cannot be right
+(:func:`~blurtrack.detect.gyro.gyrogate.gate`, which says why: a hairpin frame, a long
+first-pass streak far from its prediction, hooks, or, with the session's corrected model and
+the time law, vectors the gyro's check would refuse). Other frames are returned untouched
+(``clean``: bit-identical tables).
 
 1. **Candidates** (:mod:`blurtrack.detect.gyro.gyrocandidates`; at least
    ``gyro_pass.min_arc_px`` of predicted arc; components touching
    the border too, ``gyro_pass.border_candidates``): in a
    hairpin frame every component whose predicted curve, placed with its light centroid on
    the component's, is a hairpin; in a frame let through for its hooks every component whose
-   curve hooks; elsewhere every component. A first-pass line within
+   curve hooks; for its vectors, those holding a line whose vector misses; elsewhere every
+   component. A first-pass line within
    ``tol_px + tol_rel * arc`` of its placed curve is no proof of its ends (a path that hooks
    inside a saturated end: the first pass's line runs straight into the blob); such a
    component (one line, so one dot) gets one placement of its own template and no sweep,
@@ -54,9 +51,11 @@ are returned untouched (``realistic``, ``clean``: bit-identical tables).
    (:mod:`blurtrack.detect.gyro.gyromeasure`; hairpins as two arms): the ends, midpoints and
    profiles are the image's, not the prediction's. The prior decides *segmentation* (which
    light is which dot's, which way its line runs), not the endpoints, so calibration from
-   these streaks is not circular. (Each placement is measured on two own images, the
-   neighbours' templates subtracted as they are and clipped at zero, and keeps the line
-   nearer its placed curve, ``gyro_pass.clip_choice``: a choice
+   these streaks is not circular; the one bounded exception is a short (or resting) streak's
+   time law, how its light is spread between ends the image places
+   (:mod:`blurtrack.detect.lines.lawfit`, ``gyro_pass.time_law``). (Each placement is
+   measured on two own images, the neighbours' templates subtracted as they are and clipped
+   at zero, and keeps the line nearer its placed curve, ``gyro_pass.clip_choice``: a choice
    between two segmentations, both lines the image's.)
 5. **Refusal**: a placement whose measured ends lie farther than the tolerance from its
    placed curve's (and whose shape does not match it within twice that,
@@ -91,7 +90,7 @@ from blurtrack.detect.gyro.gyrocandidates import (
 )
 from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border, mismatch
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrogate import gate, vector_residual
+from blurtrack.detect.gyro.gyrogate import gate, vectors_missed
 from blurtrack.detect.gyro.gyromeasure import as_streaks, measure_placements
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
@@ -182,12 +181,9 @@ def refine_frame(
     ctx = _frame_context(image, p)
     # 1. Candidates.
     off = None
-    if reason == "vectors" and curves_seen:
-        inside = inside_frame(fs)
-        off = np.zeros(len(fs), bool)
-        off[inside] = (
-            vector_residual(fs.end_a[inside], fs.end_b[inside], curves_seen[-1]) > vector_tol_px
-        )
+    if reason == "vectors":
+        assert vector_tol_px is not None  # the gate tests the vectors only with a tolerance
+        off = vectors_missed(fs, curves_seen[-1], vector_tol_px)
     cands = candidates(ctx, fs, timing, model, gp, reason, p.source.hairpin_depth_px, off)
     if cands is None:
         return fs, FrameOutcome("skipped")

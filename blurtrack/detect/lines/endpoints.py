@@ -49,7 +49,7 @@ EDGE_RISE = float(normal_cdf(np.array(-EDGE_LOW_SIGMAS)))
 REST_FRACTION = 0.3
 
 
-def plateau_extent(sigma: float) -> float:
+def plateau_extent(sigma: float | np.ndarray) -> float | np.ndarray:
     """The shortest lit extent (samples, between the quarter-level crossings) on which both
     ends get edge fits (a plateau inside each edge's inset, and the fit window); a shorter
     streak is fitted whole (its moments, then the short or the law fit)."""
@@ -326,7 +326,7 @@ def fit_edges(
     # the half-level ends) must hold both insets and the window; the rest is short anyway.
     c4, has4 = _first_crossing(AA, lens2, 0.25 * guess2)
     extent = (lens - 1) - c4[N:] - c4[:N]
-    cand = has4[:N] & has4[N:] & (extent >= plateau_extent(sigma))  # type: ignore[arg-type]
+    cand = has4[:N] & has4[N:] & (extent >= plateau_extent(sigma))
     p2, P2, ok2 = np.zeros(2 * N), np.ones(2 * N), np.zeros(2 * N, bool)
     sel = np.flatnonzero(np.concatenate([cand, cand]))
     if sel.size:
@@ -388,17 +388,16 @@ def fit_edges(
         a_fit, L_fit, c0 = fit_short(
             y * w_c, w_c, sigma[sel], s_lo[sel] - first, s_hi[sel] - s_lo[sel]
         )
-        if law is not None:
-            has = np.flatnonzero(np.isfinite(law[sel]).all(axis=1))
-            if has.size:
-                a_fit[has], L_fit[has], c0[has] = fit_law(
-                    y[has] * w_c[has],
-                    w_c[has],
-                    sigma[sel][has],
-                    law[sel][has],
-                    a_fit[has],
-                    L_fit[has],
-                )
+        has = np.flatnonzero(lawful[sel])
+        if law is not None and has.size:
+            a_fit[has], L_fit[has], c0[has] = fit_law(
+                y[has] * w_c[has],
+                w_c[has],
+                sigma[sel][has],
+                law[sel][has],
+                a_fit[has],
+                L_fit[has],
+            )
         s_lo[sel], s_hi[sel], level[sel] = a_fit + first, a_fit + first + L_fit, c0
     pos_a = np.where(short, s_lo, pa)
     pos_b = np.where(short, s_hi, pb)

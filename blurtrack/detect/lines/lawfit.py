@@ -139,15 +139,7 @@ def fit_law(
             sel = rows[better]
             a[sel], L[sel], c[sel], cost[sel] = a_t[better], L_t[better], ct[better], costt[better]
             res[sel], B[sel], dBa[sel], dBL[sel] = rt[better], Bt[better], dat[better], dlt[better]
-            step = np.maximum(np.abs(scale * da[todo]), np.abs(scale * dl[todo]))
-            idx = np.flatnonzero(todo)
-            moved[idx[better]] = True
-            # Converged rows (a small step that helped) stop with the others that stalled.
-            moved[idx[better & (step < LAW_TOL)]] = True
-        # Keep iterating rows that moved by more than the tolerance.
-        keep = np.zeros(act.size, bool)
-        keep[moved] = True
-        step_all = np.maximum(np.abs(da), np.abs(dl))
-        keep &= step_all >= LAW_TOL
-        act = act[keep]
+            moved[np.flatnonzero(todo)[better]] = True
+        # Rows that stalled, or whose full step was under the tolerance, stop.
+        act = act[moved & (np.maximum(np.abs(da), np.abs(dl)) >= LAW_TOL)]
     return a, L, c / np.maximum(L, 0.05)

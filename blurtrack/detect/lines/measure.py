@@ -161,23 +161,19 @@ def _laws(ls: LineSet, ref: RefinedLines, parent: np.ndarray) -> np.ndarray | No
         return None
     n_of = np.bincount(parent, minlength=len(ls.law))
     first = ref.lines.points[ref.lines.starts]
+    coarse_lines = ls.lines if isinstance(ls.lines, list) else ls.lines.split()
     out = np.full((parent.size, LAW_SAMPLES), np.nan)
     for i, j in enumerate(parent.tolist()):
         law = ls.law[j]
         if law is None or n_of[j] != 1:
             continue
-        coarse = np.asarray(ls.lines[j] if isinstance(ls.lines, list) else _line(ls.lines, j))
+        coarse = np.asarray(coarse_lines[j])
         # Refining keeps a line's direction but extends its ends: its first point lies
         # nearer the coarse line's first point than its last one unless the line turned.
         d0 = float(np.hypot(*(first[i] - coarse[0])))
         d1 = float(np.hypot(*(first[i] - coarse[-1])))
         out[i] = law if d0 <= d1 else 1.0 - law
     return out
-
-
-def _line(r: Ragged, j: int) -> np.ndarray:
-    s = int(r.starts[j])
-    return r.points[s : s + int(r.sizes[j])]
 
 
 def combine(a: Measured, keep: np.ndarray, b: Measured | None = None) -> Measured:
