@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect import detect_frame
-from blurtrack.detect.gyro import gyrocandidates, gyroconfirm, gyrogate, gyropass
+from blurtrack.detect.gyro import gyroaccept, gyrocandidates, gyroconfirm, gyrogate, gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyropass import refine_frame
 from blurtrack.detect.orientation import FrameTiming
@@ -305,7 +305,7 @@ def test_a_chain_into_the_border_is_split_by_curves_cut_at_the_border(monkeypatc
     # 20-30 px from the measured ones) refuse the border chains' placements; no placements
     # past the border leave the chains.
     with monkeypatch.context() as mp:
-        mp.setattr(gyropass, "cut_at_border", lambda c, w, h: (c[0], c[-1]))
+        mp.setattr(gyroaccept, "cut_at_border", lambda c, w, h: (c[0], c[-1]))
         out1, _ = refine_frame(image, first, FrameTiming(T0, EXP), model)
         assert _matched(out1, chained, 3.0) <= 1
     no_clip = DetectParams(gyro_pass=GyroPassParams(clip_at_border=False))
