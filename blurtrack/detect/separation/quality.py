@@ -12,8 +12,8 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   frame's unflagged streaks, each vector's sign chosen to agree with the dominant direction so
   that a wrong start/end does not count as a shape error (and, where a strong roll turns the
   vectors across the frame, from neighbour to neighbour and then against the fitted field,
-  whichever field more streaks agree with); NaN when fewer than
-  ``quality.min_reference`` streaks can vote, or agree with the fitted field (below).
+  whichever field more streaks agree with); NaN when fewer than ``quality.min_reference``
+  streaks can vote, or agree with the fitted field, each voter held out (below).
 - ``thick_saturated``: saturated and wider than ``quality.thick_width_ratio`` x the frame's
   dot width (the median of its unsaturated streaks', or of all where fewer than
   ``quality.min_reference`` are unsaturated): a blown-out core whose centre line and ends are
@@ -27,8 +27,9 @@ from the frame's consensus is a merged chain, a fragment, a hook or noise.
   no neighbour's light just beyond an end, and a shape within
   ``max(shape_tol_px, shape_tol_rel |c|)`` of the consensus. A frame without a consensus
   (fewer than ``quality.min_reference`` clean point lights, or fewer than that many of them
-  within the tolerance of the fitted field: the robust fit always returns a field, which
-  only the streaks that agree with it make a consensus) has no ``quality_ok`` streak: no
+  within the tolerance of the field fitted to the others, each held out: the robust fit
+  always returns a field, which only the streaks that agree with it make a consensus, and
+  with few voters an affine field bends to each of them) has no ``quality_ok`` streak: no
   other streak says that a line is a dot's blur rather than a highlight, a ridge of texture
   or a sign's letter (``ends_unsure``; the gyro, which predicts the shape, may confirm it).
   A saturated core alone does not disqualify: its ends are measured on the unclipped profile.
@@ -95,13 +96,16 @@ class Consensus:
     """A frame's consensus start-to-end vector field (see :func:`consensus_field`).
 
     ``c``: ``(N, 2)`` the consensus at each streak, with the sign nearest to its own vector;
-    ``dev``: ``(N,)`` the distance ``|v - c|``; ``use``: the voters the robust fit kept."""
+    ``dev``: ``(N,)`` the distance ``|v - c|``; ``use``: the voters the robust fit kept;
+    ``dev_held_out``: ``(N,)`` each kept voter's distance from the field fitted to the others
+    (the others' ``dev``; :func:`_held_out`), where asked for."""
 
     c: np.ndarray
     dev: np.ndarray
     use: np.ndarray
     coef: np.ndarray
     centre: np.ndarray
+    dev_held_out: np.ndarray | None = None
 
     def at(self, xy: np.ndarray) -> np.ndarray:
         """``(M, 2)`` consensus vectors at points ``xy`` (the dominant direction's sign)."""
@@ -165,8 +169,28 @@ def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.
     return sign[:, None]
 
 
+def _held_out(X: np.ndarray, f: np.ndarray, vs: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """The field ``f (N, 2)`` with each voter of ``use`` given the value that the least-squares
+    fit over the other voters of ``use`` predicts there (the others' values as they are):
+    ``vs - e / (1 - h)``, ``e`` its residual from the fit over all of ``use`` and ``h`` its
+    leverage (the hat matrix's diagonal; the field's three coefficients per axis spread over
+    the voters, ``sum(h) = 3``). A voter that alone decides the field there (``h`` near 1)
+    gets a value far from its own."""
+    Xu, vu = X[use], vs[use]
+    beta = np.linalg.lstsq(Xu, vu, rcond=None)[0]
+    h = np.einsum("ij,jk,ik->i", Xu, np.linalg.pinv(Xu.T @ Xu), Xu)
+    out = f.copy()
+    out[use] = vu - (vu - Xu @ beta) / np.maximum(1.0 - h, 1e-6)[:, None]
+    return out
+
+
 def consensus_field(
-    v: np.ndarray, mid: np.ndarray, voters: np.ndarray, q: QualityParams, resign: bool = False
+    v: np.ndarray,
+    mid: np.ndarray,
+    voters: np.ndarray,
+    q: QualityParams,
+    resign: bool = False,
+    held_out: bool = False,
 ) -> Consensus | None:
     """The frame's consensus start-to-end vector at every streak, orientation-free.
 
@@ -179,6 +203,12 @@ def consensus_field(
             vector's sign against the fitted field (:data:`RESIGN_ROUNDS`): a strong roll
             turns the vectors across the frame, so one axis's sign splits the field. The
             quality flags use it; separation keeps the dominant axis's signs.
+        held_out: also each kept voter's deviation from the field fitted to the others
+            (``dev_held_out``; :func:`_held_out`), not from one it pulled towards itself:
+            with few voters the affine field's six coefficients bend to each of them, and a
+            few lines on a facade's lit bars agree with a field they made (with hundreds of
+            voters the two differ by about a percent). The quality flags count the voters
+            that agree with it.
     Returns:
         The field, or None when fewer than ``q.min_reference`` streaks vote.
     """
@@ -232,11 +262,17 @@ def consensus_field(
             best = (score, coef, use, sg)
     assert best is not None
     _, coef, use, sign = best
-    c = (X @ coef) * sign
+    f = X @ coef
+    c, dev = _nearest_sign(v, f * sign)
+    dev_held_out = _nearest_sign(v, _held_out(X, f, v * sign, use) * sign)[1] if held_out else None
+    return Consensus(c, dev, use, coef, centre, dev_held_out)
+
+
+def _nearest_sign(v: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``c`` with each row's sign nearest to ``v``'s, and the distances ``|v - c|``."""
     dev_plus = np.hypot(*(v - c).T)
     dev_minus = np.hypot(*(v + c).T)
-    c = np.where((dev_minus < dev_plus)[:, None], -c, c)
-    return Consensus(c, np.minimum(dev_plus, dev_minus), use, coef, centre)
+    return np.where((dev_minus < dev_plus)[:, None], -c, c), np.minimum(dev_plus, dev_minus)
 
 
 def shape_tolerance(c: np.ndarray, q: QualityParams) -> np.ndarray:
@@ -288,10 +324,12 @@ def _frame_quality(
     # agreeing) no other streak of the frame says that a streak is a dot's blur, not a
     # highlight, an edge or a letter.
     voters = point & ~(flagged | thick)
-    field = consensus_field(v, mid, voters, q, resign=True)
+    field = consensus_field(v, mid, voters, q, resign=True, held_out=True)
     if field is not None:
         tol = shape_tolerance(field.c, q)
-        if int(np.sum(voters & (field.dev <= tol))) < q.min_reference:
+        # Each held out: a voter agrees with what the others' field predicts for it.
+        assert field.dev_held_out is not None
+        if int(np.sum(voters & (field.dev_held_out <= tol))) < q.min_reference:
             field = None  # fitted, but too few clean point lights agree with it: no consensus
     unchecked = np.full(len(v), field is None)
     ok &= ~unchecked

@@ -119,11 +119,20 @@ def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
         with np.errstate(invalid="ignore"):
             lit = (light > quality.SourceParams().end_light_max).any(axis=1)
         good = ~(flagged | th) & point
-        field = quality.consensus_field(v, d[["mid_x", "mid_y"]].to_numpy(float), good, Q)
+        voters = good.copy()
+        mid = d[["mid_x", "mid_y"]].to_numpy(float)
+        field = quality.consensus_field(v, mid, voters, Q, resign=True, held_out=True)
         good &= ~(lit | np.isnan(light).any(axis=1))
+        if field is not None:
+            tol = quality.shape_tolerance(field.c, Q)
+            assert field.dev_held_out is not None
+            if np.sum(voters & (field.dev_held_out <= tol)) < Q.min_reference:
+                field = None  # too few voters agree with the others' field: no consensus
         if field is not None:
             dev[rows] = field.dev
             good = good & (field.dev <= quality.shape_tolerance(field.c, Q))
+        else:
+            good[:] = False
         thick[rows], ok[rows] = th, good
     out["shape_deviation_px"], out["thick_saturated"], out["quality_ok"] = dev, thick, ok
     return out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from blurtrack.detect.separation.quality import add_quality, one_doubt
 from blurtrack.io import streaks
@@ -317,3 +318,101 @@ def test_robust_affine_stops_at_a_fixed_point_with_the_rounds_result() -> None:
         got = _robust_affine(X, vs, voters, start, 5)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
+
+
+#: Start-to-end vectors and time midpoints (px) of the lines that vote in a real shaken night
+#: photograph of a facade (LEDNet's ``230_blur_21.png``, not in this repository): lit window
+#: bands and lines joining them, no point light. An affine field bends to them.
+FACADE_V = np.array(
+    [[16.63, 5.4], [16.84, 5.39], [-8.85, 25.38], [0.38, 0.12], [-10.44, 47.97], [15.6, 1.96],
+     [14.8, 10.72], [-2.85, -12.14], [25.14, 6.12], [63.06, 1.6], [18.71, 12.22],
+     [-13.35, 7.49]]
+)  # fmt: skip
+FACADE_MID = np.array(
+    [[110.8, 7.0], [111.1, 36.6], [651.4, 59.8], [200.8, 65.1], [646.8, 109.7], [282.4, 209.8],
+     [232.5, 215.5], [306.7, 229.6], [311.0, 230.6], [586.9, 235.8], [235.1, 248.0],
+     [477.1, 273.6]]
+)  # fmt: skip
+
+
+def _field_without(v: np.ndarray, mid: np.ndarray, rows: np.ndarray, i: int) -> np.ndarray:
+    """Derived truth: the least-squares affine field over ``rows`` less ``i``, at ``i``."""
+    keep = rows[rows != i]
+    X = np.column_stack([np.ones(len(mid)), mid])
+    return X[i] @ np.linalg.lstsq(X[keep], v[keep], rcond=None)[0]
+
+
+def test_held_out_deviation_is_that_from_the_field_of_the_others() -> None:
+    from blurtrack.detect.params import QualityParams
+    from blurtrack.detect.separation.quality import consensus_field
+
+    d = _frame(9, seed=4)
+    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+    v += np.random.default_rng(4).normal(0.0, 0.8, v.shape)
+    mid = d[["mid_x", "mid_y"]].to_numpy(float)
+    voters = np.ones(len(d), bool)
+    inside = consensus_field(v, mid, voters, QualityParams(), resign=True)
+    held = consensus_field(v, mid, voters, QualityParams(), resign=True, held_out=True)
+    assert inside is not None and held is not None
+    assert np.array_equal(inside.use, held.use) and held.use.sum() >= 7
+    assert inside.dev_held_out is None and held.dev_held_out is not None
+    np.testing.assert_array_equal(held.dev, inside.dev)  # the field itself is as it was
+    rows = np.flatnonzero(held.use)
+    for i in rows:  # each one's deviation from the others' field, either sign
+        g = _field_without(v * np.sign(v @ held.c[i])[:, None], mid, rows, i)
+        assert held.dev_held_out[i] == pytest.approx(np.hypot(*(v[i] - g)), abs=1e-9)
+    # Left out, each one is further from the field than inside it (the fit pulled towards it).
+    assert np.all(held.dev_held_out[rows] > held.dev[rows] * 1.1)
+
+
+def test_a_facades_lines_make_a_consensus_only_with_their_own_votes() -> None:
+    from blurtrack.detect.params import QualityParams
+    from blurtrack.detect.separation.quality import consensus_field, shape_tolerance
+
+    q = QualityParams()
+    voters = np.ones(len(FACADE_V), bool)
+    held = consensus_field(FACADE_V, FACADE_MID, voters, q, resign=True, held_out=True)
+    assert held is not None
+
+    tol = shape_tolerance(held.c, q)
+    assert held.dev_held_out is not None
+    # Negative control: with their own votes, enough of them agree for a consensus.
+    assert int(np.sum(held.dev <= tol)) >= q.min_reference
+    assert int(np.sum(held.dev_held_out <= tol)) < q.min_reference
+    d = pd.DataFrame(
+        {
+            "frame": 0,
+            "start_x": FACADE_MID[:, 0] - FACADE_V[:, 0] / 2,
+            "start_y": FACADE_MID[:, 1] - FACADE_V[:, 1] / 2,
+            "end_x": FACADE_MID[:, 0] + FACADE_V[:, 0] / 2,
+            "end_y": FACADE_MID[:, 1] + FACADE_V[:, 1] / 2,
+            "mid_x": FACADE_MID[:, 0],
+            "mid_y": FACADE_MID[:, 1],
+            "clipped": False,
+            "merged": False,
+            "crossing": False,
+            "looped": False,
+            "saturated": False,
+            "width_px": 2.5,
+            "source": "point",
+        }
+    )
+    assert not add_quality(d).quality_ok.any()
+
+
+def test_many_voters_see_the_same_field_left_out() -> None:
+    from blurtrack.detect.params import QualityParams
+    from blurtrack.detect.separation.quality import consensus_field
+
+    d = _frame(300, seed=5)
+    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
+    v += np.random.default_rng(5).normal(0.0, 0.5, v.shape)
+    mid = d[["mid_x", "mid_y"]].to_numpy(float)
+    voters = np.ones(len(d), bool)
+    inside = consensus_field(v, mid, voters, QualityParams(), resign=True)
+    held = consensus_field(v, mid, voters, QualityParams(), resign=True, held_out=True)
+    assert inside is not None and held is not None
+    assert held.dev_held_out is not None
+    # Leverage ~3/300: the deviations differ by about a percent, never more than a few.
+    assert np.all(held.dev_held_out <= inside.dev * 1.06 + 1e-9)
+    assert np.median(held.dev_held_out / inside.dev) < 1.02
