@@ -13,7 +13,8 @@ correlation over the support is at least ``separation.anchor_score_min``. The li
 component is removed from the image first (neighbouring lights are not matched). The placed centre
 line is then measured on that image (:func:`blurtrack.detect.lines.measure.measure_lines`) and
 replaces the fragment only when the measurement agrees with the local consensus within the shape
-tolerance (:func:`blurtrack.detect.separation.quality.shape_tolerance`). Pixels, frame coordinates.
+tolerance (:func:`blurtrack.detect.separation.consensus.shape_tolerance`). Pixels, frame
+coordinates.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
 from blurtrack.detect.paramsections import SeparationParams
-from blurtrack.detect.separation.quality import Consensus, shape_tolerance
+from blurtrack.detect.separation.consensus import Consensus, shape_tolerance
 from blurtrack.detect.separation.templates import Template, similar, template
 
 

@@ -21,7 +21,7 @@ from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.paramsections import SeparationParams
-from blurtrack.detect.separation.quality import Consensus, consensus_field
+from blurtrack.detect.separation.consensus import Consensus, consensus_field
 
 
 def modal_components(comps: Components, away: np.ndarray, sp: SeparationParams) -> np.ndarray:

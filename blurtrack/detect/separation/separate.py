@@ -4,7 +4,7 @@ Within one frame every dot draws nearly the same curve: the camera's rotation mo
 alike, up to perspective and the rolling shutter, which vary slowly over the frame. So a clean,
 isolated streak is a matched template for its neighbours (shape *and* brightness profile).
 
-1. **Consensus** (:func:`blurtrack.detect.separation.quality.consensus_field`): the robust affine
+1. **Consensus** (:func:`blurtrack.detect.separation.consensus.consensus_field`): the robust affine
    field of the start-to-end vectors of the first pass's unflagged streaks.
 2. **Candidates**: components whose lines are flagged (crossing, looped, merged), deviate from
    the consensus by more than the quality tolerance (chains of several streaks, fragments,
@@ -41,14 +41,14 @@ import numpy as np
 
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
-from blurtrack.detect.separation.modal import component_references
-from blurtrack.detect.separation.mosaic import overlapping_placements, placement_mosaic
-from blurtrack.detect.separation.pursuit import pursue
-from blurtrack.detect.separation.quality import (
+from blurtrack.detect.separation.consensus import (
     Consensus,
     consensus_field,
     shape_tolerance,
 )
+from blurtrack.detect.separation.modal import component_references
+from blurtrack.detect.separation.mosaic import overlapping_placements, placement_mosaic
+from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.refit import refit
 from blurtrack.detect.separation.templates import (
     Placement,
@@ -149,7 +149,7 @@ class _References:
     good: np.ndarray
     #: ``(N,)`` px: each first-pass streak's deviation from the field.
     dev: np.ndarray
-    #: ``(N,)`` px: its tolerance (:func:`~blurtrack.detect.separation.quality.shape_tolerance`).
+    #: ``(N,)`` px: its tolerance (:func:`~blurtrack.detect.separation.consensus.shape_tolerance`).
     tol: np.ndarray
 
 

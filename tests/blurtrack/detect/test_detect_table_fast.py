@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from blurtrack.detect.params import QualityParams
-from blurtrack.detect.separation import quality
+from blurtrack.detect.separation import consensus, quality
 from blurtrack.detect.session import detect_session
 from blurtrack.detect.table import read_table, to_arrow, write_table
 from blurtrack.io import streaks
@@ -121,16 +121,16 @@ def _quality_reference(table: pd.DataFrame) -> pd.DataFrame:
         good = ~(flagged | th) & point
         voters = good.copy()
         mid = d[["mid_x", "mid_y"]].to_numpy(float)
-        field = quality.consensus_field(v, mid, voters, Q, resign=True, held_out=True)
+        field = consensus.consensus_field(v, mid, voters, Q, resign=True, held_out=True)
         good &= ~(lit | np.isnan(light).any(axis=1))
         if field is not None:
-            tol = quality.shape_tolerance(field.c, Q)
+            tol = consensus.shape_tolerance(field.c, Q)
             assert field.dev_held_out is not None
             if np.sum(voters & (field.dev_held_out <= tol)) < Q.min_reference:
                 field = None  # too few voters agree with the others' field: no consensus
         if field is not None:
             dev[rows] = field.dev
-            good = good & (field.dev <= quality.shape_tolerance(field.c, Q))
+            good = good & (field.dev <= consensus.shape_tolerance(field.c, Q))
         else:
             good[:] = False
         thick[rows], ok[rows] = th, good

@@ -164,7 +164,7 @@ def test_one_axis_signs_split_a_strong_roll() -> None:
     # The control for the re-signing: with the dominant axis's signs only (what separation
     # uses) the same field is not found.
     from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation.quality import consensus_field
+    from blurtrack.detect.separation.consensus import consensus_field
 
     d = _roll_frame()
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
@@ -180,25 +180,25 @@ def test_later_starts_are_tried_only_where_a_voter_disagrees(monkeypatch) -> Non
     # Where the first start's field holds every voter no later start can win (it must do
     # strictly better): the neighbours' signs are not propagated. The roll frame needs them.
     from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation import quality
+    from blurtrack.detect.separation import consensus
 
     calls: list[int] = []
-    real = quality._propagated_signs
+    real = consensus._propagated_signs
 
     def counted(*a):
         calls.append(1)
         return real(*a)
 
-    monkeypatch.setattr(quality, "_propagated_signs", counted)
+    monkeypatch.setattr(consensus, "_propagated_signs", counted)
     d = _frame(14)
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
     mid = d[["mid_x", "mid_y"]].to_numpy(float)
-    field = quality.consensus_field(v, mid, np.ones(len(d), bool), QualityParams(), resign=True)
+    field = consensus.consensus_field(v, mid, np.ones(len(d), bool), QualityParams(), resign=True)
     assert field is not None and np.max(field.dev) < 1e-6 and not calls
     r = _roll_frame()
     v = r[["end_x", "end_y"]].to_numpy(float) - r[["start_x", "start_y"]].to_numpy(float)
     mid = r[["mid_x", "mid_y"]].to_numpy(float)
-    field = quality.consensus_field(v, mid, np.ones(len(r), bool), QualityParams(), resign=True)
+    field = consensus.consensus_field(v, mid, np.ones(len(r), bool), QualityParams(), resign=True)
     assert field is not None and np.max(field.dev) < 1e-6 and calls == [1]
 
 
@@ -260,7 +260,7 @@ def _prim_reference(mid: np.ndarray) -> tuple[list[int], list[int]]:
 
 
 def test_propagated_signs_follow_the_minimum_spanning_tree() -> None:
-    from blurtrack.detect.separation.quality import _propagated_signs
+    from blurtrack.detect.separation.consensus import _propagated_signs
 
     rng = np.random.default_rng(5)
     for _trial in range(20):
@@ -287,7 +287,7 @@ def test_propagated_signs_follow_the_minimum_spanning_tree() -> None:
 def test_robust_affine_stops_at_a_fixed_point_with_the_rounds_result() -> None:
     """Stopping when a round keeps the very voters it started from gives what all five
     rounds give (each later round refits the same voters)."""
-    from blurtrack.detect.separation.quality import _robust_affine
+    from blurtrack.detect.separation.consensus import _robust_affine
 
     def all_rounds(X, vs, voters, start, min_reference):
         use = start.copy()
@@ -344,7 +344,7 @@ def _field_without(v: np.ndarray, mid: np.ndarray, rows: np.ndarray, i: int) -> 
 
 def test_held_out_deviation_is_that_from_the_field_of_the_others() -> None:
     from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation.quality import consensus_field
+    from blurtrack.detect.separation.consensus import consensus_field
 
     d = _frame(9, seed=4)
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
@@ -367,7 +367,7 @@ def test_held_out_deviation_is_that_from_the_field_of_the_others() -> None:
 
 def test_a_facades_lines_make_a_consensus_only_with_their_own_votes() -> None:
     from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation.quality import consensus_field, shape_tolerance
+    from blurtrack.detect.separation.consensus import consensus_field, shape_tolerance
 
     q = QualityParams()
     voters = np.ones(len(FACADE_V), bool)
@@ -402,7 +402,7 @@ def test_a_facades_lines_make_a_consensus_only_with_their_own_votes() -> None:
 
 def test_many_voters_see_the_same_field_left_out() -> None:
     from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation.quality import consensus_field
+    from blurtrack.detect.separation.consensus import consensus_field
 
     d = _frame(300, seed=5)
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
