@@ -25,7 +25,7 @@ import numpy as np
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.measure import LineSet, Measured, combine, measure_lines
 from blurtrack.detect.paramsections import SeparationParams
-from blurtrack.detect.separation.consensus import Consensus, shape_tolerance
+from blurtrack.detect.separation.consensus import Consensus, nearest_sign, shape_tolerance
 from blurtrack.detect.separation.templates import Template, similar, template
 
 
@@ -64,7 +64,7 @@ def anchored(
     c = field.at(m.time_mid)
     L = np.hypot(*c.T)
     v = m.end_b - m.end_a
-    dev = np.minimum(np.hypot(*(v - c).T), np.hypot(*(v + c).T))
+    dev = nearest_sign(v, c)[1]
     tol = shape_tolerance(c, ctx.params.quality)
     frag = ~clipped & (sp.fragment_min_px <= L) & (np.hypot(*v.T) < sp.fragment_fraction * L)
     frag &= dev > tol

@@ -108,10 +108,10 @@ def _held_out(X: np.ndarray, f: np.ndarray, vs: np.ndarray, use: np.ndarray) -> 
     the voters, ``sum(h) = 3``). A voter that alone decides the field there (``h`` near 1)
     gets a value far from its own."""
     Xu, vu = X[use], vs[use]
-    beta = np.linalg.lstsq(Xu, vu, rcond=None)[0]
-    h = np.einsum("ij,jk,ik->i", Xu, np.linalg.pinv(Xu.T @ Xu), Xu)
+    P = np.linalg.pinv(Xu)  # the fit's coefficients are ``P @ vu``; the hat matrix ``Xu P``
+    h = np.einsum("ij,ji->i", Xu, P)
     out = f.copy()
-    out[use] = vu - (vu - Xu @ beta) / np.maximum(1.0 - h, 1e-6)[:, None]
+    out[use] = vu - (vu - Xu @ (P @ vu)) / np.maximum(1.0 - h, 1e-6)[:, None]
     return out
 
 
@@ -162,9 +162,7 @@ def consensus_field(
     tol = np.maximum(q.shape_tol_px, q.shape_tol_rel * np.hypot(*v.T))
 
     def agreeing(coef: np.ndarray) -> int:  # orientation-free
-        c = X @ coef
-        dev = np.minimum(np.hypot(*(v - c).T), np.hypot(*(v + c).T))
-        return int(np.sum(voters & (dev <= tol)))
+        return int(np.sum(voters & (nearest_sign(v, X @ coef)[1] <= tol)))
 
     starts: list[Callable[[], tuple[np.ndarray, np.ndarray]]] = [lambda: (sign, voters)]
     close = voters & near
@@ -194,12 +192,12 @@ def consensus_field(
     assert best is not None
     _, coef, use, sign = best
     f = X @ coef
-    c, dev = _nearest_sign(v, f * sign)
-    dev_held_out = _nearest_sign(v, _held_out(X, f, v * sign, use) * sign)[1] if held_out else None
+    c, dev = nearest_sign(v, f * sign)
+    dev_held_out = nearest_sign(v, _held_out(X, f, v * sign, use) * sign)[1] if held_out else None
     return Consensus(c, dev, use, coef, centre, dev_held_out)
 
 
-def _nearest_sign(v: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nearest_sign(v: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``c`` with each row's sign nearest to ``v``'s, and the distances ``|v - c|``."""
     dev_plus = np.hypot(*(v - c).T)
     dev_minus = np.hypot(*(v + c).T)

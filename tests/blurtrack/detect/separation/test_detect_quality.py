@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from blurtrack.detect.separation.consensus import Consensus
 from blurtrack.detect.separation.quality import add_quality, one_doubt
 from blurtrack.io import streaks
 
@@ -17,6 +18,12 @@ def _frame(n: int = 12, seed: int = 0) -> pd.DataFrame:
     v = np.array([20.0, 5.0]) + (mid - 300.0) @ np.array([[0.0, 0.02], [-0.02, 0.0]])
     flip = rng.random(n) < 0.4  # start/end swapped on some: not a shape error
     v[flip] *= -1
+    return _table(mid, v)
+
+
+def _table(mid: np.ndarray, v: np.ndarray, width_px: float = 1.8) -> pd.DataFrame:
+    """One frame's unflagged, unsaturated point-light streaks with time midpoints ``mid`` and
+    start-to-end vectors ``v`` (``(N, 2)`` px)."""
     start, end = mid - v / 2, mid + v / 2
     return pd.DataFrame(
         {
@@ -32,7 +39,7 @@ def _frame(n: int = 12, seed: int = 0) -> pd.DataFrame:
             "crossing": False,
             "looped": False,
             "saturated": False,
-            "width_px": 1.8,
+            "width_px": width_px,
             "source": "point",
         }
     )
@@ -342,18 +349,27 @@ def _field_without(v: np.ndarray, mid: np.ndarray, rows: np.ndarray, i: int) -> 
     return X[i] @ np.linalg.lstsq(X[keep], v[keep], rcond=None)[0]
 
 
-def test_held_out_deviation_is_that_from_the_field_of_the_others() -> None:
+def _fields_in_and_out(
+    n: int, seed: int, noise_px: float
+) -> tuple[np.ndarray, np.ndarray, Consensus, Consensus]:
+    """``_frame(n, seed)``'s vectors with Gaussian noise of ``noise_px``, their midpoints and
+    the consensus fitted to all of them, without and with the held-out deviations."""
     from blurtrack.detect.params import QualityParams
     from blurtrack.detect.separation.consensus import consensus_field
 
-    d = _frame(9, seed=4)
+    d = _frame(n, seed=seed)
     v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
-    v += np.random.default_rng(4).normal(0.0, 0.8, v.shape)
+    v += np.random.default_rng(seed).normal(0.0, noise_px, v.shape)
     mid = d[["mid_x", "mid_y"]].to_numpy(float)
     voters = np.ones(len(d), bool)
     inside = consensus_field(v, mid, voters, QualityParams(), resign=True)
     held = consensus_field(v, mid, voters, QualityParams(), resign=True, held_out=True)
     assert inside is not None and held is not None
+    return v, mid, inside, held
+
+
+def test_held_out_deviation_is_that_from_the_field_of_the_others() -> None:
+    v, mid, inside, held = _fields_in_and_out(9, seed=4, noise_px=0.8)
     assert np.array_equal(inside.use, held.use) and held.use.sum() >= 7
     assert inside.dev_held_out is None and held.dev_held_out is not None
     np.testing.assert_array_equal(held.dev, inside.dev)  # the field itself is as it was
@@ -379,39 +395,11 @@ def test_a_facades_lines_make_a_consensus_only_with_their_own_votes() -> None:
     # Negative control: with their own votes, enough of them agree for a consensus.
     assert int(np.sum(held.dev <= tol)) >= q.min_reference
     assert int(np.sum(held.dev_held_out <= tol)) < q.min_reference
-    d = pd.DataFrame(
-        {
-            "frame": 0,
-            "start_x": FACADE_MID[:, 0] - FACADE_V[:, 0] / 2,
-            "start_y": FACADE_MID[:, 1] - FACADE_V[:, 1] / 2,
-            "end_x": FACADE_MID[:, 0] + FACADE_V[:, 0] / 2,
-            "end_y": FACADE_MID[:, 1] + FACADE_V[:, 1] / 2,
-            "mid_x": FACADE_MID[:, 0],
-            "mid_y": FACADE_MID[:, 1],
-            "clipped": False,
-            "merged": False,
-            "crossing": False,
-            "looped": False,
-            "saturated": False,
-            "width_px": 2.5,
-            "source": "point",
-        }
-    )
-    assert not add_quality(d).quality_ok.any()
+    assert not add_quality(_table(FACADE_MID, FACADE_V, width_px=2.5)).quality_ok.any()
 
 
 def test_many_voters_see_the_same_field_left_out() -> None:
-    from blurtrack.detect.params import QualityParams
-    from blurtrack.detect.separation.consensus import consensus_field
-
-    d = _frame(300, seed=5)
-    v = d[["end_x", "end_y"]].to_numpy(float) - d[["start_x", "start_y"]].to_numpy(float)
-    v += np.random.default_rng(5).normal(0.0, 0.5, v.shape)
-    mid = d[["mid_x", "mid_y"]].to_numpy(float)
-    voters = np.ones(len(d), bool)
-    inside = consensus_field(v, mid, voters, QualityParams(), resign=True)
-    held = consensus_field(v, mid, voters, QualityParams(), resign=True, held_out=True)
-    assert inside is not None and held is not None
+    _, _, inside, held = _fields_in_and_out(300, seed=5, noise_px=0.5)
     assert held.dev_held_out is not None
     # Leverage ~3/300: the deviations differ by about a percent, never more than a few.
     assert np.all(held.dev_held_out <= inside.dev * 1.06 + 1e-9)
