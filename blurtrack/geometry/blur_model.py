@@ -38,6 +38,7 @@ from blurtrack.geometry.kernels import (
     warp_c,
 )
 from blurtrack.geometry.ordered_track import ordered_point_track
+from blurtrack.geometry.orientation_grid import GRID_STEP_S, OrientationGrid, orientation_grid
 
 #: Motion models: exact rotation integration, or the source paper's per-axis small angles.
 ROTATION_MODELS: dict[str, Callable[..., Mat3]] = {
@@ -199,6 +200,21 @@ class BlurModel:
         return ordered_point_track(
             px, tref, times, self.omega_cam_at, cam.intrinsics, cam.dist, self.max_substep_s
         )
+
+    def orientation_grid(
+        self, lo_s: np.ndarray, hi_s: np.ndarray, step_s: float = GRID_STEP_S
+    ) -> OrientationGrid:
+        """The camera's orientation tabulated over the windows ``[lo_s, hi_s]`` (camera clock,
+        seconds, ``(W,)`` each; :mod:`blurtrack.geometry.orientation_grid`), on a grid of
+        ``step_s`` or the model's sub-step where finer. Its ``point_track`` reads tracks of any
+        length and order in a window. Exact rotation model only (the ``small_angle`` model sums
+        angles from each reference, no orientation to tabulate: :class:`GeometryError`)."""
+        if self.rotation_model != "exact":
+            raise GeometryError(f"no orientation grid for the {self.rotation_model} model")
+        lo = np.asarray(lo_s, float).reshape(-1)
+        hi = np.asarray(hi_s, float).reshape(-1)
+        self._check(lo, hi)
+        return orientation_grid(lo, hi, self.omega_cam_at, min(step_s, self.max_substep_s))
 
     def streak_endpoints(
         self,

@@ -8,8 +8,10 @@ exponential per sample does (:func:`ordered_point_track`): the same midpoint Lie
 integrator (docs/conventions.md), on the samples' own, finer grid (a streak's 65 samples are
 < 1 ms apart, against the detection models' 4 ms sub-steps), composed once along the track.
 The kernel stays the reference (``tests/blurtrack/geometry/test_geometry_ordered_track.py``
-compares the two to 1e-6 px); detection's predicted curves use this one
-(:func:`blurtrack.detect.gyro.gyrocurve.predict_curves`).
+compares the two to 1e-6 px); the gyro-direction check's tracks use this one
+(:mod:`blurtrack.detect.gyro.direction`). Detection's predicted curves read a grid of the
+orientation instead (:mod:`blurtrack.geometry.orientation_grid`: the same integrator on a
+finer grid shared by a frame's streaks).
 """
 
 from __future__ import annotations

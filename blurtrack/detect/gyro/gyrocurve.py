@@ -12,6 +12,7 @@ included: a dot that slows down and turns (a hairpin) is brighter at its tip.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,6 +20,7 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.separation.templates import Template, finish
+from blurtrack.geometry.blur_model import ORDERED_MIN_SAMPLES
 
 #: Samples per predicted curve (uniform in time).
 CURVE_SAMPLES = 65
@@ -52,13 +54,16 @@ def predict_curves(
     exposure_s: float | np.ndarray,
     samples: int = CURVE_SAMPLES,
 ) -> Curves:
-    """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure (one model call
-    per shutter iteration, each integrated along the curve's increasing times:
-    :meth:`~blurtrack.geometry.blur_model.BlurModel.point_track_ordered`). ``frame_t_s``,
+    """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure. ``frame_t_s``,
     ``exposure_s``: the frame's (or ``(N,)``, one per dot: the streaks of many frames in one
-    call). ``model``: a
-    :class:`blurtrack.geometry.blur_model.BlurModel` covering the frames
-    (:class:`~blurtrack.errors.CoverageError` otherwise)."""
+    call). ``model``: a :class:`blurtrack.geometry.blur_model.BlurModel` covering the frames
+    (:class:`~blurtrack.errors.CoverageError` otherwise). Curves of
+    :data:`~blurtrack.geometry.blur_model.ORDERED_MIN_SAMPLES` samples or more are read from
+    the model's orientation grid over each frame's readout and exposure
+    (:meth:`~blurtrack.geometry.blur_model.BlurModel.orientation_grid`, built once for the
+    shutter iterations); shorter ones (a streak's two ends) from
+    :meth:`~blurtrack.geometry.blur_model.BlurModel.point_track_ordered`, whose cost has no
+    grid to pay."""
     cam = model.camera
     H = float(cam.height)
     ref = np.asarray(ref, float).reshape(-1, 2)
@@ -70,10 +75,25 @@ def predict_curves(
     t_ref = row_t + 0.5 * ex[:, 0]
     t = row_t[:, None] + ex * tau
     pos = np.broadcast_to(ref[:, None, :], (n, samples, 2))
+    track = _tracks(model, ft[:, 0], ex[:, 0]) if samples >= ORDERED_MIN_SAMPLES and n else None
     for _ in range(SHUTTER_ITERATIONS + 1):
-        pos = model.point_track_ordered(ref, t_ref, t)
+        pos = model.point_track_ordered(ref, t_ref, t) if track is None else track(ref, t_ref, t)
         t = ft + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + ex * tau
     return Curves(np.asarray(pos, float), ref)
+
+
+def _tracks(
+    model: Any, ft: np.ndarray, ex: np.ndarray
+) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """Point tracks ``(ref, t_ref, t) -> (N, S, 2)`` of the dots of frames starting at ``ft
+    (N,)`` with exposures ``ex (N,)``, read from the model's orientation grid over each frame's
+    window ``[ft, ft + readout + exposure]`` (every row's times and mid-exposure lie in it)."""
+    starts, window = np.unique(ft, return_inverse=True)
+    ends = np.full(starts.shape, -np.inf)
+    np.maximum.at(ends, window, ft + model.camera.readout_s + ex)
+    grid = model.orientation_grid(starts, ends)
+    cam = model.camera
+    return lambda ref, t_ref, t: grid.point_track(ref, t_ref, t, window, cam.intrinsics, cam.dist)
 
 
 def similar_curve(pts: np.ndarray, z: complex) -> np.ndarray:

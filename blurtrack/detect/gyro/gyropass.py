@@ -170,9 +170,10 @@ def refine_frame(
     """The second pass on one frame (see the module text): the frame's streaks (``fs`` itself
     when nothing changed) and what happened. ``image``: the frame as stored, or a function
     that reads it (called only when the gate lets the frame through). ``model``: a
-    :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera`` and
-    ``point_track_ordered``) covering the frame. ``sigma_c``: the smoothed cross-section sigma of
-    the templates and the measurement (None: the frame's, ``fs.sigma_c_px``).
+    :class:`blurtrack.geometry.blur_model.BlurModel` (or anything with its ``camera``,
+    ``orientation_grid`` and ``point_track_ordered``) covering the frame. ``sigma_c``: the
+    smoothed cross-section sigma of the templates and the measurement (None: the frame's,
+    ``fs.sigma_c_px``).
     ``gate_curves``: gets the :func:`gate`'s curves of ``fs``'s streaks inside the frame.
     ``vector_tol_px``: where ``model`` is the session's corrected one, the check's vector
     tolerance, for the gate's ``vectors`` test (None: not tested)."""

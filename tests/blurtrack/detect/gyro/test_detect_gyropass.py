@@ -512,7 +512,9 @@ class _PathMotion:
         seg = np.hypot(*np.diff(c, axis=0).T)
         self.at = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
         self.c = c
-        self.camera = type("Cam", (), {"readout_s": 0.0, "height": H})()
+        self.camera = type(
+            "Cam", (), {"readout_s": 0.0, "height": H, "intrinsics": None, "dist": None}
+        )()
 
     def _offset(self, t: np.ndarray) -> np.ndarray:
         s = np.clip((np.asarray(t, float) - T0) / EXP, 0.0, 1.0)
@@ -524,6 +526,14 @@ class _PathMotion:
         self, pixels: np.ndarray, t_ref: np.ndarray, times: np.ndarray
     ) -> np.ndarray:
         return pixels[:, None, :] + self._offset(times) - self._offset(t_ref)[:, None, :]
+
+    def orientation_grid(self, _lo: np.ndarray, _hi: np.ndarray) -> _PathMotion:
+        return self  # the path is the grid: tracks of any length read from it
+
+    def point_track(
+        self, pixels: np.ndarray, t_ref: np.ndarray, times: np.ndarray, *_: object
+    ) -> np.ndarray:
+        return self.point_track_ordered(pixels, t_ref, times)
 
 
 def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
