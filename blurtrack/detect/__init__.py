@@ -1,23 +1,23 @@
 """Laser-dot streak detection: from frames to measured blur trajectories (docs/detection.md).
 
-Modules: :mod:`~blurtrack.detect.image` (frame preparation, background, hot pixels),
-:mod:`~blurtrack.detect.context` (the frame context every stage takes),
-:mod:`~blurtrack.detect.lines.segment` (components, coarse centre lines),
-:mod:`~blurtrack.detect.lines.skeleton` (folded, crossing and looped streaks),
-:mod:`~blurtrack.detect.lines.centreline` and :mod:`~blurtrack.detect.lines.ragged` (batched
-sub-pixel centre lines and profiles), :mod:`~blurtrack.detect.lines.gaps` (streaks touching end
-to end),
-:mod:`~blurtrack.detect.lines.endpoints` and :mod:`~blurtrack.detect.lines.shortfit` (endpoints),
-:mod:`~blurtrack.detect.lines.measure` (measuring a set of lines),
-:mod:`~blurtrack.detect.separation.separate` and :mod:`~blurtrack.detect.separation.templates`
-(template separation of touching streaks), :mod:`~blurtrack.detect.separation.quality` (shape
-consistency, quality flag), :mod:`~blurtrack.detect.frame` (one frame), :mod:`~blurtrack.allocator`
-(allocator tuning), :mod:`~blurtrack.detect.orientation` and
-:mod:`~blurtrack.detect.timeshift` (which end is the start), :mod:`~blurtrack.detect.session`
-(a whole session), :mod:`~blurtrack.detect.table` (the streak table),
-:mod:`~blurtrack.detect.overlay` (pictures),
-:mod:`~blurtrack.testing.streak_frames` and :mod:`~blurtrack.testing.mini_session` (exact test
-data).
+One frame (:func:`~blurtrack.detect.frame.detect_frame`), top to bottom:
+:mod:`~blurtrack.detect.image` (gray, background and noise, hot pixels, smoothing);
+:mod:`~blurtrack.detect.context` (the frame context every stage reads);
+:mod:`blurtrack.detect.lines` (components, centre lines, widths, endpoints: measured lines);
+:mod:`blurtrack.detect.separation` (touching and crossing streaks separated, the frame's shape
+consensus, the ``quality_ok`` flag and its reason); :mod:`~blurtrack.detect.trust` with
+:mod:`~blurtrack.detect.flattop` (point light or extended source, trustworthy ends).
+
+A session (:func:`~blurtrack.detect.session.detect_session`): every frame's first pass in
+forked workers (:mod:`~blurtrack.detect.forkmap`); the gyro's stages
+(:mod:`blurtrack.detect.gyro`, in order in :mod:`~blurtrack.detect.gyro.gyrostages`: the
+time-shift scan of :mod:`~blurtrack.detect.timeshift`, the readout order, the gyro's
+direction, the session calibration, the gyro-template pass, the gyro's check); which end is
+the start (:mod:`~blurtrack.detect.orientation`, :mod:`~blurtrack.detect.sessioncues`); the
+streak table (:mod:`~blurtrack.detect.table`). Pictures: :mod:`~blurtrack.detect.overlay`.
+Parameters: :class:`~blurtrack.detect.params.DetectParams`, one section per stage
+(:mod:`~blurtrack.detect.paramsections`, declared by :mod:`~blurtrack.detect.paramfields`).
+Exact test data: :mod:`blurtrack.testing.streak_frames`, :mod:`blurtrack.testing.mini_session`.
 """
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks, detect_frame
