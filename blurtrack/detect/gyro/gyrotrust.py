@@ -123,8 +123,8 @@ def predicted_curves(
 ) -> list[np.ndarray | None]:
     """``(N, samples, 2)`` predicted curves of each frame's streaks at their time midpoints
     (None where the gyro falls short), batched over frames (:func:`_batches`). ``samples=2``
-    gives the two ends alone at a fraction of the cost (by the model's kernel integration;
-    longer paths are read from its orientation grid, :func:`predict_curves`)."""
+    gives the two ends alone at a fraction of the cost (from a coarser grid of the
+    orientation: :func:`predict_curves`)."""
     out: list[np.ndarray | None] = [None] * len(frames)
     for group in _batches(frames):
         for k, c in zip(

@@ -527,7 +527,7 @@ class _PathMotion:
     ) -> np.ndarray:
         return pixels[:, None, :] + self._offset(times) - self._offset(t_ref)[:, None, :]
 
-    def orientation_grid(self, _lo: np.ndarray, _hi: np.ndarray) -> _PathMotion:
+    def orientation_grid(self, _lo: np.ndarray, _hi: np.ndarray, _step: float) -> _PathMotion:
         return self  # the path is the grid: tracks of any length read from it
 
     def point_track(
