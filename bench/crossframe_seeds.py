@@ -41,7 +41,7 @@ from bench_detect import match, truth_arrays  # noqa: E402
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
-from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.geometry.blur_model import BlurModel  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 

@@ -30,7 +30,7 @@ from json_out import emit  # noqa: E402
 #: Run in the subprocess (its tree first on ``sys.path``): one timed ``detect_session``.
 _CHILD = """
 import json, sys, time
-from blurtrack.detect import session as sess
+from blurtrack.detect.session import pipeline as sess
 spent = [0.0]
 refine = sess.refine_frames
 def timed(*a, **k):

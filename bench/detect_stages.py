@@ -48,7 +48,7 @@ from bench_detect import baseline_files, evaluate, simulate, trust  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.params import GyroPassParams  # noqa: E402
-from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
 #: Variant name -> (parameters, detect_session keyword arguments).

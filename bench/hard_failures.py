@@ -37,7 +37,7 @@ from bench_detect import match, truth_arrays  # noqa: E402
 
 import blurtrack.detect.gyro.refinepass as refinepass  # noqa: E402
 from blurtrack.detect import DetectParams  # noqa: E402
-from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
 NEAR_PX = 10.0

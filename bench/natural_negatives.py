@@ -33,8 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import detect_frame  # noqa: E402
-from blurtrack.detect.orientation import combine  # noqa: E402
-from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
+from blurtrack.detect.session.orientation import combine  # noqa: E402
+from blurtrack.detect.session.table import build_table, frame_rows  # noqa: E402
 from blurtrack.features.blur_estimate import rasterize  # noqa: E402
 from blurtrack.geometry.gyro import GyroTrace  # noqa: E402
 from blurtrack.io.shake import read_shake_trace  # noqa: E402

@@ -35,7 +35,7 @@ from bench_detect import TRUST_GATE_PX, end_distances, simulate, truth_arrays  #
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
-from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
 #: Confidence bins of the report.

@@ -30,9 +30,9 @@ sys.path.insert(0, str(ROOT / "bench"))
 from real_streaks import DATA, whole_reference  # noqa: E402
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
-from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.separation.consensus import shape_tolerance  # noqa: E402
-from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
+from blurtrack.detect.session.orientation import combine  # noqa: E402
+from blurtrack.detect.session.table import build_table, frame_rows  # noqa: E402
 
 #: night2's two bushes (full-size pixels, x0, x1, y0, y1), by eye.
 BUSHES = ((142, 250, 425, 625), (308, 417, 425, 625))

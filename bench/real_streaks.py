@@ -29,11 +29,11 @@ sys.path.insert(0, str(ROOT))
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
 from blurtrack.detect.context import frame_context  # noqa: E402
 from blurtrack.detect.image import prepare_frame  # noqa: E402
-from blurtrack.detect.orientation import combine  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks  # noqa: E402
 from blurtrack.detect.separation.consensus import shape_tolerance  # noqa: E402
 from blurtrack.detect.separation.modal import component_references  # noqa: E402
-from blurtrack.detect.table import build_table, frame_rows  # noqa: E402
+from blurtrack.detect.session.orientation import combine  # noqa: E402
+from blurtrack.detect.session.table import build_table, frame_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "light-streaks"
 

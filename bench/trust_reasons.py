@@ -36,7 +36,7 @@ from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.separation.quality import REASONS  # noqa: E402
-from blurtrack.detect.session import detect_session  # noqa: E402
+from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
 

@@ -92,13 +92,13 @@ def detect_to_table(
     """Detect the streaks of ``session`` (with a progress bar) and write the table to ``out``.
 
     ``workers`` processes detect frames in parallel (default: the CPU cores; the table does not
-    depend on it). Returns the :class:`blurtrack.detect.session.DetectionResult`; shared by
+    depend on it). Returns the :class:`blurtrack.detect.session.pipeline.DetectionResult`; shared by
     ``detect`` and by ``calibrate``/``report`` when a session has no table yet.
     """
     import cv2
 
-    from blurtrack.detect.session import default_workers, detect_session
-    from blurtrack.detect.table import write_table
+    from blurtrack.detect.session.pipeline import default_workers, detect_session
+    from blurtrack.detect.session.table import write_table
 
     cv2.setNumThreads(1)
 

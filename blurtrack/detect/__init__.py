@@ -8,13 +8,13 @@ One frame (:func:`~blurtrack.detect.frame.detect_frame`), top to bottom:
 consensus, the ``quality_ok`` flag and its reason); :mod:`~blurtrack.detect.trust` with
 :mod:`~blurtrack.detect.flattop` (point light or extended source, trustworthy ends).
 
-A session (:func:`~blurtrack.detect.session.detect_session`): every frame's first pass in
+A session (:func:`~blurtrack.detect.session.pipeline.detect_session`): every frame's first pass in
 forked workers (:mod:`~blurtrack.detect.forkmap`); the gyro's stages
 (:mod:`blurtrack.detect.gyro`, in order in :mod:`~blurtrack.detect.gyro.gyrostages`: the
-time-shift scan of :mod:`~blurtrack.detect.timeshift`, the readout order, the gyro's
+time-shift scan of :mod:`~blurtrack.detect.gyro.timeshift`, the readout order, the gyro's
 direction, the session calibration, the gyro-template pass, the gyro's check); which end is
-the start (:mod:`~blurtrack.detect.orientation`, :mod:`~blurtrack.detect.sessioncues`); the
-streak table (:mod:`~blurtrack.detect.table`). Pictures: :mod:`~blurtrack.detect.overlay`.
+the start (:mod:`~blurtrack.detect.session.orientation`, :mod:`~blurtrack.detect.session.cues`); the
+streak table (:mod:`~blurtrack.detect.session.table`). Pictures: :mod:`~blurtrack.detect.overlay`.
 Parameters: :class:`~blurtrack.detect.params.DetectParams`, one section per stage
 (:mod:`~blurtrack.detect.paramsections`, declared by :mod:`~blurtrack.detect.paramfields`).
 Exact test data: :mod:`blurtrack.testing.streak_frames`, :mod:`blurtrack.testing.mini_session`.

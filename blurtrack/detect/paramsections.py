@@ -333,7 +333,7 @@ class GyroPassParams:
 
 @dataclass(frozen=True)
 class OrientationParams:
-    """The start/end cues' error model (:mod:`blurtrack.detect.orientation`; YAML
+    """The start/end cues' error model (:mod:`blurtrack.detect.session.orientation`; YAML
     ``orientation:``). Each cue is a log-likelihood ratio (LLR) that end A is the start.
 
     - ``gyro_sigma_px``, ``gyro_sigma_rel``: the gyro's predicted ends scatter about the
@@ -350,7 +350,7 @@ class OrientationParams:
     - ``continuity_present``: the chance that a dot's own end lies near where its streak's end,
       extrapolated through the gap, says it should in a neighbouring frame: found there, and
       the motion through the gap as extrapolated (a turn in the gap, a dot leaving the view
-      or missed; :func:`~blurtrack.detect.orientation.continuity_llr`). It bounds what a
+      or missed; :func:`~blurtrack.detect.session.orientation.continuity_llr`). It bounds what a
       missing end says against an orientation (``ln(1 - p)``). 0.75: the log-loss of the
       continuity-only orientation against the truth on ``hard`` seeds 1, 2, 5, 6 was lowest
       among 0.7-0.9.
@@ -387,7 +387,7 @@ class OrientationParams:
 
 @dataclass(frozen=True)
 class TimeshiftParams:
-    """The camera-IMU time shift found from the streaks (:mod:`blurtrack.detect.timeshift`,
+    """The camera-IMU time shift found from the streaks (:mod:`blurtrack.detect.gyro.timeshift`,
     the scan of measured ends; :mod:`blurtrack.detect.gyro.shiftfit`, the refinement by the
     predicted templates; YAML ``timeshift:``).
 

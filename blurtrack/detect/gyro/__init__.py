@@ -3,7 +3,7 @@ session's blur model corrected, the gyro-template second pass, and the gyro's ch
 ``quality_ok`` ends.
 
 Modules in pipeline order: :mod:`~blurtrack.detect.gyro.gyrostages` (the stages in order,
-after the time-shift scan of :mod:`blurtrack.detect.timeshift`),
+after the time-shift scan of :mod:`blurtrack.detect.gyro.timeshift`),
 :mod:`~blurtrack.detect.gyro.readout` (which row the sensor reads first),
 :mod:`~blurtrack.detect.gyro.direction` (the gyro's motion against the images),
 :mod:`~blurtrack.detect.gyro.sessionmodel` with :mod:`~blurtrack.detect.gyro.sessioncalib`

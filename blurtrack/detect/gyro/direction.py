@@ -8,7 +8,7 @@ scan finds its shift, and the gyro's orientation cue then names the wrong end of
 the start, at full confidence. The images decide the direction by themselves: in the gap
 between two exposures a dot goes on moving, so one end of a streak lies near an end of the
 previous frame's streak of the same dot and the other near the next frame's
-(:func:`~blurtrack.detect.orientation.continuity_cues`, here without any tentative
+(:func:`~blurtrack.detect.session.orientation.continuity_cues`, here without any tentative
 orientation: any end of a neighbouring frame may continue a streak).
 
 Where both cues are decisive (``|LLR| >= orientation.direction_llr``) they agree on 87-100 %
@@ -46,8 +46,13 @@ from typing import Any
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import CueErrors, FrameTiming, continuity_cues, gyro_cues_batch
 from blurtrack.detect.paramsections import OrientationParams
+from blurtrack.detect.session.orientation import (
+    CueErrors,
+    FrameTiming,
+    continuity_cues,
+    gyro_cues_batch,
+)
 from blurtrack.errors import CoverageError
 
 #: Frames sampled for the check (spread over the session): ~3600 streaks on `dense`, 0.1 s.

@@ -19,9 +19,9 @@ from blurtrack.detect.gyro.gyroconfirm import accepted, confirmed, cut_at_border
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyromeasure import measure_placements
 from blurtrack.detect.lines.measure import Measured
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import GyroPassParams, SeparationParams
 from blurtrack.detect.separation.templates import Placement
+from blurtrack.detect.session.orientation import FrameTiming
 
 
 @dataclass(frozen=True)

@@ -16,9 +16,9 @@ from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
 from blurtrack.detect.gyro.gyrotrust import hairpin_depth
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.detect.separation.templates import HALO_PX, Template
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
 
 #: Why the gate (:func:`~blurtrack.detect.gyro.gyrogate.gate`) lets a frame through: its

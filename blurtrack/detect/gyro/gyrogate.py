@@ -14,8 +14,8 @@ from blurtrack.detect.gyro.gyrocandidates import GateReason, inside_frame
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import hairpin_depth
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import GyroPassParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
 
 #: Samples of the gate's predicted curves (odd: its middle sample is the mid-exposure one, as

@@ -100,11 +100,11 @@ from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
 from blurtrack.detect.lines.segment import Components
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams, GyroPassParams, SeparationParams
 from blurtrack.detect.separation.pursuit import pursue
 from blurtrack.detect.separation.refit import model_image, refit
 from blurtrack.detect.separation.templates import InsideNorms, Placement, Template
+from blurtrack.detect.session.orientation import FrameTiming
 
 #: More pursuits over what the placements leave (:func:`_sweep`). The first pursuit of a
 #: component stops after ``MAX_ROUNDS`` or where its tries fail the halo test, which a

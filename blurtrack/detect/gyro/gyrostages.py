@@ -1,7 +1,8 @@
-"""The gyro's stages of detecting a session (:func:`blurtrack.detect.session.detect_session`,
-after every frame's first pass): the time-shift scan and the readout order, the gyro's
-direction against the images, the session calibration, the template pass with the gyro cues,
-and the gyro's check of the ``quality_ok`` ends, with the continuity cue computed meanwhile."""
+"""The gyro's stages of detecting a session
+(:func:`blurtrack.detect.session.pipeline.detect_session`, after every frame's first pass): the
+time-shift scan and the readout order, the gyro's direction against the images, the session
+calibration, the template pass with the gyro cues, and the gyro's check of the ``quality_ok``
+ends, with the continuity cue computed meanwhile."""
 
 from __future__ import annotations
 
@@ -11,7 +12,6 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect import sessioncues
 from blurtrack.detect.forkmap import Jobs
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
@@ -19,9 +19,10 @@ from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.readout import ReadoutOrder, readout_order
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
-from blurtrack.detect.orientation import CUE_SUBSTEP_S, FrameTiming, cue_errors
+from blurtrack.detect.gyro.timeshift import estimate_timeshift
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.timeshift import estimate_timeshift
+from blurtrack.detect.session import cues as session_cues
+from blurtrack.detect.session.orientation import CUE_SUBSTEP_S, FrameTiming, cue_errors
 from blurtrack.errors import CoverageError, DetectionError
 
 
@@ -191,20 +192,20 @@ def _template_pass(
         # not depend on the count); after the pass only the frames it changed are
         # computed again.
         first = list(found)
-        early = sessioncues.cue_jobs(first, timings, covered, model, error_model)
+        early = session_cues.cue_jobs(first, timings, covered, model, error_model)
         # Where the session's calibration was corrected, the curves are the dots': no
         # rotations and scales to search (the search stands in for a nominal calibration).
         p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
         template_pass = refine_frames(
             session, found, timings, idx, covered, model, p_pass, workers, early, fitted
         )
-        got = sessioncues.cues_of_jobs(early, first, timings, covered, model, error_model)
+        got = session_cues.cues_of_jobs(early, first, timings, covered, model, error_model)
         if got is not None:
-            cues = sessioncues.recomputed_where_changed(
+            cues = session_cues.recomputed_where_changed(
                 got, first, found, timings, covered, model, error_model
             )
     if cues is None:
-        cues = sessioncues.gyro_llrs(found, timings, covered, model, error_model)
+        cues = session_cues.gyro_llrs(found, timings, covered, model, error_model)
     return template_pass, cues
 
 
@@ -228,7 +229,7 @@ def _check(
     # the model is already fitted over the very streaks the check would fit.
     unchanged = not template_pass.frames.get("refined")
     # In a part per worker (the same columns as all at once).
-    ranges = sessioncues.continuity_parts(len(found), workers)
+    ranges = session_cues.continuity_parts(len(found), workers)
     continued = Jobs([partial(continuity, found, timings, llrs, p, r) for r in ranges])
     checked = check_frames(
         found,
@@ -254,6 +255,6 @@ def continuity(
 ) -> list[np.ndarray]:
     """The continuity cue's column of the frames ``part`` (all: None), from the final
     frames and their gyro cues (``llrs``' first two columns)."""
-    return sessioncues.continuity_columns(
+    return session_cues.continuity_columns(
         found, timings, llrs, cue_errors(p.orientation, refined=False), part
     )

@@ -56,8 +56,8 @@ from blurtrack.detect.gyro.sessioncalib import (
     corrected_model,
     session_fit,
 )
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import SourceParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
 
 #: Samples per predicted curve (uniform in time): at a turn the dot is slow, so its depth is

@@ -7,7 +7,7 @@ nothing in a session says so; the blur model then predicts every streak at the w
 by up to the readout (25-30 ms on the simulator's rigs), and the gyro's help turns into
 confident errors (``dense`` seed 3 with its frames turned: ok-coverage 99.8 -> 20 %;
 ``hard`` seed 3: ok-precision 99.9 -> 94 %). The frames decide: the time-shift scan
-(:func:`blurtrack.detect.timeshift.estimate_timeshift`, the orientation-free end mismatch of up
+(:func:`blurtrack.detect.gyro.timeshift.estimate_timeshift`, the orientation-free end mismatch of up
 to 180 long streaks over +-50 ms) is run a second time on the session turned by 180 degrees,
 where the bottom row is read first: every streak's coordinates ``(W - 1 - x, H - 1 - y)``, the
 calibration turned with them (:func:`turned_calibration`). Each scan's least cost is a sum of
@@ -15,7 +15,7 @@ squared, normalised end mismatches (a chi-square up to its per-streak cap), so h
 difference of the two is a log-likelihood ratio of the two readout orders, each at its own
 best shift. A rolling shutter's order shows wherever streaks spread over the rows and the
 motion changes within a readout; a global shutter (readout 0) has none, and is not checked.
-Where the bottom row is read first, :func:`blurtrack.detect.session.detect_session` detects
+Where the bottom row is read first, :func:`blurtrack.detect.session.pipeline.detect_session` detects
 again in the frames turned by 180 degrees (:class:`TurnedSession`), where the top row is read
 first, and turns the table back (:func:`turned_table`).
 """
@@ -29,9 +29,9 @@ import numpy as np
 import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.gyro.timeshift import TimeshiftEstimate, estimate_timeshift
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.timeshift import TimeshiftEstimate, estimate_timeshift
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import DetectionError
 from blurtrack.geometry.camera import TURN_180, turned_camera
 
@@ -76,8 +76,8 @@ POINT_COLUMNS = (("start_x", "start_y"), ("end_x", "end_y"), ("mid_x", "mid_y"))
 
 
 def turned_table(table: pd.DataFrame, resolution: tuple[int, int]) -> pd.DataFrame:
-    """A streak table (:mod:`blurtrack.detect.table`) of frames turned by 180 degrees, in the
-    frames' own pixels (``resolution``: ``(W, H)``): the points of :data:`POINT_COLUMNS`
+    """A streak table (:mod:`blurtrack.detect.session.table`) of frames turned by 180 degrees, in
+    the frames' own pixels (``resolution``: ``(W, H)``): the points of :data:`POINT_COLUMNS`
     and of every ``centerline`` at ``(W - 1 - x, H - 1 - y)``; every other column as it is."""
     w, h = resolution
     out = table.copy()

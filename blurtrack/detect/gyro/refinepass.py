@@ -18,9 +18,9 @@ import numpy as np
 from blurtrack.detect.forkmap import Jobs, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyropass import FrameOutcome, refine_frame
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.quality import frame_quality
+from blurtrack.detect.session.orientation import FrameTiming
 
 
 @dataclass

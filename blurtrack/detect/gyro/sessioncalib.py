@@ -42,7 +42,7 @@ import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import BlurTrackError, CoverageError
 from blurtrack.geometry.rotation import so3_log
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 from typing import Any
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import FrameTiming
 
 
 def covered_frames(found: list[FrameStreaks], timings: list[FrameTiming], model: Any) -> list[int]:

@@ -1,7 +1,7 @@
 """The camera–IMU time shift refined by the gyro's predicted streak templates, for the
 template pass (:mod:`blurtrack.detect.gyro.gyropass`).
 
-The scan (:mod:`blurtrack.detect.timeshift`) matches the first pass's measured *ends* with the
+The scan (:mod:`blurtrack.detect.gyro.timeshift`) matches the first pass's measured *ends* with the
 predicted ones. Where the frames hold saturated, touching streaks measured by the first pass
 alone, its minimum lies off the truth: on ``hard`` seeds 1-3 by -1.56, +1.44 and -1.59 ms (with
 the session's nominal calibration, and by 0.7-1.4 ms with the true one: the measured ends'
@@ -46,8 +46,8 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import curve_template, predict_curves
 from blurtrack.detect.gyro.gyrogate import gate
 from blurtrack.detect.image import prepare_frame
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
 
 #: Frames sampled (spread over the covered ones) and streaks used per frame: the refinement's

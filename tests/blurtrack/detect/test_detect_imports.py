@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect.lines.ragged import split_at
-from blurtrack.detect.table import read_table
+from blurtrack.detect.session.table import read_table
 from blurtrack.testing.mini_session import write_synthetic_session
 
 REPO = Path(__file__).resolve().parents[3]
@@ -56,7 +56,9 @@ def test_detecting_a_frame_imports_no_table_or_spline_package() -> None:
     )  # detection was imported
     assert _present(mods, NOT_FOR_FRAMES) == []
     # negative control: the session layer does import pandas
-    assert _present(_modules_after("import blurtrack.detect.session"), ("pandas",)) == ["pandas"]
+    assert _present(_modules_after("import blurtrack.detect.session.pipeline"), ("pandas",)) == [
+        "pandas"
+    ]
 
 
 def test_the_detect_command_never_imports_torch_or_scipy(tmp_path: Path) -> None:
@@ -80,7 +82,7 @@ def test_the_detect_command_never_imports_torch_or_scipy(tmp_path: Path) -> None
 
 
 def test_what_the_command_imports_before_forking_holds_no_scipy() -> None:
-    code = "import blurtrack.cli.detect, blurtrack.io.session, blurtrack.detect.session"
+    code = "import blurtrack.cli.detect, blurtrack.io.session, blurtrack.detect.session.pipeline"
     mods = _modules_after(code)
     assert "blurtrack.detect.lines.endpoints" in mods  # the detector was imported
     assert sorted(m for m in mods if m == "scipy" or m.startswith("scipy.")) == []

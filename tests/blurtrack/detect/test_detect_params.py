@@ -22,7 +22,7 @@ from blurtrack.detect.params import (
     TimeshiftParams,
 )
 from blurtrack.detect.separation.quality import frame_quality
-from blurtrack.detect.session import detect_session
+from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.errors import ConfigError
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session

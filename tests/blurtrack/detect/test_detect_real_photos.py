@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 
 from blurtrack.detect import detect_frame
-from blurtrack.detect.orientation import combine
-from blurtrack.detect.table import build_table, frame_rows
+from blurtrack.detect.session.orientation import combine
+from blurtrack.detect.session.table import build_table, frame_rows
 
 #: night2's whole string lights found ``quality_ok`` (time midpoints, px of the photograph).
 NIGHT2_WHOLE_LIGHTS = np.array([[665.0, 312.0], [795.0, 438.0], [479.0, 524.0], [399.0, 475.0]])

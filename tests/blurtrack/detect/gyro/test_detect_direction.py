@@ -13,9 +13,9 @@ import yaml
 
 from blurtrack.cli import main
 from blurtrack.detect.gyro.direction import gyro_direction, sampled_frames
-from blurtrack.detect.orientation import CUE_SUBSTEP_S, CueErrors, FrameTiming
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.session import detect_frames, detect_session
+from blurtrack.detect.session.orientation import CUE_SUBSTEP_S, CueErrors, FrameTiming
+from blurtrack.detect.session.pipeline import detect_frames, detect_session
 from blurtrack.errors import DetectionError
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.gyro import GyroTrace

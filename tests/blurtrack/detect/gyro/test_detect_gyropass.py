@@ -14,8 +14,8 @@ from blurtrack.detect import detect_frame
 from blurtrack.detect.gyro import gyroaccept, gyrocandidates, gyroconfirm, gyrogate, gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyropass import refine_frame
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams, GyroPassParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
@@ -169,7 +169,7 @@ def test_the_session_runs_the_pass(tmp_path, monkeypatch) -> None:
     # compares the first pass's lines with the predicted ends): the session's guess (the
     # truth here) is used as it is.
     from blurtrack.detect import DetectParams
-    from blurtrack.detect.session import detect_session
+    from blurtrack.detect.session.pipeline import detect_session
     from blurtrack.io.session import load_session
     from blurtrack.testing import mini_session
 

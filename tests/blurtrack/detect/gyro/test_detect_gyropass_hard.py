@@ -20,7 +20,7 @@ from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro import gyropass
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.params import DetectParams, GyroPassParams
-from blurtrack.detect.session import detect_session
+from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.io.session import load_session
 from rigs.sim.shake import default_shake_path
 

@@ -21,7 +21,7 @@ from blurtrack.detect.gyro.readout import (
     turned_table,
 )
 from blurtrack.detect.params import DetectParams
-from blurtrack.detect.session import detect_session
+from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
 from blurtrack.io.session import load_session

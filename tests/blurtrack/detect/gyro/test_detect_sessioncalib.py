@@ -15,7 +15,7 @@ from blurtrack.detect.gyro.sessioncalib import (
     difference,
     fit_session_calibration,
 )
-from blurtrack.detect.orientation import FrameTiming
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera

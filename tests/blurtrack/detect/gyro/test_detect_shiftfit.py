@@ -13,8 +13,8 @@ import pytest
 from blurtrack.detect import detect_frame
 from blurtrack.detect.gyro import shiftfit
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.orientation import FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera

@@ -1,9 +1,9 @@
 """The orientation cues of a session's frames, as the session driver
-(:func:`blurtrack.detect.session.detect_session`) computes them: the gyro and profile LLRs of
-the covered frames, batched (:func:`gyro_llrs`), as side jobs of the template pass's workers
+(:func:`blurtrack.detect.session.pipeline.detect_session`) computes them: the gyro and profile
+LLRs of the covered frames, batched (:func:`gyro_llrs`), as side jobs of the template pass's workers
 (:func:`cue_jobs`, :func:`cues_of_jobs`) and again only for the frames the pass replaced
 (:func:`recomputed_where_changed`); and the continuity LLRs of the final frames
-(:func:`continuity_columns`). The cues themselves are :mod:`blurtrack.detect.orientation`'s.
+(:func:`continuity_columns`). The cues themselves are :mod:`blurtrack.detect.session.orientation`'s.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from blurtrack.detect.forkmap import Jobs
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import (
+from blurtrack.detect.session.orientation import (
     CueErrors,
     FrameTiming,
     combine,

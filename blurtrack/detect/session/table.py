@@ -32,8 +32,8 @@ import pandas as pd
 
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.lines.ragged import split_at
-from blurtrack.detect.orientation import Orientation
 from blurtrack.detect.separation.quality import QUALITY_COLUMNS, add_quality
+from blurtrack.detect.session.orientation import Orientation
 from blurtrack.io import atomic, streaks
 
 #: Columns of the table beyond those of :mod:`blurtrack.io.streaks`, with their dtypes.

@@ -19,13 +19,13 @@ from blurtrack.detect.gyro.readout import (
     turned_frame,
     turned_table,
 )
-from blurtrack.detect.orientation import (
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.separation.quality import REASONS, frame_quality
+from blurtrack.detect.session.orientation import (
     FrameTiming,
     combine,
 )
-from blurtrack.detect.params import DetectParams
-from blurtrack.detect.separation.quality import REASONS, frame_quality
-from blurtrack.detect.table import TABLE_VERSION, build_table, frame_columns
+from blurtrack.detect.session.table import TABLE_VERSION, build_table, frame_columns
 from blurtrack.detect.trust import SOURCES
 from blurtrack.errors import CoverageError, DetectionError
 from blurtrack.geometry.gyro import GYRO_UPSAMPLE
@@ -131,7 +131,7 @@ def detect_session(
         workers: processes that decode and detect frames in parallel (1: in this process);
             the result does not depend on it.
         refine_timeshift: before using the gyro, scan the camera-IMU time shift around the
-            session's guess (:mod:`blurtrack.detect.timeshift`); the guess may be off by more
+            session's guess (:mod:`blurtrack.detect.gyro.timeshift`); the guess may be off by more
             than an exposure.
         meanwhile: the caller's own preparation (say, importing the table writer), run while
             the workers detect.

@@ -12,8 +12,8 @@ import pytest
 
 from blurtrack.detect.params import QualityParams
 from blurtrack.detect.separation import consensus, quality
-from blurtrack.detect.session import detect_session
-from blurtrack.detect.table import read_table, to_arrow, write_table
+from blurtrack.detect.session.pipeline import detect_session
+from blurtrack.detect.session.table import read_table, to_arrow, write_table
 from blurtrack.io import streaks
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session

@@ -11,9 +11,14 @@ import pytest
 
 from blurtrack.cli import main
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import FrameTiming, combine, continuity_cues, continuity_llr
-from blurtrack.detect.session import detect_session
-from blurtrack.detect.table import EXTRA_COLUMNS, read_table, write_table
+from blurtrack.detect.session.orientation import (
+    FrameTiming,
+    combine,
+    continuity_cues,
+    continuity_llr,
+)
+from blurtrack.detect.session.pipeline import detect_session
+from blurtrack.detect.session.table import EXTRA_COLUMNS, read_table, write_table
 from blurtrack.errors import CoverageError, DetectionError
 from blurtrack.io import streaks
 from blurtrack.io.session import load_session
@@ -238,8 +243,8 @@ def test_session_without_any_dots_is_reported(tmp_path: Path) -> None:
 
 
 def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
-    from blurtrack.detect.orientation import FrameTiming
-    from blurtrack.detect.timeshift import estimate_timeshift
+    from blurtrack.detect.gyro.timeshift import estimate_timeshift
+    from blurtrack.detect.session.orientation import FrameTiming
 
     folder = tmp_path / "shifted"
     write_synthetic_session(folder, n_frames=5, seed=7, timeshift_s=0.018)
@@ -264,8 +269,8 @@ def test_timeshift_scan_recovers_a_wrong_initial_offset(tmp_path: Path) -> None:
 
 
 def test_continuity_in_parts_is_the_same_as_all_at_once() -> None:
-    from blurtrack.detect.orientation import CueErrors
-    from blurtrack.detect.sessioncues import continuity_columns, continuity_parts
+    from blurtrack.detect.session.cues import continuity_columns, continuity_parts
+    from blurtrack.detect.session.orientation import CueErrors
 
     # Two dots moving right at 1000 px/s, 10 ms exposures every 12 ms, over 7 frames; some
     # streaks stored reversed, and gyro LLRs that disagree with some, so that the second

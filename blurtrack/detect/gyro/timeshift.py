@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.orientation import CUE_SUBSTEP_S, FrameTiming
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import CUE_SUBSTEP_S, FrameTiming
 
 if TYPE_CHECKING:
     from blurtrack.geometry.calibration import Calibration

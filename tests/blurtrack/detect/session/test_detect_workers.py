@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from blurtrack.cli import main
-from blurtrack.detect.session import detect_session
+from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.errors import CoverageError, DetectionError
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
@@ -144,8 +144,8 @@ def test_meanwhile_runs_once_and_changes_nothing(session_folder: Path) -> None:
 
 
 def test_timeshift_scan_with_the_resampled_trace_given_is_the_same(session_folder: Path) -> None:
-    from blurtrack.detect.orientation import FrameTiming
-    from blurtrack.detect.timeshift import estimate_timeshift
+    from blurtrack.detect.gyro.timeshift import estimate_timeshift
+    from blurtrack.detect.session.orientation import FrameTiming
     from blurtrack.geometry.gyro import GYRO_UPSAMPLE
 
     session = load_session(session_folder)
@@ -304,7 +304,7 @@ def _count_cue_calls(
     """Record the ids of the frame objects computed, the result and the arguments of every
     gyro-cue call in this process; and the first pass's cue jobs with their arguments and
     the cues of one call on them."""
-    from blurtrack.detect import sessioncues as detect_session_module
+    from blurtrack.detect.session import cues as detect_session_module
 
     calls: list[tuple[list[int], list, tuple]] = []
     jobs: list[tuple[Any, tuple, list]] = []
@@ -335,7 +335,7 @@ def test_gyro_cues_computed_while_the_template_pass_runs(
     workers, ahead of its frames (with one worker: here, before it); afterwards only the
     frames the pass replaced are computed again: the same table as one process both where
     nothing and where every frame changed."""
-    from blurtrack.detect.sessioncues import gyro_llrs as real_llrs
+    from blurtrack.detect.session.cues import gyro_llrs as real_llrs
 
     session = load_session(session_folder)
     one = detect_session(session, workers=1)
@@ -381,7 +381,7 @@ def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.Monk
     gyro does not cover gets None), as :func:`gyro_llrs` does; another detection error:
     nothing (computed after the pass); otherwise the batches' cues in order."""
     from blurtrack.detect import forkmap
-    from blurtrack.detect import sessioncues as m
+    from blurtrack.detect.session import cues as m
 
     frames: list[Any] = [[0.0] * 2, [], [0.0] * 3]
     covered = [0, 1, 2]
@@ -422,7 +422,7 @@ def test_failed_cue_jobs_fall_back_as_the_one_call_does(monkeypatch: pytest.Monk
 
 def test_recomputed_where_changed_keeps_the_rest() -> None:
 
-    from blurtrack.detect import sessioncues as m
+    from blurtrack.detect.session import cues as m
 
     a, b, c = [1.0], [2.0], [3.0]
     first: list[Any] = [a, b, c]
