@@ -49,9 +49,11 @@ ROTATION_MODELS: dict[str, Callable[..., Mat3]] = {
 
 #: Fewest samples per track for which :meth:`BlurModel.point_track_ordered` composes the
 #: rotation sample to sample: a track of a few samples (a streak's two ends) takes as many
-#: exponentials either way, and the kernel has no prefix products to pay (0.47 s of the
-#: session calibration's 0.9 on a 150-frame ``dense`` session with 2 samples; a 17-sample
-#: gate curve is already 8 % cheaper ordered, a 65-sample one 2-4x).
+#: exponentials either way, and the kernel has no prefix products to pay (measured when
+#: detection's predictions used it: ordered, 2-sample tracks took 0.47 s of the session
+#: calibration's 0.9 on a 150-frame ``dense`` session; a 17-sample curve was 8 % cheaper
+#: ordered, a 65-sample one 2-4x). Detection's predictions now read
+#: :meth:`BlurModel.orientation_grid` instead.
 ORDERED_MIN_SAMPLES = 9
 
 
