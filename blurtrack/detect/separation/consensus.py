@@ -64,27 +64,36 @@ def _robust_affine(
 
 
 def _propagated_signs(v: np.ndarray, mid: np.ndarray, voters: np.ndarray) -> np.ndarray:
-    """``(N, 1)`` signs of the vectors ``v`` that make each voter agree with its nearest
-    signed voter (a minimum spanning tree over the time midpoints ``mid``, grown from the
-    first voter); the other streaks agree with their nearest voter."""
+    """``(N, 1)`` signs of the vectors ``v`` that make each voter agree with the signed voter
+    it joins in a minimum spanning tree grown from the first voter; the other streaks agree
+    with their nearest voter.
+
+    An edge's cost is the squared distance of the time midpoints ``mid`` over what the pair
+    says of the sign, ``|a . b| / max(|a|, |b|)`` (px: the shorter vector's length times the
+    cosine between them): neighbours share the field, but a sub-pixel streak or a pair
+    nearly at right angles carries no sign, and a tree through it flips every voter beyond
+    it (a frame of short streaks that turn: the field's start lost half its voters)."""
     idx = np.flatnonzero(voters)
     sign = np.ones(len(v))
-    d2 = np.sum((mid[idx][:, None] - mid[idx][None]) ** 2, axis=2)
+    vi = v[idx]
+    length = np.hypot(*vi.T)
+    says = np.abs(vi @ vi.T) / np.maximum(np.maximum(length[:, None], length[None]), 1e-9)
+    cost = np.sum((mid[idx][:, None] - mid[idx][None]) ** 2, axis=2) / np.maximum(says, 1e-6)
     # Prim's algorithm: ``best`` the distance of each voter outside the tree to it (inf
     # inside), ``parent`` its nearest voter inside; the signs follow in the order grown.
-    best = d2[0].copy()
+    best = cost[0].copy()
     best[0] = np.inf
     parent = np.zeros(idx.size, np.int64)
     grown = np.zeros(max(idx.size - 1, 0), np.int64)
-    # A voter's column of ``d2`` is set to inf as it joins, so that no row brings it back
+    # A voter's column of ``cost`` is set to inf as it joins, so that no row brings it back
     # (one strided write a step instead of two masked passes over ``best``).
-    d2[:, 0] = np.inf
+    cost[:, 0] = np.inf
     for step in range(idx.size - 1):
         k = int(np.argmin(best))
         grown[step] = k
-        d2[:, k] = np.inf
+        cost[:, k] = np.inf
         best[k] = np.inf
-        row = d2[k]
+        row = cost[k]
         parent[row < best] = k
         np.minimum(best, row, out=best)
     a, b = v[idx[grown]], v[idx[parent[grown]]]
