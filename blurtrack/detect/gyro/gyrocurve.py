@@ -73,14 +73,14 @@ def predict_curves(
     H = float(cam.height)
     ref = np.asarray(ref, float).reshape(-1, 2)
     n = ref.shape[0]
+    if n == 0:
+        return Curves(np.zeros((0, samples, 2)), ref)
     ft = np.broadcast_to(np.asarray(frame_t_s, float), (n,))[:, None]
     ex = np.broadcast_to(np.asarray(exposure_s, float), (n,))[:, None]
     tau = np.linspace(0.0, 1.0, samples)[None, :]
     row_t = ft[:, 0] + cam.readout_s * np.clip(ref[:, 1], 0, H - 1) / H
     t_ref = row_t + 0.5 * ex[:, 0]
     t = row_t[:, None] + ex * tau
-    if n == 0:
-        return Curves(np.zeros((0, samples, 2)), ref)
     track = _tracks(model, ft[:, 0], ex[:, 0], TWO_END_STEP_S if samples <= 2 else GRID_STEP_S)
     for _ in range(SHUTTER_ITERATIONS + 1):
         pos = track(ref, t_ref, t)

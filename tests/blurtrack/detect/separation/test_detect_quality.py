@@ -334,9 +334,14 @@ def test_specks_between_streaks_do_not_carry_the_sign() -> None:
         return int(min(agree.sum(), (~agree).sum()))
 
     assert split(_propagated_signs(v, mid, voters)[:, 0]) == 0
-    order, parent = _prim_reference(mid, np.ones_like(v))  # equal says: distance alone
+    # The tree by distance alone (unique for these distances), signs carried from node 0.
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
+    tree = minimum_spanning_tree(np.sqrt(np.sum((mid[:, None] - mid[None]) ** 2, axis=2)))
+    order, parent = breadth_first_order(tree, 0, directed=False)
     by_distance = np.ones(len(v))
-    for k, j in zip(order, parent, strict=True):
+    for k in order[1:]:
+        j = parent[k]
         by_distance[k] = -by_distance[j] if v[k] @ v[j] < 0 else by_distance[j]
     assert split(by_distance) > 10
 
