@@ -190,6 +190,18 @@ def _end_frames(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return ends, tang
 
 
+def _peaks(profile: list[np.ndarray]) -> np.ndarray:
+    """``(N,)`` each profile's highest value (0 for an empty one), in one flat pass."""
+    sizes = np.fromiter(map(np.size, profile), np.int64, len(profile))
+    peak = np.zeros(len(profile))
+    has = sizes > 0
+    if has.any():
+        flat = np.concatenate([np.asarray(p, float).ravel() for p in profile])
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        peak[has] = np.maximum.reduceat(flat, starts[has])
+    return peak
+
+
 def _end_light(
     smooth: np.ndarray,
     points: list[np.ndarray],
@@ -219,7 +231,7 @@ def _end_light(
     x, y = pos[..., 0], pos[..., 1]
     out = ((x < 0) | (x > W - 1) | (y < 0) | (y > H - 1)).any(axis=(2, 3))
     light = np.where(out, np.nan, light)
-    peak = np.array([float(np.max(p)) if len(p) else 0.0 for p in profile])
+    peak = _peaks(profile)
     ref = np.where(np.isfinite(plateau) & (plateau > 0), plateau, peak[:, None])
     return np.asarray(light / np.maximum(ref, 1e-12))
 

@@ -143,13 +143,13 @@ def hairpin_depth(pts: np.ndarray) -> np.ndarray:
     if pts.shape[0] == 0:
         return np.zeros(0)
     chord = pts[:, -1] - pts[:, 0]
-    c = pts - pts.mean(axis=1, keepdims=True)
-    cov = np.einsum("nsi,nsj->nij", c, c)
-    _, vecs = np.linalg.eigh(cov)
-    axis = vecs[:, :, -1]
     L = np.hypot(*chord.T)
     small = L < 1e-6
-    u = np.where(small[:, None], axis, chord / np.where(small, 1.0, L)[:, None])
+    u = chord / np.where(small, 1.0, L)[:, None]
+    if small.any():  # the principal axis, of those curves only
+        c = pts[small] - pts[small].mean(axis=1, keepdims=True)
+        _, vecs = np.linalg.eigh(np.einsum("nsi,nsj->nij", c, c))
+        u[small] = vecs[:, :, -1]
     proj = np.einsum("nsk,nk->ns", pts, u)
     # The distance from each end to the path's extremity beyond it along the chord, where the
     # image's line ends: a hook that turns sideways puts that point off the chord too.
