@@ -136,7 +136,7 @@ def gyro_stages(
         # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
         # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
         g.checked, g.ok_change, g.continued = _check(
-            found, timings, covered, model, llrs, p, fitted, g.template_pass, workers
+            found, timings, covered, model, llrs, p, fitted, g.template_pass, workers, calib
         )
     return g, llrs
 
@@ -219,11 +219,14 @@ def _check(
     fitted: bool,
     template_pass: TemplatePass,
     workers: int,
+    nominal: Any,
 ) -> tuple[int, int, Jobs]:
     """The gyro's check of the ``quality_ok`` ends (``found``'s quality changed in place):
     its predictions and the continuity cues in the workers, its fit here meanwhile (the
-    check changes only the frames' quality, which continuity does not read). Returns the
-    frames checked, the change in ``quality_ok`` and the continuity cues' jobs (done)."""
+    check changes only the frames' quality, which continuity does not read; ``nominal``: the
+    calibration before the session's fit, the centre of its prior on the gyro's scale
+    terms). Returns the frames checked, the change in ``quality_ok`` and the continuity
+    cues' jobs (done)."""
     image_ok = _count_ok(found)
     # Where the session's calibration was fitted and the template pass changed no frame,
     # the model is already fitted over the very streaks the check would fit.
@@ -242,6 +245,7 @@ def _check(
         template_pass.curves,
         fitted=fitted and unchanged,
         jobs=continued,
+        nominal=nominal,
     )
     return checked, _count_ok(found) - image_ok, continued
 

@@ -8,9 +8,10 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
 
 - ``gyro_mismatch``: the measured start-to-end vector against the predicted one, after the
   session's calibration error fitted to first order: the initial calibration's focal length,
-  principal point, ``R_cam_imu`` (three angles), time offset, readout and gyro bias (three
-  rates) are the session's, the same for every frame, so the predicted vectors ``p`` of all
-  the checked frames change with them by ``J d`` (``J``: the prediction's Jacobian, by finite
+  principal point, ``R_cam_imu`` (three angles), time offset, readout, gyro bias (three
+  rates) and the gyro's scale and cross-axis terms (six) are the session's, the same for
+  every frame, so the predicted vectors ``p`` of all the checked frames change with them by
+  ``J d`` (``J``: the prediction's Jacobian, by finite
   differences over perturbed models; ``d``: the error). ``d`` is fitted robustly,
   orientation-free, over a sample of the ``quality_ok`` streaks spread over every checked
   frame, and the residual ``|m - q|`` tested, ``q`` the vector that the calibration corrected
@@ -18,7 +19,7 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
   the correction are :mod:`blurtrack.detect.gyro.sessioncalib`'s ``fit_sample``,
   ``session_fit`` and ``corrected_model``). The vector is the difference of the two ends, so
   an end ``e`` px off moves it by ``e``: a residual above ``source.gyro_vector_tol_px`` means
-  an end is off by about that much. Eleven unknowns for the whole session cannot absorb a
+  an end is off by about that much. Seventeen unknowns for the whole session cannot absorb a
   bias that one frame's streaks share (saturated ends 2-3 px long in one frame), which a fit
   per frame does. Where the corrected model does not cover a frame, or the session has too
   few voters (or a fit far off), the frame's own similarity ``m = z p``
@@ -322,6 +323,7 @@ def check_frames(
     known: Mapping[int, np.ndarray] | None = None,
     fitted: bool = False,
     jobs: Jobs | None = None,
+    nominal: Any | None = None,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
@@ -343,7 +345,9 @@ def check_frames(
     fitted over these very streaks (:mod:`blurtrack.detect.gyro.sessioncalib`, no frame
     changed since): the vectors are tested against its own predictions, with no fit again.
     ``jobs``: side work computed in the same workers ahead of the batches
-    (:class:`~blurtrack.detect.forkmap.Jobs`)."""
+    (:class:`~blurtrack.detect.forkmap.Jobs`). ``nominal``: the calibration the fit's prior
+    on the gyro's scale terms is centred on (None: ``model``'s;
+    :func:`~blurtrack.detect.gyro.sessioncalib.session_fit`)."""
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
@@ -357,7 +361,7 @@ def check_frames(
             meanwhile()
         if fitted:
             return
-        d = session_fit(sub, tim, model)
+        d = session_fit(sub, tim, model, nominal=nominal)
         if d is None:
             return
         fix = corrected_model(model, d)

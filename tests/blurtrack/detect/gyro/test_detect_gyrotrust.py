@@ -20,6 +20,7 @@ from blurtrack.detect.gyro.gyrotrust import (
 )
 from blurtrack.detect.gyro.sessioncalib import (
     MAX_FIT_STEPS,
+    PARAMETERS,
     corrected_model,
     fit_sample,
     perturbed_models,
@@ -170,7 +171,7 @@ def test_the_session_fit_absorbs_a_calibration_error_that_varies_over_the_frame(
     # leaves residuals above the tolerance on whole streaks; the calibration's first-order
     # fit (the Jacobian from the perturbed models) does not. Negative control: one end 2.5 px
     # off stands out.
-    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 9), np.linspace(30, H - 30, 7))
     ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
     true = _shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
     init = _shake_model(_rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8)
@@ -181,7 +182,7 @@ def test_the_session_fit_absorbs_a_calibration_error_that_varies_over_the_frame(
 
     m, p = vectors(true), vectors(init)
     J = np.stack([vectors(k) - p for k in perturbed_models(init)], axis=2)
-    assert J.shape == (len(m), 2, 11)
+    assert J.shape == (len(m), 2, len(PARAMETERS))
     voters = np.ones(len(m), bool)
     tol = DetectParams().source.gyro_vector_tol_px
     assert np.max(vector_residual(m, p, voters)) > tol  # a similarity rejects right streaks
@@ -195,9 +196,9 @@ def test_the_session_fit_absorbs_a_calibration_error_that_varies_over_the_frame(
     r, _ = session_residual(bad, p, J, voters)
     assert r[11] > tol
     assert np.all(np.delete(r, 11) < 0.5 * tol)
-    # Too few voters for the 11 unknowns: no fit.
+    # Too few voters for the 17 unknowns (three each): no fit.
     few = np.zeros(len(m), bool)
-    few[:32] = True
+    few[: 3 * len(PARAMETERS) - 1] = True
     assert np.all(np.isnan(session_residual(m, p, J, few)[0]))
 
 
@@ -216,19 +217,20 @@ def test_the_corrected_model_is_each_perturbed_model_at_a_unit_error() -> None:
     model = BlurModel(calib, base.gyro, gyro_upsample=1)
     # (Calibration.with_ re-normalises R_cam_imu: ~1e-13 px.)
     np.testing.assert_allclose(
-        _shake_vectors(corrected_model(model, np.zeros(11)), ref),
+        _shake_vectors(corrected_model(model, np.zeros(len(PARAMETERS))), ref),
         _shake_vectors(model, ref),
         rtol=0,
         atol=1e-9,
     )
     moved = perturbed_models(model)
-    assert len(moved) == 11
+    assert len(moved) == len(PARAMETERS)
     for i, mv in enumerate(moved):
         np.testing.assert_array_equal(
-            _shake_vectors(corrected_model(model, np.eye(11)[i]), ref), _shake_vectors(mv, ref)
+            _shake_vectors(corrected_model(model, np.eye(len(PARAMETERS))[i]), ref),
+            _shake_vectors(mv, ref),
         )
     # A readout that the error would make negative is a global shutter's.
-    assert corrected_model(model, -100.0 * np.eye(11)[7]).camera.readout_s == 0.0
+    assert corrected_model(model, -100.0 * np.eye(len(PARAMETERS))[7]).camera.readout_s == 0.0
 
 
 def _varying_shake_model(R_cam_imu: np.ndarray, f: float, cx: float, cy: float) -> BlurModel:
@@ -247,7 +249,7 @@ def test_the_corrected_model_explains_the_streaks_the_session_fit_absorbed() -> 
     # The session fit's calibration error applied to the initial calibration (all of it, not
     # only to first order): its predicted vectors match the true ones within a fifth of the
     # tolerance, and the fitted error is within MAX_FIT_STEPS.
-    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 9), np.linspace(30, H - 30, 7))
     ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
     true = _varying_shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
     init = _varying_shake_model(
@@ -273,7 +275,7 @@ def test_the_corrected_model_explains_the_streaks_the_session_fit_absorbed() -> 
 def test_a_barely_observable_calibration_fits_far_past_the_limit() -> None:
     # Constant rates: the axes and the bias trade off, and the fit runs far along that null
     # space (on the finite differences' curvature): MAX_FIT_STEPS keeps it from being applied.
-    gx, gy = np.meshgrid(np.linspace(30, W - 30, 8), np.linspace(30, H - 30, 6))
+    gx, gy = np.meshgrid(np.linspace(30, W - 30, 9), np.linspace(30, H - 30, 7))
     ref = np.stack([gx.ravel(), gy.ravel()], axis=1)
     true = _shake_model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2)
     init = _shake_model(_rot(np.array([1.0, 1.0, 0.0]), 1.0), 1.02 * F, W / 2 + 8, H / 2 - 8)

@@ -11,9 +11,15 @@ from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.sessioncalib import (
     CALIBRATION_STEPS,
     PARAMETERS,
+    SCALE_PRIOR,
+    SCALE_TERMS,
     corrected_model,
     difference,
+    fit_sample,
     fit_session_calibration,
+    perturbed_models,
+    sample_vectors,
+    session_residual,
 )
 from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.geometry.blur_model import BlurModel
@@ -27,16 +33,26 @@ EXP = 0.03
 TIMES = (0.05, 0.11, 0.17)
 
 
-def _model(R_cam_imu: np.ndarray, f: float, cx: float, cy: float, bias: float = 0.0) -> BlurModel:
+def _model(
+    R_cam_imu: np.ndarray,
+    f: float,
+    cx: float,
+    cy: float,
+    bias: float = 0.0,
+    M: np.ndarray | None = None,
+) -> BlurModel:
     """A shake turning on all three axes (rad/s varying in time), seen through a calibration
-    with a rolling shutter."""
+    with a rolling shutter (``M``: the gyro's scale matrix, the identity if None)."""
     cam = Camera(resolution=(W, H), intrinsics=(f, f, cx, cy), readout_s=0.02)
-    t = np.arange(0.0, 0.3, 1e-4)
+    t = np.arange(0.0, 1.0, 1e-4)
     omega = np.stack(
         [0.9 * np.sin(9 * t) + 0.3, 0.7 * np.cos(7 * t), 2.0 * np.sin(5 * t + 1.0)], axis=1
     )
     calib = Calibration(
-        camera=cam, R_cam_imu=R_cam_imu, gyro_bias_radps=np.array([bias, -bias, 0.0])
+        camera=cam,
+        R_cam_imu=R_cam_imu,
+        gyro_bias_radps=np.array([bias, -bias, 0.0]),
+        gyro_scale_matrix=np.eye(3) if M is None else M,
     )
     return BlurModel(calib, GyroTrace(t, omega), gyro_upsample=1)
 
@@ -85,13 +101,13 @@ def _frame(mids: np.ndarray, v: np.ndarray, ok: np.ndarray) -> FrameStreaks:
     )
 
 
-def _session(model: BlurModel, n: int = 6, wrong_px: float = 0.0):
-    """Three frames of ``n x n`` streaks whose vectors ``model`` draws, every other one with
-    its vector flipped (the fit is orientation-free); with ``wrong_px``, as many more streaks
-    ``wrong_px`` off that are not quality_ok."""
+def _session(model: BlurModel, n: int = 6, wrong_px: float = 0.0, times: tuple[float, ...] = TIMES):
+    """Frames (at ``times``, three by default) of ``n x n`` streaks whose vectors ``model``
+    draws, every other one with its vector flipped (the fit is orientation-free); with
+    ``wrong_px``, as many more streaks ``wrong_px`` off that are not quality_ok."""
     frames, timings = [], []
     mids = _grid(n)
-    for t_s in TIMES:
+    for t_s in times:
         v = _vectors(model, mids, t_s)
         v[::2] *= -1.0
         ok = np.ones(len(v), bool)
@@ -108,10 +124,11 @@ def _session(model: BlurModel, n: int = 6, wrong_px: float = 0.0):
 
 def test_difference_names_the_change_in_physical_units() -> None:
     d = np.array([2.0, -1.0, 3.0, 0.5, -0.2, 0.1, 1.5, -2.0, 0.3, -0.4, 0.6])
+    d = np.concatenate([d, [1.5, -0.5, 0.8, 0.3, -1.2, 0.7]])
     got = difference(INIT.calib, corrected_model(INIT, d).calib)
     s = CALIBRATION_STEPS
     want = [s["focal"] * 2.0, -s["pp"], 3 * s["pp"], *(s["axes"] * d[3:6])]
-    want += [s["time"] * 1.5, -2.0 * s["time"], *(s["bias"] * d[8:11])]
+    want += [s["time"] * 1.5, -2.0 * s["time"], *(s["bias"] * d[8:11]), *(s["scale"] * d[11:])]
     assert list(got) == list(PARAMETERS)
     assert np.allclose(list(got.values()), want, atol=1e-9)
 
@@ -122,7 +139,9 @@ def test_the_fit_finds_the_calibration_that_draws_the_streaks() -> None:
     assert fit.status == "fitted"
     assert fit.voters == 3 * 36  # the quality_ok streaks only
     assert fit.residual_before_px > 0.5
-    assert fit.residual_after_px < 0.01
+    # Two Gauss-Newton rounds over the 17 unknowns (the axes, the bias and the gyro's scale
+    # terms trade off over three frames): 0.015 px; a third round would give 2e-4.
+    assert fit.residual_after_px < 0.02
     # Held out: streaks elsewhere in the frame and at another time, through the fitted
     # calibration, against the true one.
     fitted = BlurModel(fit.calib, TRUE.gyro, gyro_upsample=1)
@@ -136,7 +155,7 @@ def test_the_fit_finds_the_calibration_that_draws_the_streaks() -> None:
 
 
 def test_no_fit_without_enough_voters_or_where_nothing_is_gained() -> None:
-    frames, timings = _session(TRUE, n=3)  # 27 voters for 11 unknowns (33 needed)
+    frames, timings = _session(TRUE, n=4)  # 48 voters for 17 unknowns (51 needed)
     fit = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
     assert fit.status == "too_few_voters"
     assert fit.calib is INIT.calib
@@ -164,3 +183,79 @@ def test_a_correction_far_outside_the_linearisation_is_refused() -> None:
     # The same within reach (the test above): fitted.
     frames, timings = _session(TRUE)
     assert fit_session_calibration(frames, timings, [0, 1, 2], INIT).status == "fitted"
+
+
+#: A gyro whose scale factors are 2 % off and whose axes feel 1.5-2 % of each other's rates
+#: (a MEMS gyro's datasheet spread); symmetric, as the fit's terms (the antisymmetric part
+#: of a scale matrix is a turn of the axes).
+SCALED = np.array([[1.02, 0.015, -0.02], [0.015, 0.985, 0.018], [-0.02, 0.018, 1.01]])
+
+
+def test_the_fit_finds_the_gyros_scale_and_cross_axis_terms() -> None:
+    true = _model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2, M=SCALED)
+    # Eight frames over the shake, whose rates turn about every axis.
+    frames, timings = _session(true, times=tuple(np.linspace(0.05, 0.9, 8)))
+    fit = fit_session_calibration(frames, timings, list(range(8)), INIT)
+    assert fit.status == "fitted"
+    assert fit.residual_after_px < 0.01
+    got = np.asarray(fit.calib.gyro_scale_matrix)
+    np.testing.assert_allclose(0.5 * (got + got.T), SCALED, atol=2e-3)
+    fitted = BlurModel(fit.calib, true.gyro, gyro_upsample=1)
+    mids = _grid(9) + 7.0
+    err = np.hypot(*(_vectors(fitted, mids, 0.5) - _vectors(true, mids, 0.5)).T)
+    assert np.max(err) < 0.05
+    # Negative control: the same streaks fitted without the scale terms (their columns
+    # dropped from the Jacobian) stay 20x further off.
+    pos, picks = fit_sample(frames)
+    m = np.concatenate(
+        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
+    )
+    p = sample_vectors(frames, timings, INIT, pos, picks)
+    J = np.stack(
+        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(INIT)],
+        axis=2,
+    )
+    voters = np.ones(len(m), bool)
+    r_all, _ = session_residual(m, p, J, voters)
+    r_less, _ = session_residual(m, p, J[:, :, : len(PARAMETERS) - len(SCALE_TERMS)], voters)
+    assert np.median(r_less) > 20 * np.median(r_all)
+
+
+def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) -> None:
+    # Three frames of the same shake: the scale terms trade off with the axes and the bias
+    # (their vectors nearly the same). With the prior the fit stays near nominal and draws the
+    # streaks; without it, it runs the scale matrix off to one no gyro has (refused, the
+    # calibration kept as given).
+    from blurtrack.detect.gyro import sessioncalib
+
+    true = _model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2, M=SCALED)
+    frames, timings = _session(true)
+    fit = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
+    assert fit.status == "fitted"
+    got = np.asarray(fit.calib.gyro_scale_matrix)
+    assert np.max(np.abs(got - np.eye(3))) < 3 * SCALE_PRIOR
+    fitted = BlurModel(fit.calib, true.gyro, gyro_upsample=1)
+    mids = _grid(9) + 7.0
+    err = np.hypot(*(_vectors(fitted, mids, 0.15) - _vectors(true, mids, 0.15)).T)
+    assert np.max(err) < 0.05
+    monkeypatch.setattr(sessioncalib, "SCALE_PRIOR", np.inf)
+    loose = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
+    assert loose.status != "fitted" and loose.calib is INIT.calib
+
+
+def test_the_scale_prior_is_centred_on_the_nominal_gyro() -> None:
+    # A second fit from an already corrected model (the check's, after the template pass)
+    # holds the scale terms to the nominal gyro's, not to where the first fit left them: its
+    # prior's centre is minus that first move, in steps; the other parameters have none.
+    from blurtrack.detect.gyro.sessioncalib import _scale_prior
+
+    e = np.zeros(len(PARAMETERS))
+    e[-len(SCALE_TERMS) :] = [1.5, -0.5, 0.8, 0.3, -1.2, 0.7]
+    moved = corrected_model(INIT, e)
+    centre, sigma = _scale_prior(moved, INIT.calib)
+    np.testing.assert_allclose(centre, -e, atol=1e-9)
+    k = len(PARAMETERS) - len(SCALE_TERMS)
+    assert np.all(np.isinf(sigma[:k]))
+    np.testing.assert_allclose(sigma[k:], SCALE_PRIOR / CALIBRATION_STEPS["scale"])
+    # Without a nominal calibration: centred on the model's own.
+    assert not np.any(_scale_prior(moved, None)[0])
