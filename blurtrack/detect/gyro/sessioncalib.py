@@ -45,7 +45,7 @@ import numpy as np
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.session.orientation import FrameTiming
-from blurtrack.errors import BlurTrackError, CoverageError
+from blurtrack.errors import BlurTrackError, ConfigError, CoverageError
 from blurtrack.geometry.rotation import so3_log
 
 #: The calibration parameters of the session's fit and the step of each finite difference:
@@ -332,8 +332,10 @@ def session_fit(
     """The session's calibration error ``d (17,)`` (:func:`session_residual`, in
     :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
     ``quality_ok`` streaks (those of the frames that the model and every perturbed model
-    predict), or None: too few voters, or an error over ``max_steps`` (default
-    :data:`MAX_FIT_STEPS`; None: no limit) in a parameter. The gyro's scale terms have the
+    predict), or None: too few voters, an error over ``max_steps`` (default
+    :data:`MAX_FIT_STEPS`; None: no limit) in a parameter, or one that no calibration holds (a
+    gyro scale matrix far from the identity: :class:`~blurtrack.geometry.calibration.Calibration`
+    refuses it). The gyro's scale terms have the
     prior :data:`SCALE_PRIOR` about those of ``nominal`` (a calibration; None: the model's
     own)."""
     pos, picks = fit_sample(frames)
@@ -354,6 +356,10 @@ def session_fit(
     if r.size == 0 or np.all(np.isnan(r)):
         return None
     if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
+        return None
+    try:  # a correction no calibration can hold (a gyro scale matrix far from the identity)
+        corrected_model(model, d)
+    except ConfigError:
         return None
     return d
 

@@ -5,6 +5,7 @@ calibration, and negative controls."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
 from blurtrack.detect.gyro.gyrocurve import predict_curves
@@ -22,6 +23,7 @@ from blurtrack.detect.gyro.sessioncalib import (
     session_residual,
 )
 from blurtrack.detect.session.orientation import FrameTiming
+from blurtrack.errors import ConfigError
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
@@ -241,6 +243,21 @@ def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) ->
     monkeypatch.setattr(sessioncalib, "SCALE_PRIOR", np.inf)
     loose = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
     assert loose.status != "fitted" and loose.calib is INIT.calib
+    # The run-off correction itself is one no calibration holds: no fit, rather than an error
+    # where the check applies it.
+    pos, picks = fit_sample(frames)
+    m = np.concatenate(
+        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
+    )
+    p = sample_vectors(frames, timings, INIT, pos, picks)
+    J = np.stack(
+        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(INIT)],
+        axis=2,
+    )
+    _, e = session_residual(m, p, J, np.ones(len(m), bool))  # no prior: the first-order fit
+    with pytest.raises(ConfigError):
+        corrected_model(INIT, e)
+    assert sessioncalib.session_fit(frames, timings, INIT, max_steps=None) is None
 
 
 def test_the_scale_prior_is_centred_on_the_nominal_gyro() -> None:
