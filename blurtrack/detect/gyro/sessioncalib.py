@@ -75,6 +75,8 @@ SCALE_TERMS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 #: length; the prior keeps them (and so the fit) near nominal there, where the image's own
 #: biases (speckle, lens blur, JPEG) would otherwise run the fit far from its start.
 SCALE_PRIOR = 0.02
+#: The median length of a 2-D residual whose axes are Gaussian of sigma 1: ``sqrt(2 ln 2)``.
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 #: Fewest session voters per fitted parameter (17 unknowns, 2 equations a streak: three
 #: streaks for each unknown, so that no frame's streaks alone can steer the fit).
 SESSION_VOTERS_PER_PARAMETER = 3
@@ -196,8 +198,8 @@ def session_residual(
     when fewer than :data:`SESSION_VOTERS_PER_PARAMETER` x ``P`` vote.
 
     ``prior``: ``(centre, sigma)``, ``(P,)`` each: a Gaussian prior on ``d`` (sigma infinite:
-    none), weighed against the voters' residual scale (1.4826 x their median residual of the
-    round before; the first round is fitted without it)."""
+    none), weighed against the voters' residual sigma per axis (their median residual of the
+    round before over :data:`RAYLEIGH_MEDIAN`; the first round is fitted without it)."""
     n, P = m.shape[0], J.shape[2]
     if int(voters.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
         return np.full(n, np.nan), np.zeros(P)
@@ -220,7 +222,8 @@ def session_residual(
         d = np.linalg.lstsq(A, b, rcond=None)[0]
         q = p + J @ d
         r = np.minimum(np.hypot(*(m - q).T), np.hypot(*(m + q).T))
-        scale = max(1.4826 * float(np.median(r[use])), 1e-3)
+        # Per axis: the median of a 2-D Gaussian residual's length is sigma sqrt(2 ln 2).
+        scale = max(float(np.median(r[use])) / RAYLEIGH_MEDIAN, 1e-3)
         cut = max(3.0 * float(np.median(r[use])), 0.5)
         new = voters & (r <= cut)
         if int(new.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
