@@ -325,6 +325,37 @@ def _scale_prior(model: Any, nominal: Any | None) -> tuple[np.ndarray, np.ndarra
     return centre, sigma
 
 
+def measured_vectors(
+    frames: Sequence[FrameStreaks], pos: Sequence[int], picks: Sequence[np.ndarray]
+) -> np.ndarray:
+    """``(n, 2)`` the measured start-to-end vectors of the sampled streaks
+    (:func:`fit_sample`)."""
+    return np.concatenate(
+        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
+    )
+
+
+def fit_system(
+    frames: Sequence[FrameStreaks], timings: Sequence[FrameTiming], model: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """What :func:`session_residual` fits over the :func:`fit_sample` of the frames'
+    ``quality_ok`` streaks: their measured vectors ``m (n, 2)``, ``model``'s predicted ones
+    ``p (n, 2)`` and the Jacobian ``J (n, 2, P)`` over :func:`perturbed_models`, of the
+    streaks that the model and every perturbed model predict; None where no frame has a
+    voter."""
+    pos, picks = fit_sample(frames)
+    if not pos:
+        return None
+    m = measured_vectors(frames, pos, picks)
+    p = sample_vectors(frames, timings, model, pos, picks)
+    J = np.stack(
+        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
+        axis=2,
+    )
+    use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
+    return m[use], p[use], J[use]
+
+
 def session_fit(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
@@ -341,21 +372,11 @@ def session_fit(
     refuses it). The gyro's scale terms have the
     prior :data:`SCALE_PRIOR` about those of ``nominal`` (a calibration; None: the model's
     own)."""
-    pos, picks = fit_sample(frames)
-    if not pos:
+    system = fit_system(frames, timings, model)
+    if system is None:
         return None
-    m = np.concatenate(
-        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
-    )
-    p = sample_vectors(frames, timings, model, pos, picks)
-    J = np.stack(
-        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
-        axis=2,
-    )
-    use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
-    r, d = session_residual(
-        m[use], p[use], J[use], np.ones(int(use.sum()), bool), _scale_prior(model, nominal)
-    )
+    m, p, J = system
+    r, d = session_residual(m, p, J, np.ones(len(m), bool), _scale_prior(model, nominal))
     if r.size == 0 or np.all(np.isnan(r)):
         return None
     if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
@@ -390,7 +411,7 @@ def fit_session_calibration(
     n = sum(len(s) for s in picks)
     if n < SESSION_VOTERS_PER_PARAMETER * len(PARAMETERS):
         return SessionCalibration("too_few_voters", model.calib, zero, n, np.nan, np.nan)
-    m = np.concatenate([sub[k].end_b[s] - sub[k].end_a[s] for k, s in zip(pos, picks, strict=True)])
+    m = measured_vectors(sub, pos, picks)
     current = model
     try:
         before = _median_residual(m, sample_vectors(sub, tim, model, pos, picks))

@@ -16,10 +16,8 @@ from blurtrack.detect.gyro.sessioncalib import (
     SCALE_TERMS,
     corrected_model,
     difference,
-    fit_sample,
     fit_session_calibration,
-    perturbed_models,
-    sample_vectors,
+    fit_system,
     session_residual,
 )
 from blurtrack.detect.session.orientation import FrameTiming
@@ -208,15 +206,9 @@ def test_the_fit_finds_the_gyros_scale_and_cross_axis_terms() -> None:
     assert np.max(err) < 0.05
     # Negative control: the same streaks fitted without the scale terms (their columns
     # dropped from the Jacobian) stay 20x further off.
-    pos, picks = fit_sample(frames)
-    m = np.concatenate(
-        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
-    )
-    p = sample_vectors(frames, timings, INIT, pos, picks)
-    J = np.stack(
-        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(INIT)],
-        axis=2,
-    )
+    system = fit_system(frames, timings, INIT)
+    assert system is not None
+    m, p, J = system
     voters = np.ones(len(m), bool)
     r_all, _ = session_residual(m, p, J, voters)
     r_less, _ = session_residual(m, p, J[:, :, : len(PARAMETERS) - len(SCALE_TERMS)], voters)
@@ -245,15 +237,9 @@ def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) ->
     assert loose.status != "fitted" and loose.calib is INIT.calib
     # The run-off correction itself is one no calibration holds: no fit, rather than an error
     # where the check applies it.
-    pos, picks = fit_sample(frames)
-    m = np.concatenate(
-        [frames[k].end_b[s] - frames[k].end_a[s] for k, s in zip(pos, picks, strict=True)]
-    )
-    p = sample_vectors(frames, timings, INIT, pos, picks)
-    J = np.stack(
-        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(INIT)],
-        axis=2,
-    )
+    system = fit_system(frames, timings, INIT)
+    assert system is not None
+    m, p, J = system
     _, e = session_residual(m, p, J, np.ones(len(m), bool))  # no prior: the first-order fit
     with pytest.raises(ConfigError):
         corrected_model(INIT, e)
