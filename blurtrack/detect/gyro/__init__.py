@@ -7,7 +7,8 @@ after the time-shift scan of :mod:`blurtrack.detect.gyro.timeshift`),
 :mod:`~blurtrack.detect.gyro.readout` (which row the sensor reads first),
 :mod:`~blurtrack.detect.gyro.direction` (the gyro's motion against the images),
 :mod:`~blurtrack.detect.gyro.sessionmodel` with :mod:`~blurtrack.detect.gyro.sessioncalib`
-(the session's calibration error fitted to the first pass's streaks) and
+(the session's calibration error fitted to the first pass's streaks, over the parameters of
+:mod:`~blurtrack.detect.gyro.calibsteps`) and
 :mod:`~blurtrack.detect.gyro.shiftfit` (the time shift refined by the templates, where the
 calibration is not fitted), :mod:`~blurtrack.detect.gyro.refinepass` (the template pass over
 the frames, in workers) and for one frame :mod:`~blurtrack.detect.gyro.gyropass`:

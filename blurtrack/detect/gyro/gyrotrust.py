@@ -51,12 +51,9 @@ import numpy as np
 
 from blurtrack.detect.forkmap import Jobs, batch_positions, fork_map
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.calibsteps import corrected_model
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.sessioncalib import (
-    FIT_ROUNDS,
-    corrected_model,
-    session_fit,
-)
+from blurtrack.detect.gyro.sessioncalib import FIT_ROUNDS, session_fit
 from blurtrack.detect.params import SourceParams
 from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
@@ -330,7 +327,7 @@ def check_frames(
     vectors are tested against the session's fit where the corrected model predicts the frame
     (the calibration error :func:`~blurtrack.detect.gyro.sessioncalib.session_fit` fits over
     a sample of the voters, applied by
-    :func:`~blurtrack.detect.gyro.sessioncalib.corrected_model`; the residual ``|m - q|``,
+    :func:`~blurtrack.detect.gyro.calibsteps.corrected_model`; the residual ``|m - q|``,
     orientation-free, ``q`` that model's predicted vector), else against the frame's
     similarity.
 

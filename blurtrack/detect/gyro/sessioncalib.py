@@ -4,13 +4,15 @@ the gyro-template pass uses the blur model.
 The initial calibration is nominal (intrinsics, ``R_cam_imu`` and the gyro bias are guesses, the
 time shift is the scan's), so every predicted curve is off by a px or two, in the same way for
 every frame: one error of the session's seventeen calibration parameters
-(:data:`CALIBRATION_STEPS`: focal length, principal point,
+(:data:`~blurtrack.detect.gyro.calibsteps.CALIBRATION_STEPS`: focal length, principal point,
 three axis angles, time offset, readout, three gyro-bias rates, and the gyro's three scale
 factors and three cross-axis sensitivities: the symmetric part of its scale matrix ``M``,
-:data:`SCALE_TERMS`; the antisymmetric part is a turn of the axes). The image's ``quality_ok``
-streaks measure it: their start-to-end vectors ``m`` against the predicted ``p`` change with
-the calibration by ``J d`` (the prediction's Jacobian by finite differences,
-:func:`perturbed_models`), ``d`` fitted robustly and
+:data:`~blurtrack.detect.gyro.calibsteps.SCALE_TERMS`; the antisymmetric part is a turn of the
+axes; the parameters' steps and models are :mod:`blurtrack.detect.gyro.calibsteps`). The
+image's ``quality_ok`` streaks measure it: their start-to-end vectors ``m`` against the
+predicted ``p`` change with the calibration by ``J d`` (the prediction's Jacobian by finite
+differences,
+:func:`~blurtrack.detect.gyro.calibsteps.perturbed_models`), ``d`` fitted robustly and
 orientation-free (:func:`session_residual`), the calibration
 moved by ``d`` and the fit repeated from there (Gauss-Newton: the prediction is nonlinear in
 the axes and the bias over a 10-50 ms exposure).
@@ -21,10 +23,10 @@ orientation cues and the gyro's check. The endpoints stay the image's: the corre
 which light is which dot's, and the calibration a lab fits later (``blurtrack calibrate``)
 starts again from the streak table and the nominal calibration.
 
-The fit's pieces (:func:`fit_sample`, :func:`perturbed_models`, :func:`session_residual`,
-:func:`session_fit`, :func:`corrected_model`) are the gyro check's too
-(:mod:`blurtrack.detect.gyro.gyrotrust`), which fits again where the template pass changed
-frames.
+The fit's pieces (:func:`fit_sample`, :func:`fit_system`, :func:`session_residual`,
+:func:`session_fit`, and :mod:`~blurtrack.detect.gyro.calibsteps`'s ``corrected_model``) are
+the gyro check's too (:mod:`blurtrack.detect.gyro.gyrotrust`), which fits again where the
+template pass changed frames.
 
 A correction is kept only where it predicts the voters better than the calibration it starts
 from (the median residual falls) and no parameter moved by more than
@@ -37,38 +39,25 @@ wrong in kind (axes mirrored, another camera's gyro), which ``blurtrack calibrat
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.calibsteps import (
+    CALIBRATION_STEPS,
+    PARAMETERS,
+    SCALE_TERMS,
+    corrected_model,
+    difference,
+    largest_step,
+    perturbed_models,
+)
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import BlurTrackError, ConfigError, CoverageError
-from blurtrack.geometry.rotation import so3_log
 
-#: The calibration parameters of the session's fit and the step of each finite difference:
-#: focal length (relative), principal point (px), ``R_cam_imu`` (rad about each axis), time
-#: offset and readout (s), gyro bias (rad/s about each axis), gyro scale and cross-axis terms
-#: (relative: :data:`SCALE_TERMS`). Each step moves a dot ~1-10 px over an exposure (f ~1000
-#: px, rates ~1 rad/s, 10-50 ms): far above the predictions' rounding, and where the
-#: prediction is still linear (its curvature costs ~step^2).
-CALIBRATION_STEPS = {
-    "focal": 0.01,
-    "pp": 5.0,
-    "axes": 0.01,
-    "time": 1e-3,
-    "bias": 0.01,
-    "scale": 0.01,
-}
-#: The gyro scale matrix's fitted terms ``(i, j)`` (IMU axes): ``M`` moves to ``(I + e S) M``,
-#: ``S`` symmetric with ones at ``(i, j)`` and ``(j, i)``. A MEMS gyro's scale factors and
-#: cross-axis sensitivities are each off by up to a few per cent, which on a streak of 100 px
-#: is 1-3 px: the vectors of fast frames, all wrong the same way, that the other parameters
-#: cannot explain (``hard`` seed 12: the true symmetric ``M`` in the initial calibration lifts
-#: the ``quality_ok`` coverage from 59.2 to 64.1 %, its diagonal alone to 59.5 %).
-SCALE_TERMS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 #: The scale terms' prior sigma (relative): a MEMS gyro's scale factors and cross-axis
 #: sensitivities are within a few per cent of nominal. A shake that turns little about one
 #: axis leaves that axis' terms barely observable, trading off against the axes and the focal
@@ -100,21 +89,6 @@ MAX_FIT_STEPS = 20.0
 #: true ones at the median with all of them, 0.79 px with 400 evenly spaced (a few poorly
 #: determined combinations of the axes, readout and bias).
 ROUNDS = 2
-#: Parameter names of ``d``, in the order of the Jacobian's columns.
-PARAMETERS = (
-    "focal_rel",
-    "cx_px",
-    "cy_px",
-    "axis_x_rad",
-    "axis_y_rad",
-    "axis_z_rad",
-    "timeshift_s",
-    "readout_s",
-    "bias_x_radps",
-    "bias_y_radps",
-    "bias_z_radps",
-    *(f"scale_{'xyz'[i]}{'xyz'[j]}" for i, j in SCALE_TERMS),
-)
 
 
 @dataclass(frozen=True)
@@ -133,56 +107,6 @@ class SessionCalibration:
     voters: int
     residual_before_px: float
     residual_after_px: float
-
-
-def _rotation(v: np.ndarray) -> np.ndarray:
-    """The rotation matrix of rotation vector ``v`` (rad)."""
-    th = float(np.linalg.norm(v))
-    if th == 0.0:
-        return np.eye(3)
-    a = v / th
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    return np.asarray(np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K)
-
-
-def _scale_term(i: int, j: int) -> np.ndarray:
-    """``S`` of the scale term ``(i, j)`` (:data:`SCALE_TERMS`): symmetric, ones at ``(i, j)``
-    and ``(j, i)``."""
-    S = np.zeros((3, 3))
-    S[i, j] = S[j, i] = 1.0
-    return S
-
-
-def _scaled(M: np.ndarray, e: Sequence[float] | np.ndarray) -> np.ndarray:
-    """The gyro scale matrix ``M`` moved by the scale terms ``e`` (:data:`SCALE_TERMS` order,
-    in steps of ``CALIBRATION_STEPS["scale"]``): ``(I + sum e_k S_k step) M``."""
-    S = sum(
-        (float(v) * _scale_term(i, j) for v, (i, j) in zip(e, SCALE_TERMS, strict=True)),
-        np.zeros((3, 3)),
-    )
-    return np.asarray((np.eye(3) + CALIBRATION_STEPS["scale"] * S) @ M)
-
-
-def perturbed_models(model: Any) -> list[Any]:
-    """``model`` with each calibration parameter of :data:`CALIBRATION_STEPS` moved by its
-    step, in the order of :data:`PARAMETERS` (the columns of the prediction's Jacobian)."""
-    c = model.calib
-    fx, fy, cx, cy = c.camera.intrinsics
-    bias = np.asarray(c.gyro_bias_radps, float)
-    M = np.asarray(c.gyro_scale_matrix, float)
-    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
-    calibs = [
-        c.with_(intrinsics=(fx * (1.0 + fs), fy * (1.0 + fs), cx, cy)),
-        c.with_(intrinsics=(fx, fy, cx + pp, cy)),
-        c.with_(intrinsics=(fx, fy, cx, cy + pp)),
-        *(c.with_(R_cam_imu=_rotation(ang * ax) @ c.R_cam_imu) for ax in np.eye(3)),
-        c.with_(timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt),
-        c.with_(readout_s=c.camera.readout_s + dt),
-        *(c.with_(gyro_bias_radps=bias + rate * ax) for ax in np.eye(3)),
-        *(c.with_(gyro_scale_matrix=_scaled(M, e)) for e in np.eye(len(SCALE_TERMS))),
-    ]
-    # The model's gyro is already resampled: no second resampling.
-    return [replace(model, calib=k, gyro_upsample=1) for k in calibs]
 
 
 def session_residual(
@@ -256,28 +180,6 @@ def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarr
             pos.append(k)
             picks.append(sel)
     return pos, picks
-
-
-def corrected_model(model: Any, d: np.ndarray) -> Any:
-    """``model`` with the calibration error ``d (17,)`` of :func:`session_residual` applied (in
-    :data:`CALIBRATION_STEPS` units, the order of :func:`perturbed_models`: ``d = e_i`` is the
-    ``i``-th perturbed model; the readout no less than 0)."""
-    c = model.calib
-    fx, fy, cx, cy = c.camera.intrinsics
-    bias = np.asarray(c.gyro_bias_radps, float)
-    fs, pp, ang, dt, rate = (CALIBRATION_STEPS[k] for k in ("focal", "pp", "axes", "time", "bias"))
-    e = [float(v) for v in d]  # python floats, as the perturbed models' parameters
-    turn = ang * np.asarray(e[3:6])
-    M = np.asarray(c.gyro_scale_matrix, float)
-    calib = c.with_(
-        intrinsics=(fx * (1.0 + fs * e[0]), fy * (1.0 + fs * e[0]), cx + pp * e[1], cy + pp * e[2]),
-        R_cam_imu=_rotation(turn) @ c.R_cam_imu if np.any(turn) else c.R_cam_imu,
-        timeshift_cam_imu_s=c.timeshift_cam_imu_s + dt * e[6],
-        readout_s=max(c.camera.readout_s + dt * e[7], 0.0),
-        gyro_bias_radps=bias + rate * np.asarray(e[8:11]) if any(e[8:11]) else c.gyro_bias_radps,
-        gyro_scale_matrix=_scaled(M, e[11:]) if any(e[11:]) else M,
-    )
-    return replace(model, calib=calib, gyro_upsample=1)
 
 
 def sample_vectors(
@@ -429,44 +331,6 @@ def fit_session_calibration(
     change = difference(model.calib, current.calib)
     if not after < before:
         return SessionCalibration("not_better", model.calib, zero, n, before, after)
-    if _steps(change) > MAX_FIT_STEPS:
+    if largest_step(change) > MAX_FIT_STEPS:
         return SessionCalibration("implausible", model.calib, change, n, before, after)
     return SessionCalibration("fitted", current.calib, change, n, before, after)
-
-
-def difference(before: Any, after: Any) -> dict[str, float]:
-    """``after`` less ``before`` by parameter name (:data:`PARAMETERS`, units in the names;
-    the axes as the rotation vector of ``R_after R_before^T``; the gyro scale terms as the
-    symmetric part of ``M_after M_before^-1 - I``)."""
-    f0, _, cx0, cy0 = before.camera.intrinsics
-    f1, _, cx1, cy1 = after.camera.intrinsics
-    rotvec = so3_log(np.asarray(after.R_cam_imu) @ np.asarray(before.R_cam_imu).T)
-    bias = np.asarray(after.gyro_bias_radps, float) - np.asarray(before.gyro_bias_radps, float)
-    # (I + S) = M_after M_before^-1: S's symmetric part, by term (the off-diagonal ones: the
-    # mean of the pair, as ``S`` of a term has both)
-    S = np.asarray(after.gyro_scale_matrix, float) @ np.linalg.inv(
-        np.asarray(before.gyro_scale_matrix, float)
-    ) - np.eye(3)
-    S = 0.5 * (S + S.T)
-    values = [
-        f1 / f0 - 1.0,
-        cx1 - cx0,
-        cy1 - cy0,
-        *rotvec.tolist(),
-        after.timeshift_cam_imu_s - before.timeshift_cam_imu_s,
-        after.camera.readout_s - before.camera.readout_s,
-        *bias.tolist(),
-        *(float(S[i, j]) for i, j in SCALE_TERMS),
-    ]
-    return {k: float(v) for k, v in zip(PARAMETERS, values, strict=True)}
-
-
-def _steps(change: dict[str, float]) -> float:
-    """The largest move of :func:`difference`'s ``change`` in units of its parameter's step
-    (:data:`CALIBRATION_STEPS`)."""
-    step = {"focal_rel": "focal", "cx_px": "pp", "cy_px": "pp", "timeshift_s": "time"}
-    step |= {"readout_s": "time"}
-    step |= {k: "axes" for k in ("axis_x_rad", "axis_y_rad", "axis_z_rad")}
-    step |= {k: "bias" for k in ("bias_x_radps", "bias_y_radps", "bias_z_radps")}
-    step |= {k: "scale" for k in PARAMETERS if k.startswith("scale_")}
-    return max(abs(v) / CALIBRATION_STEPS[step[k]] for k, v in change.items())

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from blurtrack.detect import DetectParams, detect_frame
+from blurtrack.detect.gyro.calibsteps import PARAMETERS, corrected_model, perturbed_models
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
     PATH_SAMPLES,
@@ -18,14 +19,7 @@ from blurtrack.detect.gyro.gyrotrust import (
     hairpin_depth,
     vector_residual,
 )
-from blurtrack.detect.gyro.sessioncalib import (
-    MAX_FIT_STEPS,
-    PARAMETERS,
-    corrected_model,
-    fit_sample,
-    perturbed_models,
-    session_residual,
-)
+from blurtrack.detect.gyro.sessioncalib import MAX_FIT_STEPS, fit_sample, session_residual
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.geometry.blur_model import BlurModel
 from blurtrack.geometry.calibration import Calibration

@@ -8,14 +8,16 @@ import numpy as np
 import pytest
 
 from blurtrack.detect.frame import FLAG_NAMES, FrameStreaks
-from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.sessioncalib import (
+from blurtrack.detect.gyro.calibsteps import (
     CALIBRATION_STEPS,
     PARAMETERS,
-    SCALE_PRIOR,
     SCALE_TERMS,
     corrected_model,
     difference,
+)
+from blurtrack.detect.gyro.gyrocurve import predict_curves
+from blurtrack.detect.gyro.sessioncalib import (
+    SCALE_PRIOR,
     fit_session_calibration,
     fit_system,
     session_residual,
