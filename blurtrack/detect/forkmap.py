@@ -163,6 +163,62 @@ def fork_map(
         _WORKER_STATE.clear()
 
 
+def fork_call(fn: Callable[[], R], fork: bool = True) -> Callable[[], R]:
+    """``fn()`` computed in one forked process while this one goes on; returns the function
+    that waits for its value (raising what ``fn`` raised). Where ``fork`` is false or the
+    platform cannot fork, ``fn`` runs here at once: the same value. Side work of one stage
+    that a serial stage would otherwise run after its own (the gyro's direction beside the
+    session fit): a core otherwise idle."""
+    if not fork or not can_fork():
+        try:
+            value = fn()
+        except Exception as exc:
+            error = exc
+
+            def raise_it() -> R:
+                raise error
+
+            return raise_it
+        return lambda: value
+    ctx = mp.get_context("fork")
+    receive, send = ctx.Pipe(duplex=False)
+    init = worker_initializer()  # the child ends when this process dies
+
+    def child() -> None:
+        init()
+        try:
+            out: tuple[bool, Any] = (True, fn())
+        except Exception as exc:
+            out = (False, exc)
+        try:
+            send.send(out)
+        except Exception as exc:  # a value or an exception that does not pickle
+            send.send((False, DetectionError(f"a forked computation's result: {exc}")))
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    send.close()
+
+    def result() -> R:
+        try:
+            got = receive.recv()
+        except EOFError:
+            got = None
+        finally:
+            proc.join()
+            receive.close()
+        if got is None:
+            raise DetectionError(
+                f"a forked computation ended without its result (exit {proc.exitcode})"
+            )
+        ok, value = got
+        if not ok:
+            raise value
+        return value  # type: ignore[no-any-return]
+
+    return result
+
+
 def batch_positions(weighted: Iterable[tuple[int, int]], most: int) -> list[list[int]]:
     """The positions of ``weighted`` ``(position, weight)`` pairs, in order, cut into
     batches whose weights sum to at most ``most`` (a heavier one alone): the frames of one

@@ -119,9 +119,12 @@ def _measure_once(
     rows_of: dict[int, list[int]] = {}
     for r, i in enumerate(m.src.tolist()):
         rows_of.setdefault(i, []).append(r)
+    arms: dict[int, list[int]] = {}  # per placement, its lines' indices in ``arm_of``
+    for i, (jj, _) in enumerate(arm_of):
+        arms.setdefault(jj, []).append(i)
     out: dict[int, dict[str, Any]] = {}
     for j, q in enumerate(placements):
-        idx = [i for i, (jj, _) in enumerate(arm_of) if jj == j]
+        idx = arms.get(j, [])
         got = [rows_of.get(i, []) for i in idx]
         if any(len(g) != 1 for g in got):
             continue  # an arm split or lost: not measured whole

@@ -12,13 +12,17 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.forkmap import Jobs
+from blurtrack.detect.forkmap import Jobs, fork_call
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.readout import ReadoutOrder, readout_order
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
-from blurtrack.detect.gyro.sessionmodel import covered_frames, session_model
+from blurtrack.detect.gyro.sessionmodel import (
+    covered_frames,
+    session_calibration,
+    session_model,
+)
 from blurtrack.detect.gyro.timeshift import estimate_timeshift
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.session import cues as session_cues
@@ -92,16 +96,34 @@ def gyro_stages(
     model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
     error_model = cue_errors(p.orientation, refined=found_shift)
     covered = covered_frames(found, timings, model)
-    if p.orientation.direction_check:
-        g.direction = gyro_direction(
-            found,
-            timings,
-            covered,
-            model,
-            error_model,
-            p.orientation,
-            axes_known=session.meta.imu.axes_known,
+    # The session fit (where the scan found the shift) does not read the gyro's direction:
+    # the direction is checked in a forked process meanwhile, and the fit is used only where
+    # the direction leaves the gyro in use (its errors raised only then).
+    fit_now = found_shift and p.gyro_pass.session_calibration and bool(covered)
+    direction = (
+        fork_call(
+            partial(
+                gyro_direction,
+                found,
+                timings,
+                covered,
+                model,
+                error_model,
+                p.orientation,
+                axes_known=session.meta.imu.axes_known,
+            ),
+            fork=fit_now and workers > 1,
         )
+        if p.orientation.direction_check
+        else None
+    )
+    early_fit = (
+        fork_call(partial(session_calibration, found, timings, covered, model, p), False)
+        if fit_now
+        else None
+    )
+    if direction is not None:
+        g.direction = direction()
     set_aside = g.direction is not None and not g.direction.usable
     if set_aside:
         assert g.direction is not None  # set_aside implies a direction
@@ -110,7 +132,15 @@ def gyro_stages(
         covered, found_shift = [], False  # the images alone from here (module text)
     if found_shift:
         model, covered, g.session_fit, g.refined = session_model(
-            session, found, timings, idx, covered, model, p, workers
+            session,
+            found,
+            timings,
+            idx,
+            covered,
+            model,
+            p,
+            workers,
+            None if early_fit is None else early_fit(),
         )
     g.model = model
     fitted = g.session_fit is not None and g.session_fit.status == "fitted"

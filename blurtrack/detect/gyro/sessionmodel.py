@@ -27,6 +27,22 @@ def covers(model: Any, tm: FrameTiming) -> bool:
     return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
 
 
+def session_calibration(
+    found: list[FrameStreaks],
+    timings: list[FrameTiming],
+    covered: list[int],
+    model: Any,
+    p: DetectParams,
+) -> Any:
+    """The session calibration of :func:`session_model` (None where not asked for or no
+    frame is covered; :func:`~blurtrack.detect.gyro.sessioncalib.fit_session_calibration`)."""
+    if not (p.gyro_pass.session_calibration and covered):
+        return None
+    from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
+
+    return fit_session_calibration(found, timings, covered, model)
+
+
 def session_model(
     session: Any,
     found: list[FrameStreaks],
@@ -36,24 +52,24 @@ def session_model(
     model: Any,
     p: DetectParams,
     workers: int,
+    session_fit: Any = None,
 ) -> tuple[Any, list[int], Any, Any]:
     """The blur model the template pass, the cues and the check predict with, once the
     time-shift scan found the shift of ``model``: its calibration corrected by the session's
     error fitted to the first pass's quality_ok streaks (time offset and readout among it;
     :mod:`blurtrack.detect.gyro.sessioncalib`), or where that is not fitted, its shift and
     readout refined by the template pass's predicted curves (:mod:`blurtrack.detect.gyro.shiftfit`).
-    Returns the model, the frames it covers, the session fit and the template refinement
-    (None: not run)."""
+    ``session_fit``: :func:`session_calibration`'s, where already computed (None: computed
+    here). Returns the model, the frames it covers, the session fit and the template
+    refinement (None: not run)."""
     from dataclasses import replace as with_calib
 
-    session_fit = refined = None
-    if p.gyro_pass.session_calibration and covered:
-        from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
-
-        session_fit = fit_session_calibration(found, timings, covered, model)
-        if session_fit.status == "fitted":
-            model = with_calib(model, calib=session_fit.calib)
-            covered = covered_frames(found, timings, model)
+    refined = None
+    if session_fit is None:
+        session_fit = session_calibration(found, timings, covered, model, p)
+    if session_fit is not None and session_fit.status == "fitted":
+        model = with_calib(model, calib=session_fit.calib)
+        covered = covered_frames(found, timings, model)
     if p.gyro_template and covered and not (session_fit and session_fit.status == "fitted"):
         from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
 
