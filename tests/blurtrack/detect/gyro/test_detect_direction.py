@@ -108,6 +108,23 @@ def test_half_turned_axes_are_contradicted_and_the_images_orient(
         detect_session(session, gyro="on", workers=1)
 
 
+def test_the_check_beside_the_session_fit_gives_one_process_result(
+    sessions: dict[str, Any],
+) -> None:
+    # With workers the direction is checked in a forked process while this one fits the
+    # session calibration, which is dropped where the direction sets the gyro aside (the
+    # right axes' case, the fit kept: test_detect_workers.py).
+    session = load_session(sessions["half_turn"])
+    one = detect_session(session, workers=1)
+    two = detect_session(session, workers=2)
+    pd.testing.assert_frame_equal(one.table, two.table, check_exact=True)
+    assert one.summary == two.summary
+    assert two.summary["gyro_session_calibration"] is None
+    assert two.summary["gyro_direction"]["status"] == "contradicted"
+    with pytest.raises(DetectionError, match="runs against the images.*--gyro on stops"):
+        detect_session(session, gyro="on", workers=2)
+
+
 def test_a_gyro_reading_zero_leaves_the_direction_undetermined(sessions: dict[str, Any]) -> None:
     session = load_session(sessions["right"])
     p = DetectParams()
