@@ -6,6 +6,7 @@ ends, with the continuity cue computed meanwhile."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
@@ -18,6 +19,7 @@ from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
 from blurtrack.detect.gyro.gyrotrust import check_frames
 from blurtrack.detect.gyro.readout import ReadoutOrder, readout_order
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
+from blurtrack.detect.gyro.sessionframes import SessionFrames
 from blurtrack.detect.gyro.sessionmodel import (
     covered_frames,
     session_calibration,
@@ -68,62 +70,31 @@ class GyroOutcome:
 
 
 def gyro_stages(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    idx: list[int],
+    frames: SessionFrames,
     inputs: tuple[Any, Any],
     up: Any,
-    p: DetectParams,
     gyro: str,
     refine_timeshift: bool,
-    workers: int,
 ) -> tuple[GyroOutcome, list[np.ndarray]]:
-    """The gyro's stages over the first pass's frames ``found`` (changed in place by the
-    template pass and the check): the time-shift scan and the readout order, the gyro's
+    """The gyro's stages over the first pass's ``frames`` (their streaks changed in place by
+    the template pass and the check): the time-shift scan and the readout order, the gyro's
     direction, the session calibration, the template pass with the gyro cues, and the
     check. ``inputs``: the session's initial calibration and gyro trace; ``up``: the trace
     resampled. Returns what they did and the frames' cue columns ``(N, 3)`` (the gyro's
     two filled where it covers the frame; the continuity cue's still 0)."""
     from blurtrack.geometry.blur_model import BlurModel
 
+    found, idx, p = frames.found, frames.idx, frames.params
     g = GyroOutcome()
     calib, trace = inputs
-    g.shift, g.order = _scan(found, timings, calib, trace, up, p, refine_timeshift)
+    g.shift, g.order = _scan(frames, calib, trace, up, refine_timeshift)
     found_shift = g.shift is not None and g.shift.status == "found"
     if found_shift:
         calib = calib.with_(timeshift_cam_imu_s=g.shift.timeshift_s)
     model = BlurModel(calib, up, max_substep_s=CUE_SUBSTEP_S, gyro_upsample=1)
     error_model = cue_errors(p.orientation, refined=found_shift)
-    covered = covered_frames(found, timings, model)
-    # The session fit (where the scan found the shift) does not read the gyro's direction:
-    # the direction is checked in a forked process meanwhile, and the fit is used only where
-    # the direction leaves the gyro in use (its errors raised only then).
-    fit_now = found_shift and p.gyro_pass.session_calibration and bool(covered)
-    direction = (
-        fork_call(
-            partial(
-                gyro_direction,
-                found,
-                timings,
-                covered,
-                model,
-                error_model,
-                p.orientation,
-                axes_known=session.meta.imu.axes_known,
-            ),
-            fork=fit_now and workers > 1,
-        )
-        if p.orientation.direction_check
-        else None
-    )
-    early_fit = (
-        fork_call(partial(session_calibration, found, timings, covered, model, p), False)
-        if fit_now
-        else None
-    )
-    if direction is not None:
-        g.direction = direction()
+    covered = covered_frames(found, frames.timings, model)
+    g.direction, early_fit = _direction_and_fit(frames, covered, model, error_model, found_shift)
     set_aside = g.direction is not None and not g.direction.usable
     if set_aside:
         assert g.direction is not None  # set_aside implies a direction
@@ -132,15 +103,7 @@ def gyro_stages(
         covered, found_shift = [], False  # the images alone from here (module text)
     if found_shift:
         model, covered, g.session_fit, g.refined = session_model(
-            session,
-            found,
-            timings,
-            idx,
-            covered,
-            model,
-            p,
-            workers,
-            None if early_fit is None else early_fit(),
+            frames, covered, model, None if early_fit is None else early_fit()
         )
     g.model = model
     fitted = g.session_fit is not None and g.session_fit.status == "fitted"
@@ -150,9 +113,7 @@ def gyro_stages(
         if gyro == "on":
             raise CoverageError(f"frame {idx[k]}: the gyro does not cover its exposure")
         g.uncovered.append(idx[k])
-    g.template_pass, cues = _template_pass(
-        session, found, timings, idx, covered, model, error_model, p, fitted, workers
-    )
+    g.template_pass, cues = _template_pass(frames, covered, model, error_model, fitted)
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     for k, llr in zip(covered, cues, strict=True):
         if llr is None:
@@ -166,23 +127,18 @@ def gyro_stages(
         # The gyro's per-frame check of the quality_ok ends, where the time-shift scan
         # found the gyro explaining the streaks (a zero or unrelated gyro predicts nothing).
         g.checked, g.ok_change, g.continued = _check(
-            found, timings, covered, model, llrs, p, fitted, g.template_pass, workers, calib
+            frames, covered, model, llrs, fitted, g.template_pass, calib
         )
     return g, llrs
 
 
 def _scan(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    calib: Any,
-    trace: Any,
-    up: Any,
-    p: DetectParams,
-    refine_timeshift: bool,
+    frames: SessionFrames, calib: Any, trace: Any, up: Any, refine_timeshift: bool
 ) -> tuple[Any, ReadoutOrder | None]:
     """The time-shift scan (None where not asked for) and which row the sensor reads first
     (None where not checked). Raises :class:`TurnFramesSignal` where the frames read the
     bottom row first."""
+    found, timings, p = frames.found, frames.timings, frames.params
     shift = (
         estimate_timeshift(found, timings, calib, trace, model_gyro=up, params=p)
         if refine_timeshift
@@ -198,22 +154,47 @@ def _scan(
     return shift, order
 
 
+def _direction_and_fit(
+    frames: SessionFrames, covered: list[int], model: Any, error_model: Any, found_shift: bool
+) -> tuple[GyroDirection | None, Callable[[], Any] | None]:
+    """The gyro's direction against the images (None where not checked) and, where the scan
+    found the shift, the session calibration's fit to come (:func:`session_calibration`; its
+    errors raised where it is asked for). The fit does not read the direction: with workers
+    the direction is checked in a forked process meanwhile, and the fit is used only where
+    the direction leaves the gyro in use."""
+    p = frames.params
+    fit_now = found_shift and p.gyro_pass.session_calibration and bool(covered)
+    direction = (
+        fork_call(
+            partial(
+                gyro_direction,
+                frames.found,
+                frames.timings,
+                covered,
+                model,
+                error_model,
+                p.orientation,
+                axes_known=frames.session.meta.imu.axes_known,
+            ),
+            fork=fit_now and frames.workers > 1,
+        )
+        if p.orientation.direction_check
+        else None
+    )
+    early_fit = (
+        fork_call(partial(session_calibration, frames, covered, model), False) if fit_now else None
+    )
+    return (None if direction is None else direction()), early_fit
+
+
 def _template_pass(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    idx: list[int],
-    covered: list[int],
-    model: Any,
-    error_model: Any,
-    p: DetectParams,
-    fitted: bool,
-    workers: int,
+    frames: SessionFrames, covered: list[int], model: Any, error_model: Any, fitted: bool
 ) -> tuple[TemplatePass, list[np.ndarray | None]]:
-    """The second pass (the gyro's predicted shape as the template; ``found`` changed in
-    place), where asked for and the gyro covers a frame, and the gyro cues of the
+    """The second pass (the gyro's predicted shape as the template; ``frames.found`` changed
+    in place), where asked for and the gyro covers a frame, and the gyro cues of the
     ``covered`` frames (``(N, 2)`` each; None for a frame the gyro does not cover after
     all)."""
+    found, timings, p = frames.found, frames.timings, frames.params
     template_pass = TemplatePass()  # empty where the pass does not run
     cues: list[np.ndarray | None] | None = None
     if p.gyro_template and covered:
@@ -226,9 +207,7 @@ def _template_pass(
         # Where the session's calibration was corrected, the curves are the dots': no
         # rotations and scales to search (the search stands in for a nominal calibration).
         p_pass = replace(p, gyro_pass=replace(p.gyro_pass, shape_search=False)) if fitted else p
-        template_pass = refine_frames(
-            session, found, timings, idx, covered, model, p_pass, workers, early, fitted
-        )
+        template_pass = refine_frames(replace(frames, params=p_pass), covered, model, early, fitted)
         got = session_cues.cues_of_jobs(early, first, timings, covered, model, error_model)
         if got is not None:
             cues = session_cues.recomputed_where_changed(
@@ -240,23 +219,21 @@ def _template_pass(
 
 
 def _check(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
+    frames: SessionFrames,
     covered: list[int],
     model: Any,
     llrs: list[np.ndarray],
-    p: DetectParams,
     fitted: bool,
     template_pass: TemplatePass,
-    workers: int,
     nominal: Any,
 ) -> tuple[int, int, Jobs]:
-    """The gyro's check of the ``quality_ok`` ends (``found``'s quality changed in place):
-    its predictions and the continuity cues in the workers, its fit here meanwhile (the
-    check changes only the frames' quality, which continuity does not read; ``nominal``: the
-    calibration before the session's fit, the centre of its prior on the gyro's scale
-    terms). Returns the frames checked, the change in ``quality_ok`` and the continuity
-    cues' jobs (done)."""
+    """The gyro's check of the ``quality_ok`` ends (``frames.found``'s quality changed in
+    place): its predictions and the continuity cues in the workers, its fit here meanwhile
+    (the check changes only the frames' quality, which continuity does not read;
+    ``nominal``: the calibration before the session's fit, the centre of its prior on the
+    gyro's scale terms). Returns the frames checked, the change in ``quality_ok`` and the
+    continuity cues' jobs (done)."""
+    found, timings, p, workers = frames.found, frames.timings, frames.params, frames.workers
     image_ok = _count_ok(found)
     # Where the session's calibration was fitted and the template pass changed no frame,
     # the model is already fitted over the very streaks the check would fit.
@@ -271,8 +248,7 @@ def _check(
         model,
         p.source,
         workers,
-        None,
-        template_pass.curves,
+        known=template_pass.curves,
         fitted=fitted and unchanged,
         jobs=continued,
         nominal=nominal,

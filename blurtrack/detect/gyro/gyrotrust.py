@@ -316,6 +316,7 @@ def check_frames(
     model: Any,
     p: SourceParams,
     workers: int = 1,
+    *,
     meanwhile: Callable[[], None] | None = None,
     known: Mapping[int, np.ndarray] | None = None,
     fitted: bool = False,

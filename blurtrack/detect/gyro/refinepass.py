@@ -18,9 +18,8 @@ import numpy as np
 from blurtrack.detect.forkmap import Jobs, fork_map
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyropass import FrameOutcome, refine_frame
-from blurtrack.detect.params import DetectParams
+from blurtrack.detect.gyro.sessionframes import SessionFrames
 from blurtrack.detect.separation.quality import frame_quality
-from blurtrack.detect.session.orientation import FrameTiming
 
 
 @dataclass
@@ -43,24 +42,20 @@ class TemplatePass:
 
 
 def refine_frames(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: Sequence[FrameTiming],
-    idx: Sequence[int],
+    frames: SessionFrames,
     covered: Sequence[int],
     model: Any,
-    params: DetectParams,
-    workers: int = 1,
     jobs: Jobs | None = None,
     fitted: bool = False,
 ) -> TemplatePass:
-    """:func:`refine_frame` on the covered frames ``covered`` (positions in ``found``, which
-    is updated in place; ``idx`` their frame indices, the images re-read from ``session``
-    only for the frames the gate lets through), in ``workers`` forked processes (the same
-    result as in one). ``jobs``: side work on the frames as they were (the first pass's
-    cues), computed in the same workers ahead of the frames (before any frame without
-    workers; :class:`~blurtrack.detect.forkmap.Jobs`). ``fitted``: ``model`` is the session's
+    """:func:`refine_frame` on the ``covered`` frames (positions in ``frames.found``, which is
+    updated in place; the images re-read only for the frames the gate lets through), in
+    ``frames.workers`` forked processes (the same result as in one), with ``frames.params``.
+    ``jobs``: side work on the frames as they were (the first pass's cues), computed in the
+    same workers ahead of the frames (before any frame without workers;
+    :class:`~blurtrack.detect.forkmap.Jobs`). ``fitted``: ``model`` is the session's
     corrected one (the gate then also tests the streaks' vectors, ``vectors``)."""
+    found, timings, params = frames.found, frames.timings, frames.params
     out = TemplatePass()
     # The dot's cross-section is the optics', the same in every frame; a hairpin frame's own
     # (measured on lines down the middle of both arms) is too wide. The session's median.
@@ -72,7 +67,7 @@ def refine_frames(
         fs = found[k]
         seen: list[np.ndarray] = []
         out, what = refine_frame(
-            partial(session.read_image, idx[k]),
+            partial(frames.read_image, k),
             fs,
             timings[k],
             model,
@@ -86,7 +81,7 @@ def refine_frames(
         out.quality, out.one_doubt = frame_quality(out, params)
         return out, what, None
 
-    results = fork_map(one, covered, workers, 1, None, jobs)
+    results = fork_map(one, covered, frames.workers, 1, None, jobs)
     for k, (changed, what, curves) in zip(covered, results, strict=True):
         if changed is not None:
             found[k] = changed

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from blurtrack.detect.frame import FrameStreaks
-from blurtrack.detect.params import DetectParams
+from blurtrack.detect.gyro.sessionframes import SessionFrames
 from blurtrack.detect.session.orientation import FrameTiming
 
 
@@ -27,32 +27,18 @@ def covers(model: Any, tm: FrameTiming) -> bool:
     return bool(model.gyro.covers(t0, t0 + model.camera.readout_s + tm.exposure_s))
 
 
-def session_calibration(
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    covered: list[int],
-    model: Any,
-    p: DetectParams,
-) -> Any:
+def session_calibration(frames: SessionFrames, covered: list[int], model: Any) -> Any:
     """The session calibration of :func:`session_model` (None where not asked for or no
     frame is covered; :func:`~blurtrack.detect.gyro.sessioncalib.fit_session_calibration`)."""
-    if not (p.gyro_pass.session_calibration and covered):
+    if not (frames.params.gyro_pass.session_calibration and covered):
         return None
     from blurtrack.detect.gyro.sessioncalib import fit_session_calibration
 
-    return fit_session_calibration(found, timings, covered, model)
+    return fit_session_calibration(frames.found, frames.timings, covered, model)
 
 
 def session_model(
-    session: Any,
-    found: list[FrameStreaks],
-    timings: list[FrameTiming],
-    idx: list[int],
-    covered: list[int],
-    model: Any,
-    p: DetectParams,
-    workers: int,
-    session_fit: Any = None,
+    frames: SessionFrames, covered: list[int], model: Any, session_fit: Any = None
 ) -> tuple[Any, list[int], Any, Any]:
     """The blur model the template pass, the cues and the check predict with, once the
     time-shift scan found the shift of ``model``: its calibration corrected by the session's
@@ -64,9 +50,10 @@ def session_model(
     refinement (None: not run)."""
     from dataclasses import replace as with_calib
 
+    found, timings, p = frames.found, frames.timings, frames.params
     refined = None
     if session_fit is None:
-        session_fit = session_calibration(found, timings, covered, model, p)
+        session_fit = session_calibration(frames, covered, model)
     if session_fit is not None and session_fit.status == "fitted":
         model = with_calib(model, calib=session_fit.calib)
         covered = covered_frames(found, timings, model)
@@ -74,7 +61,7 @@ def session_model(
         from blurtrack.detect.gyro.shiftfit import refine_timeshift as refine_by_templates
 
         refined = refine_by_templates(
-            lambda k: session.read_image(idx[k]), found, timings, covered, model, p, workers
+            frames.read_image, found, timings, covered, model, p, frames.workers
         )
         if refined.status == "refined":
             calib = model.calib.with_(

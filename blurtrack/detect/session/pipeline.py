@@ -19,6 +19,7 @@ from blurtrack.detect.gyro.readout import (
     turned_frame,
     turned_table,
 )
+from blurtrack.detect.gyro.sessionframes import SessionFrames
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.detect.session.orientation import (
@@ -192,9 +193,8 @@ def _detect_session(
     llrs = [np.zeros((len(fs), 3)) for fs in found]
     if inputs is not None:
         assert up is not None  # resampled while the workers detected
-        g, llrs = gyro_stages(
-            session, found, timings, idx, inputs, up, p, gyro, refine_timeshift, workers
-        )
+        session_frames = SessionFrames(session, found, timings, idx, p, workers)
+        g, llrs = gyro_stages(session_frames, inputs, up, gyro, refine_timeshift)
     columns = (
         [c for got in g.continued.results for c in got]
         if g.continued is not None

@@ -477,7 +477,7 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
         fr = copy.deepcopy(found)
         calls: list[int] = []
         n = gyrotrust.check_frames(
-            fr, timings, covered, model, p, workers, partial(calls.append, 1)
+            fr, timings, covered, model, p, workers, meanwhile=partial(calls.append, 1)
         )
         assert calls == [1]
         out[workers] = (n, [fs.quality for fs in fr])
@@ -520,7 +520,7 @@ def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
     real = m.check_frames
 
     def spy(found, timings, covered, model, p, *a, **k):
-        inputs.append((copy.deepcopy(found), timings, covered, model, p, a[2]))
+        inputs.append((copy.deepcopy(found), timings, covered, model, p, k["known"]))
         return real(found, timings, covered, model, p, *a, **k)
 
     monkeypatch.setattr(m, "check_frames", spy)
@@ -536,7 +536,7 @@ def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
     out = {}
     for name, given in (("own", None), ("known", known)):
         fr = copy.deepcopy(found)
-        n = gyrotrust.check_frames(fr, timings, covered, model, p, 2, None, given)
+        n = gyrotrust.check_frames(fr, timings, covered, model, p, 2, known=given)
         out[name] = (n, [fs.quality for fs in fr])
     assert out["own"][0] == out["known"][0] > 0
     for a, b in zip(out["own"][1], out["known"][1], strict=True):
@@ -553,7 +553,7 @@ def test_the_gyro_check_with_the_gates_curves_is_that_of_its_own_predictions(
 
     monkeypatch.setattr(gyrotrust, "_predicted_batch", counting)
     fr = copy.deepcopy(found)
-    assert gyrotrust.check_frames(fr, timings, covered, model, p, 1, None, known) == out["own"][0]
+    assert gyrotrust.check_frames(fr, timings, covered, model, p, 1, known=known) == out["own"][0]
     clipped_known = sum(int(np.sum(found[k].flags["clipped"])) for k in known)
     others = sum(len(found[k]) for k in covered if k not in known)
     assert sum(predicted) == clipped_known + others
@@ -635,7 +635,7 @@ def test_a_session_fitted_model_is_tested_as_it_is(
         p, gyro_vector_tol_px=tol, gyro_confirm_tol_px=tol, hairpin_depth_px=1e3
     )
     fr = copy.deepcopy(found)
-    gyrotrust.check_frames(fr, timings, covered, model, p, 1, None, None, fitted=True)
+    gyrotrust.check_frames(fr, timings, covered, model, p, 1, fitted=True)
     demoted = 0
     for k in covered:
         before, after = found[k], fr[k]
