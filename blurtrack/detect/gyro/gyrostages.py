@@ -157,34 +157,31 @@ def _scan(
 def _direction_and_fit(
     frames: SessionFrames, covered: list[int], model: Any, error_model: Any, found_shift: bool
 ) -> tuple[GyroDirection | None, Callable[[], Any] | None]:
-    """The gyro's direction against the images (None where not checked) and, where the scan
-    found the shift, the session calibration's fit to come (:func:`session_calibration`; its
-    errors raised where it is asked for). The fit does not read the direction: with workers
-    the direction is checked in a forked process meanwhile, and the fit is used only where
-    the direction leaves the gyro in use."""
+    """The gyro's direction against the images (None where not checked) and, where it was
+    checked in a forked process, the session calibration's fit made meanwhile
+    (:func:`session_calibration`; its errors raised where it is asked for; None: not made,
+    :func:`session_model` fits where the gyro stays in use). The fit does not read the
+    direction, and is used only where the direction leaves the gyro in use: it runs beside
+    the check only where there are workers and the scan found the shift."""
     p = frames.params
-    fit_now = found_shift and p.gyro_pass.session_calibration and bool(covered)
-    direction = (
-        fork_call(
-            partial(
-                gyro_direction,
-                frames.found,
-                frames.timings,
-                covered,
-                model,
-                error_model,
-                p.orientation,
-                axes_known=frames.session.meta.imu.axes_known,
-            ),
-            fork=fit_now and frames.workers > 1,
-        )
-        if p.orientation.direction_check
-        else None
+    if not p.orientation.direction_check:
+        return None, None
+    check = partial(
+        gyro_direction,
+        frames.found,
+        frames.timings,
+        covered,
+        model,
+        error_model,
+        p.orientation,
+        axes_known=frames.session.meta.imu.axes_known,
     )
-    early_fit = (
-        fork_call(partial(session_calibration, frames, covered, model), False) if fit_now else None
-    )
-    return (None if direction is None else direction()), early_fit
+    beside = found_shift and p.gyro_pass.session_calibration and bool(covered)
+    if not (beside and frames.workers > 1):
+        return check(), None
+    direction = fork_call(check)
+    early_fit = fork_call(partial(session_calibration, frames, covered, model), fork=False)
+    return direction(), early_fit
 
 
 def _template_pass(

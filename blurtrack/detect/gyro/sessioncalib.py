@@ -146,9 +146,10 @@ def session_residual(
         d = np.linalg.lstsq(A, b, rcond=None)[0]
         q = p + J @ d
         r = np.minimum(np.hypot(*(m - q).T), np.hypot(*(m + q).T))
+        med = float(np.median(r[use]))
         # Per axis: the median of a 2-D Gaussian residual's length is sigma sqrt(2 ln 2).
-        scale = max(float(np.median(r[use])) / RAYLEIGH_MEDIAN, 1e-3)
-        cut = max(3.0 * float(np.median(r[use])), 0.5)
+        scale = max(med / RAYLEIGH_MEDIAN, 1e-3)
+        cut = max(3.0 * med, 0.5)
         new = voters & (r <= cut)
         if int(new.sum()) < SESSION_VOTERS_PER_PARAMETER * P:
             break
