@@ -239,7 +239,21 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         keep_heap()
     args = sys.argv[1:] if argv is None else list(argv)
-    return run_command("blurtrack", build_parser(command_of(args)).parse_args(args))
+    code = run_command("blurtrack", build_parser(command_of(args)).parse_args(args))
+    if argv is None:
+        exit_without_collection()
+    return code
+
+
+def exit_without_collection() -> None:
+    """Set this process's objects aside from the cyclic garbage collector: it is about to
+    exit. The interpreter's shutdown runs full collections over every object still alive
+    (``detect`` on 150 dense frames: 0.10 s of its exit, 0.04 s after this); the objects are
+    still released, exit handlers and ``weakref.finalize`` still run, only unreachable
+    cycles are left to the operating system (the outputs are written and closed by now)."""
+    import gc
+
+    gc.freeze()
 
 
 if __name__ == "__main__":
