@@ -99,9 +99,8 @@ from blurtrack.detect.gyro.gyromeasure import as_streaks
 from blurtrack.detect.gyro.gyroshape import best_shape
 from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
-from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.params import DetectParams, GyroPassParams, SeparationParams
-from blurtrack.detect.separation.pursuit import pursue
+from blurtrack.detect.separation.pursuit import PursuitFrame, pursue
 from blurtrack.detect.separation.refit import model_image, refit
 from blurtrack.detect.separation.templates import InsideNorms, Placement, Template
 from blurtrack.detect.session.orientation import FrameTiming
@@ -120,26 +119,23 @@ def _sweep(
     residual: np.ndarray,
     placements: list[Placement],
     templates: dict[int, Template],
-    comps: Components,
-    comp_of_label: np.ndarray,
+    where: PursuitFrame,
     sp: SeparationParams,
-    frame: tuple[int, int, int, int] | None,
-    norms: InsideNorms | None = None,
 ) -> tuple[list[Placement], np.ndarray]:
     """Up to :data:`SWEEPS` more pursuits of each of ``templates`` over the light the
     placements so far (jointly refitted) leave, each followed by the joint refit of all:
-    the placements and the residual (``norms``: the norms of
-    :func:`~blurtrack.detect.separation.templates.inside_norm2` over ``frame``,
+    the placements and the residual (``where``: the frame's components, and the norms of
+    :func:`~blurtrack.detect.separation.templates.inside_norm2` over ``where.inside``,
     remembered over the pursuits and refits of the frame)."""
     for _ in range(SWEEPS):
         if not placements:
             break
         more: list[Placement] = []
         for c, tpl in templates.items():
-            more += pursue(residual, comps, c, tpl, comp_of_label, sp, sp.halo_max, frame, norms)
+            more += pursue(residual, where, c, tpl, sp, sp.halo_max)
         if not more:
             break
-        placements, model_img = refit(light, placements + more, sp, frame, norms)
+        placements, model_img = refit(light, placements + more, sp, where.inside, where.norms)
         if model_img is not None:
             residual = np.maximum(light - model_img, 0.0)
     return placements, residual
@@ -263,12 +259,13 @@ def _shape(
 class _Pursuit:
     """Step 3's first pursuit: the placements (padded coordinates), the light they leave
     (``residual``, as ``Canvas.light``), the templates the sweeps pursue again (by
-    component) and the norms remembered over the frame's pursuits and refits."""
+    component) and what the frame's pursuits share, with the norms remembered over them and
+    the refits (``where``)."""
 
     placements: list[Placement]
     residual: np.ndarray
     templates: dict[int, Template]
-    norms: InsideNorms
+    where: PursuitFrame
 
 
 def _pursue_candidates(
@@ -286,7 +283,10 @@ def _pursue_candidates(
     order = np.flatnonzero(cands.cand)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     templates: dict[int, Template] = {}  # the shapes the sweeps pursue again
-    norms = InsideNorms(canvas.in_frame)  # the sweeps pursue and refit over the same regions again
+    # The sweeps pursue and refit over the same regions again: the norms remembered.
+    where = PursuitFrame(
+        canvas.comps, canvas.comp_of_label, canvas.in_frame, InsideNorms(canvas.in_frame)
+    )
     for c in order.tolist():
         tpl = _shape(c, cands, canvas, prof, gp, sp)
         if tpl is None:
@@ -294,19 +294,8 @@ def _pursue_candidates(
         limit = 1 if cands.one_dot[c] else None
         if limit is None:
             templates[c] = tpl
-        placements += pursue(
-            residual,
-            canvas.comps,
-            c,
-            tpl,
-            canvas.comp_of_label,
-            sp,
-            sp.halo_max,
-            canvas.in_frame,
-            norms,
-            limit,
-        )
-    return _Pursuit(placements, residual, templates, norms)
+        placements += pursue(residual, where, c, tpl, sp, sp.halo_max, limit)
+    return _Pursuit(placements, residual, templates, where)
 
 
 def _joint_fit(
@@ -314,25 +303,15 @@ def _joint_fit(
 ) -> tuple[list[Placement], np.ndarray]:
     """Step 3: the joint refit of the pursuit's placements, then the sweeps (:func:`_sweep`):
     the placements and the light they leave (padded coordinates)."""
-    light, in_frame, norms = canvas.light, canvas.in_frame, pur.norms
+    light, where = canvas.light, pur.where
     residual = pur.residual
-    placements, model_img = refit(light, pur.placements, sp, in_frame, norms)
+    placements, model_img = refit(light, pur.placements, sp, where.inside, where.norms)
     if model_img is not None or SWEEPS:
         # (Where the refit moved nothing the sweep starts from the placements' sub-pixel
         # templates, as the refit paints them, not the pursuit's integer ones.)
         model_img = model_image(light, placements) if model_img is None else model_img
         residual = np.maximum(light - model_img, 0.0)
-    return _sweep(
-        light,
-        residual,
-        placements,
-        pur.templates,
-        canvas.comps,
-        canvas.comp_of_label,
-        sp,
-        in_frame,
-        norms,
-    )
+    return _sweep(light, residual, placements, pur.templates, where, sp)
 
 
 def _explained(

@@ -208,6 +208,7 @@ def _steps(
     L: np.ndarray,
     c0: np.ndarray,
     act: np.ndarray,
+    *,
     iterations: int,
     tol: float,
     quadratic: bool,
@@ -282,5 +283,7 @@ def fit_short(
     a = np.clip(np.nan_to_num(a0.astype(np.float64), nan=0.0), 0.0, top)
     L = np.clip(np.nan_to_num(L0.astype(np.float64), nan=0.05), 0.05, np.maximum(top - a, 0.05))
     c0 = np.zeros(a.size)
-    _steps(y, w, s, sigma, a, L, c0, np.arange(a.size), iterations, tol, True)
+    _steps(
+        y, w, s, sigma, a, L, c0, np.arange(a.size), iterations=iterations, tol=tol, quadratic=True
+    )
     return a, L, c0

@@ -12,6 +12,8 @@ refined to sub-pixel by a parabola through the score's peak.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -48,33 +50,45 @@ def _subpixel(score: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
     return fx, fy
 
 
+@dataclass(frozen=True)
+class PursuitFrame:
+    """What the pursuits of one frame share: its components ``comps`` in the residual's
+    coordinates and the component index of each of their labels ``comp_of_label`` (``(max
+    label + 1,)``, -1: none); for a residual padded with zeros beyond the frame, the frame's
+    pixels in it ``inside`` (``(x0, y0, x1, y1)``, None: not padded;
+    :func:`blurtrack.detect.separation.templates.inside_norm2`) and the norms remembered over
+    the frame's pursuits and refits ``norms`` (None: computed per call; its ``frame`` is
+    ``inside``)."""
+
+    comps: Components
+    comp_of_label: np.ndarray
+    inside: tuple[int, int, int, int] | None = None
+    norms: InsideNorms | None = None
+
+
 def pursue(
     residual: np.ndarray,
-    comps: Components,
+    where: PursuitFrame,
     c: int,
     tpl: Template,
-    comp_of_label: np.ndarray,
     sp: SeparationParams,
     halo_max: float,
-    frame: tuple[int, int, int, int] | None = None,
-    norms: InsideNorms | None = None,
     limit: int | None = None,
 ) -> list[Placement]:
     """Matching pursuit of ``tpl`` over candidate ``c``'s neighbourhood of ``residual`` (which
-    it updates in place). Each placement belongs to the component that holds most of the
-    light it explains. ``sp``: the thresholds; ``halo_max``: ``sp.halo_max`` or
-    ``sp.halo_max_whole``.
+    it updates in place; component ``c`` of ``where.comps``). Each placement belongs to the
+    component that holds most of the light it explains (``where.comp_of_label``). ``sp``: the
+    thresholds; ``halo_max``: ``sp.halo_max`` or ``sp.halo_max_whole``.
 
-    ``frame``: for a ``residual`` padded with zeros beyond the frame, the frame's pixels in it
-    ``(x0, y0, x1, y1)`` (:func:`blurtrack.detect.separation.templates.inside_norm2`): a placement
-    reaching past the border is scored and scaled by its template's part inside the frame
-    (a streak leaving the frame), and needs at least ``sp.inside_min`` of its template
+    Where ``where.inside`` is set (a ``residual`` padded with zeros beyond the frame), a
+    placement reaching past the border is scored and scaled by its template's part inside the
+    frame (a streak leaving the frame), and needs at least ``sp.inside_min`` of its template
     inside.
-    ``norms``: the same norms remembered over calls (its ``frame`` is ``frame``).
     ``limit``: at most this many placements (at least 1; the best first; None: as many as
     fit)."""
     if limit is not None and limit < 1:
         raise ValueError(f"pursue: limit must be at least 1, got {limit}")
+    comps, comp_of_label, frame, norms = where.comps, where.comp_of_label, where.inside, where.norms
     H, W = residual.shape
     x, y, w, h = (int(v) for v in comps.boxes[c])
     tx, ty, tw, th = tpl.box

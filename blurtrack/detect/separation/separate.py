@@ -48,7 +48,7 @@ from blurtrack.detect.separation.consensus import (
 )
 from blurtrack.detect.separation.modal import component_references
 from blurtrack.detect.separation.mosaic import overlapping_placements, placement_mosaic
-from blurtrack.detect.separation.pursuit import pursue
+from blurtrack.detect.separation.pursuit import PursuitFrame, pursue
 from blurtrack.detect.separation.refit import refit
 from blurtrack.detect.separation.templates import (
     Placement,
@@ -314,6 +314,7 @@ def _pursue_candidates(ctx: FrameContext, refs: _References, cands: _Candidates)
     order = order[np.argsort(-comps.areas[order], kind="stable")]
     comp_of_label = np.full(is_cand.size, -1, np.int64)
     comp_of_label[comps.ids] = np.arange(C)
+    where = PursuitFrame(comps, comp_of_label)
     for ci in order.tolist():
         k = int(nearest[ci])
         # The reference mapped onto the local consensus by a rotation and scaling.
@@ -331,7 +332,7 @@ def _pursue_candidates(ctx: FrameContext, refs: _References, cands: _Candidates)
             base = bases[k]
             templates[key] = similar(base, z, refs.refs.time_mid[k]) if abs(z - 1) > 0.02 else base
         halo = sp.halo_max_whole if whole else sp.halo_max
-        placements += pursue(residual, comps, ci, templates[key], comp_of_label, sp, halo)
+        placements += pursue(residual, where, ci, templates[key], sp, halo)
     return _Pursuit(placements, light, residual, pix_cand)
 
 

@@ -5,6 +5,7 @@ its own trail, which the image-only first pass measures as one line down the mid
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import cv2
 import numpy as np
@@ -489,7 +490,7 @@ def test_a_line_near_its_prediction_is_measured_again_where_its_end_hooks(monkey
     real = gyropass.pursue
 
     def spy(*args, **kwargs):
-        limits.append(args[9] if len(args) > 9 else kwargs.get("limit"))
+        limits.append(inspect.signature(real).bind(*args, **kwargs).arguments.get("limit"))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(gyropass, "pursue", spy)
