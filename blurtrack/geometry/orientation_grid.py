@@ -74,15 +74,44 @@ class OrientationGrid:
         at ``times_s (N, T)`` (any order), each point's times in its window ``window (N,)``
         (ints): ``(N, T, 2)`` pixels, ``pi(K R_c(t)^T R_c(t_ref) K^-1 x)`` as
         :func:`~blurtrack.geometry.kernels.warp_c`. ``intrinsics``, ``dist``: the camera's
-        ``(fx, fy, cx, cy)`` and radtan coefficients."""
+        ``(fx, fy, cx, cy)`` and radtan coefficients. :meth:`directions` then
+        :meth:`track_directions` (the directions kept where the same points are tracked at
+        other times)."""
+        v = self.directions(pixels, t_ref_s, window, intrinsics, dist)
+        return self.track_directions(v, times_s, window, intrinsics, dist)
+
+    def directions(
+        self,
+        pixels: np.ndarray,
+        t_ref_s: np.ndarray,
+        window: np.ndarray,
+        intrinsics: tuple[float, float, float, float],
+        dist: tuple[float, ...],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The world directions (relative to each window's start) of the points seen at
+        ``pixels (N, 2)`` at ``t_ref_s (N,)`` in the windows ``window (N,)``: ``P_ref K^-1 x``,
+        three ``(N, 1)`` components (:meth:`point_track`)."""
         px = np.asarray(pixels, float).reshape(-1, 2)
         w = np.asarray(window, np.int64).reshape(-1)
         rx, ry, rz = unproject_c(px[:, 0], px[:, 1], intrinsics, dist)
         R = self.rotations(np.asarray(t_ref_s, float).reshape(-1), w)
-        # v = P_ref ray (world direction relative to the window's start), then X = P_t^T v.
         v0 = (R[:, 0] * rx + R[:, 1] * ry + R[:, 2] * rz)[:, None]
         v1 = (R[:, 3] * rx + R[:, 4] * ry + R[:, 5] * rz)[:, None]
         v2 = (R[:, 6] * rx + R[:, 7] * ry + R[:, 8] * rz)[:, None]
+        return v0, v1, v2
+
+    def track_directions(
+        self,
+        v: tuple[np.ndarray, np.ndarray, np.ndarray],
+        times_s: np.ndarray,
+        window: np.ndarray,
+        intrinsics: tuple[float, float, float, float],
+        dist: tuple[float, ...],
+    ) -> np.ndarray:
+        """``(N, T, 2)`` image positions at ``times_s (N, T)`` of the :meth:`directions` ``v``
+        of points in the windows ``window (N,)``: ``pi(K P_t^T v)``."""
+        v0, v1, v2 = v
+        w = np.asarray(window, np.int64).reshape(-1)
         Q = self.rotations(np.asarray(times_s, float), w[:, None])
         X = Q[..., 0] * v0 + Q[..., 3] * v1 + Q[..., 6] * v2
         Y = Q[..., 1] * v0 + Q[..., 4] * v1 + Q[..., 7] * v2

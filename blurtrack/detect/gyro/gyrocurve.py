@@ -12,7 +12,6 @@ included: a dot that slows down and turns (a hairpin) is brighter at its tip.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,7 +19,7 @@ import cv2
 import numpy as np
 
 from blurtrack.detect.separation.templates import Template, finish
-from blurtrack.geometry.orientation_grid import GRID_STEP_S
+from blurtrack.geometry.orientation_grid import GRID_STEP_S, OrientationGrid
 
 #: Grid step (s) of the predictions of a streak's two ends alone (the session calibration's
 #: and the check's vectors, the streaks of many frames to a call, where a grid over every
@@ -82,24 +81,45 @@ def predict_curves(
     t_ref = row_t + 0.5 * ex[:, 0]
     t = row_t[:, None] + ex * tau
     track = _tracks(model, ft[:, 0], ex[:, 0], TWO_END_STEP_S if samples <= 2 else GRID_STEP_S)
+    seen = track.directions(ref, t_ref)  # the same points at every iteration
     for _ in range(SHUTTER_ITERATIONS + 1):
-        pos = track(ref, t_ref, t)
+        pos = track.at(seen, t)
         t = ft + cam.readout_s * np.clip(pos[..., 1], 0, H - 1) / H + ex * tau
     return Curves(np.asarray(pos, float), ref)
 
 
-def _tracks(
-    model: Any, ft: np.ndarray, ex: np.ndarray, step_s: float
-) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
-    """Point tracks ``(ref, t_ref, t) -> (N, S, 2)`` of the dots of frames starting at ``ft
-    (N,)`` with exposures ``ex (N,)``, read from the model's orientation grid over each frame's
-    window ``[ft, ft + readout + exposure]`` (every row's times and mid-exposure lie in it)."""
+@dataclass(frozen=True)
+class _Tracks:
+    """Point tracks of the dots of frames read from the model's orientation grid over each
+    frame's window (``window (N,)``, one per dot): :meth:`directions` once, then the positions
+    at any times :meth:`at`."""
+
+    grid: OrientationGrid
+    window: np.ndarray
+    intrinsics: tuple[float, float, float, float]
+    dist: tuple[float, ...]
+
+    def directions(
+        self, ref: np.ndarray, t_ref: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The directions of the dots seen at ``ref (N, 2)`` at ``t_ref (N,)``."""
+        return self.grid.directions(ref, t_ref, self.window, self.intrinsics, self.dist)
+
+    def at(self, seen: tuple[np.ndarray, np.ndarray, np.ndarray], t: np.ndarray) -> np.ndarray:
+        """``(N, S, 2)`` the positions of the :meth:`directions` ``seen`` at times ``t``."""
+        return self.grid.track_directions(seen, t, self.window, self.intrinsics, self.dist)
+
+
+def _tracks(model: Any, ft: np.ndarray, ex: np.ndarray, step_s: float) -> _Tracks:
+    """Point tracks of the dots of frames starting at ``ft (N,)`` with exposures ``ex (N,)``,
+    read from the model's orientation grid over each frame's window ``[ft, ft + readout +
+    exposure]`` (every row's times and mid-exposure lie in it)."""
     starts, window = np.unique(ft, return_inverse=True)
     ends = np.full(starts.shape, -np.inf)
     np.maximum.at(ends, window, ft + model.camera.readout_s + ex)
     grid = model.orientation_grid(starts, ends, step_s)
     cam = model.camera
-    return lambda ref, t_ref, t: grid.point_track(ref, t_ref, t, window, cam.intrinsics, cam.dist)
+    return _Tracks(grid, window, cam.intrinsics, cam.dist)
 
 
 def similar_curve(pts: np.ndarray, z: complex) -> np.ndarray:

@@ -183,20 +183,33 @@ def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarr
     return pos, picks
 
 
+def sample_points(
+    frames: Sequence[FrameStreaks],
+    timings: Sequence[FrameTiming],
+    pos: Sequence[int],
+    picks: Sequence[np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sampled streaks (:func:`fit_sample`) as one model call takes them: their time
+    midpoints ``(n, 2)`` (px) and their frames' start times and exposures ``(n,)`` (s)."""
+    ref = np.concatenate([frames[k].time_mid[s] for k, s in zip(pos, picks, strict=True)])
+    sizes = [len(s) for s in picks]
+    ft = np.repeat(np.array([timings[k].t_s for k in pos], float), sizes)
+    ex = np.repeat(np.array([timings[k].exposure_s for k in pos], float), sizes)
+    return ref, ft, ex
+
+
 def sample_vectors(
     frames: Sequence[FrameStreaks],
     timings: Sequence[FrameTiming],
     model: Any,
     pos: Sequence[int],
     picks: Sequence[np.ndarray],
+    points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """``(n, 2)`` predicted start-to-end vectors of the sampled streaks (:func:`fit_sample`),
-    one model call; NaN rows for the frames the model does not cover."""
-    ref = np.concatenate([frames[k].time_mid[s] for k, s in zip(pos, picks, strict=True)])
-    ft = np.concatenate([np.full(len(s), timings[k].t_s) for k, s in zip(pos, picks, strict=True)])
-    ex = np.concatenate(
-        [np.full(len(s), timings[k].exposure_s) for k, s in zip(pos, picks, strict=True)]
-    )
+    one model call; NaN rows for the frames the model does not cover. ``points``: their
+    :func:`sample_points`, where already known (a fit predicts the same streaks 38 times)."""
+    ref, ft, ex = sample_points(frames, timings, pos, picks) if points is None else points
     try:
         pts = predict_curves(model, ref, ft, ex, 2).pts
         return np.asarray(pts[:, -1] - pts[:, 0])
@@ -250,9 +263,10 @@ def fit_system(
     if not pos:
         return None
     m = measured_vectors(frames, pos, picks)
-    p = sample_vectors(frames, timings, model, pos, picks)
+    at = sample_points(frames, timings, pos, picks)
+    p = sample_vectors(frames, timings, model, pos, picks, at)
     J = np.stack(
-        [sample_vectors(frames, timings, mv, pos, picks) - p for mv in perturbed_models(model)],
+        [sample_vectors(frames, timings, mv, pos, picks, at) - p for mv in perturbed_models(model)],
         axis=2,
     )
     use = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(p), axis=1)
@@ -317,14 +331,15 @@ def fit_session_calibration(
     m = measured_vectors(sub, pos, picks)
     current = model
     try:
-        before = _median_residual(m, sample_vectors(sub, tim, model, pos, picks))
+        at = sample_points(sub, tim, pos, picks)
+        before = _median_residual(m, sample_vectors(sub, tim, model, pos, picks, at))
         for _ in range(ROUNDS):
             # No limit per round: the rounds may go far; the whole move is judged below.
             d = session_fit(sub, tim, current, max_steps=None, nominal=model.calib)
             if d is None:
                 break
             current = corrected_model(current, d)
-        after = _median_residual(m, sample_vectors(sub, tim, current, pos, picks))
+        after = _median_residual(m, sample_vectors(sub, tim, current, pos, picks, at))
     except BlurTrackError:
         return SessionCalibration("no_prediction", model.calib, zero, n, np.nan, np.nan)
     if not np.isfinite(before):

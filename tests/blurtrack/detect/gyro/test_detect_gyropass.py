@@ -536,6 +536,17 @@ class _PathMotion:
     ) -> np.ndarray:
         return self.point_track_ordered(pixels, t_ref, times)
 
+    def directions(
+        self, pixels: np.ndarray, t_ref: np.ndarray, *_: object
+    ) -> tuple[np.ndarray, np.ndarray, None]:
+        # (the grid's directions: here the points and their times)
+        return np.asarray(pixels, float).reshape(-1, 2), np.asarray(t_ref, float), None
+
+    def track_directions(
+        self, seen: tuple[np.ndarray, np.ndarray, None], times: np.ndarray, *_: object
+    ) -> np.ndarray:
+        return self.point_track_ordered(seen[0], seen[1], times)
+
 
 def test_the_gate_lets_through_a_frame_whose_streaks_hook() -> None:
     """Streaks whose first-pass ends sit exactly on their predicted ends (nothing to refine by

@@ -18,8 +18,11 @@ from blurtrack.detect.gyro.calibsteps import (
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.sessioncalib import (
     SCALE_PRIOR,
+    fit_sample,
     fit_session_calibration,
     fit_system,
+    sample_points,
+    sample_vectors,
     session_residual,
 )
 from blurtrack.detect.session.orientation import FrameTiming
@@ -264,3 +267,21 @@ def test_the_scale_prior_is_centred_on_the_nominal_gyro() -> None:
     np.testing.assert_allclose(sigma[k:], SCALE_PRIOR / CALIBRATION_STEPS["scale"])
     # Without a nominal calibration: centred on the model's own.
     assert not np.any(_scale_prior(moved, None)[0])
+
+
+def test_the_sample_points_are_the_streaks_one_call_predicts() -> None:
+    # The fit predicts the same sample 38 times: its points are gathered once, with the very
+    # values of each frame's streaks (a negative control: another frame's time differs).
+    frames, timings = _session(TRUE, wrong_px=6.0)
+    pos, picks = fit_sample(frames)
+    ref, ft, ex = sample_points(frames, timings, pos, picks)
+    assert len(ref) == len(ft) == len(ex) == 3 * 36
+    for j, (k, s) in enumerate(zip(pos, picks, strict=True)):
+        rows = slice(36 * j, 36 * (j + 1))
+        assert np.array_equal(ref[rows], frames[k].time_mid[s])
+        assert np.all(ft[rows] == timings[k].t_s) and np.all(ex[rows] == EXP)
+    assert ft[0] != ft[-1]
+    once = sample_vectors(frames, timings, INIT, pos, picks)
+    given = sample_vectors(frames, timings, INIT, pos, picks, (ref, ft, ex))
+    assert np.array_equal(once, given)
+    assert np.allclose(once[:36], _vectors(INIT, frames[0].time_mid[picks[0]], TIMES[0]))
