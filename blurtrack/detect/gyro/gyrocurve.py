@@ -59,6 +59,8 @@ def predict_curves(
     frame_t_s: float | np.ndarray,
     exposure_s: float | np.ndarray,
     samples: int = CURVE_SAMPLES,
+    *,
+    step_s: float | None = None,
 ) -> Curves:
     """Curves of the dots seen at ``ref (N, 2)`` at their rows' mid-exposure. ``frame_t_s``,
     ``exposure_s``: the frame's (or ``(N,)``, one per dot: the streaks of many frames in one
@@ -67,7 +69,8 @@ def predict_curves(
     orientation grid over each frame's readout and exposure
     (:meth:`~blurtrack.geometry.blur_model.BlurModel.orientation_grid`, built once for the
     shutter iterations), of :data:`~blurtrack.geometry.orientation_grid.GRID_STEP_S` for
-    curves, of :data:`TWO_END_STEP_S` for a streak's two ends alone (``samples`` 2)."""
+    curves, of :data:`TWO_END_STEP_S` for a streak's two ends alone (``samples`` 2), or of
+    ``step_s`` where given."""
     cam = model.camera
     H = float(cam.height)
     ref = np.asarray(ref, float).reshape(-1, 2)
@@ -80,7 +83,9 @@ def predict_curves(
     row_t = ft[:, 0] + cam.readout_s * np.clip(ref[:, 1], 0, H - 1) / H
     t_ref = row_t + 0.5 * ex[:, 0]
     t = row_t[:, None] + ex * tau
-    track = _tracks(model, ft[:, 0], ex[:, 0], TWO_END_STEP_S if samples <= 2 else GRID_STEP_S)
+    if step_s is None:
+        step_s = TWO_END_STEP_S if samples <= 2 else GRID_STEP_S
+    track = _tracks(model, ft[:, 0], ex[:, 0], step_s)
     seen = track.directions(ref, t_ref)  # the same points at every iteration
     for _ in range(SHUTTER_ITERATIONS + 1):
         pos = track.at(seen, t)

@@ -79,10 +79,10 @@ class GyroCheck:
     depth: np.ndarray
 
 
-def _batches(frames: Sequence[FrameStreaks]) -> list[list[int]]:
-    """The positions of the frames with streaks, in order, in batches of at most
-    :data:`BATCH_STREAKS` streaks (a larger frame alone)."""
-    return batch_positions(((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), BATCH_STREAKS)
+def _batches(frames: Sequence[FrameStreaks], size: int = BATCH_STREAKS) -> list[list[int]]:
+    """The positions of the frames with streaks, in order, in batches of at most ``size``
+    streaks (a larger frame alone)."""
+    return batch_positions(((k, len(fs)) for k, fs in enumerate(frames) if len(fs)), size)
 
 
 def _predicted_batch(
@@ -268,16 +268,18 @@ def _known_paths(
     return have, pending
 
 
-def _path_batches(frames: Sequence[FrameStreaks], pending: Sequence[_Pending]) -> list[list[int]]:
-    """The positions of the frames with streaks, in order, in batches of at most
-    :data:`BATCH_STREAKS` streaks to predict, or a frame's depth to measure (an eighth of
-    a predicted streak's cost); exactly :func:`_batches` where every streak is pending."""
+def _path_batches(
+    frames: Sequence[FrameStreaks], pending: Sequence[_Pending], size: int = BATCH_STREAKS
+) -> list[list[int]]:
+    """The positions of the frames with streaks, in order, in batches of at most ``size``
+    streaks to predict, or a frame's depth to measure (an eighth of a predicted streak's
+    cost); exactly :func:`_batches` where every streak is pending."""
     weighted = (
         (k, len(todo) if len(todo) == len(fs) else len(todo) + len(fs) // 8)
         for k, (fs, todo) in enumerate(zip(frames, pending, strict=True))
         if len(fs)
     )
-    return batch_positions(weighted, BATCH_STREAKS)
+    return batch_positions(weighted, size)
 
 
 def _paths_of_batch(
@@ -322,6 +324,7 @@ def check_frames(
     fitted: bool = False,
     jobs: Jobs | None = None,
     nominal: Any | None = None,
+    batch_streaks: int = BATCH_STREAKS,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
     frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
@@ -345,13 +348,16 @@ def check_frames(
     ``jobs``: side work computed in the same workers ahead of the batches
     (:class:`~blurtrack.detect.forkmap.Jobs`). ``nominal``: the calibration the fit's prior
     on the gyro's scale terms is centred on (None: ``model``'s;
-    :func:`~blurtrack.detect.gyro.sessioncalib.session_fit`)."""
+    :func:`~blurtrack.detect.gyro.sessioncalib.session_fit`). ``batch_streaks``: streaks per
+    model call (:data:`BATCH_STREAKS`; the numbers do not depend on it)."""
+    if batch_streaks < 1:
+        raise ValueError(f"check_frames: batch_streaks must be at least 1, got {batch_streaks}")
     keep = [k for k in covered if frames[k].quality is not None]
     sub = [frames[k] for k in keep]
     tim = [timings[k] for k in keep]
-    batches = _batches(sub)
+    batches = _batches(sub, batch_streaks)
     have, pending = _known_paths(sub, keep, known or {})
-    groups = _path_batches(sub, pending)
+    groups = _path_batches(sub, pending, batch_streaks)
     fixed: list[list[tuple[np.ndarray, np.ndarray | None] | None]] = []
 
     def fit_meanwhile() -> None:

@@ -157,11 +157,15 @@ def session_residual(
     return np.asarray(r), np.asarray(d)
 
 
-def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarray]]:
-    """The session fit's sample: at most :data:`FIT_SAMPLE_VOTERS` ``quality_ok`` streaks spread
+def fit_sample(
+    frames: Sequence[FrameStreaks], max_voters: int = FIT_SAMPLE_VOTERS
+) -> tuple[list[int], list[np.ndarray]]:
+    """The session fit's sample: at most ``max_voters`` ``quality_ok`` streaks spread
     evenly over the session's (in frame order, every ``n``-th), as the positions of the frames
     that hold them and each one's streak indices ``(n_k,)`` (all of them where the session has
-    no more)."""
+    no more). ``max_voters``: at least 1 (default :data:`FIT_SAMPLE_VOTERS`)."""
+    if max_voters < 1:
+        raise ValueError(f"fit_sample: max_voters must be at least 1, got {max_voters}")
     ok = [
         np.flatnonzero(np.asarray(fs.quality[2], bool))
         if fs.quality is not None
@@ -169,7 +173,7 @@ def fit_sample(frames: Sequence[FrameStreaks]) -> tuple[list[int], list[np.ndarr
         for fs in frames
     ]
     total = sum(len(o) for o in ok)
-    step = max(1, -(-total // FIT_SAMPLE_VOTERS))  # ceil: at most FIT_SAMPLE_VOTERS
+    step = max(1, -(-total // max_voters))  # ceil: at most max_voters
     pos: list[int] = []
     picks: list[np.ndarray] = []
     start = 0  # the session-wide rank of each frame's first voter
@@ -227,14 +231,19 @@ def sample_vectors(
     return np.concatenate(out)
 
 
-def _scale_prior(model: Any, nominal: Any | None) -> tuple[np.ndarray, np.ndarray]:
+def _scale_prior(
+    model: Any, nominal: Any | None, scale_prior: float = SCALE_PRIOR
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`session_residual`'s prior: on the scale terms only, centred where their total
-    move from ``nominal``'s (None: none yet) is zero, sigma :data:`SCALE_PRIOR` (in steps)."""
+    move from ``nominal``'s (None: none yet) is zero, sigma ``scale_prior`` (relative;
+    :data:`SCALE_PRIOR`) in steps."""
+    if not scale_prior > 0.0:
+        raise ValueError(f"the scale prior's sigma must be positive, got {scale_prior}")
     P = len(PARAMETERS)
     step = CALIBRATION_STEPS["scale"]
     centre, sigma = np.zeros(P), np.full(P, np.inf)
     k = P - len(SCALE_TERMS)
-    sigma[k:] = SCALE_PRIOR / step
+    sigma[k:] = scale_prior / step
     if nominal is not None:
         moved = difference(nominal, model.calib)
         centre[k:] = [-moved[name] / step for name in PARAMETERS[k:]]
@@ -279,6 +288,8 @@ def session_fit(
     model: Any,
     max_steps: float | None = MAX_FIT_STEPS,
     nominal: Any | None = None,
+    *,
+    scale_prior: float = SCALE_PRIOR,
 ) -> np.ndarray | None:
     """The session's calibration error ``d (17,)`` (:func:`session_residual`, in
     :data:`CALIBRATION_STEPS` units) fitted over the :func:`fit_sample` of the frames'
@@ -287,13 +298,14 @@ def session_fit(
     :data:`MAX_FIT_STEPS`; None: no limit) in a parameter, or one that no calibration holds (a
     gyro scale matrix far from the identity: :class:`~blurtrack.geometry.calibration.Calibration`
     refuses it). The gyro's scale terms have the
-    prior :data:`SCALE_PRIOR` about those of ``nominal`` (a calibration; None: the model's
-    own)."""
+    prior ``scale_prior`` (relative sigma, :data:`SCALE_PRIOR`; ``inf``: none) about those of
+    ``nominal`` (a calibration; None: the model's own)."""
     system = fit_system(frames, timings, model)
     if system is None:
         return None
     m, p, J = system
-    r, d = session_residual(m, p, J, np.ones(len(m), bool), _scale_prior(model, nominal))
+    prior = _scale_prior(model, nominal, scale_prior)
+    r, d = session_residual(m, p, J, np.ones(len(m), bool), prior)
     if r.size == 0 or np.all(np.isnan(r)):
         return None
     if max_steps is not None and float(np.max(np.abs(d))) > max_steps:
@@ -317,10 +329,13 @@ def fit_session_calibration(
     timings: Sequence[FrameTiming],
     covered: Sequence[int],
     model: Any,
+    *,
+    scale_prior: float = SCALE_PRIOR,
 ) -> SessionCalibration:
     """The session's calibration error from the ``covered`` frames' ``quality_ok`` streaks
     (see the module text); ``model``: the blur model of the calibration to correct (its
-    ``calib``; the corrected one is returned, not a model)."""
+    ``calib``; the corrected one is returned, not a model). ``scale_prior``: the prior on the
+    gyro's scale terms (:func:`session_fit`)."""
     zero = dict.fromkeys(PARAMETERS, 0.0)
     sub = [frames[k] for k in covered]
     tim = [timings[k] for k in covered]
@@ -335,7 +350,9 @@ def fit_session_calibration(
         before = _median_residual(m, sample_vectors(sub, tim, model, pos, picks, at))
         for _ in range(ROUNDS):
             # No limit per round: the rounds may go far; the whole move is judged below.
-            d = session_fit(sub, tim, current, max_steps=None, nominal=model.calib)
+            d = session_fit(
+                sub, tim, current, max_steps=None, nominal=model.calib, scale_prior=scale_prior
+            )
             if d is None:
                 break
             current = corrected_model(current, d)

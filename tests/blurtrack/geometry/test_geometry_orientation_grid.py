@@ -106,9 +106,7 @@ def test_predicted_curves_of_many_frames_in_one_call_equal_one_frame_at_a_time()
         )
 
 
-def test_two_ends_alone_on_the_coarser_grid_are_near_the_converged_ends(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_two_ends_alone_on_the_coarser_grid_are_near_the_converged_ends() -> None:
     """A streak's two ends alone (the session calibration's and the check's vectors) from
     the grid of ``TWO_END_STEP_S``, 60 dots of two frames in one call, with the rolling
     shutter: within 0.05 px of the converged ends (streaks up to 110 px); a grid of the
@@ -119,9 +117,13 @@ def test_two_ends_alone_on_the_coarser_grid_are_near_the_converged_ends(
     truth = predict_curves(shaking_model(2e-5, DIST), ref, ft, EXPOSURE_S, 2).pts
     model = shaking_model(4e-3, DIST)
     assert np.hypot(*(truth[:, 1] - truth[:, 0]).T).max() > 100
-    assert np.abs(predict_curves(model, ref, ft, EXPOSURE_S, 2).pts - truth).max() < 0.05
-    monkeypatch.setattr(gyrocurve, "TWO_END_STEP_S", 4e-3)
-    assert np.abs(predict_curves(model, ref, ft, EXPOSURE_S, 2).pts - truth).max() > 0.1
+    two_ends = predict_curves(model, ref, ft, EXPOSURE_S, 2).pts
+    assert np.abs(two_ends - truth).max() < 0.05
+    # The default grid of two ends alone is TWO_END_STEP_S's.
+    explicit = predict_curves(model, ref, ft, EXPOSURE_S, 2, step_s=gyrocurve.TWO_END_STEP_S).pts
+    np.testing.assert_array_equal(two_ends, explicit)
+    coarse = predict_curves(model, ref, ft, EXPOSURE_S, 2, step_s=4e-3).pts
+    assert np.abs(coarse - truth).max() > 0.1
 
 
 def test_refusals() -> None:

@@ -286,9 +286,7 @@ class _Voters:
         self.quality = None if ok is None else (None, None, np.asarray(ok, bool), None, None)
 
 
-def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
-    from blurtrack.detect.gyro import sessioncalib
-
+def test_the_fit_sample_spreads_over_the_sessions_voters() -> None:
     frames = [
         _Voters([True, False, True, True]),
         _Voters(None),
@@ -300,11 +298,12 @@ def test_the_fit_sample_spreads_over_the_sessions_voters(monkeypatch) -> None:
     assert pos == [0, 3]
     assert [s.tolist() for s in picks] == [[0, 2, 3], [0, 1, 2, 4]]
     # Seven voters, at most three: every third by session rank (ranks 0, 3, 6).
-    monkeypatch.setattr(sessioncalib, "FIT_SAMPLE_VOTERS", 3)
-    pos, picks = fit_sample(frames)  # type: ignore[arg-type]
+    pos, picks = fit_sample(frames, max_voters=3)  # type: ignore[arg-type]
     assert pos == [0, 3]
     assert [s.tolist() for s in picks] == [[0], [0, 4]]
     assert fit_sample([_Voters([False])]) == ([], [])  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="max_voters"):
+        fit_sample(frames, max_voters=0)  # type: ignore[arg-type]
 
 
 def test_the_path_samples_resolve_a_turns_depth() -> None:

@@ -23,6 +23,7 @@ from blurtrack.detect.gyro.sessioncalib import (
     fit_system,
     sample_points,
     sample_vectors,
+    session_fit,
     session_residual,
 )
 from blurtrack.detect.session.orientation import FrameTiming
@@ -220,13 +221,11 @@ def test_the_fit_finds_the_gyros_scale_and_cross_axis_terms() -> None:
     assert np.median(r_less) > 20 * np.median(r_all)
 
 
-def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) -> None:
+def test_the_scale_prior_holds_a_fit_its_frames_barely_determine() -> None:
     # Three frames of the same shake: the scale terms trade off with the axes and the bias
     # (their vectors nearly the same). With the prior the fit stays near nominal and draws the
     # streaks; without it, it runs the scale matrix off to one no gyro has (refused, the
     # calibration kept as given).
-    from blurtrack.detect.gyro import sessioncalib
-
     true = _model(np.eye(3), F, (W - 1) / 2, (H - 1) / 2, M=SCALED)
     frames, timings = _session(true)
     fit = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
@@ -237,8 +236,7 @@ def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) ->
     mids = _grid(9) + 7.0
     err = np.hypot(*(_vectors(fitted, mids, 0.15) - _vectors(true, mids, 0.15)).T)
     assert np.max(err) < 0.05
-    monkeypatch.setattr(sessioncalib, "SCALE_PRIOR", np.inf)
-    loose = fit_session_calibration(frames, timings, [0, 1, 2], INIT)
+    loose = fit_session_calibration(frames, timings, [0, 1, 2], INIT, scale_prior=np.inf)
     assert loose.status != "fitted" and loose.calib is INIT.calib
     # The run-off correction itself is one no calibration holds: no fit, rather than an error
     # where the check applies it.
@@ -248,7 +246,7 @@ def test_the_scale_prior_holds_a_fit_its_frames_barely_determine(monkeypatch) ->
     _, e = session_residual(m, p, J, np.ones(len(m), bool))  # no prior: the first-order fit
     with pytest.raises(ConfigError):
         corrected_model(INIT, e)
-    assert sessioncalib.session_fit(frames, timings, INIT, max_steps=None) is None
+    assert session_fit(frames, timings, INIT, max_steps=None, scale_prior=np.inf) is None
 
 
 def test_the_scale_prior_is_centred_on_the_nominal_gyro() -> None:
@@ -267,6 +265,13 @@ def test_the_scale_prior_is_centred_on_the_nominal_gyro() -> None:
     np.testing.assert_allclose(sigma[k:], SCALE_PRIOR / CALIBRATION_STEPS["scale"])
     # Without a nominal calibration: centred on the model's own.
     assert not np.any(_scale_prior(moved, None)[0])
+    # A sigma of its own, relative; none that is not positive.
+    np.testing.assert_allclose(
+        _scale_prior(moved, None, 0.05)[1][k:], 0.05 / CALIBRATION_STEPS["scale"]
+    )
+    for bad in (0.0, -0.01, np.nan):
+        with pytest.raises(ValueError, match="scale prior"):
+            _scale_prior(moved, None, bad)
 
 
 def test_the_sample_points_are_the_streaks_one_call_predicts() -> None:

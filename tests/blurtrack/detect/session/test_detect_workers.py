@@ -469,15 +469,21 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
     p = dataclasses.replace(
         p, gyro_vector_tol_px=0.05, gyro_confirm_tol_px=0.05, hairpin_depth_px=0.01
     )
-    monkeypatch.setattr(gyrotrust, "BATCH_STREAKS", 25)
     frames = [found[k] for k in covered]
-    assert len(gyrotrust._batches(frames)) >= 4
+    assert len(gyrotrust._batches(frames, 25)) >= 4
     out = {}
     for workers in (1, 2, 3):
         fr = copy.deepcopy(found)
         calls: list[int] = []
         n = gyrotrust.check_frames(
-            fr, timings, covered, model, p, workers, meanwhile=partial(calls.append, 1)
+            fr,
+            timings,
+            covered,
+            model,
+            p,
+            workers,
+            meanwhile=partial(calls.append, 1),
+            batch_streaks=25,
         )
         assert calls == [1]
         out[workers] = (n, [fs.quality for fs in fr])
@@ -495,7 +501,7 @@ def test_the_gyro_check_in_workers_is_that_of_one_process(
     # The batches' curves are those of predicted_curves (one model call per batch).
     tim = [timings[k] for k in covered]
     whole = gyrotrust.predicted_curves(frames, tim, model)
-    for group in gyrotrust._batches(frames):
+    for group in gyrotrust._batches(frames, 25):
         got = gyrotrust._vectors_of_batch(frames, tim, model, group, depth=True)
         for k, g in zip(group, got, strict=True):
             c = whole[k]
