@@ -4,7 +4,7 @@ them): ``quality_ok`` only on whole point lights, each one looked at by eye.
 night2's four ``quality_ok`` lights were checked one by one on
 ``docs/figures/real_night2_source.png`` (whole string lights, hook to foot: above the door, two
 right of the bushes, one in the middle right); night1 has no whole light that the frame's
-other lights agree with (docs/detection.md, "Real photos, source split"). Any other
+other lights agree with (docs/detection.md, "Real photographs"). Any other
 ``quality_ok`` streak would lie on a lit facade, a sign, glare, a bush or a chain of lights."""
 
 from __future__ import annotations
