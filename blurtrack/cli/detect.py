@@ -64,11 +64,16 @@ def _frame_range(text: str | None, n: int) -> range | None:
 
     if text is None:
         return None
+    a, colon, b = text.partition(":")
     try:
-        a, _, b = text.partition(":")
-        return range(n)[slice(int(a) if a else None, int(b) if b else None)]
+        if not colon:
+            raise ValueError
+        chosen = range(n)[slice(int(a) if a else None, int(b) if b else None)]
     except ValueError:
         raise DetectionError(f"--frames must look like A:B, got {text!r}") from None
+    if len(chosen) == 0:
+        raise DetectionError(f"--frames {text} selects none of the session's {n} frames")
+    return chosen
 
 
 def detect_summary_path(table: Path, session_dir: Path) -> Path:

@@ -93,3 +93,25 @@ def test_progress_bar_only_on_a_terminal(monkeypatch: pytest.MonkeyPatch) -> Non
             bar(i + 1, 5)
     text = tty.getvalue()
     assert "work" in text and "5/5" in text and "<" in text  # count and ETA
+
+
+@pytest.mark.parametrize(
+    ("frames", "says"),
+    [
+        ("5:2", "selects none of the session's 3 frames"),
+        ("7:", "selects none of the session's 3 frames"),
+        ("1", "must look like A:B"),
+        ("a:b", "must look like A:B"),
+    ],
+)
+def test_a_frame_range_that_selects_nothing_is_one_line_error(
+    session: Path, tmp_path: Path, capsys: pytest.CaptureFixture, frames: str, says: str
+) -> None:
+    out = tmp_path / "out.parquet"
+    assert main(["detect", str(session), "--out", str(out), f"--frames={frames}", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+    assert not out.exists()
+    # A range that selects frames detects those only (the negative control).
+    assert main(["detect", str(session), "--out", str(out), "--frames=1:3", "--quiet"]) == 0
+    assert set(pd.read_parquet(out)["frame"]) <= {1, 2}
