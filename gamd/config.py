@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from blurtrack.io.atomic import write_text_atomic
+from blurtrack.io.yamlio import dump_yaml, parse_yaml
 from gamd.errors import GamdConfigError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX
 from gamd.losses import LOSSES
@@ -212,7 +213,7 @@ class RunConfig:
         except OSError as exc:
             raise GamdConfigError(f"cannot read config {path}: {exc}") from exc
         try:
-            d = yaml.safe_load(text)
+            d = parse_yaml(text)
         except yaml.YAMLError as exc:
             from blurtrack.io.yamlio import yaml_error_line
 
@@ -220,4 +221,4 @@ class RunConfig:
         return cls.from_dict(d)
 
     def to_yaml(self, path: str | Path) -> None:
-        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
+        write_text_atomic(path, dump_yaml(self.to_dict(), sort_keys=False))

@@ -20,7 +20,7 @@ from blurtrack.detect.paramsections import (
 )
 from blurtrack.errors import ConfigError
 from blurtrack.io.atomic import write_text_atomic
-from blurtrack.io.yamlio import yaml_error_line
+from blurtrack.io.yamlio import dump_yaml, parse_yaml, yaml_error_line
 
 __all__ = [
     "DetectParams",
@@ -32,6 +32,24 @@ __all__ = [
     "SourceParams",
     "TimeshiftParams",
 ]
+
+#: The top level's numeric parameters (checked to be numbers before their ranges), and those
+#: of them that may be None (measured or taken from the frame instead).
+NUMBERS = (
+    "smooth_sigma_px",
+    "threshold_snr",
+    "min_threshold",
+    "min_area_px",
+    "psf_sigma_px",
+    "faint_snr",
+    "hot_pixel_ratio",
+    "saturation_level",
+    "border_margin_px",
+    "max_streaks",
+    "artefact_ratio",
+    "artefact_gap_px",
+)
+OPTIONAL_NUMBERS = ("psf_sigma_px", "saturation_level")
 
 
 @dataclass(frozen=True)
@@ -155,6 +173,12 @@ class DetectParams:
     timeshift: TimeshiftParams = field(default_factory=TimeshiftParams)
 
     def __post_init__(self) -> None:
+        for name in NUMBERS:
+            value = getattr(self, name)
+            if value is None and name in OPTIONAL_NUMBERS:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"detect parameter {name} must be a number, got {value!r}")
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
         for name in positive:
             value = getattr(self, name)
@@ -211,12 +235,12 @@ class DetectParams:
             raise ConfigError(f"invalid detect parameters: {exc}") from exc
 
     def to_yaml(self, path: str | Path) -> None:
-        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=True))
+        write_text_atomic(path, dump_yaml(self.to_dict(), sort_keys=True))
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> DetectParams:
         try:
-            data = yaml.safe_load(Path(path).read_text())
+            data = parse_yaml(Path(path).read_text())
         except OSError as exc:
             raise ConfigError(f"cannot read detect parameters {path}: {exc.strerror}") from None
         except yaml.YAMLError as exc:

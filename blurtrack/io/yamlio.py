@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ def read_yaml(path: str | Path, what: str = "YAML file") -> Any:
         raise ConfigError(f"{what} {p} is {size} bytes, over the {MAX_YAML_BYTES}-byte limit")
     try:
         with p.open("r", encoding="utf-8") as f:
-            return yaml.load(f, Loader=_LOADER)
+            return yaml.load(f, Loader=Loader)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{what} {p} is not valid YAML: {yaml_error_line(exc)}") from None
 
@@ -42,9 +43,21 @@ def yaml_error_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+def parse_yaml(text: str) -> Any:
+    """``text`` parsed as :func:`read_yaml` parses a file (the safe loader, exponents read as
+    numbers); YAML errors propagate (:class:`yaml.YAMLError`)."""
+    return yaml.load(text, Loader=Loader)
+
+
+def dump_yaml(data: Any, **options: Any) -> str:
+    """``data`` as YAML text that :func:`parse_yaml` reads back to the same values (the safe
+    dumper; a string such as ``'3e6'`` is quoted). ``options``: those of ``yaml.dump``."""
+    return yaml.dump(data, Dumper=Dumper, **options)
+
+
 def write_yaml(path: str | Path, data: Any) -> None:
     """Write ``data`` as YAML atomically (temporary file, then rename)."""
-    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    text = dump_yaml(data, sort_keys=False, default_flow_style=None, width=100)
     write_text_atomic(path, text)
 
 
@@ -53,5 +66,21 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     atomic.write_text_atomic(path, text)
 
 
-# The C loader is faster for big truth files; both are the safe loader.
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: A number written with an exponent and no dot or no exponent sign (``3e6``, ``1e-2``,
+#: ``1.5e6``): YAML 1.2 and every other reader take it for a number, PyYAML's YAML 1.1
+#: resolver for text, so that ``min_threshold: 1e-2`` would be refused as "not a number".
+EXPONENT_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)[eE][-+]?[0-9]+$")
+_FLOAT_TAG = "tag:yaml.org,2002:float"
+
+
+class Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
+    """The safe loader (the C one where PyYAML has it: faster for big truth files) that also
+    reads :data:`EXPONENT_FLOAT` as numbers."""
+
+
+class Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
+    """The safe dumper that quotes strings :class:`Loader` would read as numbers."""
+
+
+for _cls in (Loader, Dumper):
+    _cls.add_implicit_resolver(_FLOAT_TAG, EXPONENT_FLOAT, list("-+0123456789."))

@@ -186,3 +186,17 @@ def test_the_orientation_and_timeshift_sections_are_read(small_session: Path) ->
 def test_the_refined_gyro_sigma_may_not_exceed_the_unrefined() -> None:
     with pytest.raises(ConfigError, match="orientation.gyro_sigma_rel_refined must not exceed"):
         DetectParams.from_dict({"orientation": {"gyro_sigma_rel_refined": 0.5}})
+
+
+def test_numbers_with_an_exponent_are_read_and_text_is_refused_by_name(tmp_path: Path) -> None:
+    # YAML 1.1 reads 1e-2 as text; the parameters read it as the number it is.
+    (tmp_path / "p.yaml").write_text("min_threshold: 1e-2\nsource:\n  gyro_vector_tol_px: 2e0\n")
+    p = DetectParams.from_yaml(tmp_path / "p.yaml")
+    assert p.min_threshold == 0.01 and p.source.gyro_vector_tol_px == 2.0
+    # Text where a number belongs is refused in one line naming the parameter.
+    for name in ("min_threshold", "smooth_sigma_px", "max_streaks", "psf_sigma_px"):
+        with pytest.raises(ConfigError, match=rf"^detect parameter {name} must be a number") as e:
+            DetectParams.from_dict({name: "1e-2x"})
+        assert "\n" not in str(e.value)
+    # None stays allowed where the parameter is measured instead (negative control).
+    assert DetectParams.from_dict({"psf_sigma_px": None, "saturation_level": None})
