@@ -20,7 +20,8 @@ run ``detect_session`` and compare with ``truth.yaml``:
   wall ratios (what a user waits: the workers use every core, the baseline one) and CPU
   ratios (core-seconds). ``--before ROOT`` times another code tree the same way.
 
-Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``;
+Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2 3 --frames 20``
+(a preset may be a YAML file, ``--presets configs/sim/hard_long_exposure.yaml``);
 ``python bench/bench_detect.py --command --presets dense hard --seeds 1 --frames 100``;
 ``git -C MAIN archive HEAD | tar -x -C /tmp/old`` then ``... --command --before /tmp/old``
 """
@@ -28,6 +29,7 @@ Usage: ``python bench/bench_detect.py --presets clean realistic hard --seeds 1 2
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -108,21 +110,21 @@ def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
 
 
 def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
-    folder = out / f"{preset}-s{seed}-f{frames}"
+    """The session of ``preset`` (a built-in name, or a preset YAML file: ``blurtrack simulate
+    --preset-file``, e.g. ``configs/sim/hard_long_exposure.yaml``), ``frames`` frames, ``seed``,
+    simulated into ``out`` once (a file's session is named for its stem and a hash of its
+    text, so that an edited file is simulated anew)."""
+    if preset.endswith((".yaml", ".yml")):
+        path = Path(preset).resolve()
+        digest = hashlib.sha1(path.read_bytes()).hexdigest()[:8]
+        folder = out / f"{path.stem}-{digest}-s{seed}-f{frames}"
+        which = ["--preset-file", str(path)]
+    else:
+        folder = out / f"{preset}-s{seed}-f{frames}"
+        which = ["--preset", preset]
     if not (folder / "truth.yaml").is_file():
-        cmd = [
-            sys.executable,
-            "-m",
-            "blurtrack",
-            "simulate",
-            str(folder),
-            "--preset",
-            preset,
-            "--frames",
-            str(frames),
-            "--seed",
-            str(seed),
-        ]
+        cmd = [sys.executable, "-m", "blurtrack", "simulate", str(folder), *which]
+        cmd += ["--frames", str(frames), "--seed", str(seed)]
         subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True)
     return folder
 

@@ -56,3 +56,22 @@ def test_without_params_the_commands_take_the_defaults(
     assert all("--params" not in cmd for cmd in seen)
     assert all(cmd[cmd.index("--gyro") + 1] == "auto" for cmd in seen)
     assert res["params"] is None
+
+
+def test_a_preset_file_is_simulated_by_its_text(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    bench = load_bench_script("bench_detect")
+    seen: list[list[str]] = []
+    monkeypatch.setattr(bench.subprocess, "run", lambda cmd, **kw: seen.append(list(cmd)))
+    preset = tmp_path / "long.yaml"
+    preset.write_text("base: hard\nexposure_s: 0.06\nfps: 15.0\n")
+    first = bench.simulate(tmp_path / "work", str(preset), 4, 7)
+    assert first.name.startswith("long-") and first.name.endswith("-s7-f4")
+    assert seen[-1][seen[-1].index("--preset-file") + 1] == str(preset.resolve())
+    assert "--preset" not in seen[-1]
+    # An edited file is another session; a built-in name is passed as --preset (the control).
+    preset.write_text("base: hard\nexposure_s: 0.05\nfps: 15.0\n")
+    assert bench.simulate(tmp_path / "work", str(preset), 4, 7) != first
+    assert bench.simulate(tmp_path / "work", "hard", 4, 7).name == "hard-s7-f4"
+    assert seen[-1][seen[-1].index("--preset") + 1] == "hard"
