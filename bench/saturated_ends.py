@@ -1,0 +1,89 @@
+"""Where the detector places the ends of saturated streaks, against their analytic truth
+(prints JSON).
+
+Straight streaks of 50 px (a 4 x 6 grid in a 700 x 400 frame, directions within +-0.4 rad of
+the rows) rendered exactly (:func:`blurtrack.testing.streak_frames.render_streaks`, PSF sigma
+1.5 px, background 0.03, noise 0.004 of full scale, 8 bits), each at a plateau peak of
+``peak`` times the saturation, at a constant speed or slowing down (``accel``: the speed falls
+from ``1 + accel`` to ``1 - accel`` times the mean, :func:`~blurtrack.testing.streak_frames.line`);
+:func:`blurtrack.detect.detect_frame` with the default parameters. Per case: the median and
+largest outward error along the streak (px; positive: beyond the true end) of the start and
+of the end.
+
+Usage: ``python bench/saturated_ends.py [--peaks 0.2 1 4 10 27 80 270] [--accels 0 0.8]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from json_out import emit  # noqa: E402
+
+from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.testing.streak_frames import line, quantise, render_streaks  # noqa: E402
+
+SIGMA_PX = 1.5
+LENGTH_PX = 50.0
+SHAPE = (400, 700)
+
+
+def outward_errors(peak: float, accel: float, seed: int = 3) -> dict[str, Any]:
+    """The start's and the end's outward errors (px) of the grid's streaks at ``peak`` times
+    the saturation."""
+    rng = np.random.default_rng(seed)
+    flux = peak * SIGMA_PX * math.sqrt(2.0 * math.pi)  # render_streaks' plateau peak
+    curves, truth = [], []
+    for i in range(4):
+        for j in range(6):
+            p0 = np.array([60.0 + j * 100.0, 60.0 + i * 90.0])
+            ang = rng.uniform(-0.4, 0.4)
+            p1 = p0 + LENGTH_PX * np.array([math.cos(ang), math.sin(ang)])
+            curves.append(line(p0, p1, 800, accel))
+            truth.append((p0, p1))
+    image = render_streaks(SHAPE, curves, flux, SIGMA_PX, 0.03, 0.004, seed=1)
+    fs = detect_frame(quantise(image), DetectParams())
+    A, B = np.asarray(fs.end_a, float), np.asarray(fs.end_b, float)
+    start_out, end_out = [], []
+    for p0, p1 in truth:
+        d = np.minimum(
+            np.hypot(*(A - p0).T) + np.hypot(*(B - p1).T),
+            np.hypot(*(A - p1).T) + np.hypot(*(B - p0).T),
+        )
+        k = int(np.argmin(d))
+        a, b = (A[k], B[k]) if np.hypot(*(A[k] - p0)) < np.hypot(*(A[k] - p1)) else (B[k], A[k])
+        u = (p1 - p0) / np.hypot(*(p1 - p0))
+        start_out.append(-float(np.dot(a - p0, u)))
+        end_out.append(float(np.dot(b - p1, u)))
+    s, e = np.asarray(start_out), np.asarray(end_out)
+    return {
+        "peak_over_saturation": peak,
+        "accel": accel,
+        "start_out_median_px": round(float(np.median(s)), 3),
+        "end_out_median_px": round(float(np.median(e)), 3),
+        "largest_abs_px": round(float(max(np.abs(s).max(), np.abs(e).max())), 3),
+        "saturated_pixels": round(float(np.mean(quantise(image) == 255)), 4),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peaks", nargs="+", type=float, default=[0.2, 1, 4, 10, 27, 80, 270])
+    ap.add_argument("--accels", nargs="+", type=float, default=[0.0, 0.8])
+    ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    args = ap.parse_args()
+    runs = [outward_errors(p, a) for a in args.accels for p in args.peaks]
+    return emit({"runs": runs}, args.out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
