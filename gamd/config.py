@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from blurtrack.io.atomic import write_text_atomic
-from blurtrack.io.yamlio import dump_yaml, parse_yaml
+from blurtrack.io.yamlio import dump_yaml, parse_yaml, yaml_error_line
 from gamd.errors import GamdConfigError
 from gamd.heat import DEFAULT_HEAT_SCALE_PX
 from gamd.losses import LOSSES
@@ -215,8 +215,6 @@ class RunConfig:
         try:
             d = parse_yaml(text)
         except yaml.YAMLError as exc:
-            from blurtrack.io.yamlio import yaml_error_line
-
             raise GamdConfigError(f"{path}: invalid YAML: {yaml_error_line(exc)}") from None
         return cls.from_dict(d)
 

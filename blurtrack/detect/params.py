@@ -182,7 +182,7 @@ class DetectParams:
         positive = ("smooth_sigma_px", "threshold_snr", "faint_snr", "hot_pixel_ratio")
         for name in positive:
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not (math.isfinite(value) and value > 0):  # a number: NUMBERS checked above
                 raise ConfigError(f"detect parameter {name} must be positive, got {value!r}")
         if not (math.isfinite(self.min_threshold) and self.min_threshold >= 0):
             raise ConfigError(f"detect min_threshold must be >= 0: {self.min_threshold!r}")
