@@ -84,6 +84,36 @@ def raw_profiles(signal: np.ndarray, r: Ragged, sigma_c: float) -> np.ndarray:
     return _row_sums(_cross_samples(signal, r, half)[1])
 
 
+#: Bilinear sampling's own variance (px^2): a sampled cross-section is wider by about this
+#: much than the image's (the mean of ``f (1 - f)`` over sub-pixel offsets ``f``).
+BILINEAR_VAR_PX2 = 1.0 / 6.0
+#: Flank samples of saturated cross-sections used for their sigma: below this fraction of the
+#: saturation (a bilinear sample beside a clipped pixel mixes the clip into it).
+FLANK_TOP = 0.5
+#: Fewest cross-sections with a flank fit for :func:`raw_flank_sigma` to give a sigma.
+FLANK_MIN_SECTIONS = 8
+
+
+def raw_flank_sigma(
+    signal: np.ndarray, r: Ragged, sigma_c: float, saturation: float
+) -> float | None:
+    """The unsmoothed cross-section sigma (px) of saturated lines ``r`` from the Gaussian
+    flanks of ``signal`` beside their clipped cores (:func:`tail_sigma` of the samples below
+    :data:`FLANK_TOP` of ``saturation``, across ``+-(6 sigma_c + 1)`` px to reach past a
+    wide core), less bilinear sampling's :data:`BILINEAR_VAR_PX2`; the median over the
+    cross-sections, None where fewer than :data:`FLANK_MIN_SECTIONS` have a fit. On the
+    unsmoothed signal clipping leaves the flanks as they were; the smoothed image's clipped
+    sections widen with the clip, which overstates the sigma and so understates the unclipped
+    light (:func:`blurtrack.detect.lines.endpoints.unclip_profiles`) and moves the ends
+    outwards."""
+    half = int(np.ceil(6.0 * sigma_c)) + 1
+    sig = tail_sigma(_cross_samples(signal, r, half)[1], half, FLANK_TOP * saturation)
+    sig = sig[np.isfinite(sig)]
+    if sig.size < FLANK_MIN_SECTIONS:
+        return None
+    return float(np.sqrt(max(float(np.median(sig)) ** 2 - BILINEAR_VAR_PX2, 0.25)))
+
+
 def tail_sigma(v: np.ndarray, half: int, top: float) -> np.ndarray:
     """Gaussian sigma of centred cross-sections ``(M, 2 half + 1)`` whose top is clipped:
     least-squares fit of ``ln v = c - o**2 / (2 sigma**2)`` to the samples between 5 % and

@@ -15,6 +15,7 @@ import numpy as np
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.centreline import (
     RefinedLines,
+    raw_flank_sigma,
     raw_profiles,
     refine_lines,
     trim_lines,
@@ -114,10 +115,19 @@ def measure_lines(
             clean = clean[np.isfinite(clean)]
             # Saturated streaks: width from the unsaturated ones if there are enough of
             # them, else from everyone's flanks (refine_lines measured clipped sections).
-            if clean.size < 8:
+            if clean.size >= 8:
+                sig_c = float(np.median(clean))
+                sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
+            else:
+                sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
+                flanks = raw_flank_sigma(signal, sat_lines, sigma_c, saturation)
                 clean = ref.width[np.isfinite(ref.width)]
-            sig_c = float(np.median(clean)) if clean.size else sigma_c
-            sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
+                sig_c = float(np.median(clean)) if clean.size else sigma_c
+                sig_raw = (
+                    float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
+                    if flanks is None
+                    else flanks
+                )
             if measure_sigma:
                 sigma_c = sig_c
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
