@@ -82,8 +82,17 @@ class SourceParams:
     - ``gyro_confirm_tol_px`` (with a gyro): a streak the image doubts (a lit end, a blown-out
       core, a shape off the consensus, a crossing) is confirmed only where its vector is this
       near the prediction. The vector bounds the doubted end's error only up to the other
-      end's own error, so that end's typical error (the median of plain ends, 0.25 px:
-      docs/detection.md) comes off the vector's share: ``gyro_vector_tol_px`` - 0.25.
+      end's own error, so that end's typical error (``plain_end_px``) comes off the vector's
+      share: ``gyro_vector_tol_px`` - ``plain_end_px``.
+    - ``end_gate_px``, ``plain_end_px`` (with a gyro): the contract's gate (``quality_ok`` ends
+      within 2 px of the truth) and the typical error of an end the image measures plainly
+      (the median of plain ends, 0.25 px: docs/detection.md). The two tolerances above hold
+      against a prediction that is right; in a frame where it is not, a vector that matches it
+      is off with it. The frame's model error is its plain streaks' median vector residual
+      less their own ends' share, ``plain_end_px``; a residual ``r`` then bounds an end's
+      error by ``r`` plus it, so the frame's vector tolerance is ``end_gate_px`` less it, at
+      most ``gyro_vector_tol_px``, and its confirmation tolerance as much lower
+      (:func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`).
     """
 
     point_width_ratio: float = 1.5
@@ -94,6 +103,8 @@ class SourceParams:
     gyro_vector_tol_px: float = 1.5
     hairpin_depth_px: float = 0.5
     gyro_confirm_tol_px: float = 1.25
+    end_gate_px: float = 2.0
+    plain_end_px: float = 0.25
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -110,6 +121,10 @@ class SourceParams:
             raise ConfigError(
                 "detect source.gyro_confirm_tol_px must not exceed gyro_vector_tol_px"
             )
+        if not self.gyro_vector_tol_px <= self.end_gate_px:
+            raise ConfigError("detect source.gyro_vector_tol_px must not exceed end_gate_px")
+        if not self.plain_end_px < self.end_gate_px:
+            raise ConfigError("detect source.plain_end_px must be less than end_gate_px")
 
 
 @dataclass(frozen=True)

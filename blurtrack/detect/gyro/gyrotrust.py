@@ -193,24 +193,61 @@ def check_frame(fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray) -> GyroChe
     return GyroCheck(vector_residual(m, p, ok), hairpin_depth(curves))
 
 
+def frame_tolerances(
+    residual: np.ndarray, ok: np.ndarray, depth: np.ndarray, p: SourceParams
+) -> tuple[float, float]:
+    """One frame's vector and confirmation tolerances (px): ``p.gyro_vector_tol_px`` and
+    ``p.gyro_confirm_tol_px`` where the prediction is right, lower where the frame's model
+    is off.
+
+    ``residual``, ``ok``, ``depth`` ``(N,)``: the check's vector residuals (px, NaN: not
+    checked), the image's ``quality_ok`` before the check, the predicted hairpin depths (px).
+    The frame's model error is the median residual of its *plain* streaks (``ok``, checked,
+    not turning beyond an end: their ends are the image's edges; where fewer than
+    :data:`MIN_VOTERS`, every ``ok`` checked streak) less their own ends' typical share
+    ``p.plain_end_px``. A streak whose vector is ``r`` from a prediction that is off by that
+    much may have an end off by ``r`` plus it, so the vector tolerance is ``p.end_gate_px``
+    less the model error, at most ``p.gyro_vector_tol_px``; the confirmation tolerance keeps
+    its margin below it. A streak the gyro-template pass placed along a curve that hooks has
+    its ends where the curve says; its residual is small by construction, and only this
+    bound sees the frame's model off (``hard_long_exposure`` 101: 17 wrong ``quality_ok``
+    of 360 at the session's tolerances, their residuals 0.5-1.4 px, in frames whose plain
+    residuals are 1.3-1.9 px at the median; docs/detection.md "Trust")."""
+    checked = ok & np.isfinite(residual)
+    plain = checked & (depth <= p.hairpin_depth_px)
+    use = plain if int(plain.sum()) >= MIN_VOTERS else checked
+    if not use.any():
+        return p.gyro_vector_tol_px, p.gyro_confirm_tol_px
+    model_px = float(np.median(residual[use])) - p.plain_end_px
+    vector = min(p.gyro_vector_tol_px, p.end_gate_px - model_px)
+    confirm = min(p.gyro_confirm_tol_px, vector - (p.gyro_vector_tol_px - p.gyro_confirm_tol_px))
+    return vector, confirm
+
+
 def apply_check(
-    fs: FrameStreaks, check: GyroCheck, p: SourceParams
+    fs: FrameStreaks,
+    check: GyroCheck,
+    p: SourceParams,
+    tolerances: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``fs.quality``'s ``quality_ok`` and ``reason`` after the check: the ``quality_ok``
     streaks that fail it demoted (``hairpin`` first, then ``gyro_mismatch``), the streaks
     with one image doubt (:attr:`~blurtrack.detect.frame.FrameStreaks.one_doubt`: one lit
     end, a blown-out core or a shape off the consensus, with or without a crossing; or a
-    crossing alone) whose vector is within ``p.gyro_confirm_tol_px`` and whose path does not
+    crossing alone) whose vector is within the confirmation tolerance and whose path does not
     turn beyond an end confirmed (``ok``: the gyro measured the start-to-end vector the image
-    doubted); other streaks keep their image reason."""
+    doubted); other streaks keep their image reason. ``tolerances``: the frame's vector and
+    confirmation tolerances (px; :func:`frame_tolerances`; None: ``p.gyro_vector_tol_px``
+    and ``p.gyro_confirm_tol_px``)."""
     assert fs.quality is not None
+    vector_tol, confirm_tol = tolerances or (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
     ok = np.asarray(fs.quality[2], bool).copy()
     reason = np.asarray(fs.quality[4], object).copy()
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
     single = fs.one_doubt if len(fs.one_doubt) == len(fs) else np.zeros(len(fs), bool)
     with np.errstate(invalid="ignore"):  # NaN: not checked (neither off nor confirmed)
-        fits = check.residual <= p.gyro_confirm_tol_px
-        off = ok & (check.residual > p.gyro_vector_tol_px)
+        fits = check.residual <= confirm_tol
+        off = ok & (check.residual > vector_tol)
         turns = (check.depth > p.hairpin_depth_px) & ~along
     deep = ok & turns
     confirmed = single & ~ok & fits & ~turns
@@ -406,7 +443,8 @@ def check_frames(
         chk = GyroCheck(np.asarray(res), depth)
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
-        ok, reason = apply_check(fs, chk, p)
+        tol = frame_tolerances(chk.residual, ok0, depth, p)
+        ok, reason = apply_check(fs, chk, p, tol)
         qual = list(fs.quality)
         qual[2], qual[4] = ok, reason
         fs.quality = tuple(qual)

@@ -110,6 +110,10 @@ def test_ordered_pairs_are_checked() -> None:
         SourceParams(gyro_confirm_tol_px=1.6)
     LinesParams(tail_fraction=0.25, lit_fraction=0.25)  # equal is fine
     SourceParams(gyro_confirm_tol_px=1.5)
+    with pytest.raises(ConfigError, match="source.gyro_vector_tol_px must not exceed end_gate"):
+        SourceParams(end_gate_px=1.4)
+    with pytest.raises(ConfigError, match="source.plain_end_px must be less than end_gate"):
+        SourceParams(plain_end_px=2.0)
 
 
 def test_every_field_is_documented_in_its_section_and_in_the_docs() -> None:

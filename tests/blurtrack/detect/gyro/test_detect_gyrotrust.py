@@ -12,10 +12,12 @@ from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.calibsteps import PARAMETERS, corrected_model, perturbed_models
 from blurtrack.detect.gyro.gyrocurve import predict_curves
 from blurtrack.detect.gyro.gyrotrust import (
+    MIN_VOTERS,
     PATH_SAMPLES,
     GyroCheck,
     apply_check,
     check_frame,
+    frame_tolerances,
     hairpin_depth,
     vector_residual,
 )
@@ -443,3 +445,93 @@ def test_a_doubted_streak_is_confirmed_only_within_the_tighter_tolerance() -> No
     low = np.arange(n) >= n // 2
     np.testing.assert_array_equal(ok, q[2] | low)
     assert set(reason[~ok]) == {"chained"}
+
+
+def _frame_off_by(delta_px: float, n: int = 40, seed: int = 4):
+    """A frame's ``n`` plain streaks (true vectors 30-60 px, each end measured with a 0.25 px
+    sigma per axis) against a prediction off by one vector of ``delta_px`` along x (the
+    frame's model error). Returns the true vectors, the measured ones, the prediction."""
+    rng = np.random.default_rng(seed)
+    ang = rng.uniform(0.0, 2.0 * np.pi, n)
+    true = rng.uniform(30.0, 60.0, n)[:, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    measured = true + rng.normal(0.0, 0.25, (n, 2)) - rng.normal(0.0, 0.25, (n, 2))
+    return true, measured, true + np.array([delta_px, 0.0])
+
+
+def test_a_right_prediction_keeps_the_session_tolerances() -> None:
+    p = DetectParams().source
+    true, measured, predicted = _frame_off_by(0.0)
+    residual = np.hypot(*(measured - predicted).T)
+    n = len(true)
+    tol = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
+    assert tol == (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
+
+
+def test_a_frame_whose_prediction_is_off_tightens_its_tolerances_by_that_error() -> None:
+    """Derived truth: with the prediction off by 1.2 px, a streak whose end lies 2.3 px off
+    along that error (a placement that followed the prediction) is 1.1 px from it, inside the
+    session's 1.5 px and refused at the frame's; a right streak 0.3 px off passes both."""
+    p = DetectParams().source
+    delta = 1.2
+    true, measured, predicted = _frame_off_by(delta)
+    residual = np.hypot(*(measured - predicted).T)
+    n = len(true)
+    vector, confirm = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
+    model_px = float(np.median(residual)) - p.plain_end_px
+    assert model_px == pytest.approx(delta - p.plain_end_px, abs=0.25)
+    assert vector == pytest.approx(p.end_gate_px - model_px)
+    assert confirm == pytest.approx(vector - (p.gyro_vector_tol_px - p.gyro_confirm_tol_px))
+    end_off = np.array([2.3, 0.3])  # one end off along x: wrong (> the 2 px gate), right
+    r = np.abs(end_off - delta)
+    assert np.all(r <= p.gyro_vector_tol_px)  # the session's tolerance passes both
+    assert r[0] > vector >= r[1]  # the frame's refuses the wrong one only
+    fs, _, _, _, _ = _checked(1.0)
+    k = len(fs)
+    q = list(fs.quality)
+    q[2], q[4] = np.ones(k, bool), np.full(k, "ok", object)
+    fs.quality = tuple(q)
+    res = np.full(k, r[1])
+    res[0] = r[0]
+    ok, reason = apply_check(fs, GyroCheck(res, np.zeros(k)), p, (vector, confirm))
+    assert not ok[0] and reason[0] == "gyro_mismatch" and ok[1:].all()
+    ok_session, _ = apply_check(fs, GyroCheck(res, np.zeros(k)), p)
+    assert ok_session.all()
+
+
+def test_the_model_error_comes_from_plain_streaks_not_from_hooked_placements() -> None:
+    # Hooked streaks (depth above the hairpin tolerance) match a wrong prediction by
+    # construction: they do not vouch for it where the frame has MIN_VOTERS plain ones.
+    p = DetectParams().source
+    n = MIN_VOTERS + 10
+    residual = np.full(n, 1.4)  # plain: the prediction is 1.15 px off
+    depth = np.zeros(n)
+    depth[MIN_VOTERS:] = 3.0
+    residual[MIN_VOTERS:] = 0.1  # hooked: on the prediction
+    vector, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
+    assert vector == pytest.approx(p.end_gate_px - (1.4 - p.plain_end_px))
+    # Too few plain streaks: every checked ok streak gives the median.
+    depth[MIN_VOTERS - 1] = 3.0
+    residual[MIN_VOTERS - 1] = 0.1
+    vector, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
+    assert vector == p.gyro_vector_tol_px
+    # Streaks the image refused, and unchecked ones (NaN), give nothing.
+    ok = np.zeros(n, bool)
+    assert frame_tolerances(residual, ok, depth, p) == (
+        p.gyro_vector_tol_px,
+        p.gyro_confirm_tol_px,
+    )
+    nan = np.full(n, np.nan)
+    assert frame_tolerances(nan, np.ones(n, bool), depth, p)[0] == p.gyro_vector_tol_px
+
+
+def test_frame_tolerances_never_exceed_the_session_ones_and_fall_with_the_error() -> None:
+    p = DetectParams().source
+    medians = np.linspace(0.0, 4.0, 41)
+    got = [frame_tolerances(np.full(8, m), np.ones(8, bool), np.zeros(8), p) for m in medians]
+    vec = np.array([g[0] for g in got])
+    conf = np.array([g[1] for g in got])
+    assert np.all(vec <= p.gyro_vector_tol_px) and np.all(conf <= p.gyro_confirm_tol_px)
+    assert np.all(np.diff(vec) <= 0) and np.all(np.diff(conf) <= 0)
+    assert np.all(conf <= vec)
+    # Above end_gate_px + plain_end_px the frame's model vouches for nothing.
+    assert np.all(vec[medians > p.end_gate_px + p.plain_end_px] < 0)
