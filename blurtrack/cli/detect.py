@@ -186,6 +186,15 @@ def run(args: argparse.Namespace) -> int:
             f"{sc['residual_after_px']:.2f} px off the image's at the median "
             f"({sc['voters']} quality_ok streaks)"
         )
+    lowered = s.get("gyro_trust_lowered_frames") or []
+    if lowered:
+        src = s["params"]["source"]
+        print(
+            f"  gyro check: the prediction misses {len(lowered)} of {s['gyro_trust_frames']} "
+            f"checked frames by more than {src['end_gate_px'] - src['gyro_vector_tol_px']:.2f} "
+            f"px (up to {s['gyro_trust_model_error_px']['max']:.2f} px); their tolerances "
+            f"lowered: frames {lowered[:10]}{' ...' if len(lowered) > 10 else ''}"
+        )
     light = s.get("light_colour") or {}
     if light.get("frames"):
         b, g, r = light["bgr"]

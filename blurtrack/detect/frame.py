@@ -69,6 +69,13 @@ class FrameStreaks:
     #: light where the frame was measured on that light's luma
     #: (:func:`blurtrack.detect.image.to_gray`); None: a gray frame, or the brightest channel.
     light_bgr: tuple[float, float, float] | None = None
+    #: ``(N,)`` the gyro check's start-to-end vector residual of each streak (px, against the
+    #: corrected prediction; NaN: not checked); empty: the frame was not checked
+    #: (:func:`blurtrack.detect.gyro.gyrotrust.check_frames`).
+    gyro_residual_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: The frame's model error that its check's tolerances follow (px;
+    #: :func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`); NaN: not measured.
+    gyro_model_error_px: float = float("nan")
 
     def __len__(self) -> int:
         return int(self.end_a.shape[0])

@@ -45,7 +45,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -193,9 +193,18 @@ def check_frame(fs: FrameStreaks, curves: np.ndarray, ok: np.ndarray) -> GyroChe
     return GyroCheck(vector_residual(m, p, ok), hairpin_depth(curves))
 
 
+class FrameTolerance(NamedTuple):
+    """One frame's tolerances of the check (px; :func:`frame_tolerances`) and the model error
+    they follow (px; NaN: the frame has no checked ``quality_ok`` streak to measure it)."""
+
+    vector_px: float
+    confirm_px: float
+    model_error_px: float
+
+
 def frame_tolerances(
     residual: np.ndarray, ok: np.ndarray, depth: np.ndarray, p: SourceParams
-) -> tuple[float, float]:
+) -> FrameTolerance:
     """One frame's vector and confirmation tolerances (px): ``p.gyro_vector_tol_px`` and
     ``p.gyro_confirm_tol_px`` where the prediction is right, lower where the frame's model
     is off.
@@ -217,18 +226,18 @@ def frame_tolerances(
     plain = checked & (depth <= p.hairpin_depth_px)
     use = plain if int(plain.sum()) >= MIN_VOTERS else checked
     if not use.any():
-        return p.gyro_vector_tol_px, p.gyro_confirm_tol_px
+        return FrameTolerance(p.gyro_vector_tol_px, p.gyro_confirm_tol_px, float("nan"))
     model_px = float(np.median(residual[use])) - p.plain_end_px
     vector = min(p.gyro_vector_tol_px, p.end_gate_px - model_px)
     confirm = min(p.gyro_confirm_tol_px, vector - (p.gyro_vector_tol_px - p.gyro_confirm_tol_px))
-    return vector, confirm
+    return FrameTolerance(vector, confirm, model_px)
 
 
 def apply_check(
     fs: FrameStreaks,
     check: GyroCheck,
     p: SourceParams,
-    tolerances: tuple[float, float] | None = None,
+    tolerance: FrameTolerance | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``fs.quality``'s ``quality_ok`` and ``reason`` after the check: the ``quality_ok``
     streaks that fail it demoted (``hairpin`` first, then ``gyro_mismatch``), the streaks
@@ -236,11 +245,13 @@ def apply_check(
     end, a blown-out core or a shape off the consensus, with or without a crossing; or a
     crossing alone) whose vector is within the confirmation tolerance and whose path does not
     turn beyond an end confirmed (``ok``: the gyro measured the start-to-end vector the image
-    doubted); other streaks keep their image reason. ``tolerances``: the frame's vector and
-    confirmation tolerances (px; :func:`frame_tolerances`; None: ``p.gyro_vector_tol_px``
-    and ``p.gyro_confirm_tol_px``)."""
+    doubted); other streaks keep their image reason. ``tolerance``: the frame's
+    (:func:`frame_tolerances`; None: ``p.gyro_vector_tol_px`` and ``p.gyro_confirm_tol_px``)."""
     assert fs.quality is not None
-    vector_tol, confirm_tol = tolerances or (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
+    if tolerance is None:
+        vector_tol, confirm_tol = p.gyro_vector_tol_px, p.gyro_confirm_tol_px
+    else:
+        vector_tol, confirm_tol = tolerance.vector_px, tolerance.confirm_px
     ok = np.asarray(fs.quality[2], bool).copy()
     reason = np.asarray(fs.quality[4], object).copy()
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
@@ -364,7 +375,10 @@ def check_frames(
     batch_streaks: int = BATCH_STREAKS,
 ) -> int:
     """Apply the check to the ``covered`` frames' ``quality`` in place; returns how many
-    frames were checked (those with a prediction and enough ``quality_ok`` streaks). The
+    frames were checked (those with a prediction and enough ``quality_ok`` streaks). Each
+    checked frame keeps its streaks' residuals and its model error
+    (:attr:`~blurtrack.detect.frame.FrameStreaks.gyro_residual_px`,
+    :attr:`~blurtrack.detect.frame.FrameStreaks.gyro_model_error_px`). The
     vectors are tested against the session's fit where the corrected model predicts the frame
     (the calibration error :func:`~blurtrack.detect.gyro.sessioncalib.session_fit` fits over
     a sample of the voters, applied by
@@ -440,10 +454,12 @@ def check_frames(
             res = np.minimum(np.hypot(*(m - v[0]).T), np.hypot(*(m + v[0]).T))
         else:
             res = vector_residual(m, pv, ok0)
-        chk = GyroCheck(np.asarray(res), depth)
+        chk = GyroCheck(np.asarray(res, float), depth)
+        fs.gyro_residual_px = chk.residual
         if np.all(np.isnan(chk.residual)) and not np.any(ok0):
             continue
         tol = frame_tolerances(chk.residual, ok0, depth, p)
+        fs.gyro_model_error_px = tol.model_error_px
         ok, reason = apply_check(fs, chk, p, tol)
         qual = list(fs.quality)
         qual[2], qual[4] = ok, reason

@@ -20,7 +20,7 @@ from blurtrack.detect.gyro.readout import (
     turned_table,
 )
 from blurtrack.detect.gyro.sessionframes import SessionFrames
-from blurtrack.detect.params import DetectParams
+from blurtrack.detect.params import DetectParams, SourceParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.detect.session.orientation import (
     FrameTiming,
@@ -348,10 +348,30 @@ def _summary(
         # demoted streak): confirmed = the change in quality_ok plus the demoted.
         "gyro_trust_demoted": demoted,
         "gyro_trust_confirmed": g.ok_change + demoted,
+        **_model_errors(found, idx, p.source),
         "thick_saturated": int(table["thick_saturated"].sum()),
         "shape_deviation_median_px": _nan_median(table["shape_deviation_px"]),
         "median_length_px": float(table["length_px"].median()),
         "params": p.to_dict(),
+    }
+
+
+def _model_errors(found: list[FrameStreaks], idx: list[int], p: SourceParams) -> dict[str, Any]:
+    """For the summary: the checked frames' model errors (px; median, 90th percentile and
+    largest; None where none was measured) and the frames (session numbers) whose check's
+    tolerance fell below ``p.gyro_vector_tol_px`` for it
+    (:func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`)."""
+    err = np.array([fs.gyro_model_error_px for fs in found], float)
+    have = np.isfinite(err)
+    quantiles = None
+    if have.any():
+        q50, q90 = np.quantile(err[have], [0.5, 0.9])
+        quantiles = {"median": float(q50), "p90": float(q90), "max": float(err[have].max())}
+    with np.errstate(invalid="ignore"):
+        lowered = have & (err > p.end_gate_px - p.gyro_vector_tol_px)
+    return {
+        "gyro_trust_model_error_px": quantiles,
+        "gyro_trust_lowered_frames": [idx[k] for k in np.flatnonzero(lowered).tolist()],
     }
 
 

@@ -4,7 +4,9 @@ Extra columns beyond :data:`blurtrack.io.streaks.COLUMNS` (see docs/detection.md
 ``crossing`` (the streak crosses another one), ``looped`` (it crosses itself), ``snr`` (peak
 signal in noise sigmas), ``width_px`` (measured cross-section sigma in the pre-smoothed
 image), ``start_brightness``/``end_brightness`` (profile plateau at each end), ``mid_x``,
-``mid_y`` (time midpoint: where the dot was at mid-exposure), ``llr_gyro``,
+``mid_y`` (time midpoint: where the dot was at mid-exposure), ``gyro_residual_px`` (the
+gyro check's start-to-end vector residual, NaN where not checked:
+:mod:`blurtrack.detect.gyro.gyrotrust`), ``llr_gyro``,
 ``llr_profile``, ``llr_continuity`` (signed evidence that the recorded start is right),
 ``end_light_start``/``end_light_end`` (light just beyond each end over the streak's
 brightness there, :mod:`blurtrack.detect.trust`), ``shape_deviation_px``,
@@ -46,6 +48,7 @@ EXTRA_COLUMNS: dict[str, str] = {
     "end_brightness": "float64",
     "mid_x": "float64",
     "mid_y": "float64",
+    "gyro_residual_px": "float64",
     "llr_gyro": "float64",
     "llr_profile": "float64",
     "llr_continuity": "float64",
@@ -60,8 +63,8 @@ EXTRA_COLUMNS: dict[str, str] = {
 #: Version of the detection table's columns: 2 added ``source``, ``reason``,
 #: ``end_light_start`` and ``end_light_end`` (and ``quality_ok`` became precision-first);
 #: in the summary beside the table (``table_version``; the Parquet file stays the very file
-#: ``DataFrame.to_parquet`` writes).
-TABLE_VERSION = 2
+#: ``DataFrame.to_parquet`` writes); 3 added ``gyro_residual_px``.
+TABLE_VERSION = 3
 
 
 def _cells(arrays: Sequence[np.ndarray], decimals: int) -> np.ndarray:
@@ -108,6 +111,9 @@ def frame_columns(
         "end_brightness": fs.plateau[:, 1],
         "mid_x": fs.time_mid[:, 0],
         "mid_y": fs.time_mid[:, 1],
+        "gyro_residual_px": fs.gyro_residual_px
+        if len(fs.gyro_residual_px) == N
+        else np.full(N, np.nan),
     }
     # Evidence for the recorded orientation (the LLRs were for the unswapped end A).
     signed = np.where(ori.swap[:, None], -ori.llr, ori.llr) if N else np.zeros((0, 3))

@@ -115,3 +115,26 @@ def test_a_frame_range_that_selects_nothing_is_one_line_error(
     # A range that selects frames detects those only (the negative control).
     assert main(["detect", str(session), "--out", str(out), "--frames=1:3", "--quiet"]) == 0
     assert set(pd.read_parquet(out)["frame"]) <= {1, 2}
+
+
+def test_frames_whose_prediction_is_off_are_named(
+    session: Path, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The exact rig lowers no frame's tolerance (no line); where the check measured frames
+    # off (here forced through the summary's own helper), the command names them.
+    assert main(["detect", str(session), "--out", str(tmp_path / "a.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert "gyro check:" not in out
+    from blurtrack.detect.session import pipeline
+
+    def off(found, idx, p):
+        return {
+            "gyro_trust_model_error_px": {"median": 0.2, "p90": 0.9, "max": 1.3},
+            "gyro_trust_lowered_frames": [1, 2],
+        }
+
+    monkeypatch.setattr(pipeline, "_model_errors", off)
+    assert main(["detect", str(session), "--out", str(tmp_path / "b.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert "gyro check: the prediction misses 2 of" in out
+    assert "by more than 0.50 px (up to 1.30 px); their tolerances lowered: frames [1, 2]" in out

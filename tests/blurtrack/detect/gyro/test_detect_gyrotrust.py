@@ -464,7 +464,9 @@ def test_a_right_prediction_keeps_the_session_tolerances() -> None:
     residual = np.hypot(*(measured - predicted).T)
     n = len(true)
     tol = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
-    assert tol == (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
+    assert (tol.vector_px, tol.confirm_px) == (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
+    # The ends' own noise (0.35 px a vector component here) reads as a small model error.
+    assert 0.0 < tol.model_error_px < 0.3
 
 
 def test_a_frame_whose_prediction_is_off_tightens_its_tolerances_by_that_error() -> None:
@@ -476,8 +478,8 @@ def test_a_frame_whose_prediction_is_off_tightens_its_tolerances_by_that_error()
     true, measured, predicted = _frame_off_by(delta)
     residual = np.hypot(*(measured - predicted).T)
     n = len(true)
-    vector, confirm = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
-    model_px = float(np.median(residual)) - p.plain_end_px
+    vector, confirm, model_px = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
+    assert model_px == float(np.median(residual)) - p.plain_end_px
     assert model_px == pytest.approx(delta - p.plain_end_px, abs=0.25)
     assert vector == pytest.approx(p.end_gate_px - model_px)
     assert confirm == pytest.approx(vector - (p.gyro_vector_tol_px - p.gyro_confirm_tol_px))
@@ -492,7 +494,8 @@ def test_a_frame_whose_prediction_is_off_tightens_its_tolerances_by_that_error()
     fs.quality = tuple(q)
     res = np.full(k, r[1])
     res[0] = r[0]
-    ok, reason = apply_check(fs, GyroCheck(res, np.zeros(k)), p, (vector, confirm))
+    tol = frame_tolerances(residual, np.ones(n, bool), np.zeros(n), p)
+    ok, reason = apply_check(fs, GyroCheck(res, np.zeros(k)), p, tol)
     assert not ok[0] and reason[0] == "gyro_mismatch" and ok[1:].all()
     ok_session, _ = apply_check(fs, GyroCheck(res, np.zeros(k)), p)
     assert ok_session.all()
@@ -507,19 +510,18 @@ def test_the_model_error_comes_from_plain_streaks_not_from_hooked_placements() -
     depth = np.zeros(n)
     depth[MIN_VOTERS:] = 3.0
     residual[MIN_VOTERS:] = 0.1  # hooked: on the prediction
-    vector, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
+    vector, _, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
     assert vector == pytest.approx(p.end_gate_px - (1.4 - p.plain_end_px))
     # Too few plain streaks: every checked ok streak gives the median.
     depth[MIN_VOTERS - 1] = 3.0
     residual[MIN_VOTERS - 1] = 0.1
-    vector, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
+    vector, _, _ = frame_tolerances(residual, np.ones(n, bool), depth, p)
     assert vector == p.gyro_vector_tol_px
     # Streaks the image refused, and unchecked ones (NaN), give nothing.
     ok = np.zeros(n, bool)
-    assert frame_tolerances(residual, ok, depth, p) == (
-        p.gyro_vector_tol_px,
-        p.gyro_confirm_tol_px,
-    )
+    vector, confirm, model_px = frame_tolerances(residual, ok, depth, p)
+    assert (vector, confirm) == (p.gyro_vector_tol_px, p.gyro_confirm_tol_px)
+    assert np.isnan(model_px)
     nan = np.full(n, np.nan)
     assert frame_tolerances(nan, np.ones(n, bool), depth, p)[0] == p.gyro_vector_tol_px
 

@@ -71,6 +71,42 @@ def test_gyro_resolves_start_and_end(synthetic: tuple[Path, dict]) -> None:
     assert res.summary["orientation_confidence_median"] > 0.99
 
 
+def test_the_checks_residuals_and_model_errors_reach_the_table_and_summary(
+    synthetic: tuple[Path, dict],
+) -> None:
+    """Derived truth: the synthetic rig's gyro and calibration are exact, so a streak's
+    residual is how far its measured start-to-end vector lies from the true one, and the
+    frames' model errors are near zero: no frame's tolerance lowered. Without a gyro the
+    column is NaN and nothing is measured (the negative control)."""
+    folder, truth = synthetic
+    res = detect_session(load_session(folder), gyro="on")
+    t, s = res.table, res.summary
+    r = t.gyro_residual_px.to_numpy()
+    assert np.isfinite(r).mean() > 0.8
+    assert np.all(r[t.quality_ok.to_numpy() & np.isfinite(r)] <= 1.5)
+    tr = streaks.from_truth(truth)
+    err = []
+    for row in t[np.isfinite(r)].itertuples():
+        d = tr[tr.frame == row.frame]
+        m = np.array([row.end_x - row.start_x, row.end_y - row.start_y])
+        mid = np.array([row.start_x + row.end_x, row.start_y + row.end_y]) / 2
+        j = int(
+            np.argmin(
+                np.hypot((d.start_x + d.end_x) / 2 - mid[0], (d.start_y + d.end_y) / 2 - mid[1])
+            )
+        )
+        v = np.array([d.end_x.iloc[j] - d.start_x.iloc[j], d.end_y.iloc[j] - d.start_y.iloc[j]])
+        err.append(min(np.hypot(*(m - v)), np.hypot(*(m + v))) - row.gyro_residual_px)
+    assert abs(float(np.median(err))) < 0.2
+    q = s["gyro_trust_model_error_px"]
+    assert q is not None and q["median"] <= q["p90"] <= q["max"] < 0.5
+    assert s["gyro_trust_lowered_frames"] == []
+    off = detect_session(load_session(folder), gyro="off")
+    assert off.table.gyro_residual_px.isna().all()
+    assert off.summary["gyro_trust_model_error_px"] is None
+    assert off.summary["gyro_trust_lowered_frames"] == []
+
+
 def test_image_only_orientation_from_continuity(synthetic: tuple[Path, dict]) -> None:
     folder, truth = synthetic
     res = detect_session(load_session(folder), gyro="off")

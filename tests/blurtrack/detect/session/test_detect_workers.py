@@ -70,7 +70,7 @@ def test_all_zero_gyro_leaves_the_time_shift_undetermined(
     from blurtrack.detect.separation.quality import REASONS
 
     assert set(res.table.reason) <= set(REASONS)
-    assert res.summary["table_version"] == 2
+    assert res.summary["table_version"] == 3
     assert not np.any(res.table.orientation_source == "gyro")
     # A gyro that predicts nothing neither demotes nor confirms: quality_ok is the image's.
     assert res.summary["gyro_trust_demoted"] == res.summary["gyro_trust_confirmed"] == 0
