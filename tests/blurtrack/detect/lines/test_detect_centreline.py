@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from blurtrack.detect import detect_frame
 from blurtrack.detect.frame import FrameStreaks
@@ -164,3 +165,24 @@ def test_ends_of_streaks_saturated_many_times_over_stay_on_the_truth() -> None:
         out = _outward(detect_frame(img, DetectParams()), truth)
         assert abs(float(np.median(out))) < 0.15, (peak, np.median(out))
         assert float(np.max(np.abs(out))) < 0.8
+
+
+def test_a_flank_sigma_wider_than_the_clipped_sections_is_not_taken(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The clipped sections overstate the sigma, never understate it: a flank fit above their
+    # sigma (streaks piled on each other, a neighbour's light in the flanks) gives way to it,
+    # the very ends as without a flank fit; one below it is taken (the ends move).
+    import blurtrack.detect.lines.measure as measure
+
+    img, _ = _saturated_grid(27.0)
+    runs = {}
+    for name, sigma in (("none", None), ("wide", 25.0), ("own", "own")):
+        if sigma == "own":
+            monkeypatch.undo()
+        else:
+            monkeypatch.setattr(measure, "raw_flank_sigma", lambda *a, s=sigma: s)
+        runs[name] = detect_frame(img, DetectParams())
+    np.testing.assert_array_equal(runs["wide"].end_a, runs["none"].end_a)
+    np.testing.assert_array_equal(runs["wide"].end_b, runs["none"].end_b)
+    assert not np.array_equal(runs["own"].end_a, runs["none"].end_a)
