@@ -12,6 +12,11 @@ gate, ``bench_detect.TRUST_GATE_PX``), *wrong* otherwise. Per reason:
   ok-coverage would gain if the rule let them through), as a share of the true inside streaks
   in ``coverage_lost_pct``.
 
+With a gyro, ``residual_caps``: the ``quality_ok`` streaks whose ``gyro_residual_px`` (the
+check's vector residual) is at most each cap (unchecked streaks left out), their count,
+wrong ones, ok-precision and ok-coverage (%): the trade a user makes who calibrates from a
+stricter subset than ``quality_ok``.
+
 Usage: ``python bench/trust_reasons.py --presets hard --seeds 1 2 --frames 10``;
 ``--tables DIR`` also writes each session's table with the truth columns ``right`` and
 ``end_error_px`` (Parquet) for a closer look.
@@ -98,6 +103,36 @@ def reason_table(table: pd.DataFrame, n_inside: int) -> dict[str, dict[str, floa
     return rows
 
 
+#: The residual caps (px) of :func:`residual_caps`: the check's default tolerance and below.
+RESIDUAL_CAPS = (1.5, 1.0, 0.75, 0.5)
+
+
+def residual_caps(
+    table: pd.DataFrame, n_inside: int, caps: tuple[float, ...] = RESIDUAL_CAPS
+) -> dict[str, dict[str, float]]:
+    """Per cap (px, as text): the ``quality_ok`` streaks of ``table`` (with
+    :func:`truth_columns`' ``right`` and ``truth_id``) whose ``gyro_residual_px`` is at most
+    the cap: ``detections``, ``wrong``, ``ok_precision_pct`` and ``ok_coverage_pct`` (true
+    inside streaks matched by one of them). Unchecked streaks (NaN) count under no cap."""
+    ok = table["quality_ok"].to_numpy(bool)
+    right = table["right"].to_numpy(bool)
+    residual = table["gyro_residual_px"].to_numpy(float)
+    key = table["frame"].to_numpy(np.int64) * 100000 + table["truth_id"].to_numpy(np.int64)
+    hit = right & (table["truth_id"].to_numpy() >= 0)
+    out: dict[str, dict[str, float]] = {}
+    for cap in caps:
+        with np.errstate(invalid="ignore"):
+            m = ok & (residual <= cap)
+        n = int(m.sum())
+        out[f"{cap:g}"] = {
+            "detections": n,
+            "wrong": int((m & ~right).sum()),
+            "ok_precision_pct": round(100.0 * int((m & right).sum()) / max(n, 1), 2),
+            "ok_coverage_pct": round(100.0 * len(set(key[m & hit].tolist())) / max(n_inside, 1), 2),
+        }
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", nargs="+", default=["hard"])
@@ -121,7 +156,14 @@ def main() -> int:
                 table.drop(columns=["centerline", "profile"]).to_parquet(
                     args.tables / f"{preset}-s{seed}-f{args.frames}.parquet"
                 )
-            runs.append({"preset": preset, "seed": seed, "reasons": reason_table(table, n_inside)})
+            runs.append(
+                {
+                    "preset": preset,
+                    "seed": seed,
+                    "reasons": reason_table(table, n_inside),
+                    "residual_caps": residual_caps(table, n_inside),
+                }
+            )
     return emit({"runs": runs}, args.out)
 
 
