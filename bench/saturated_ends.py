@@ -16,7 +16,6 @@ Usage: ``python bench/saturated_ends.py [--peaks 0.2 1 4 10 27 80 270] [--accels
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -30,48 +29,26 @@ sys.path.insert(0, str(ROOT / "bench"))
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
-from blurtrack.testing.streak_frames import line, quantise, render_streaks  # noqa: E402
+from blurtrack.testing.streak_frames import outward_errors as streak_outward_errors  # noqa: E402
+from blurtrack.testing.streak_frames import saturated_grid  # noqa: E402
 
 SIGMA_PX = 1.5
 LENGTH_PX = 50.0
-SHAPE = (400, 700)
 
 
 def outward_errors(peak: float, accel: float, seed: int = 3) -> dict[str, Any]:
     """The start's and the end's outward errors (px) of the grid's streaks at ``peak`` times
     the saturation."""
-    rng = np.random.default_rng(seed)
-    flux = peak * SIGMA_PX * math.sqrt(2.0 * math.pi)  # render_streaks' plateau peak
-    curves, truth = [], []
-    for i in range(4):
-        for j in range(6):
-            p0 = np.array([60.0 + j * 100.0, 60.0 + i * 90.0])
-            ang = rng.uniform(-0.4, 0.4)
-            p1 = p0 + LENGTH_PX * np.array([math.cos(ang), math.sin(ang)])
-            curves.append(line(p0, p1, 800, accel))
-            truth.append((p0, p1))
-    image = render_streaks(SHAPE, curves, flux, SIGMA_PX, 0.03, 0.004, seed=1)
-    fs = detect_frame(quantise(image), DetectParams())
-    A, B = np.asarray(fs.end_a, float), np.asarray(fs.end_b, float)
-    start_out, end_out = [], []
-    for p0, p1 in truth:
-        d = np.minimum(
-            np.hypot(*(A - p0).T) + np.hypot(*(B - p1).T),
-            np.hypot(*(A - p1).T) + np.hypot(*(B - p0).T),
-        )
-        k = int(np.argmin(d))
-        a, b = (A[k], B[k]) if np.hypot(*(A[k] - p0)) < np.hypot(*(A[k] - p1)) else (B[k], A[k])
-        u = (p1 - p0) / np.hypot(*(p1 - p0))
-        start_out.append(-float(np.dot(a - p0, u)))
-        end_out.append(float(np.dot(b - p1, u)))
-    s, e = np.asarray(start_out), np.asarray(end_out)
+    image, truth = saturated_grid(peak, accel, SIGMA_PX, LENGTH_PX, seed)
+    fs = detect_frame(image, DetectParams())
+    s, e = streak_outward_errors(fs.end_a, fs.end_b, truth)
     return {
         "peak_over_saturation": peak,
         "accel": accel,
         "start_out_median_px": round(float(np.median(s)), 3),
         "end_out_median_px": round(float(np.median(e)), 3),
         "largest_abs_px": round(float(max(np.abs(s).max(), np.abs(e).max())), 3),
-        "saturated_pixels": round(float(np.mean(quantise(image) == 255)), 4),
+        "saturated_pixels": round(float(np.mean(image == 255)), 4),
     }
 
 

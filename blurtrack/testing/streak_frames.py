@@ -76,7 +76,12 @@ def quantise(image: np.ndarray, dtype: type = np.uint8) -> np.ndarray:
     return np.clip(np.rint(image * top), 0, top).astype(dtype)
 
 
-def line(p0: Sequence[float], p1: Sequence[float], n: int = 400, accel: float = 0.0) -> np.ndarray:
+def line(
+    p0: Sequence[float] | np.ndarray,
+    p1: Sequence[float] | np.ndarray,
+    n: int = 400,
+    accel: float = 0.0,
+) -> np.ndarray:
     """Straight path from ``p0`` to ``p1`` sampled uniformly in time, shape ``(n, 2)``.
 
     ``accel`` in [-1, 1] bends the time law: position fraction ``u = t + accel * t (1 - t)``,
@@ -86,3 +91,50 @@ def line(p0: Sequence[float], p1: Sequence[float], n: int = 400, accel: float = 
     u = t + accel * t * (1.0 - t)
     a, b = np.asarray(p0, float), np.asarray(p1, float)
     return a[None, :] + u[:, None] * (b - a)[None, :]
+
+
+def saturated_grid(
+    peak: float,
+    accel: float = 0.0,
+    sigma_px: float = 1.5,
+    length_px: float = 50.0,
+    seed: int = 3,
+) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """A 400 x 700 8-bit frame of 24 straight streaks (a 4 x 6 grid, 100 x 90 px apart,
+    directions within +-0.4 rad of the rows, :func:`line` with ``accel``), rendered exactly
+    (PSF ``sigma_px``, background 0.03, noise 0.004 of full scale) with a plateau peak of
+    ``peak`` times the saturation; with each streak's true start and end (px)."""
+    rng = np.random.default_rng(seed)
+    curves, truth = [], []
+    for i in range(4):
+        for j in range(6):
+            p0 = np.array([60.0 + j * 100.0, 60.0 + i * 90.0])
+            ang = rng.uniform(-0.4, 0.4)
+            p1 = p0 + length_px * np.array([np.cos(ang), np.sin(ang)])
+            curves.append(line(p0, p1, 800, accel))
+            truth.append((p0, p1))
+    flux = peak * sigma_px * np.sqrt(2.0 * np.pi)  # render_streaks' plateau peak
+    image = render_streaks((400, 700), curves, flux, sigma_px, 0.03, 0.004, seed=1)
+    return quantise(image), truth
+
+
+def outward_errors(
+    end_a: np.ndarray, end_b: np.ndarray, truth: Sequence[tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per true streak ``(start, end)`` of ``truth``: how far the detection nearest it
+    (``end_a``, ``end_b`` ``(N, 2)``, either orientation) lies beyond its true start and
+    beyond its true end, along the streak (px; negative: inside). Two ``(len(truth),)``
+    arrays."""
+    A, B = np.asarray(end_a, float), np.asarray(end_b, float)
+    start_out, end_out = [], []
+    for p0, p1 in truth:
+        d = np.minimum(
+            np.hypot(*(A - p0).T) + np.hypot(*(B - p1).T),
+            np.hypot(*(A - p1).T) + np.hypot(*(B - p0).T),
+        )
+        k = int(np.argmin(d))
+        a, b = (A[k], B[k]) if np.hypot(*(A[k] - p0)) < np.hypot(*(A[k] - p1)) else (B[k], A[k])
+        u = (p1 - p0) / np.hypot(*(p1 - p0))
+        start_out.append(-float(np.dot(a - p0, u)))
+        end_out.append(float(np.dot(b - p1, u)))
+    return np.asarray(start_out), np.asarray(end_out)

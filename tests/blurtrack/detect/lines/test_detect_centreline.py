@@ -16,7 +16,12 @@ from blurtrack.detect.lines.centreline import (
 )
 from blurtrack.detect.lines.ragged import Ragged, arc_lengths
 from blurtrack.detect.params import DetectParams, LinesParams
-from blurtrack.testing.streak_frames import line, quantise, render_streaks
+from blurtrack.testing.streak_frames import (
+    outward_errors,
+    quantise,
+    render_streaks,
+    saturated_grid,
+)
 
 #: Faint tails off (``lines.tail_min_px`` infinite): the lines end at a quarter of the peak.
 NO_TAILS = DetectParams(lines=LinesParams(tail_min_px=np.inf))
@@ -107,43 +112,10 @@ def test_faint_tails_leave_uniform_streaks_as_they_were() -> None:
     np.testing.assert_array_equal(with_tails.end_b, without.end_b)
 
 
-def _saturated_grid(peak: float) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-    """A frame of 24 straight 50 px streaks (PSF sigma 1.5 px), every one saturated: its
-    plateau peak ``peak`` times the saturation; with each streak's true start and end."""
-    rng = np.random.default_rng(3)
-    curves, truth = [], []
-    for i in range(4):
-        for j in range(6):
-            p0 = np.array([60.0 + j * 100.0, 60.0 + i * 90.0])
-            ang = rng.uniform(-0.4, 0.4)
-            p1 = p0 + 50.0 * np.array([np.cos(ang), np.sin(ang)])
-            curves.append(line(p0, p1, 800))
-            truth.append((p0, p1))
-    flux = peak * 1.5 * np.sqrt(2.0 * np.pi)
-    img = render_streaks((400, 700), curves, flux, 1.5, 0.03, 0.004, seed=1)
-    return quantise(img), truth
-
-
-def _outward(fs: FrameStreaks, truth: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """Each true end's error along its streak (px; positive: beyond the true end)."""
-    A, B = np.asarray(fs.end_a, float), np.asarray(fs.end_b, float)
-    out = []
-    for p0, p1 in truth:
-        d = np.minimum(
-            np.hypot(*(A - p0).T) + np.hypot(*(B - p1).T),
-            np.hypot(*(A - p1).T) + np.hypot(*(B - p0).T),
-        )
-        k = int(np.argmin(d))
-        a, b = (A[k], B[k]) if np.hypot(*(A[k] - p0)) < np.hypot(*(A[k] - p1)) else (B[k], A[k])
-        u = (p1 - p0) / np.hypot(*(p1 - p0))
-        out += [-float(np.dot(a - p0, u)), float(np.dot(b - p1, u))]
-    return np.asarray(out)
-
-
 def test_the_flanks_of_saturated_streaks_give_the_raw_sigma() -> None:
     # Every streak saturated (27x): the unsmoothed flanks give the PSF's 1.5 px; the smoothed
     # image's clipped sections (the negative control) overstate it.
-    img, _ = _saturated_grid(27.0)
+    img, _ = saturated_grid(27.0)
     p = DetectParams()
     prep = prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio)
     fs = detect_frame(img, DetectParams())
@@ -161,8 +133,9 @@ def test_ends_of_streaks_saturated_many_times_over_stay_on_the_truth() -> None:
     # With the sigma from the smoothed flanks the ends of 4x to 27x saturated streaks lay
     # 0.3-0.6 px beyond the truth at the median; from the raw flanks within 0.15 px.
     for peak in (4.0, 27.0):
-        img, truth = _saturated_grid(peak)
-        out = _outward(detect_frame(img, DetectParams()), truth)
+        img, truth = saturated_grid(peak)
+        fs = detect_frame(img, DetectParams())
+        out = np.concatenate(outward_errors(fs.end_a, fs.end_b, truth))
         assert abs(float(np.median(out))) < 0.15, (peak, np.median(out))
         assert float(np.max(np.abs(out))) < 0.8
 
@@ -175,7 +148,7 @@ def test_a_flank_sigma_wider_than_the_clipped_sections_is_not_taken(
     # the very ends as without a flank fit; one below it is taken (the ends move).
     import blurtrack.detect.lines.measure as measure
 
-    img, _ = _saturated_grid(27.0)
+    img, _ = saturated_grid(27.0)
     runs = {}
     for name, sigma in (("none", None), ("wide", 25.0), ("own", "own")):
         if sigma == "own":
