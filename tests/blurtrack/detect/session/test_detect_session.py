@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from blurtrack.cli import main
+from blurtrack.detect import DetectParams
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.session.orientation import (
     FrameTiming,
@@ -105,6 +106,42 @@ def test_the_checks_residuals_and_model_errors_reach_the_table_and_summary(
     assert off.table.gyro_residual_px.isna().all()
     assert off.summary["gyro_trust_model_error_px"] is None
     assert off.summary["gyro_trust_lowered_frames"] == []
+
+
+def test_a_frame_whose_gyro_is_off_gets_lower_tolerances(tmp_path: Path) -> None:
+    """Derived truth: 0.7 rad/s added to the gyro's x rate over frame 5's exposure (12 ms)
+    moves that frame's predicted vectors by f * 0.7 * 0.012 = 2.42 px (f = 288 px) and no
+    other frame's. The session's fit (eight frames, one off) stands; the check measures that
+    frame's plain residuals at about 2.42 px, so its model error at about 2.42 px less the
+    plain ends' share, and lowers that frame's tolerances only."""
+    folder = tmp_path / "session"
+    write_synthetic_session(folder, n_frames=8, seed=3, grid=(8, 6))
+    csv = folder / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    t0_s, exposure_s, bump = 6 / 30.0, 0.012, 0.7  # frame k starts at (k + 1) / fps
+    rows = []
+    for ln in lines[1:]:
+        t_ns, wx, wy, wz = ln.split(",")
+        if t0_s - 1e-3 < int(t_ns) * 1e-9 < t0_s + exposure_s + 1e-3:
+            wx = repr(float(wx) + bump)
+        rows.append(",".join([t_ns, wx, wy, wz]))
+    csv.write_text("\n".join([lines[0], *rows]) + "\n")
+    res = detect_session(load_session(folder), gyro="on")
+    s = res.summary
+    assert s["gyro_session_calibration"]["status"] == "fitted"
+    assert s["gyro_trust_lowered_frames"] == [5]
+    expected_px = 0.9 * 320 * bump * exposure_s
+    plain_end_px = DetectParams().source.plain_end_px
+    assert s["gyro_trust_model_error_px"]["max"] == pytest.approx(
+        expected_px - plain_end_px, abs=0.3
+    )
+    r = res.table.groupby("frame")["gyro_residual_px"].median()
+    assert r[5] == pytest.approx(expected_px, abs=0.3)
+    assert r.drop(5).max() < 0.75
+    # The negative control: the gyro as recorded lowers nothing.
+    clean = tmp_path / "clean"
+    write_synthetic_session(clean, n_frames=8, seed=3, grid=(8, 6))
+    assert detect_session(load_session(clean), gyro="on").summary["gyro_trust_lowered_frames"] == []
 
 
 def test_image_only_orientation_from_continuity(synthetic: tuple[Path, dict]) -> None:
