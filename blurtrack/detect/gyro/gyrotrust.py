@@ -36,8 +36,10 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
 
 The two tolerances share the 2 px end gate of the contract (``quality_ok`` ends within 2 px):
 three quarters to the measured vector, one quarter to the unseen depth
-(:class:`blurtrack.detect.params.SourceParams`). Without a gyro nothing here runs: a hairpin is
-then seen by the image only where it is wide enough to fold the streak (``looped``, shape).
+(:class:`blurtrack.detect.params.SourceParams`); where a frame's prediction is off, its
+tolerances fall by that frame's model error (:func:`frame_tolerances`). Without a gyro
+nothing here runs: a hairpin is then seen by the image only where it is wide enough to fold
+the streak (``looped``, shape).
 """
 
 from __future__ import annotations
