@@ -74,7 +74,7 @@ class FrameStreaks:
     #: (:func:`blurtrack.detect.gyro.gyrotrust.check_frames`).
     gyro_residual_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: The frame's model error that its check's tolerances follow (px;
-    #: :func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`); NaN: not measured.
+    #: :func:`blurtrack.detect.gyro.framecheck.frame_tolerances`); NaN: not measured.
     gyro_model_error_px: float = float("nan")
 
     def __len__(self) -> int:

@@ -92,7 +92,7 @@ class SourceParams:
       less their own ends' share, ``plain_end_px``; a residual ``r`` then bounds an end's
       error by ``r`` plus it, so the frame's vector tolerance is ``end_gate_px`` less it, at
       most ``gyro_vector_tol_px``, and its confirmation tolerance as much lower
-      (:func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`).
+      (:func:`blurtrack.detect.gyro.framecheck.frame_tolerances`).
     """
 
     point_width_ratio: float = 1.5

@@ -220,7 +220,7 @@ class GyroPassParams:
       first-pass streaks miss their prediction (0: any).
     - ``hook_fraction``: ... or where more than this fraction of them hook or double back
       within the exposure, by more than ``source.hairpin_depth_px`` (the gyro check's own
-      test, :func:`~blurtrack.detect.gyro.gyrotrust.hairpin_depth`): their visible ends are
+      test, :func:`~blurtrack.detect.gyro.framecheck.hairpin_depth`): their visible ends are
       the turns, which the check refuses; the pass measures them along their curves. Not 0: a
       frame's one or two hooks cost the pass over the whole frame for a few streaks
       (``dense`` seed 1, 20 frames: 0 refines 3 frames for +0.02 point of coverage at +40 %

@@ -12,9 +12,9 @@ import numpy as np
 
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.framecheck import hairpin_depth
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import Curves, curve_template, predict_curves
-from blurtrack.detect.gyro.gyrotrust import hairpin_depth
 from blurtrack.detect.lines.segment import Components
 from blurtrack.detect.params import DetectParams, GyroPassParams
 from blurtrack.detect.separation.templates import HALO_PX, Template
@@ -122,7 +122,7 @@ def candidates(
 ) -> Candidates | None:
     """Step 1 (see the module text): the candidates of a frame the gate let through
     (``reason``: why, :data:`GateReason`; ``hook_depth_px``: for ``hooks``, the depth over
-    which a component's curve hooks, :func:`~blurtrack.detect.gyro.gyrotrust.hairpin_depth`);
+    which a component's curve hooks, :func:`~blurtrack.detect.gyro.framecheck.hairpin_depth`);
     None where the frame has no component, the gyro does not cover it or no component is a
     candidate."""
     H, W = ctx.shape

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.framecheck import hairpin_depth
 from blurtrack.detect.gyro.gyrocandidates import GateReason, inside_frame
 from blurtrack.detect.gyro.gyroconfirm import mismatch
 from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrotrust import hairpin_depth
 from blurtrack.detect.params import GyroPassParams
 from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.errors import CoverageError
@@ -101,7 +101,7 @@ def vector_residual(a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> np.ndarray
 
 def _hooked(pts: np.ndarray, depth_px: float | None, fraction: float) -> bool:
     """Whether more than ``fraction`` of the curves ``pts (N, S, 2)`` hook or double back by
-    more than ``depth_px`` (:func:`~blurtrack.detect.gyro.gyrotrust.hairpin_depth`; None: no)."""
+    more than ``depth_px`` (:func:`~blurtrack.detect.gyro.framecheck.hairpin_depth`; None: no)."""
     if depth_px is None or pts.shape[0] == 0:
         return False
     return float(np.mean(hairpin_depth(pts) > depth_px)) > fraction

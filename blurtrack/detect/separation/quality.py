@@ -178,7 +178,7 @@ def one_doubt(eligible: np.ndarray, doubts: list[np.ndarray], crossing: np.ndarr
     profile), a blown-out core, a shape off the frame's consensus or no consensus at all)
     speaks, or none of them and a ``crossing``. The image alone cannot tell whether such a
     streak's ends are right; an independent measure of its start-to-end vector (the gyro's,
-    :func:`blurtrack.detect.gyro.gyrotrust.apply_check`) can lift one doubt, never two: two
+    :func:`blurtrack.detect.gyro.framecheck.apply_check`) can lift one doubt, never two: two
     doubted ends may be moved alike (a neighbour alongside, ends from the profile's
     moments), which the vector does not see. A crossing does not count against that one: the
     other streak's light runs across this one, not along it (measured on ``hard`` seeds 1-8:

@@ -360,7 +360,7 @@ def _model_errors(found: list[FrameStreaks], idx: list[int], p: SourceParams) ->
     """For the summary: the checked frames' model errors (px; median, 90th percentile and
     largest; None where none was measured) and the frames (session numbers) whose check's
     tolerance fell below ``p.gyro_vector_tol_px`` for it
-    (:func:`blurtrack.detect.gyro.gyrotrust.frame_tolerances`)."""
+    (:func:`blurtrack.detect.gyro.framecheck.frame_tolerances`)."""
     err = np.array([fs.gyro_model_error_px for fs in found], float)
     have = np.isfinite(err)
     quantiles = None

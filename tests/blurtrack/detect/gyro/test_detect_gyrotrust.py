@@ -10,10 +10,8 @@ import pytest
 
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.gyro.calibsteps import PARAMETERS, corrected_model, perturbed_models
-from blurtrack.detect.gyro.gyrocurve import predict_curves
-from blurtrack.detect.gyro.gyrotrust import (
+from blurtrack.detect.gyro.framecheck import (
     MIN_VOTERS,
-    PATH_SAMPLES,
     GyroCheck,
     apply_check,
     check_frame,
@@ -21,6 +19,8 @@ from blurtrack.detect.gyro.gyrotrust import (
     hairpin_depth,
     vector_residual,
 )
+from blurtrack.detect.gyro.gyrocurve import predict_curves
+from blurtrack.detect.gyro.gyrotrust import PATH_SAMPLES
 from blurtrack.detect.gyro.sessioncalib import MAX_FIT_STEPS, fit_sample, session_residual
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.geometry.blur_model import BlurModel
