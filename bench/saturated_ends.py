@@ -29,19 +29,18 @@ sys.path.insert(0, str(ROOT / "bench"))
 from json_out import emit  # noqa: E402
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
-from blurtrack.testing.streak_frames import outward_errors as streak_outward_errors  # noqa: E402
-from blurtrack.testing.streak_frames import saturated_grid  # noqa: E402
+from blurtrack.testing.streak_frames import outward_errors, saturated_grid  # noqa: E402
 
 SIGMA_PX = 1.5
 LENGTH_PX = 50.0
 
 
-def outward_errors(peak: float, accel: float, seed: int = 3) -> dict[str, Any]:
+def saturated_case(peak: float, accel: float, seed: int = 3) -> dict[str, Any]:
     """The start's and the end's outward errors (px) of the grid's streaks at ``peak`` times
     the saturation."""
     image, truth = saturated_grid(peak, accel, SIGMA_PX, LENGTH_PX, seed)
     fs = detect_frame(image, DetectParams())
-    s, e = streak_outward_errors(fs.end_a, fs.end_b, truth)
+    s, e = outward_errors(fs.end_a, fs.end_b, truth)
     return {
         "peak_over_saturation": peak,
         "accel": accel,
@@ -58,7 +57,7 @@ def main() -> int:
     ap.add_argument("--accels", nargs="+", type=float, default=[0.0, 0.8])
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     args = ap.parse_args()
-    runs = [outward_errors(p, a) for a in args.accels for p in args.peaks]
+    runs = [saturated_case(p, a) for a in args.accels for p in args.peaks]
     return emit({"runs": runs}, args.out)
 
 

@@ -73,13 +73,20 @@ def truth_columns(table: pd.DataFrame, truth: dict[str, Any]) -> tuple[pd.DataFr
     return out, n_inside
 
 
+def _truth_keys(table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Each detection's true streak as one key (frame and ``truth_id``), and whether it is a
+    right detection of a true inside streak (what ok-coverage counts)."""
+    key = table["frame"].to_numpy(np.int64) * 100000 + table["truth_id"].to_numpy(np.int64)
+    hit = table["right"].to_numpy(bool) & (table["truth_id"].to_numpy() >= 0)
+    return key, hit
+
+
 def reason_table(table: pd.DataFrame, n_inside: int) -> dict[str, dict[str, float]]:
     """Per reason: detections, right, wrong, coverage_lost (and its share in %)."""
     rows: dict[str, dict[str, float]] = {}
     right = table["right"].to_numpy(bool)
     reason = table["reason"].to_numpy(object)
-    key = table["frame"].to_numpy(np.int64) * 100000 + table["truth_id"].to_numpy(np.int64)
-    hit = right & (table["truth_id"].to_numpy() >= 0)
+    key, hit = _truth_keys(table)
     covered = set(key[hit & (reason == "ok")].tolist())
     for r in REASONS:
         m = reason == r
@@ -117,8 +124,7 @@ def residual_caps(
     ok = table["quality_ok"].to_numpy(bool)
     right = table["right"].to_numpy(bool)
     residual = table["gyro_residual_px"].to_numpy(float)
-    key = table["frame"].to_numpy(np.int64) * 100000 + table["truth_id"].to_numpy(np.int64)
-    hit = right & (table["truth_id"].to_numpy() >= 0)
+    key, hit = _truth_keys(table)
     out: dict[str, dict[str, float]] = {}
     for cap in caps:
         with np.errstate(invalid="ignore"):

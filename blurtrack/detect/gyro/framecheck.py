@@ -126,9 +126,16 @@ def frame_tolerances(
     if not use.any():
         return FrameTolerance(p.gyro_vector_tol_px, p.gyro_confirm_tol_px, float("nan"))
     model_px = float(np.median(residual[use])) - p.plain_end_px
-    vector = min(p.gyro_vector_tol_px, p.end_gate_px - model_px)
+    return tolerances_for(model_px, p)
+
+
+def tolerances_for(model_error_px: float, p: SourceParams) -> FrameTolerance:
+    """The tolerances of a frame whose prediction is off by ``model_error_px`` (px): the
+    vector's ``p.end_gate_px`` less it, at most ``p.gyro_vector_tol_px``; the confirmation's
+    as much below it as ``p.gyro_confirm_tol_px`` is below ``p.gyro_vector_tol_px``."""
+    vector = min(p.gyro_vector_tol_px, p.end_gate_px - model_error_px)
     confirm = min(p.gyro_confirm_tol_px, vector - (p.gyro_vector_tol_px - p.gyro_confirm_tol_px))
-    return FrameTolerance(vector, confirm, model_px)
+    return FrameTolerance(vector, confirm, model_error_px)
 
 
 def apply_check(

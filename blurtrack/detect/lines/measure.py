@@ -115,20 +115,18 @@ def measure_lines(
             clean = clean[np.isfinite(clean)]
             # Saturated streaks: width from the unsaturated ones if there are enough of
             # them, else from everyone's flanks (refine_lines measured clipped sections).
-            if clean.size >= 8:
-                sig_c = float(np.median(clean))
-                sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
-            else:
-                # The clipped sections read the sigma too wide, never too narrow: their
-                # sigma bounds the flanks' (a flank fit above it holds a neighbour's light;
-                # hard_long_exposure 103 frame 1, streaks piled on each other: 24.7 px).
+            flanks = None
+            if clean.size < 8:
                 sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
                 flanks = raw_flank_sigma(signal, sat_lines, sigma_c, saturation)
                 clean = ref.width[np.isfinite(ref.width)]
-                sig_c = float(np.median(clean)) if clean.size else sigma_c
-                sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
-                if flanks is not None:
-                    sig_raw = min(sig_raw, flanks)
+            sig_c = float(np.median(clean)) if clean.size else sigma_c
+            sig_raw = float(np.sqrt(max(sig_c**2 - smooth_sigma**2, 0.25)))
+            # The clipped sections read the sigma too wide, never too narrow: their sigma
+            # bounds the flanks' (a flank fit above it holds a neighbour's light;
+            # hard_long_exposure 103 frame 1, streaks piled on each other: 24.7 px).
+            if flanks is not None:
+                sig_raw = min(sig_raw, flanks)
             if measure_sigma:
                 sigma_c = sig_c
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal

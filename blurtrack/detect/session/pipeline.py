@@ -13,6 +13,7 @@ import pandas as pd
 from blurtrack.allocator import keep_heap
 from blurtrack.detect.forkmap import fork_map, one_blas_thread
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.gyro.framecheck import tolerances_for
 from blurtrack.detect.gyro.gyrostages import GyroOutcome, TurnFramesSignal, continuity, gyro_stages
 from blurtrack.detect.gyro.readout import (
     TurnedSession,
@@ -360,19 +361,19 @@ def _model_errors(found: list[FrameStreaks], idx: list[int], p: SourceParams) ->
     """For the summary: the checked frames' model errors (px; median, 90th percentile and
     largest; None where none was measured) and the frames (session numbers) whose check's
     tolerance fell below ``p.gyro_vector_tol_px`` for it
-    (:func:`blurtrack.detect.gyro.framecheck.frame_tolerances`)."""
+    (:func:`blurtrack.detect.gyro.framecheck.tolerances_for`)."""
     err = np.array([fs.gyro_model_error_px for fs in found], float)
     have = np.isfinite(err)
     quantiles = None
     if have.any():
         q50, q90 = np.quantile(err[have], [0.5, 0.9])
         quantiles = {"median": float(q50), "p90": float(q90), "max": float(err[have].max())}
-    with np.errstate(invalid="ignore"):
-        lowered = have & (err > p.end_gate_px - p.gyro_vector_tol_px)
-    return {
-        "gyro_trust_model_error_px": quantiles,
-        "gyro_trust_lowered_frames": [idx[k] for k in np.flatnonzero(lowered).tolist()],
-    }
+    lowered = [
+        idx[k]
+        for k in np.flatnonzero(have).tolist()
+        if tolerances_for(float(err[k]), p).vector_px < p.gyro_vector_tol_px
+    ]
+    return {"gyro_trust_model_error_px": quantiles, "gyro_trust_lowered_frames": lowered}
 
 
 def _light_colour(found: list[FrameStreaks], idx: list[int]) -> dict[str, Any]:
