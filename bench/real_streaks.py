@@ -10,7 +10,7 @@ depend on the streaks detected: the reference vector is the median start-to-end 
 whole components' skeleton lines, and a streak (not clipped) counts as whole when its vector is
 within max(3 px, 25 %) of it, either sign.
 
-Usage: ``python bench/real_streaks.py [--overlay-dir docs/figures]``
+Usage: ``python bench/real_streaks.py [--overlay-dir docs/figures] [--images PHOTO ...]``
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
 from blurtrack.detect.context import frame_context  # noqa: E402
 from blurtrack.detect.image import prepare_frame  # noqa: E402
-from blurtrack.detect.overlay import draw_streaks  # noqa: E402
+from blurtrack.detect.overlay import draw_streaks, source_picture  # noqa: E402
 from blurtrack.detect.separation.consensus import shape_tolerance  # noqa: E402
 from blurtrack.detect.separation.modal import component_references  # noqa: E402
 from blurtrack.detect.session.orientation import combine  # noqa: E402
@@ -53,31 +53,6 @@ def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
     _, vecs = np.linalg.eigh(v.T @ v)
     v = v * np.where(v @ vecs[:, -1] < 0, -1.0, 1.0)[:, None]
     return np.asarray(np.median(v, axis=0))
-
-
-#: Centre-line colours (BGR) of the source overlay, by ``source``.
-SOURCE_COLOURS = {"point": (80, 220, 80), "extended": (220, 80, 220), "undetermined": (0, 165, 255)}
-
-
-def source_overlay(img: np.ndarray, table, path: Path, scale: float = 0.6) -> None:
-    """The photo darkened, each detection's centre line coloured by ``source`` (a white
-    ring at both ends of the ``quality_ok`` ones) and a legend with the counts."""
-    base = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    pic = cv2.resize((0.6 * base).astype(np.uint8), None, fx=scale, fy=scale)
-    for _, r in table.iterrows():
-        pts = np.round(np.asarray(list(r.centerline), float) * scale).astype(np.int32)
-        cv2.polylines(pic, [pts.reshape(-1, 1, 2)], False, SOURCE_COLOURS[r.source], 2)
-        if r.quality_ok:
-            for x, y in (pts[0], pts[-1]):
-                cv2.circle(pic, (int(x), int(y)), 5, (255, 255, 255), 1)
-    counts = table.source.value_counts()
-    rows = [(f"{s}: {int(counts.get(s, 0))}", c) for s, c in SOURCE_COLOURS.items()]
-    rows.append((f"quality_ok (white rings): {int(table.quality_ok.sum())}", (255, 255, 255)))
-    cv2.rectangle(pic, (4, 4), (300, 12 + 20 * len(rows)), (0, 0, 0), -1)
-    for k, (text, colour) in enumerate(rows):
-        cv2.putText(pic, text, (10, 22 + 20 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), pic, [cv2.IMWRITE_PNG_COMPRESSION, 9])
 
 
 def measure(path: Path, overlay: Path | None) -> dict:
@@ -133,7 +108,8 @@ def measure(path: Path, overlay: Path | None) -> dict:
             str(overlay.relative_to(ROOT)) if overlay.is_relative_to(ROOT) else str(overlay)
         )
         src = overlay.with_name(overlay.name.replace("_overlay", "_source"))
-        source_overlay(img, table, src)
+        # At 0.6 as the overlay, written as it always was (PNG compression 9: docs/ stays small).
+        cv2.imwrite(str(src), source_picture(img, table, 0.6), [cv2.IMWRITE_PNG_COMPRESSION, 9])
         out["source_overlay"] = str(src.relative_to(ROOT)) if src.is_relative_to(ROOT) else str(src)
     return out
 
@@ -141,13 +117,20 @@ def measure(path: Path, overlay: Path | None) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--overlay-dir", type=Path, default=None)
+    ap.add_argument(
+        "--images",
+        nargs="+",
+        type=Path,
+        default=[DATA / "night1.jpg", DATA / "night2.jpg"],
+        help="photographs to measure (default: the two of ../shared/data/real/light-streaks)",
+    )
     args = ap.parse_args()
     res = [
         measure(
-            DATA / f"{n}.jpg",
-            args.overlay_dir / f"real_{n}_overlay.png" if args.overlay_dir else None,
+            path,
+            args.overlay_dir / f"real_{path.stem}_overlay.png" if args.overlay_dir else None,
         )
-        for n in ("night1", "night2")
+        for path in args.images
     ]
     print(json.dumps(res, indent=2))
     return 0

@@ -1,4 +1,5 @@
-"""``blurtrack detect SESSION [--out FILE]``: the streak table of every frame."""
+"""``blurtrack detect SESSION [--out FILE]``: the streak table of every frame; ``blurtrack
+detect PHOTO ... --out FILE``: that of still photographs (:mod:`blurtrack.cli.photos`)."""
 
 from __future__ import annotations
 
@@ -18,15 +19,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="detect laser-dot streaks and write the streak table (Parquet)",
         description="Find every laser-dot streak in every frame of a session: sub-pixel "
         "start and end, centre line, brightness profile, quality flags; start/end resolved "
-        "with the gyro (initial guesses), continuity and brightness.",
+        "with the gyro (initial guesses), continuity and brightness. Given photographs "
+        "(.jpg, .png, .tif) instead, each is one frame detected from its image alone: "
+        "point light or extended source and quality_ok per detection, no start/end.",
     )
-    p.add_argument("session", type=Path, help="session folder")
+    p.add_argument(
+        "session",
+        type=Path,
+        nargs="+",
+        metavar="SESSION | PHOTO",
+        help="session folder, or one or more photographs (then --out is needed)",
+    )
     p.add_argument(
         "--out",
         type=Path,
         default=None,
         help="output table (Parquet; default: SESSION/streaks.parquet, where calibrate and "
-        "report look for it); a summary is written beside it as <stem>.summary.json",
+        "report look for it; photographs: required); a summary is written beside it as "
+        "<stem>.summary.json",
     )
     p.add_argument(
         "--gyro",
@@ -44,7 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         default=None,
         metavar="PNG",
-        help="also draw the detected streaks over the first frame with streaks",
+        help="also draw the detected streaks over the first frame with streaks (photographs: "
+        "each detection coloured by its source; several photographs: a folder, one "
+        "<stem>.png each)",
     )
     add_quiet_arg(p)
     add_force_arg(p)
@@ -132,6 +144,30 @@ def detect_to_table(
 
 
 def run(args: argparse.Namespace) -> int:
+    from blurtrack.cli.photos import run_photos
+    from blurtrack.detect.photos import is_photo
+    from blurtrack.errors import DetectionError
+
+    paths: list[Path] = args.session
+    photos = [is_photo(p) for p in paths]
+    if any(photos):
+        if not all(photos):
+            other = paths[photos.index(False)]
+            raise DetectionError(
+                f"detect takes one session folder or photographs, not both: {str(other)!r} "
+                "is not a photograph (.jpg, .jpeg, .png, .tif, .tiff)"
+            )
+        return run_photos(args, paths)
+    if len(paths) > 1:
+        raise DetectionError(
+            f"detect takes one session folder (got {len(paths)} paths); several photographs "
+            "are named by their files (.jpg, .jpeg, .png, .tif, .tiff)"
+        )
+    args.session = paths[0]
+    return _run_session(args)
+
+
+def _run_session(args: argparse.Namespace) -> int:
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import write_streak_picture
     from blurtrack.io.session import load_session

@@ -14,7 +14,8 @@ forked workers (:mod:`~blurtrack.detect.forkmap`); the gyro's stages
 time-shift scan of :mod:`~blurtrack.detect.gyro.timeshift`, the readout order, the gyro's
 direction, the session calibration, the gyro-template pass, the gyro's check); which end is
 the start (:mod:`~blurtrack.detect.session.orientation`, :mod:`~blurtrack.detect.session.cues`); the
-streak table (:mod:`~blurtrack.detect.session.table`). Pictures: :mod:`~blurtrack.detect.overlay`.
+streak table (:mod:`~blurtrack.detect.session.table`). Still photographs, each a frame of its
+own: :mod:`~blurtrack.detect.photos`. Pictures: :mod:`~blurtrack.detect.overlay`.
 Parameters: :class:`~blurtrack.detect.params.DetectParams`, one section per stage
 (:mod:`~blurtrack.detect.paramsections`, declared by :mod:`~blurtrack.detect.paramfields`).
 Exact test data: :mod:`blurtrack.testing.streak_frames`, :mod:`blurtrack.testing.mini_session`.

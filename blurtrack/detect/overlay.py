@@ -2,7 +2,9 @@
 
 :func:`draw_streaks` paints them into the (upscaled) frame itself with OpenCV (the benchmark's
 pictures); :func:`streak_figure` makes the explained picture of ``detect --overlay`` with
-matplotlib: a title, a legend of the colours and a zoomed inset.
+matplotlib: a title, a legend of the colours and a zoomed inset; :func:`source_picture`
+colours each detection by its ``source`` (point light, extended source, undetermined) and rings
+the ``quality_ok`` ones' ends (``detect`` on photographs, the real-photograph benchmark).
 """
 
 from __future__ import annotations
@@ -22,13 +24,12 @@ END = (255, 160, 40)
 FLAGGED = (0, 200, 255)
 
 
-def draw_streaks(image: np.ndarray, rows: pd.DataFrame, scale: int = 2) -> np.ndarray:
-    """Draw the streaks of ``rows`` (streak-table rows of one frame) over ``image``.
+#: BGR centre-line colours of :func:`source_picture`, by ``source``.
+SOURCE_COLOURS = {"point": (80, 220, 80), "extended": (220, 80, 220), "undetermined": (0, 165, 255)}
 
-    The frame is converted to 8-bit BGR and upscaled by ``scale`` so that sub-pixel lines stay
-    visible. Centre lines in green (orange when flagged), start of exposure as a red dot, end
-    as a blue one. Returns the picture ``(H * scale, W * scale, 3)`` uint8.
-    """
+
+def _bgr8(image: np.ndarray) -> np.ndarray:
+    """The frame as 8-bit BGR (16-bit: its top byte; gray and BGRA converted)."""
     img = image
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
@@ -36,7 +37,51 @@ def draw_streaks(image: np.ndarray, rows: pd.DataFrame, scale: int = 2) -> np.nd
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
     elif img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    return np.asarray(img)
+
+
+def source_picture(image: np.ndarray, rows: pd.DataFrame, scale: float = 1.0) -> np.ndarray:
+    """The frame dimmed and scaled by ``scale``, each detection of ``rows`` (streak-table
+    rows of one frame, with ``source`` and ``quality_ok``) drawn as its centre line in its
+    :data:`SOURCE_COLOURS` colour, the ``quality_ok`` ones' ends ringed in white, and a legend
+    with the counts. Returns ``(round(H * scale), round(W * scale), 3)`` uint8 BGR."""
+    if not scale > 0:
+        raise ValueError(f"source_picture: scale must be positive, got {scale}")
+    pic = cv2.resize((0.6 * _bgr8(image)).astype(np.uint8), None, fx=scale, fy=scale)
+    for _, r in rows.iterrows():
+        pts = np.round(np.asarray(list(r["centerline"]), float) * scale).astype(np.int32)
+        colour = SOURCE_COLOURS.get(str(r["source"]), SOURCE_COLOURS["undetermined"])
+        cv2.polylines(pic, [pts.reshape(-1, 1, 2)], False, colour, 2)
+        if r["quality_ok"]:
+            for x, y in (pts[0], pts[-1]):
+                cv2.circle(pic, (int(x), int(y)), 5, (255, 255, 255), 1)
+    counts = rows["source"].value_counts()
+    legend = [(f"{s}: {int(counts.get(s, 0))}", c) for s, c in SOURCE_COLOURS.items()]
+    legend.append((f"quality_ok (white rings): {int(rows['quality_ok'].sum())}", (255, 255, 255)))
+    cv2.rectangle(pic, (4, 4), (300, 12 + 20 * len(legend)), (0, 0, 0), -1)
+    for k, (text, colour) in enumerate(legend):
+        cv2.putText(pic, text, (10, 22 + 20 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1)
+    return pic
+
+
+def write_source_picture(
+    path: str | Path, image: np.ndarray, rows: pd.DataFrame, scale: float = 1.0
+) -> Path:
+    """Draw :func:`source_picture` and write it atomically to ``path``, encoded by its
+    suffix as :func:`blurtrack.io.images.write_image` does (``.png``, ``.jpg``, ``.tif``)."""
+    from blurtrack.io.images import write_image
+
+    return write_image(path, source_picture(image, rows, scale))
+
+
+def draw_streaks(image: np.ndarray, rows: pd.DataFrame, scale: int = 2) -> np.ndarray:
+    """Draw the streaks of ``rows`` (streak-table rows of one frame) over ``image``.
+
+    The frame is converted to 8-bit BGR and upscaled by ``scale`` so that sub-pixel lines stay
+    visible. Centre lines in green (orange when flagged), start of exposure as a red dot, end
+    as a blue one. Returns the picture ``(H * scale, W * scale, 3)`` uint8.
+    """
+    img = cv2.resize(_bgr8(image), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
     img = (img.astype(np.float32) * 0.7).astype(np.uint8)  # dim, so the drawing stands out
     shift = 4  # fixed-point bits: sub-pixel drawing
     f = float(scale * (1 << shift))

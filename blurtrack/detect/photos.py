@@ -1,0 +1,91 @@
+"""Detection on still photographs (``blurtrack detect PHOTO ...``): each photograph is one
+frame detected from its image alone (:func:`~blurtrack.detect.frame.detect_frame`), with no
+gyro, no neighbouring frames and no time.
+
+What a photograph cannot give: which end of a streak is its start (no gyro, no continuity
+over frames: every row's ``orientation_source`` is ``none`` at confidence 0.5; start and end
+are the measured ends in the order measured), and the gyro's check of the ends. What it
+gives is the image's own verdict, the same as in a session's first pass: each detection's
+``source`` (a point light, an extended source, or undetermined) and ``quality_ok`` with its
+``reason``. That is how a lab checks, on its own night photographs, that no lit window, sign
+or glare is taken for a point light (docs/detection.md, "Real photographs").
+
+The table is the session table (:mod:`blurtrack.detect.session.table`), one ``frame`` per
+photograph in the order given, ``timestamp_ns`` 0; the summary names the photographs.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import CUE_NAMES, combine
+from blurtrack.detect.session.table import build_table, frame_columns
+from blurtrack.io.images import read_image
+
+#: Suffixes taken for a photograph (what :func:`blurtrack.io.images.read_image` decodes).
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
+
+@dataclass(frozen=True)
+class PhotoDetection:
+    """The streak table of the photographs (``frame`` k: the k-th photograph), their
+    per-photograph summaries (:func:`photo_summary`, in order) and their images' streaks."""
+
+    table: pd.DataFrame
+    photos: list[dict[str, Any]]
+    frames: list[FrameStreaks]
+
+
+def is_photo(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` names a photograph (a file with a :data:`PHOTO_SUFFIXES` suffix)
+    rather than a session folder."""
+    p = Path(path)
+    return p.suffix.lower() in PHOTO_SUFFIXES and not p.is_dir()
+
+
+def photo_summary(path: Path, shape: tuple[int, ...], rows: pd.DataFrame) -> dict[str, Any]:
+    """One photograph's counts (``shape``: its image's; ``rows``: its rows of the table): its
+    name and size, its detections, how many are ``quality_ok``, and the detections by
+    ``source`` and by ``reason``."""
+    return {
+        "photo": os.fsdecode(path),
+        "width_px": int(shape[1]),
+        "height_px": int(shape[0]),
+        "streaks": len(rows),
+        "quality_ok": int(rows["quality_ok"].sum()),
+        "source": {str(k): int(v) for k, v in rows["source"].value_counts().items()},
+        "reason": {str(k): int(v) for k, v in rows["reason"].value_counts().items()},
+    }
+
+
+def detect_photos(
+    paths: Sequence[str | os.PathLike[str]], params: DetectParams | None = None
+) -> PhotoDetection:
+    """Detect the streaks of each photograph of ``paths`` (PNG, JPEG or TIFF; 8 or 16 bit,
+    gray or colour; each size-checked from its header before decoding). Raises
+    :class:`blurtrack.io.images.ImageError` (one line) for a file that does not decode."""
+    p = params or DetectParams()
+    parts: list[dict[str, Any]] = []
+    shapes: list[tuple[int, ...]] = []
+    frames: list[FrameStreaks] = []
+    for k, path in enumerate(paths):
+        image = read_image(path, what="photograph")
+        fs = detect_frame(image, p)
+        parts.append(frame_columns(k, 0, fs, combine(np.zeros((len(fs), len(CUE_NAMES))))))
+        shapes.append(image.shape)
+        frames.append(fs)
+    table = build_table(parts)
+    photos = [
+        photo_summary(Path(path), shape, table[table["frame"] == k])
+        for k, (path, shape) in enumerate(zip(paths, shapes, strict=True))
+    ]
+    return PhotoDetection(table, photos, frames)
