@@ -65,8 +65,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="processes that decode and detect frames in parallel (default: the CPU cores; "
-        "the table does not depend on it)",
+        help="processes that decode and detect frames (or photographs) in parallel (default: "
+        "the CPU cores; the table does not depend on it)",
     )
     p.set_defaults(func=run)
 

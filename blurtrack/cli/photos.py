@@ -46,9 +46,12 @@ def _check_options(args: argparse.Namespace) -> None:
 def run_photos(args: argparse.Namespace, photos: list[Path]) -> int:
     """``detect`` on photographs: check every output first, detect, write the table, the
     summary and the pictures, and print one line per photograph."""
+    import cv2
+
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import write_source_picture
     from blurtrack.detect.photos import detect_photos
+    from blurtrack.detect.session.pipeline import default_workers
     from blurtrack.detect.session.table import TABLE_VERSION, write_table
     from blurtrack.io.images import read_image
 
@@ -63,7 +66,10 @@ def run_photos(args: argparse.Namespace, photos: list[Path]) -> int:
     for pic in pictures:
         check_output(pic, force=args.force, inputs=inputs, what="--overlay")
     params = DetectParams.from_yaml(args.params) if args.params else DetectParams()
-    result = detect_photos(photos, params)
+    cv2.setNumThreads(1)  # one core a worker, as a session's frames
+    result = detect_photos(
+        photos, params, default_workers() if args.workers is None else args.workers
+    )
     write_table(result.table, out)
     table = result.table
     summary: dict[str, Any] = {

@@ -25,8 +25,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.detect.session.orientation import CUE_NAMES, combine
 from blurtrack.detect.session.table import build_table, frame_columns
 from blurtrack.io.images import read_image
@@ -68,24 +70,33 @@ def photo_summary(path: Path, shape: tuple[int, ...], rows: pd.DataFrame) -> dic
 
 
 def detect_photos(
-    paths: Sequence[str | os.PathLike[str]], params: DetectParams | None = None
+    paths: Sequence[str | os.PathLike[str]],
+    params: DetectParams | None = None,
+    workers: int = 1,
 ) -> PhotoDetection:
     """Detect the streaks of each photograph of ``paths`` (PNG, JPEG or TIFF; 8 or 16 bit,
-    gray or colour; each size-checked from its header before decoding). Raises
-    :class:`blurtrack.io.images.ImageError` (one line) for a file that does not decode."""
+    gray or colour; each size-checked from its header before decoding), in ``workers``
+    forked processes (:func:`blurtrack.detect.forkmap.fork_map`; the same table as one).
+    Raises :class:`blurtrack.io.images.ImageError` (one line) for a file that does not
+    decode."""
     p = params or DetectParams()
-    parts: list[dict[str, Any]] = []
-    shapes: list[tuple[int, ...]] = []
-    frames: list[FrameStreaks] = []
-    for k, path in enumerate(paths):
-        image = read_image(path, what="photograph")
+
+    def one(k: int) -> tuple[FrameStreaks, tuple[int, ...]]:
+        image = read_image(paths[k], what="photograph")
         fs = detect_frame(image, p)
-        parts.append(frame_columns(k, 0, fs, combine(np.zeros((len(fs), len(CUE_NAMES))))))
-        shapes.append(image.shape)
-        frames.append(fs)
-    table = build_table(parts)
+        fs.quality, fs.one_doubt = frame_quality(fs, p)  # as a session's frame worker does
+        return fs, image.shape
+
+    got = list(fork_map(one, range(len(paths)), workers))
+    frames = [fs for fs, _ in got]
+    table = build_table(
+        [
+            frame_columns(k, 0, fs, combine(np.zeros((len(fs), len(CUE_NAMES)))))
+            for k, fs in enumerate(frames)
+        ]
+    )
     photos = [
         photo_summary(Path(path), shape, table[table["frame"] == k])
-        for k, (path, shape) in enumerate(zip(paths, shapes, strict=True))
+        for k, (path, (_, shape)) in enumerate(zip(paths, got, strict=True))
     ]
     return PhotoDetection(table, photos, frames)

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 
-from blurtrack.detect import detect_frame
+from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.overlay import SOURCE_COLOURS, source_picture
 from blurtrack.detect.photos import detect_photos, is_photo
 from blurtrack.io.images import ImageError
@@ -81,6 +82,8 @@ def test_each_photograph_is_its_image_alone_unoriented(tmp_path: Path) -> None:
         assert sum(got.photos[k]["source"].values()) == len(rows)
     assert set(table["orientation_source"]) == {"none"}
     assert np.all(table["orientation_confidence"] == 0.5)
+    # Two workers: the same table.
+    pd.testing.assert_frame_equal(detect_photos(paths, workers=2).table, table)
 
 
 def test_the_dots_are_ok_and_the_window_is_not(tmp_path: Path) -> None:
@@ -139,3 +142,14 @@ def test_the_source_picture_colours_each_detection_by_its_source(tmp_path: Path)
     assert source_picture(quantise(photo(), np.uint16), t).shape == (*SHAPE, 3)
     with pytest.raises(ValueError):
         source_picture(img, t, 0.0)
+
+
+def test_the_parameters_decide_the_quality_too(tmp_path: Path) -> None:
+    # The quality flag reads the source section (here: any light beyond an end doubts it),
+    # as in a session's frames, not the defaults.
+    paths = write_photos(tmp_path)[:1]
+    ok = int(detect_photos(paths).table["quality_ok"].sum())
+    strict = DetectParams.from_dict({"source": {"end_light_max": 1e-6}})
+    got = detect_photos(paths, strict).table
+    assert ok > 0 and int(got["quality_ok"].sum()) < ok
+    assert int((got["reason"] == "ok").sum()) == int(got["quality_ok"].sum())
