@@ -9,7 +9,9 @@ run ``detect_session`` and compare with ``truth.yaml``:
 - recall (true inside streaks found) and precision (unclipped detections that are real);
 - trust (issue 45): ok-precision, the share of ``quality_ok`` detections whose both ends lie
   within 2 px of one true streak's (either orientation), and ok-coverage, the share of true
-  inside streaks such a detection matches;
+  inside streaks such a detection matches; where the preset's colour sensor has lateral
+  colour (``chromatic_px``, docs/simulator.md), also ``ok_precision_light``, the same against
+  the light's own geometry (:func:`light_magnification`);
 - speed: frames/s of the per-frame detection on one core, and the same frames through a plain
   ``cv2.GaussianBlur`` + ``cv2.connectedComponentsWithStats`` pass in the same run (ratio);
 - whole command (``--command``): the wall time of the command a user runs, ``blurtrack detect
@@ -79,12 +81,39 @@ def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarra
     return np.minimum(*end_distances(s, e, S, E))
 
 
+#: The luma weights of a light's channels, B, G, R (blurtrack.detect.image.LUMA_BGR).
+LUMA_BGR = (0.114, 0.587, 0.299)
+
+
+def light_magnification(truth: dict[str, Any]) -> float | None:
+    """Where the simulated colour sensor has lateral colour (``chromatic_px`` > 0: the red
+    image magnified and the blue one shrunk about the centre by that much at the corner,
+    rigs/sim/optics.py), the magnification about the centre of the light that detection
+    measures (the luma of the dots' one-colour light, each channel weighted by its luma weight
+    times the sensor's ``colour_response``): ``1 + s (w_r - w_b) / (w_r + w_g + w_b)``,
+    ``s = chromatic_px / r_corner``. The truth is the lens's geometry without it; a red
+    laser's light lies magnified (``phone``: by 0.71 px at the corner), which a calibration
+    from red streaks takes into its focal length. None without lateral colour."""
+    preset = (truth.get("simulator") or {}).get("preset") or {}
+    chrom = float(preset.get("chromatic_px") or 0.0)
+    response = preset.get("colour_response")
+    if chrom <= 0.0 or not response:
+        return None
+    r, g, b = (float(v) for v in response)
+    w_b, w_g, w_r = (w * c for w, c in zip(LUMA_BGR, (b, g, r), strict=True))
+    r_corner = float(np.hypot((preset["width"] - 1) / 2, (preset["height"] - 1) / 2))
+    return 1.0 + chrom / r_corner * (w_r - w_b) / (w_r + w_g + w_b)
+
+
 def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
     """ok-precision (share of ``quality_ok`` detections with both ends within
     :data:`TRUST_GATE_PX` of one true streak's, either orientation), ok-coverage (share of
     true inside streaks that such a detection matches) and the counts behind them."""
     ok = table["quality_ok"].to_numpy(bool) if "quality_ok" in table.columns else None
-    n_ok = n_right = n_inside = n_covered = 0
+    n_ok = n_right = n_inside = n_covered = n_right_light = 0
+    mag = light_magnification(truth)
+    preset = (truth.get("simulator") or {}).get("preset") or {}
+    centre = np.array([(preset.get("width", 0) - 1) / 2, (preset.get("height", 0) - 1) / 2])
     for fr in truth["frames"]:
         S, E, inside, _ = truth_arrays(fr)
         n_inside += int(inside.sum())
@@ -100,13 +129,20 @@ def trust(table: pd.DataFrame, truth: dict[str, Any]) -> dict[str, Any]:
         hit = worse_end_distance(s, e, S, E) <= TRUST_GATE_PX
         n_right += int(hit.any(axis=1).sum())
         n_covered += int((hit.any(axis=0) & inside).sum())
-    return {
+        if mag is not None:
+            Sl, El = centre + (S - centre) * mag, centre + (E - centre) * mag
+            n_right_light += int((worse_end_distance(s, e, Sl, El) <= TRUST_GATE_PX).any(1).sum())
+    out: dict[str, Any] = {
         "ok_precision": n_right / max(n_ok, 1),
         "ok_coverage": n_covered / max(n_inside, 1),
         "ok_detections": n_ok,
         "ok_wrong": n_ok - n_right,
         "_trust_counts": (n_right, n_ok, n_covered, n_inside),
     }
+    if mag is not None:
+        out["ok_precision_light"] = n_right_light / max(n_ok, 1)
+        out["ok_wrong_light"] = n_ok - n_right_light
+    return out
 
 
 def simulate(out: Path, preset: str, frames: int, seed: int) -> Path:
@@ -485,6 +521,11 @@ def main() -> int:
                 "precision_unclipped": float(c[4] / max(c[5], 1)),
                 "endpoints": int(err.size),
             }
+            light = [r for r in rs if "ok_precision_light" in r]
+            if light:
+                n_ok = sum(r["ok_detections"] for r in light)
+                wrong = sum(r["ok_wrong_light"] for r in light)
+                summary[preset]["pooled_ok_precision_light"] = 1.0 - wrong / max(n_ok, 1)
             t = np.sum([r["_trust_counts"] for r in rs], axis=0)
             summary[preset]["pooled"].update(
                 {

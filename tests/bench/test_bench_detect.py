@@ -6,6 +6,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -75,3 +76,49 @@ def test_a_preset_file_is_simulated_by_its_text(
     assert bench.simulate(tmp_path / "work", str(preset), 4, 7) != first
     assert bench.simulate(tmp_path / "work", "hard", 4, 7).name == "hard-s7-f4"
     assert seen[-1][seen[-1].index("--preset") + 1] == "hard"
+
+
+def _corner_truth(chromatic_px: float) -> dict[str, Any]:
+    """One true streak near the top-left corner of a 1280 x 720 frame of a red-laser colour
+    sensor with ``chromatic_px`` of lateral colour."""
+    preset = {
+        "width": 1280,
+        "height": 720,
+        "chromatic_px": chromatic_px,
+        "colour_response": [1.0, 0.18, 0.06],
+    }
+    streak = {"start": [20.0, 20.0], "end": [40.0, 30.0], "inside": True}
+    return {"simulator": {"preset": preset}, "frames": [{"index": 0, "streaks": [streak]}]}
+
+
+def test_the_lights_geometry_is_the_truth_magnified_by_its_lateral_colour() -> None:
+    bench = load_bench_script("bench_detect")
+    assert bench.light_magnification(_corner_truth(0.0)) is None
+    assert bench.light_magnification({"frames": []}) is None
+    mag = bench.light_magnification(_corner_truth(1.0))
+    # Derived: luma weights times the red laser's response, R 0.299, G 0.1057, B 0.00684.
+    w_r, w_g, w_b = 0.299 * 1.0, 0.587 * 0.18, 0.114 * 0.06
+    r_corner = float(np.hypot(639.5, 359.5))
+    assert mag == pytest.approx(1.0 + (w_r - w_b) / (w_r + w_g + w_b) / r_corner)
+    # A detection where the light is (magnified about the centre): right against the light,
+    # wrong against the lens's geometry once the shift passes the 2 px gate.
+    truth = _corner_truth(4.0)
+    m = bench.light_magnification(truth)
+    c = np.array([639.5, 359.5])
+    a, b = c + (np.array([20.0, 20.0]) - c) * m, c + (np.array([40.0, 30.0]) - c) * m
+    assert np.hypot(*(a - [20.0, 20.0])) > 2.0
+    table = pd.DataFrame(
+        {
+            "frame": [0],
+            "start_x": [a[0]],
+            "start_y": [a[1]],
+            "end_x": [b[0]],
+            "end_y": [b[1]],
+            "quality_ok": [True],
+        }
+    )
+    got = bench.trust(table, truth)
+    assert got["ok_wrong"] == 1 and got["ok_wrong_light"] == 0
+    assert got["ok_precision_light"] == 1.0
+    # Without lateral colour there is no second figure.
+    assert "ok_precision_light" not in bench.trust(table, _corner_truth(0.0))
