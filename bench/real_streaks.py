@@ -26,14 +26,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.detect import DetectParams  # noqa: E402
 from blurtrack.detect.context import frame_context  # noqa: E402
 from blurtrack.detect.image import prepare_frame  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks, source_picture  # noqa: E402
+from blurtrack.detect.photos import detect_photos  # noqa: E402
 from blurtrack.detect.separation.consensus import shape_tolerance  # noqa: E402
 from blurtrack.detect.separation.modal import component_references  # noqa: E402
-from blurtrack.detect.session.orientation import combine  # noqa: E402
-from blurtrack.detect.session.table import build_table, frame_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "light-streaks"
 
@@ -57,8 +56,8 @@ def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
 
 def measure(path: Path, overlay: Path | None) -> dict:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    fs = detect_frame(img)
-    table = build_table([frame_rows(0, 0, fs, combine(np.zeros((len(fs), 3))))])
+    got = detect_photos([path])  # what ``blurtrack detect PHOTO`` gives
+    fs, table = got.frames[0], got.table
     # The quality flag refuses nearly everything here (these streaks are wider than the
     # frame's typical cross-section: "merged"); measure over streaks that are neither clipped,
     # crossing nor looped.

@@ -5,10 +5,21 @@ gyro, no neighbouring frames and no time.
 What a photograph cannot give: which end of a streak is its start (no gyro, no continuity
 over frames: every row's ``orientation_source`` is ``none`` at confidence 0.5; start and end
 are the measured ends in the order measured), and the gyro's check of the ends. What it
-gives is the image's own verdict, the same as in a session's first pass: each detection's
-``source`` (a point light, an extended source, or undetermined) and ``quality_ok`` with its
-``reason``. That is how a lab checks, on its own night photographs, that no lit window, sign
-or glare is taken for a point light (docs/detection.md, "Real photographs").
+gives is the image's own verdict, as in a session's first pass: each detection's ``source``
+(a point light, an extended source, or undetermined) and ``quality_ok`` with its ``reason``.
+That is how a lab checks, on its own night photographs, that no lit window, sign or glare is
+taken for a point light (docs/detection.md, "Real photographs").
+
+One check more than a session's first pass (:func:`whole_lights_check`), because nothing
+else here would make it: the gyro's check in a session refuses a streak whose start-to-end
+vector falls short of the dot's predicted one. In a photograph the frame's consensus comes
+from its clean point lights alone, and where those are faint lights of which only the slow
+part of the path shows (the hook of a "2"), they agree with each other as whole streaks do
+(``night2`` at twice its size: 7 hooks of faint lights ``quality_ok``). The frame's whole
+lights, the modal cluster of its components measured along their skeletons
+(:func:`blurtrack.detect.separation.modal.component_references`), say how long a light's
+path is; a ``quality_ok`` streak whose chord falls short of theirs by more than the shape
+tolerance is a ``fragment``.
 
 The table is the session table (:mod:`blurtrack.detect.session.table`), one ``frame`` per
 photograph in the order given, ``timestamp_ns`` 0; the summary names the photographs.
@@ -25,9 +36,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from blurtrack.detect.context import frame_context
 from blurtrack.detect.forkmap import fork_map
 from blurtrack.detect.frame import FrameStreaks, detect_frame
+from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.separation.consensus import shape_tolerance
+from blurtrack.detect.separation.modal import component_references
 from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.detect.session.orientation import CUE_NAMES, combine
 from blurtrack.detect.session.table import build_table, frame_columns
@@ -52,6 +67,36 @@ def is_photo(path: str | os.PathLike[str]) -> bool:
     rather than a session folder."""
     p = Path(path)
     return p.suffix.lower() in PHOTO_SUFFIXES and not p.is_dir()
+
+
+def whole_lights_check(
+    image: np.ndarray, fs: FrameStreaks, p: DetectParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """``fs.quality``'s ``quality_ok`` and ``reason`` after the check of the module text:
+    the ``quality_ok`` streaks whose chord (``|end_b - end_a|``, px) is shorter than the
+    median chord of the photograph's whole lights by more than
+    :func:`~blurtrack.detect.separation.consensus.shape_tolerance` of it become
+    ``fragment``. Unchanged where no streak is ``quality_ok`` or the photograph has no
+    modal cluster of whole lights."""
+    assert fs.quality is not None
+    ok = np.asarray(fs.quality[2], bool).copy()
+    reason = np.asarray(fs.quality[4], object).copy()
+    if not ok.any():
+        return ok, reason
+    ctx = frame_context(
+        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour),
+        p,
+    )
+    got = component_references(ctx, fs.sigma_c_px, fs.sigma_c_px)
+    if got is None:
+        return ok, reason
+    m, _ = got
+    whole = np.array([float(np.median(np.hypot(*(m.end_b - m.end_a).T))), 0.0])
+    tol = float(shape_tolerance(whole[None], p.quality)[0])
+    chord = np.hypot(*(fs.end_b - fs.end_a).T)
+    short = ok & (chord < whole[0] - tol)
+    reason[short] = "fragment"
+    return ok & ~short, reason
 
 
 def photo_summary(path: Path, shape: tuple[int, ...], rows: pd.DataFrame) -> dict[str, Any]:
@@ -85,6 +130,10 @@ def detect_photos(
         image = read_image(paths[k], what="photograph")
         fs = detect_frame(image, p)
         fs.quality, fs.one_doubt = frame_quality(fs, p)  # as a session's frame worker does
+        ok, reason = whole_lights_check(image, fs, p)
+        q = list(fs.quality)
+        q[2], q[4] = ok, reason
+        fs.quality = tuple(q)
         return fs, image.shape
 
     got = list(fork_map(one, range(len(paths)), workers))

@@ -14,6 +14,7 @@ import pytest
 from blurtrack.detect import DetectParams, detect_frame
 from blurtrack.detect.overlay import SOURCE_COLOURS, source_picture
 from blurtrack.detect.photos import detect_photos, is_photo
+from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.io.images import ImageError
 from blurtrack.testing.streak_frames import line, quantise, render_streaks
 
@@ -153,3 +154,44 @@ def test_the_parameters_decide_the_quality_too(tmp_path: Path) -> None:
     got = detect_photos(paths, strict).table
     assert ok > 0 and int(got["quality_ok"].sum()) < ok
     assert int((got["reason"] == "ok").sum()) == int(got["quality_ok"].sum())
+
+
+def _lights(faint_only: bool = False) -> np.ndarray:
+    """Twelve bright lights drawing their whole 38 px path, wide (bloomed: not point-like),
+    and eight faint ones of which only the first 13 px show (a fragment of the same kind of
+    path); 8-bit."""
+    shape = (260, 400)
+    bright, faint = [], []
+    for k in range(12):
+        p0 = np.array([20.0 + 60.0 * (k % 6), 20.0 + 70.0 * (k // 6)])
+        bright.append(line(p0, p0 + np.array([12.0, 36.0])))
+    for k in range(8):
+        p0 = np.array([30.0 + 90.0 * (k % 4), 170.0 + 45.0 * (k // 4)])
+        faint.append(line(p0, p0 + np.array([4.0, 12.0])))
+    img = render_streaks(shape, faint, 0.8, 1.2, 0.03, 0.004, 1)
+    if not faint_only:
+        img = img + render_streaks(shape, bright, 6.0, 2.2, 0.0, 0.0, 2)
+    return quantise(img, np.uint8)
+
+
+def test_faint_lights_showing_part_of_the_path_are_fragments_where_whole_lights_say_so(
+    tmp_path: Path,
+) -> None:
+    # Derived truth: the faint lights' streaks are a third of the whole lights' path. Their
+    # first-pass verdict is quality_ok (they are the frame's only clean point lights and
+    # agree with each other); the photograph's whole lights make them fragments.
+    img = _lights()
+    fs = detect_frame(img)
+    fs.quality, fs.one_doubt = frame_quality(fs, DetectParams())
+    before = np.asarray(fs.quality[2], bool)
+    chord = np.hypot(*(fs.end_b - fs.end_a).T)
+    assert before.sum() == 8 and np.all(np.abs(chord[before] - np.hypot(4.0, 12.0)) < 1.0)
+    path = tmp_path / "lights.png"
+    cv2.imwrite(str(path), img)
+    t = detect_photos([path]).table
+    assert not t["quality_ok"].any()
+    assert int((t["reason"] == "fragment").sum()) >= 8
+    # Negative control: the faint lights alone say nothing against themselves.
+    alone = tmp_path / "faint.png"
+    cv2.imwrite(str(alone), _lights(faint_only=True))
+    assert int(detect_photos([alone]).table["quality_ok"].sum()) == 8
