@@ -264,7 +264,18 @@ def _run_session(args: argparse.Namespace) -> int:
     if s["frames_without_gyro"]:
         print(
             f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "
-            "their orientation is image-only",
+            "their orientation and quality_ok are image-only",
             file=sys.stderr,
         )
+    if s["gyro"] == "off":
+        print(f"  note: {IMAGE_ONLY_NOTE}")
     return 0
+
+
+#: What ``detect`` says of a session detected without its gyro (docs/detection.md, Known
+#: limits: on ``hard`` seed 4, 378 of 1168 such ``quality_ok`` streaks are wrong).
+IMAGE_ONLY_NOTE = (
+    "no gyro: quality_ok comes from the images alone, which cannot see a dot's path turn "
+    "back within the exposure (a hairpin or hook); on shake that turns, many such ends are "
+    "wrong (docs/detection.md, Known limits)"
+)

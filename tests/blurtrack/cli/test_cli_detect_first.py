@@ -138,3 +138,15 @@ def test_frames_whose_prediction_is_off_are_named(
     out = capsys.readouterr().out
     assert "gyro check: the prediction misses 2 of" in out
     assert "by more than 0.50 px (up to 1.30 px); their tolerances lowered: frames [1, 2]" in out
+
+
+def test_detect_says_when_quality_ok_comes_from_the_images_alone(
+    session: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    from blurtrack.cli.detect import IMAGE_ONLY_NOTE
+
+    assert main(["detect", str(session), "--out", str(tmp_path / "a.parquet"), "--quiet"]) == 0
+    assert IMAGE_ONLY_NOTE not in capsys.readouterr().out  # the gyro checked the ends
+    args = ["detect", str(session), "--out", str(tmp_path / "b.parquet"), "--gyro", "off"]
+    assert main([*args, "--quiet"]) == 0
+    assert f"note: {IMAGE_ONLY_NOTE}" in capsys.readouterr().out
