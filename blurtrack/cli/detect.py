@@ -268,14 +268,7 @@ def _run_session(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if s["gyro"] == "off":
+        from blurtrack.cli.photos import IMAGE_ONLY_NOTE
+
         print(f"  note: {IMAGE_ONLY_NOTE}")
     return 0
-
-
-#: What ``detect`` says of a session detected without its gyro (docs/detection.md, Known
-#: limits: on ``hard`` seed 4, 378 of 1168 such ``quality_ok`` streaks are wrong).
-IMAGE_ONLY_NOTE = (
-    "no gyro: quality_ok comes from the images alone, which cannot see a dot's path turn "
-    "back within the exposure (a hairpin or hook); on shake that turns, many such ends are "
-    "wrong (docs/detection.md, Known limits)"
-)

@@ -13,6 +13,15 @@ from blurtrack.errors import DetectionError
 from blurtrack.io.atomic import write_json_atomic
 from blurtrack.io.guard import check_output
 
+#: What ``detect`` says of photographs, and of a session detected without its gyro
+#: (docs/detection.md, Known limits: on ``hard`` seed 4, 378 of 1168 such ``quality_ok``
+#: streaks are wrong).
+IMAGE_ONLY_NOTE = (
+    "no gyro: quality_ok comes from the images alone, which cannot see a dot's path turn "
+    "back within the exposure (a hairpin or hook); on shake that turns, many such ends are "
+    "wrong (docs/detection.md, Known limits)"
+)
+
 
 def _overlay_paths(overlay: Path | None, photos: list[Path]) -> list[Path]:
     """Where each photograph's picture goes: ``overlay`` itself for one photograph, else
@@ -96,4 +105,5 @@ def run_photos(args: argparse.Namespace, photos: list[Path]) -> int:
             f"  {ph['photo']}: {ph['streaks']} streaks ({src or 'none'}), "
             f"{ph['quality_ok']} quality_ok"
         )
+    print(f"  note: {IMAGE_ONLY_NOTE}")
     return 0

@@ -143,7 +143,7 @@ def test_frames_whose_prediction_is_off_are_named(
 def test_detect_says_when_quality_ok_comes_from_the_images_alone(
     session: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    from blurtrack.cli.detect import IMAGE_ONLY_NOTE
+    from blurtrack.cli.photos import IMAGE_ONLY_NOTE
 
     assert main(["detect", str(session), "--out", str(tmp_path / "a.parquet"), "--quiet"]) == 0
     assert IMAGE_ONLY_NOTE not in capsys.readouterr().out  # the gyro checked the ends
