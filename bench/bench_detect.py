@@ -50,6 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import DetectParams, detect_frame  # noqa: E402
+from blurtrack.detect.image import LUMA_BGR  # noqa: E402
 from blurtrack.detect.session.pipeline import detect_session  # noqa: E402
 from blurtrack.io.session import load_session  # noqa: E402
 
@@ -79,10 +80,6 @@ def worse_end_distance(s: np.ndarray, e: np.ndarray, S: np.ndarray, E: np.ndarra
     """``(n, m)`` px: the farther of the two ends of detections ``s, e (n, 2)`` from those of
     true streaks ``S, E (m, 2)``, in whichever orientation fits better."""
     return np.minimum(*end_distances(s, e, S, E))
-
-
-#: The luma weights of a light's channels, B, G, R (blurtrack.detect.image.LUMA_BGR).
-LUMA_BGR = (0.114, 0.587, 0.299)
 
 
 def light_magnification(truth: dict[str, Any]) -> float | None:

@@ -27,8 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blurtrack.detect import DetectParams  # noqa: E402
-from blurtrack.detect.context import frame_context  # noqa: E402
-from blurtrack.detect.image import prepare_frame  # noqa: E402
+from blurtrack.detect.context import prepare_and_segment  # noqa: E402
 from blurtrack.detect.overlay import draw_streaks, source_picture  # noqa: E402
 from blurtrack.detect.photos import detect_photos  # noqa: E402
 from blurtrack.detect.separation.consensus import shape_tolerance  # noqa: E402
@@ -40,10 +39,7 @@ DATA = ROOT.parent / "shared" / "data" / "real" / "light-streaks"
 def whole_reference(img: np.ndarray, sigma_c: float) -> np.ndarray | None:
     """Median start-to-end vector of the photo's whole isolated lights (the modal cluster of
     components, measured along their skeletons), dominant direction; None without one."""
-    p = DetectParams()
-    ctx = frame_context(
-        prepare_frame(img, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour), p
-    )
+    _, ctx = prepare_and_segment(img, DetectParams())
     out = component_references(ctx, sigma_c, sigma_c)
     if out is None:
         return None

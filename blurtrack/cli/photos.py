@@ -59,7 +59,7 @@ def run_photos(args: argparse.Namespace, photos: list[Path]) -> int:
 
     from blurtrack.detect import DetectParams
     from blurtrack.detect.overlay import write_source_picture
-    from blurtrack.detect.photos import detect_photos
+    from blurtrack.detect.photos import detect_photos, value_counts
     from blurtrack.detect.session.pipeline import default_workers
     from blurtrack.detect.session.table import TABLE_VERSION, write_table
     from blurtrack.io.images import read_image
@@ -85,8 +85,8 @@ def run_photos(args: argparse.Namespace, photos: list[Path]) -> int:
         "photos": result.photos,
         "streaks": len(table),
         "quality_ok": int(table["quality_ok"].sum()),
-        "source": {str(k): int(v) for k, v in table["source"].value_counts().items()},
-        "reason": {str(k): int(v) for k, v in table["reason"].value_counts().items()},
+        "source": value_counts(table["source"]),
+        "reason": value_counts(table["reason"]),
         "gyro": "off",
         "table_version": TABLE_VERSION,
         "params": params.to_dict(),

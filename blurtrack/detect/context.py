@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from blurtrack.detect.image import PreparedFrame
+from blurtrack.detect.image import PreparedFrame, prepare_frame
 from blurtrack.detect.lines.segment import Components, drop_artefacts, find_components
 from blurtrack.detect.params import DetectParams
 
@@ -102,3 +102,14 @@ def frame_context(prep: PreparedFrame, params: DetectParams) -> FrameContext:
         noise_smooth=prep.noise_smooth,
         params=p,
     )
+
+
+def prepare_and_segment(
+    image: np.ndarray, params: DetectParams
+) -> tuple[PreparedFrame, FrameContext]:
+    """A frame as stored (``(H, W)`` or ``(H, W, 3|4)``, uint8/uint16) prepared as detection
+    prepares it (:func:`blurtrack.detect.image.prepare_frame` with ``params``' smoothing,
+    hot-pixel ratio, saturation level and colour) and its :func:`frame_context`."""
+    p = params
+    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour)
+    return prep, frame_context(prep, p)

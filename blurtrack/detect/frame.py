@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 
 from blurtrack.allocator import keep_heap
-from blurtrack.detect.context import FrameContext, frame_context
-from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.context import FrameContext, prepare_and_segment
+from blurtrack.detect.image import PreparedFrame
 from blurtrack.detect.lines.measure import LineSet, Measured, measure_lines
 from blurtrack.detect.lines.measure import combine as _combine
 from blurtrack.detect.lines.ragged import Ragged, split_at
@@ -213,10 +213,15 @@ def detect_frame(image: np.ndarray, params: DetectParams | None = None) -> Frame
         The frame's streaks (possibly none: a frame without dots is a valid result here; the
         session level decides whether that is an error).
     """
-    p = params or DetectParams()
     keep_heap()  # once per process: no page faults for per-frame buffers
-    prep = prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour)
-    ctx = frame_context(prep, p)
+    return detect_prepared(*prepare_and_segment(image, params or DetectParams()))
+
+
+def detect_prepared(prep: PreparedFrame, ctx: FrameContext) -> FrameStreaks:
+    """:func:`detect_frame` of a frame already prepared (``prep``) and segmented (``ctx``,
+    whose ``params`` it uses: :func:`blurtrack.detect.context.prepare_and_segment`), for
+    callers that read the context again."""
+    p = ctx.params
     sat_frac = float(np.count_nonzero(prep.saturated)) / (ctx.shape[0] * ctx.shape[1])
     psf_guess = p.psf_sigma_px if p.psf_sigma_px is not None else 1.5
     sigma_c = float(np.sqrt(psf_guess**2 + p.smooth_sigma_px**2 + 1.0 / 12.0))

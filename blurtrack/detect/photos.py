@@ -36,10 +36,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from blurtrack.detect.context import frame_context
+from blurtrack.detect.context import FrameContext, prepare_and_segment
 from blurtrack.detect.forkmap import fork_map
-from blurtrack.detect.frame import FrameStreaks, detect_frame
-from blurtrack.detect.image import prepare_frame
+from blurtrack.detect.frame import FrameStreaks, detect_prepared
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.separation.consensus import shape_tolerance
 from blurtrack.detect.separation.modal import component_references
@@ -69,12 +68,11 @@ def is_photo(path: str | os.PathLike[str]) -> bool:
     return p.suffix.lower() in PHOTO_SUFFIXES and not p.is_dir()
 
 
-def whole_lights_check(
-    image: np.ndarray, fs: FrameStreaks, p: DetectParams
-) -> tuple[np.ndarray, np.ndarray]:
-    """``fs.quality``'s ``quality_ok`` and ``reason`` after the check of the module text:
-    the ``quality_ok`` streaks whose chord (``|end_b - end_a|``, px) is shorter than the
-    median chord of the photograph's whole lights by more than
+def whole_lights_check(ctx: FrameContext, fs: FrameStreaks) -> tuple[np.ndarray, np.ndarray]:
+    """``fs.quality``'s ``quality_ok`` and ``reason`` after the check of the module text
+    (``ctx``: the photograph's context, which ``fs`` was detected in): the ``quality_ok``
+    streaks whose chord (``|end_b - end_a|``, px) is shorter than the median chord of the
+    photograph's whole lights by more than
     :func:`~blurtrack.detect.separation.consensus.shape_tolerance` of it become
     ``fragment``. Unchanged where no streak is ``quality_ok`` or the photograph has no
     modal cluster of whole lights."""
@@ -83,18 +81,14 @@ def whole_lights_check(
     reason = np.asarray(fs.quality[4], object).copy()
     if not ok.any():
         return ok, reason
-    ctx = frame_context(
-        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour),
-        p,
-    )
     got = component_references(ctx, fs.sigma_c_px, fs.sigma_c_px)
     if got is None:
         return ok, reason
     m, _ = got
-    whole = np.array([float(np.median(np.hypot(*(m.end_b - m.end_a).T))), 0.0])
-    tol = float(shape_tolerance(whole[None], p.quality)[0])
+    whole_chord = float(np.median(np.hypot(*(m.end_b - m.end_a).T)))
+    tol = float(shape_tolerance(np.array([[whole_chord, 0.0]]), ctx.params.quality)[0])
     chord = np.hypot(*(fs.end_b - fs.end_a).T)
-    short = ok & (chord < whole[0] - tol)
+    short = ok & (chord < whole_chord - tol)
     reason[short] = "fragment"
     return ok & ~short, reason
 
@@ -109,9 +103,15 @@ def photo_summary(path: Path, shape: tuple[int, ...], rows: pd.DataFrame) -> dic
         "height_px": int(shape[0]),
         "streaks": len(rows),
         "quality_ok": int(rows["quality_ok"].sum()),
-        "source": {str(k): int(v) for k, v in rows["source"].value_counts().items()},
-        "reason": {str(k): int(v) for k, v in rows["reason"].value_counts().items()},
+        "source": value_counts(rows["source"]),
+        "reason": value_counts(rows["reason"]),
     }
+
+
+def value_counts(column: pd.Series) -> dict[str, int]:
+    """How many rows hold each value of ``column`` (a table's ``source`` or ``reason``), as
+    plain JSON-ready types."""
+    return {str(k): int(v) for k, v in column.value_counts().items()}
 
 
 def detect_photos(
@@ -128,9 +128,10 @@ def detect_photos(
 
     def one(k: int) -> tuple[FrameStreaks, tuple[int, ...]]:
         image = read_image(paths[k], what="photograph")
-        fs = detect_frame(image, p)
+        prep, ctx = prepare_and_segment(image, p)
+        fs = detect_prepared(prep, ctx)
         fs.quality, fs.one_doubt = frame_quality(fs, p)  # as a session's frame worker does
-        ok, reason = whole_lights_check(image, fs, p)
+        ok, reason = whole_lights_check(ctx, fs)
         q = list(fs.quality)
         q[2], q[4] = ok, reason
         fs.quality = tuple(q)

@@ -78,7 +78,7 @@ from typing import Any
 
 import numpy as np
 
-from blurtrack.detect.context import FrameContext, frame_context
+from blurtrack.detect.context import FrameContext, prepare_and_segment
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.gyroaccept import (
     accepted_components,
@@ -97,7 +97,6 @@ from blurtrack.detect.gyro.gyrocandidates import (
 from blurtrack.detect.gyro.gyrogate import gate, vectors_missed
 from blurtrack.detect.gyro.gyromeasure import as_streaks
 from blurtrack.detect.gyro.gyroshape import best_shape
-from blurtrack.detect.image import prepare_frame
 from blurtrack.detect.lines.measure import combine
 from blurtrack.detect.params import DetectParams, GyroPassParams, SeparationParams
 from blurtrack.detect.separation.pursuit import PursuitFrame, pursue
@@ -218,10 +217,7 @@ def _frame_context(image: np.ndarray | Callable[[], np.ndarray], p: DetectParams
     function that reads it)."""
     if callable(image):
         image = image()
-    return frame_context(
-        prepare_frame(image, p.smooth_sigma_px, p.hot_pixel_ratio, p.saturation_level, p.colour),
-        p,
-    )
+    return prepare_and_segment(image, p)[1]
 
 
 def _shape(

@@ -14,6 +14,7 @@ import numpy as np
 
 from blurtrack.detect.context import FrameContext
 from blurtrack.detect.lines.centreline import (
+    BILINEAR_VAR_PX2,
     RefinedLines,
     raw_flank_sigma,
     raw_profiles,
@@ -110,6 +111,7 @@ def measure_lines(
     sig_raw = sigma_c if sigma_raw is None else sigma_raw
     if sat_comp is not None and sat_comp.any():
         line_sat = sat_comp[owner]
+        sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
         if sigma_raw is None:
             clean = ref.width[~line_sat]
             clean = clean[np.isfinite(clean)]
@@ -117,7 +119,6 @@ def measure_lines(
             # them, else from everyone's flanks (refine_lines measured clipped sections).
             flanks = None
             if clean.size < 8:
-                sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
                 flanks = raw_flank_sigma(signal, sat_lines, sigma_c, saturation)
                 clean = ref.width[np.isfinite(ref.width)]
             sig_c = float(np.median(clean)) if clean.size else sigma_c
@@ -132,11 +133,10 @@ def measure_lines(
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
         # (there the clipped cross-section integral is an exact function of the true one).
         if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
-            sat_lines = Ragged(ref.lines.points[line_sat[ref.lines.line_of]], lens[line_sat])
             raw = to_matrix(raw_profiles(signal, sat_lines, sigma_c), sat_lines.sizes)
             A[line_sat, : raw.shape[1]] = unclip_profiles(raw, saturation, sig_raw)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
-    edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + 1.0 / 6.0), sigma_c)
+    edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + BILINEAR_VAR_PX2), sigma_c)
     fit = fit_edges(A, lens, edge_sigma / ref.step, _laws(ls, ref, parent), ~line_sat & ~crossing)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
