@@ -19,7 +19,8 @@ stricter subset than ``quality_ok``.
 
 Usage: ``python bench/trust_reasons.py --presets hard --seeds 1 2 --frames 10``;
 ``--tables DIR`` also writes each session's table with the truth columns ``right`` and
-``end_error_px`` (Parquet) for a closer look.
+``end_error_px`` (Parquet, named for the session's folder, so that a preset file's table lands
+in ``DIR`` too) for a closer look.
 """
 
 from __future__ import annotations
@@ -160,7 +161,7 @@ def main() -> int:
             if args.tables is not None:
                 args.tables.mkdir(parents=True, exist_ok=True)
                 table.drop(columns=["centerline", "profile"]).to_parquet(
-                    args.tables / f"{preset}-s{seed}-f{args.frames}.parquet"
+                    args.tables / f"{folder.name}.parquet"
                 )
             runs.append(
                 {
