@@ -126,7 +126,9 @@ def _trial(
         R = SHIFT_WINDOW_PX
         px0, px1 = max(px0, tx + near[0] - R), min(px1, tx + near[0] + R)
         py0, py1 = max(py0, ty + near[1] - R), min(py1, ty + near[1] + R)
-    if px1 < px0 or py1 < py0:
+    # A curve predicted off the canvas splats no light: a template of norm 0 explains nothing
+    # (its correlations would be 0 / 0).
+    if px1 < px0 or py1 < py0 or not tpl.norm2 > 0.0:
         return none
     mask = tpl.support + tpl.halo
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))

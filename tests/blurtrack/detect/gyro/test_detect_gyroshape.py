@@ -132,3 +132,21 @@ def test_the_shape_search_finds_a_rotated_and_scaled_curve(monkeypatch) -> None:
     tpl, score = gyroshape.best_shape(light, comps, c, pts, make, INSIDE_MIN)
     assert tpl is not None and score > 0.999
     assert np.abs(tpl.points - truth).max() < 1e-9
+
+
+def test_a_template_without_light_is_no_trial() -> None:
+    # A curve that splats no light (predicted off the canvas, or a frame whose typical dot
+    # holds none) explains nothing: no trial, and no 0 / 0 on the way (hard_long_dense_grid
+    # 103 met such templates once its gyro was used).
+    rng = np.random.default_rng(5)
+    pts = _curve(rng, 50.0, 30.0)
+    zero = curve_template(pts, 1.6, 1.2, 0.0, None, with_raw=False)
+    assert zero.norm2 == 0.0
+    lit = curve_template(pts, 1.6, 1.2, 40.0, None, with_raw=False)
+    light = np.zeros((90, 110), np.float32)
+    tx, ty, tw, th = lit.box
+    light[ty : ty + th, tx : tx + tw] += lit.smooth
+    box = (tx + 8, ty + 5, tw - 10, th - 12)
+    with np.errstate(all="raise"):
+        assert _trial(light, box, zero, INSIDE_MIN)[0] is None
+        assert _trial(light, box, lit, INSIDE_MIN)[0] is lit  # the control: a lit one is tried
