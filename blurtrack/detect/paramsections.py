@@ -363,7 +363,8 @@ class OrientationParams:
     - ``direction_llr``: a cue is decisive in that check from this |LLR| (2: odds of 7.4).
     - ``direction_frame_agree``, ``direction_session_agree``: the gyro is contradicted where
       a sampled frame's decisive gyro and continuity cues agree on less than the first
-      fraction of its streaks, or all sampled frames' on less than the second (right axes:
+      fraction of its streaks, or all sampled frames' on less than the second by more than
+      chance explains (:data:`~blurtrack.detect.gyro.direction.DECIDE_SIGMAS`; right axes:
       0.47 on the worst ``hard`` frame, 0.87-1.0 per session; a half turn: 0.004).
     """
 

@@ -17,8 +17,13 @@ frame 47 %: dense grids put other dots' ends near an extrapolated one). A half-t
 leaves 0.4 %; a half turn about the x axis (pan and roll reversed, tilt not) leaves frames at
 0 % beside frames at 100 %. So the gyro is *contradicted* where a sampled frame agrees on
 less than ``orientation.direction_frame_agree`` of at least :data:`MIN_PAIRS` decisive
-streaks, or the sample as a whole on less than ``orientation.direction_session_agree``;
-detection then goes on from the images alone and says why (``--gyro on`` refuses). So it
+streaks, or the sample as a whole on less than ``orientation.direction_session_agree`` by
+more than chance explains (:data:`DECIDE_SIGMAS`); detection then goes on from the images
+alone and says why (``--gyro on`` refuses). A sample that agrees at chance says nothing
+about the axes: continuity read on fragments of crossing streaks, or on ends beside other
+dots' ends, agrees about half the time whichever way the gyro runs (``hard_long_dense_grid``
+103, a session whose axes are right: 113 of 230, which a plain 50 % cut called a reversal,
+leaving 76 ``quality_ok`` hairpin arms from the images alone, all wrong). So it
 does where the session says its axes are a guess (``imu.axes_known: false``, as the importers
 write for phones whose sensor axes are not published) and the images cannot confirm the
 direction either way (*unconfirmed*).
@@ -70,6 +75,12 @@ GAP_TANGENT_FRACTION = 0.25
 #: exposure (a turn and back within one step is missed: the shake's dominant 5-15 Hz turn twice
 #: in 30-100 ms, over 2.5 ms steps at the simulator's 20 ms exposures).
 TURN_SAMPLES = 9
+#: The sample's agreement contradicts the gyro only where it lies this many binomial standard
+#: errors (at ``orientation.direction_session_agree`` ``a``: ``sqrt(a (1 - a) / n)`` for ``n``
+#: decisive pairs) below ``a``. At 50 % the cut is ``50 % - 150 % / sqrt(n)``: 30.6 % at the
+#: 60 pairs the check needs, 40.1 % at 230. A sample at chance falls below it with a
+#: probability of 0.13 %; a reversed axis set (0.4 % agreement) does from 10 pairs on.
+DECIDE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -177,12 +188,39 @@ def gyro_direction(
         decisive, agree = decisive + n, agree + a
         if n >= MIN_PAIRS and a < params.direction_frame_agree * n:
             bad.append(k)
-    if decisive < 2 * MIN_PAIRS and not bad:
-        return GyroDirection(undetermined, decisive, agree, len(sample))
-    status = (
-        "contradicted" if bad or agree < params.direction_session_agree * decisive else "consistent"
-    )
+    status = direction_status(agree, decisive, bool(bad), params, axes_known)
     return GyroDirection(status, decisive, agree, len(sample), bad)
+
+
+def direction_status(
+    agree: int, decisive: int, frame_against: bool, params: OrientationParams, axes_known: bool
+) -> str:
+    """The check's ``status`` from the sample's ``agree`` of ``decisive`` pairs and whether a
+    sampled frame ran against the gyro (``frame_against``): ``contradicted`` where one did, or
+    where the sample agrees below ``params.direction_session_agree`` by more than chance
+    explains (:func:`session_below`); ``consistent`` from that fraction on; otherwise (fewer
+    than twice :data:`MIN_PAIRS` pairs, or below the fraction as chance would be) the images do
+    not decide: ``undetermined``, or ``unconfirmed`` where the axes are a guess
+    (``axes_known`` false)."""
+    undecided = "undetermined" if axes_known else "unconfirmed"
+    if frame_against:
+        return "contradicted"
+    if decisive < 2 * MIN_PAIRS:
+        return undecided
+    level = params.direction_session_agree
+    if session_below(agree, decisive, level):
+        return "contradicted"
+    return "consistent" if agree >= level * decisive else undecided
+
+
+def session_below(agree: int, decisive: int, level: float) -> bool:
+    """Does an agreement of ``agree`` of ``decisive`` pairs lie below the fraction ``level`` by
+    more than :data:`DECIDE_SIGMAS` binomial standard errors (``sqrt(level (1 - level) / n)``)?
+    False for no pairs."""
+    if decisive <= 0:
+        return False
+    se = float(np.sqrt(level * (1.0 - level) / decisive))
+    return agree / decisive < level - DECIDE_SIGMAS * se
 
 
 def _turning(

@@ -12,7 +12,14 @@ import pytest
 import yaml
 
 from blurtrack.cli import main
-from blurtrack.detect.gyro.direction import gyro_direction, sampled_frames
+from blurtrack.detect.gyro.direction import (
+    DECIDE_SIGMAS,
+    MIN_PAIRS,
+    direction_status,
+    gyro_direction,
+    sampled_frames,
+    session_below,
+)
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.session.orientation import CUE_SUBSTEP_S, CueErrors, FrameTiming
 from blurtrack.detect.session.pipeline import detect_frames, detect_session
@@ -154,6 +161,57 @@ def test_sampled_frames_spread_over_the_session() -> None:
     got = sampled_frames(list(range(100)), 5)
     assert got == [0, 25, 50, 74, 99]
     assert sampled_frames(list(range(10, 40)), 1) == [10]
+
+
+def test_a_session_below_half_by_more_than_chance_is_known_values() -> None:
+    # 50 % - 150 % / sqrt(n): 30.6 % at 60 pairs, 40.1 % at 230
+    assert session_below(18, 60, 0.5) and not session_below(19, 60, 0.5)
+    assert session_below(92, 230, 0.5) and not session_below(93, 230, 0.5)
+    assert not session_below(113, 230, 0.5)  # hard_long_dense_grid 103: chance, not reversal
+    assert session_below(9, 2260, 0.5)  # a half turn: 0.4 %
+    assert not session_below(0, 0, 0.5)
+
+
+def test_the_status_of_a_sample() -> None:
+    o = DetectParams().orientation
+    assert direction_status(2250, 2260, False, o, True) == "consistent"
+    assert direction_status(9, 2260, False, o, True) == "contradicted"
+    assert direction_status(120, 230, False, o, True) == "consistent"  # 52 %
+    # below half, as chance would be: the images do not decide
+    assert direction_status(113, 230, False, o, True) == "undetermined"
+    assert direction_status(113, 230, False, o, False) == "unconfirmed"
+    # one sampled frame against the gyro decides, whatever the sample says
+    assert direction_status(2250, 2260, True, o, True) == "contradicted"
+    # too few pairs
+    few = 2 * MIN_PAIRS - 1
+    assert direction_status(few, few, False, o, True) == "undetermined"
+    assert direction_status(few, few, False, o, False) == "unconfirmed"
+
+
+def test_a_gyro_at_chance_is_seldom_called_contradicted() -> None:
+    """Property: samples whose agreement is a fair coin (continuity that reads nothing) are
+    called contradicted at the one-sided tail's rate beyond DECIDE_SIGMAS, not half the time
+    as a plain cut at 50 % would call them (the negative control)."""
+    rng = np.random.default_rng(7)
+    o = DetectParams().orientation
+    n = rng.integers(2 * MIN_PAIRS, 3000, size=20000)
+    agree = rng.binomial(n, 0.5)
+    called = np.array(
+        [
+            direction_status(int(a), int(k), False, o, True) == "contradicted"
+            for a, k in zip(agree, n, strict=True)
+        ]
+    )
+    plain = agree < 0.5 * n
+    assert DECIDE_SIGMAS == 3.0
+    assert called.mean() < 0.004  # 0.13 % expected
+    assert plain.mean() > 0.45
+    # and a reversed axis set (agreement at most 13 %) is always called contradicted
+    rev = rng.binomial(n, 0.13)
+    assert all(
+        direction_status(int(a), int(k), False, o, True) == "contradicted"
+        for a, k in zip(rev, n, strict=True)
+    )
 
 
 def test_the_agreement_thresholds_are_ordered() -> None:
