@@ -17,7 +17,7 @@ from blurtrack.io.guard import check_output
 #: (docs/detection.md, Known limits: on ``hard`` seed 4, 378 of 1168 such ``quality_ok``
 #: streaks are wrong).
 IMAGE_ONLY_NOTE = (
-    "no gyro: quality_ok comes from the images alone, which cannot see a dot's path turn "
+    "without a gyro: quality_ok comes from the images alone, which cannot see a dot's path turn "
     "back within the exposure (a hairpin or hook); on shake that turns, many such ends are "
     "wrong (docs/detection.md, Known limits)"
 )

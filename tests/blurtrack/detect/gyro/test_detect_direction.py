@@ -227,9 +227,12 @@ def test_the_command_says_why_and_gyro_on_stops(
     folder = sessions["half_turn"]
     out = tmp_path / "s.parquet"
     assert main(["detect", str(folder), "--out", str(out), "--workers", "1"]) == 0
-    err = capsys.readouterr().err
+    got = capsys.readouterr()
+    err = got.err
     (line,) = [ln for ln in err.splitlines() if "runs against the images" in ln]
     assert line.startswith("  warning: ") and "detection used the images alone" in line
+    # and quality_ok is the images' alone, which the note says as for --gyro off
+    assert "note: without a gyro: quality_ok comes from the images alone" in got.out
     written = list(tmp_path.iterdir())
     assert main(["detect", str(folder), "--out", str(tmp_path / "on.parquet"), "--gyro", "on"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
