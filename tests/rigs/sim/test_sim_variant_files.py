@@ -14,8 +14,8 @@ VARIANTS = sorted((Path(__file__).resolve().parents[3] / "configs" / "sim").glob
 
 
 def test_the_variants_are_found() -> None:
-    assert len(VARIANTS) >= 7
-    assert "hard_long_dense_grid.yaml" in {p.name for p in VARIANTS}
+    assert len(VARIANTS) >= 8
+    assert {"hard_long_dense_grid.yaml", "dense_long_grid.yaml"} <= {p.name for p in VARIANTS}
 
 
 @pytest.mark.parametrize("path", VARIANTS, ids=lambda p: p.stem)
