@@ -150,11 +150,8 @@ def apply_check(
     end, a blown-out core or a shape off the consensus, with or without a crossing; or a
     crossing alone) whose vector is within the confirmation tolerance and whose path does not
     turn beyond an end confirmed (``ok``: the gyro measured the start-to-end vector the image
-    doubted); other streaks keep their image reason. A path turns beyond an end where its
-    depth exceeds ``p.hairpin_depth_px``, but for a streak the template pass measured along
-    its curve with edge-fitted ends (:mod:`blurtrack.detect.gyro.gyrotrust`).
-    ``tolerance``: the frame's (:func:`frame_tolerances`; None: ``p.gyro_vector_tol_px`` and
-    ``p.gyro_confirm_tol_px``)."""
+    doubted); other streaks keep their image reason. ``tolerance``: the frame's
+    (:func:`frame_tolerances`; None: ``p.gyro_vector_tol_px`` and ``p.gyro_confirm_tol_px``)."""
     assert fs.quality is not None
     if tolerance is None:
         vector_tol, confirm_tol = p.gyro_vector_tol_px, p.gyro_confirm_tol_px
@@ -163,16 +160,11 @@ def apply_check(
     ok = np.asarray(fs.quality[2], bool).copy()
     reason = np.asarray(fs.quality[4], object).copy()
     along = fs.along_curve if len(fs.along_curve) == len(fs) else np.zeros(len(fs), bool)
-    short = fs.short if len(fs.short) == len(fs) else np.zeros(len(fs), bool)
-    # Measured along its predicted curve, a streak's ends are where the curve's light ends,
-    # past a turn; unless they came from the short-streak fit, which models a straight
-    # segment and so ends at the visible extremities, the turns, as the first pass's ends do.
-    on_curve = along & ~short
     single = fs.one_doubt if len(fs.one_doubt) == len(fs) else np.zeros(len(fs), bool)
     with np.errstate(invalid="ignore"):  # NaN: not checked (neither off nor confirmed)
         fits = check.residual <= confirm_tol
         off = ok & (check.residual > vector_tol)
-        turns = (check.depth > p.hairpin_depth_px) & ~on_curve
+        turns = (check.depth > p.hairpin_depth_px) & ~along
     deep = ok & turns
     confirmed = single & ~ok & fits & ~turns
     reason[off] = "gyro_mismatch"

@@ -33,11 +33,7 @@ midpoint). Two things follow, checked on the streaks the image found ``quality_o
   alone, ``dense`` seed 10's hooks of 2-3 px measured 0.2-0.4 px). Above
   ``source.hairpin_depth_px`` the ends are not trusted, unless the gyro-template pass measured
   that streak along its predicted curve (:attr:`~blurtrack.detect.frame.FrameStreaks.along_curve`:
-  a hairpin as its two arms) and its ends are edges found along it. A short streak's ends
-  come from a straight segment fitted to its light (:mod:`blurtrack.detect.lines.shortfit`),
-  which ends at the visible extremities, the turns, wherever it was measured: 32 of the 34
-  wrong ``quality_ok`` streaks of ``configs/sim/dense_long_grid.yaml`` seed 301 were such,
-  5-6 px long and hooking back 1.0-1.5 px, each end 2.0-2.3 px off.
+  a hairpin as its two arms).
 
 The two tolerances share the 2 px end gate of the contract (``quality_ok`` ends within 2 px):
 three quarters to the measured vector, one quarter to the unseen depth

@@ -356,25 +356,6 @@ def test_streaks_measured_along_the_curve_keep_quality_ok() -> None:
     )
 
 
-def test_short_streaks_measured_along_the_curve_still_turn_at_their_ends() -> None:
-    # Their ends come from the short-streak fit, a straight segment ending at the visible
-    # extremities, the turns: measured along the curve or not, the depth says they are off.
-    fs, check, _, _, _ = _checked(0.75)
-    src = DetectParams().source
-    fs.along_curve = np.ones(len(fs), bool)
-    fs.short = np.ones(len(fs), bool)
-    ok, reason = apply_check(fs, check, src)
-    first_ok = np.asarray(fs.quality[2], bool)
-    deep = check.depth > src.hairpin_depth_px
-    assert np.any(first_ok & deep)  # the test bites: some quality_ok streaks turn
-    assert np.array_equal(ok, first_ok & ~(check.residual > src.gyro_vector_tol_px) & ~deep)
-    assert set(reason[first_ok & deep]) == {"hairpin"}
-    # the control: long streaks (edge-fitted ends) along the curve keep theirs
-    fs.short = np.zeros(len(fs), bool)
-    ok_long, _ = apply_check(fs, check, src)
-    assert np.any(ok_long & deep)
-
-
 @pytest.mark.parametrize("gap_px", [5.0, 6.0])
 def test_the_gyro_confirms_a_lit_end_where_each_end_was_fitted_on_its_own(gap_px) -> None:
     # 35 px streaks (an edge fit at each end) with a still light just beyond two of their
