@@ -267,9 +267,9 @@ def _run_session(args: argparse.Namespace) -> int:
             "their orientation and quality_ok are image-only",
             file=sys.stderr,
         )
-    # quality_ok is the images' alone where no frame was checked against the gyro: no gyro, or
-    # one set aside (its direction contradicted or unconfirmed)
-    if s["gyro"] == "off" or not s.get("gyro_trust_frames"):
+    # quality_ok is the images' alone where no frame was checked against the gyro: no gyro
+    # (--gyro off, no IMU data), or one set aside (its direction contradicted or unconfirmed)
+    if not s["gyro_trust_frames"]:
         from blurtrack.cli.photos import IMAGE_ONLY_NOTE
 
         print(f"  note: {IMAGE_ONLY_NOTE}")

@@ -93,6 +93,26 @@ def line(
     return a[None, :] + u[:, None] * (b - a)[None, :]
 
 
+def line_grid(
+    count: int,
+    cols: int,
+    origin: Sequence[float],
+    spacing: Sequence[float],
+    vector: Sequence[float],
+) -> list[np.ndarray]:
+    """``count`` dots' streaks on a grid of ``cols`` columns, row by row: streak ``k`` is the
+    :func:`line` from ``origin + (k % cols, k // cols) * spacing`` along ``vector`` (px),
+    every dot drawing the same path."""
+    x0, y0 = (float(v) for v in origin)
+    dx, dy = (float(v) for v in spacing)
+    d = np.asarray(vector, float)
+    out = []
+    for k in range(count):
+        p0 = np.array([x0 + dx * (k % cols), y0 + dy * (k // cols)])
+        out.append(line(p0, p0 + d))
+    return out
+
+
 def saturated_grid(
     peak: float,
     accel: float = 0.0,

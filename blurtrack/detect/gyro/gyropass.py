@@ -241,7 +241,7 @@ def _shape(
             sp.inside_min,
             canvas.in_frame,
         )
-        if tpl is None or not score >= gp.shape_score_min:  # NaN: no score
+        if tpl is None or score < gp.shape_score_min:
             return None
         return prof.template(tpl.points, with_raw=True)  # the same, with its unsmoothed image
     # The session-corrected curve as predicted: the pursuit's own floors (correlation,

@@ -26,7 +26,7 @@ from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.errors import ConfigError
 from blurtrack.io.session import load_session
 from blurtrack.testing.mini_session import write_synthetic_session
-from blurtrack.testing.streak_frames import line, quantise, render_streaks
+from blurtrack.testing.streak_frames import line, line_grid, quantise, render_streaks
 
 DOCS = Path(__file__).resolve().parents[3] / "docs" / "detection.md"
 
@@ -129,10 +129,7 @@ def _grid_frame(pair_gap_px: float | None = None) -> np.ndarray:
     """Twelve isolated dots' streaks, all the same 18 px line (point lights); with
     ``pair_gap_px`` also two more along one line, that far apart (one component)."""
     d = np.array([16.0, 8.0])
-    curves = []
-    for k in range(12):
-        p0 = np.array([25.0 + 48.0 * (k % 6), 60.0 + 60.0 * (k // 6)])
-        curves.append(line(p0, p0 + d))
+    curves = line_grid(12, 6, (25.0, 60.0), (48.0, 60.0), d)
     if pair_gap_px is not None:
         a = np.array([40.0, 170.0])
         b = a + d + pair_gap_px * d / np.hypot(*d)

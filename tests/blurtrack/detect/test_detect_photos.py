@@ -16,7 +16,7 @@ from blurtrack.detect.overlay import SOURCE_COLOURS, source_picture
 from blurtrack.detect.photos import detect_photos, is_photo
 from blurtrack.detect.separation.quality import frame_quality
 from blurtrack.io.images import ImageError
-from blurtrack.testing.streak_frames import line, quantise, render_streaks
+from blurtrack.testing.streak_frames import line_grid, quantise, render_streaks
 
 SHAPE = (200, 300)
 SIGMA = 1.5
@@ -26,11 +26,7 @@ WINDOW = (20, 15, 70, 55)
 
 def dots() -> list[np.ndarray]:
     """Ten dots' streaks, all the same 18 px line (their truth)."""
-    out = []
-    for k in range(10):
-        p0 = np.array([30.0 + 50.0 * (k % 5), 100.0 + 50.0 * (k // 5)])
-        out.append(line(p0, p0 + np.array([16.0, 8.0])))
-    return out
+    return line_grid(10, 5, (30.0, 100.0), (50.0, 50.0), (16.0, 8.0))
 
 
 def photo(window: bool = True, seed: int = 0) -> np.ndarray:
@@ -161,13 +157,8 @@ def _lights(faint_only: bool = False) -> np.ndarray:
     and eight faint ones of which only the first 13 px show (a fragment of the same kind of
     path); 8-bit."""
     shape = (260, 400)
-    bright, faint = [], []
-    for k in range(12):
-        p0 = np.array([20.0 + 60.0 * (k % 6), 20.0 + 70.0 * (k // 6)])
-        bright.append(line(p0, p0 + np.array([12.0, 36.0])))
-    for k in range(8):
-        p0 = np.array([30.0 + 90.0 * (k % 4), 170.0 + 45.0 * (k // 4)])
-        faint.append(line(p0, p0 + np.array([4.0, 12.0])))
+    bright = line_grid(12, 6, (20.0, 20.0), (60.0, 70.0), (12.0, 36.0))
+    faint = line_grid(8, 4, (30.0, 170.0), (90.0, 45.0), (4.0, 12.0))
     img = render_streaks(shape, faint, 0.8, 1.2, 0.03, 0.004, 1)
     if not faint_only:
         img = img + render_streaks(shape, bright, 6.0, 2.2, 0.0, 0.0, 2)

@@ -17,7 +17,7 @@ from blurtrack.detect.params import SourceParams
 from blurtrack.detect.separation.quality import REASONS, frame_quality
 from blurtrack.detect.trust import Evidence, min_contrast
 from blurtrack.errors import ConfigError, DetectionError
-from blurtrack.testing.streak_frames import line, quantise, render_streaks
+from blurtrack.testing.streak_frames import line_grid, quantise, render_streaks
 
 SHAPE = (240, 320)
 SIGMA = 1.5  # the dots' spread (px)
@@ -29,11 +29,7 @@ SIGN = (180, 10, 310, 70)
 
 def _points() -> list[np.ndarray]:
     """Twelve dots' streaks, all drawing the same 18 px curve, in the lower half."""
-    out = []
-    for k in range(12):
-        p0 = np.array([25.0 + 48.0 * (k % 6), 120.0 + 50.0 * (k // 6)])
-        out.append(line(p0, p0 + np.array([16.0, 8.0])))
-    return out
+    return line_grid(12, 6, (25.0, 120.0), (48.0, 50.0), (16.0, 8.0))
 
 
 def _extended(level: float) -> np.ndarray:
