@@ -26,6 +26,14 @@ from blurtrack.detect.lines.gaps import split_at_gaps
 from blurtrack.detect.lines.lawfit import LAW_SAMPLES
 from blurtrack.detect.lines.ragged import Ragged, to_matrix
 
+#: Share of a frame's measured lines under ``1 / source.point_width_ratio`` of its sigma from
+#: which they are a population of point lights narrower than its median line
+#: (:func:`_narrower_than_frame`): 0-2 % of the lines of the simulated laser frames (cut at
+#: the border, or noise; `hard`, `hard_long_dense_grid`, `dense`, `realistic`) and of the two
+#: string-light photographs, 12-27 % of the night photographs of lit facades, windows and
+#: glare (night4-6).
+NARROW_SHARE = 0.1
+
 
 @dataclass
 class LineSet:
@@ -130,13 +138,31 @@ def measure_lines(
                 sig_raw = min(sig_raw, flanks)
             if measure_sigma:
                 sigma_c = sig_c
+    # Lines far narrower than the frame's sigma: their own width is their point spread.
+    narrow = _narrower_than_frame(ref.width, sigma_c, ctx.params.source.point_width_ratio)
+    own_raw = sig_raw
+    if sat_comp is not None and sat_comp.any():
+        own_raw = _narrow_raw_sigma(ctx, ref, narrow & line_sat, sig_raw)
         # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
         # (there the clipped cross-section integral is an exact function of the true one).
         if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
             raw = to_matrix(raw_profiles(signal, sat_lines, sigma_c), sat_lines.sizes)
-            A[line_sat, : raw.shape[1]] = unclip_profiles(raw, saturation, sig_raw)
+            sat_rows = np.flatnonzero(line_sat)
+            own_rows = narrow[sat_rows]
+            A[sat_rows[~own_rows], : raw.shape[1]] = unclip_profiles(
+                raw[~own_rows], saturation, sig_raw
+            )
+            if own_rows.any():
+                A[sat_rows[own_rows], : raw.shape[1]] = unclip_profiles(
+                    raw[own_rows], saturation, own_raw
+                )
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
-    edge_sigma = np.where(line_sat, np.sqrt(sig_raw**2 + BILINEAR_VAR_PX2), sigma_c)
+    sat_sigma = np.where(narrow, own_raw, sig_raw)
+    edge_sigma = np.where(
+        line_sat,
+        np.sqrt(sat_sigma**2 + BILINEAR_VAR_PX2),
+        np.where(narrow, ref.width, sigma_c),
+    )
     fit = fit_edges(A, lens, edge_sigma / ref.step, _laws(ls, ref, parent), ~line_sat & ~crossing)
     pos_a = np.where(fit.valid, fit.pos_a, 0.0)
     pos_b = np.where(fit.valid, fit.pos_b, 1.0)
@@ -160,6 +186,40 @@ def measure_lines(
         sigma_c=sigma_c,
         sigma_raw=sig_raw,
     )
+
+
+def _narrower_than_frame(width: np.ndarray, sigma_c: float, point_ratio: float) -> np.ndarray:
+    """``(N,)`` bool: lines whose measured cross-section sigma ``width`` (smoothed image, NaN:
+    not measured) is under ``sigma_c / point_ratio``. No point light is narrower than the
+    optics' spread, so the frame's sigma (the median of its lines' widths) is not their
+    spread: in a photograph whose lit facades, windows or glare outnumber its point lights,
+    the median is theirs. Measured with it, a short light's ends are fitted as a blurred dot
+    (night5's distant lamps, 12-15 px streaks: 0.1-2 px long) or not at all; their own width
+    fits them. On a laser frame every dot's width lies within a few per cent of the median,
+    so none is narrow but a line cut short at the border or lost in noise: such a frame's
+    narrow lines are artefacts, no more than :data:`NARROW_SHARE` of its measured lines."""
+    w = np.asarray(width, float)
+    narrow = np.isfinite(w) & (w < sigma_c / point_ratio)
+    if np.count_nonzero(narrow) < NARROW_SHARE * np.count_nonzero(np.isfinite(w)):
+        return np.zeros(w.size, bool)
+    return narrow
+
+
+def _narrow_raw_sigma(
+    ctx: FrameContext, ref: RefinedLines, rows: np.ndarray, frame_raw: float
+) -> float:
+    """The unsmoothed sigma of the saturated narrow lines ``rows`` (``(N,)`` bool over
+    ``ref``'s lines): their flanks' (:func:`raw_flank_sigma`), bounded by their median
+    clipped width less the smoothing (which reads too wide, never too narrow) and by the
+    frame's ``frame_raw``; ``frame_raw`` where no line is such."""
+    if not rows.any():
+        return frame_raw
+    w = ref.width[rows]
+    bound = float(np.sqrt(max(float(np.median(w)) ** 2 - ctx.smooth_sigma_px**2, 0.25)))
+    sizes = ref.lines.sizes
+    lines = Ragged(ref.lines.points[rows[ref.lines.line_of]], sizes[rows])
+    flanks = raw_flank_sigma(ctx.signal, lines, float(np.median(w)), ctx.saturation)
+    return min(bound, frame_raw) if flanks is None else min(flanks, bound, frame_raw)
 
 
 def _laws(ls: LineSet, ref: RefinedLines, parent: np.ndarray) -> np.ndarray | None:
