@@ -261,6 +261,13 @@ def _run_session(args: argparse.Namespace) -> int:
         print(f"  warning: {s['gyro_readout_order']['message']}", file=sys.stderr)
     if (s.get("gyro_direction") or {}).get("status") in ("contradicted", "unconfirmed"):
         print(f"  warning: {s['gyro_direction']['message']}", file=sys.stderr)
+    motion = s.get("gyro_motion") or {}
+    if motion.get("status") == "contradicted":
+        print(
+            f"  warning: {motion['message']}; the gyro is not used and no streak is "
+            "quality_ok (--gyro off: the images' own verdict)",
+            file=sys.stderr,
+        )
     if s["frames_without_gyro"]:
         print(
             f"  warning: gyro does not cover {len(s['frames_without_gyro'])} frame(s); "
@@ -269,7 +276,7 @@ def _run_session(args: argparse.Namespace) -> int:
         )
     # quality_ok is the images' alone where no frame was checked against the gyro: no gyro
     # (--gyro off, no IMU data), or one set aside (its direction contradicted or unconfirmed)
-    if not s["gyro_trust_frames"]:
+    if not s["gyro_trust_frames"] and motion.get("status") != "contradicted":
         from blurtrack.cli.photos import IMAGE_ONLY_NOTE
 
         print(f"  note: {IMAGE_ONLY_NOTE}")

@@ -2,7 +2,13 @@
 (:func:`blurtrack.detect.session.pipeline.detect_session`, after every frame's first pass): the
 time-shift scan and the readout order, the gyro's direction against the images, the session
 calibration, the template pass with the gyro cues, and the gyro's check of the ``quality_ok``
-ends, with the continuity cue computed meanwhile."""
+ends, with the continuity cue computed meanwhile.
+
+First, whether the gyro moves the dots as far as the images show
+(:mod:`blurtrack.detect.gyro.motion`). A gyro they contradict (a stream of zeros, rates in the
+wrong units, another device's gyro) is not used, and no streak is ``quality_ok``: calibration
+needs that gyro, and the images alone cannot see a dot's path turn back within the exposure
+(``--gyro off`` asks for their verdict); ``--gyro on`` stops with the one-line reason."""
 
 from __future__ import annotations
 
@@ -17,6 +23,7 @@ from blurtrack.detect.forkmap import Jobs, fork_call
 from blurtrack.detect.frame import FrameStreaks
 from blurtrack.detect.gyro.direction import GyroDirection, gyro_direction
 from blurtrack.detect.gyro.gyrotrust import check_frames
+from blurtrack.detect.gyro.motion import GyroMotion, gyro_motion
 from blurtrack.detect.gyro.readout import ReadoutOrder, readout_order
 from blurtrack.detect.gyro.refinepass import TemplatePass, refine_frames
 from blurtrack.detect.gyro.sessionframes import SessionFrames
@@ -67,6 +74,10 @@ class GyroOutcome:
     checked: int = 0
     ok_change: int = 0  # quality_ok streaks after the gyro's check less before
     continued: Jobs | None = None
+    #: The gyro's motion against the images' (:mod:`blurtrack.detect.gyro.motion`; None: not
+    #: measured), and the ``quality_ok`` streaks refused where the two disagree.
+    motion: GyroMotion | None = None
+    motion_refused: int = 0
 
 
 def gyro_stages(
@@ -87,6 +98,14 @@ def gyro_stages(
     found, idx, p = frames.found, frames.idx, frames.params
     g = GyroOutcome()
     calib, trace = inputs
+    g.motion = gyro_motion(found, frames.timings, calib, up, p)
+    if g.motion is not None and not g.motion.agrees:
+        # A gyro that does not move the dots as the images show (dead, wrong units, another
+        # device's): nothing of it is used, and no streak is quality_ok (module text).
+        if gyro == "on":
+            raise DetectionError(g.motion.message())
+        g.motion_refused = _refuse_all(found)
+        return g, [np.zeros((len(fs), 3)) for fs in found]
     g.shift, g.order = _scan(frames, calib, trace, up, refine_timeshift)
     found_shift = g.shift is not None and g.shift.status == "found"
     if found_shift:
@@ -130,6 +149,24 @@ def gyro_stages(
             frames, covered, model, llrs, fitted, g.template_pass, calib
         )
     return g, llrs
+
+
+def _refuse_all(found: list[FrameStreaks]) -> int:
+    """Every ``quality_ok`` streak of ``found`` refused (``gyro_mismatch``: its vector is off
+    the gyro's, which contradicts the images'); how many were."""
+    refused = 0
+    for fs in found:
+        if fs.quality is None:
+            continue
+        q = list(fs.quality)
+        ok = np.asarray(q[2], bool)
+        refused += int(np.count_nonzero(ok))
+        reason = np.asarray(q[4], object).copy()
+        reason[ok] = "gyro_mismatch"
+        q[2], q[4] = np.zeros_like(ok), reason
+        fs.quality = tuple(q)
+        fs.one_doubt = np.zeros(len(fs), bool)
+    return refused
 
 
 def _scan(

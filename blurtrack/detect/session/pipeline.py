@@ -101,9 +101,12 @@ def _nan_median(x: pd.Series) -> float | None:
     return float(np.median(v)) if v.size else None
 
 
-def _shift_status(model: Any, shift: Any, searched: bool) -> str:
+def _shift_status(model: Any, shift: Any, searched: bool, motion: Any = None) -> str:
     """``found`` / ``undetermined`` (flat cost) / ``not searched`` / ``too few streaks`` /
-    ``no gyro``: what became of the time-shift scan."""
+    ``no gyro`` / ``gyro not used`` (its motion contradicts the images'): what became of the
+    time-shift scan."""
+    if motion is not None and not motion.agrees:
+        return "gyro not used"
     if model is None:
         return "no gyro"
     if not searched:
@@ -301,7 +304,7 @@ def _summary(
         "frames_without_streaks": empty,
         "frames_without_gyro": g.uncovered,
         "frames_overexposed": overexposed,
-        "gyro": "off" if model is None else gyro,
+        "gyro": "off" if model is None and g.motion is None else gyro,
         "gyro_timeshift_initial_s": initial_timeshift_s,
         "gyro_timeshift_s": None
         if shift is None or shift.status != "found" or model is None
@@ -313,8 +316,11 @@ def _summary(
         if g.refined is None
         else g.refined.status,
         "gyro_readout_s": None if model is None else float(model.camera.readout_s),
-        "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift),
+        "gyro_timeshift_status": _shift_status(model, shift, refine_timeshift, g.motion),
         "gyro_direction": None if g.direction is None else g.direction.as_dict(idx),
+        "gyro_motion": None
+        if g.motion is None
+        else {**g.motion.as_dict(), "refused": g.motion_refused},
         "gyro_readout_order": None if g.order is None else g.order.as_dict(),
         "gyro_session_calibration": None
         if session_fit is None

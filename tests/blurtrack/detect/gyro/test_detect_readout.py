@@ -14,13 +14,17 @@ import pytest
 import yaml
 
 from blurtrack.cli import main
+from blurtrack.detect.frame import detect_frame
 from blurtrack.detect.gyro.readout import (
     ReadoutOrder,
+    readout_order,
     turned_calibration,
     turned_frame,
     turned_table,
 )
+from blurtrack.detect.gyro.timeshift import estimate_timeshift
 from blurtrack.detect.params import DetectParams
+from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.detect.session.pipeline import detect_session
 from blurtrack.geometry.calibration import Calibration
 from blurtrack.geometry.camera import Camera
@@ -176,15 +180,27 @@ def test_a_global_shutter_said_to_roll_is_not_turned(tmp_path: Path) -> None:
 
 
 def test_a_gyro_reading_zero_decides_no_order(sessions: dict[str, Path], tmp_path: Path) -> None:
-    # Both scans are flat: the same least cost either way round, nothing decided.
     folder = tmp_path / "zero"
     shutil.copytree(sessions["upright"], folder)
     csv = folder / "imu0" / "data.csv"
     head, *rows = csv.read_text().splitlines()
     zeroed = [",".join([r.split(",")[0], "0", "0", "0", *r.split(",")[4:]]) for r in rows]
     csv.write_text("\n".join([head, *zeroed]) + "\n")
+    # The detect command does not use such a gyro (its motion contradicts the images'), so
+    # the order is not checked at all.
     res = detect_session(load_session(folder), workers=1)
-    assert res.summary["gyro_timeshift_status"] == "undetermined"
-    order = res.summary["gyro_readout_order"]
-    assert order["status"] == "undetermined"
-    assert order["llr_top_first"] == pytest.approx(0.0, abs=1.0)
+    assert res.summary["gyro_timeshift_status"] == "gyro not used"
+    assert res.summary["gyro_readout_order"] is None
+    # Given it, the check itself decides nothing: both scans are flat, the same least cost
+    # either way round.
+    s = load_session(folder)
+    found = [detect_frame(s.read_image(k)) for k in range(len(s.frames))]
+    timings = [
+        FrameTiming(float(t), float(e)) for t, e in zip(s.frame_times_s, s.exposures_s, strict=True)
+    ]
+    calib, trace = s.initial_calibration(), s.gyro()
+    scan = estimate_timeshift(found, timings, calib, trace)
+    assert scan is not None and scan.status == "undetermined"
+    order = readout_order(found, timings, calib, trace, scan)
+    assert order.status == "undetermined"
+    assert order.as_dict()["llr_top_first"] == pytest.approx(0.0, abs=1.0)
