@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blurtrack.detect.frame import FrameStreaks
+from blurtrack.detect.gyro.timeshift import SEARCH_S
 from blurtrack.detect.params import DetectParams
 from blurtrack.detect.session.orientation import FrameTiming
 from blurtrack.geometry.calibration import Calibration
@@ -45,9 +46,6 @@ MOTION_RATIO = 5.0
 SAMPLES = 33
 #: Time shifts tried, spread over the time-shift scan's reach (+-50 ms) of the initial one.
 SHIFTS = 9
-#: Half-width of the shifts tried (s): the time-shift scan's reach
-#: (:func:`blurtrack.detect.gyro.timeshift.estimate_timeshift`'s ``search_s``).
-SEARCH_S = 0.05
 #: Frames sampled (spread over the session).
 MAX_FRAMES = 12
 

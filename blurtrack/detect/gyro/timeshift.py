@@ -29,6 +29,9 @@ if TYPE_CHECKING:
 #: trial shift).
 MAX_STREAKS_PER_FRAME = 30
 MAX_FRAMES = 6
+#: Half-width of the scan about the session's initial shift (s): the initial shift may be tens
+#: of milliseconds off.
+SEARCH_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,7 @@ def estimate_timeshift(
     timings: Sequence[FrameTiming],
     calib: Calibration,
     gyro: GyroTrace,
-    search_s: float = 0.05,
+    search_s: float = SEARCH_S,
     step_s: float = 0.003,
     model_gyro: GyroTrace | None = None,
     params: DetectParams | None = None,
