@@ -374,13 +374,18 @@ def rolling_endpoint_np(
     # The first iterate's sub-step: updates take sub-steps no longer than it.
     first_h = float(np.nanmax(np.abs(t_s - t_ref_s), initial=0.0)) / max(n_sub, 1)
     step_s = min(max_substep_s, first_h) if first_h > 0 else max_substep_s
+    # An update's sub-steps are bounded by a whole readout's: a row time moves by more only
+    # for a point projected off the sensor (a rate far beyond any shake: a gyro in degrees/s
+    # read as radians/s), whose row time means nothing; unbounded, its sub-steps asked 22 GiB
+    # for a session's time-shift scan.
+    cap = n_substeps(abs(float(readout_s)), step_s) + 1
     for k in range(ROW_TIME_ITERATIONS + 1):
         X, Y, Z = matvec3(transpose3(R), (rx, ry, rz))
         u, v = project_c(X, Y, Z, intrinsics, dist)
         if k == ROW_TIME_ITERATIONS:
             break
         t_next_s = row_start_c(frame_t_s, v, readout_s, height) + offset_s
-        m = n_substeps(float(np.nanmax(np.abs(t_next_s - t_s), initial=0.0)), step_s)
+        m = min(n_substeps(float(np.nanmax(np.abs(t_next_s - t_s), initial=0.0)), step_s), cap)
         R = matmul3(R, relative_rotation(t_s, t_next_s, omega_cam_at, m))
         t_s = t_next_s
     return u, v, t_s

@@ -147,3 +147,28 @@ def test_carried_rotation_solves_as_the_kernel_does(amp: float, ref_s: float, n_
             if ref_s < 0:
                 err_rev = _error(_reversed, case, omega, n_sub, off_s, fine)
                 assert err_rev.max() > 5.0 * err_kernel.max() + 0.05
+
+
+def test_a_rate_far_beyond_any_shake_keeps_the_sub_steps_bounded() -> None:
+    # 60 rad/s (a shake's rates in degrees/s read as radians/s) turns the camera by more than a
+    # radian over the exposure: the points leave the sensor, their row times run off, and the
+    # updates' sub-steps once grew with them (22 GiB for a session's time-shift scan). Each
+    # update now takes at most a whole readout's sub-steps: counted by the rate's evaluations.
+    calls: list[int] = []
+    R_ci = constant_mat3(np.eye(3))
+    trace = GyroTrace(np.arange(0.0, 1.0, 1e-3), np.tile([60.0, 0.0, 0.0], (1000, 1)))
+    inner = omega_cam_fn(trace.omega_components, R_ci, (0.0, 0.0, 0.0), 0.0)
+
+    def omega(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        calls.append(np.size(t))
+        return inner(t)
+
+    case = _case(3, 1.0, EXPOSURE_S)
+    u, v, t_ref, ft = case
+    n_sub, step = 5, 4e-3
+    out = rolling_endpoint_np(
+        u, v, t_ref, ft, np.zeros(u.size), READOUT_S, HEIGHT, omega, INTRINSICS, DIST, n_sub, step
+    )
+    assert len(out) == 3 and all(np.shape(a) == u.shape for a in out)
+    per_update = int(np.ceil(READOUT_S / min(step, EXPOSURE_S / n_sub))) + 1
+    assert sum(calls) <= u.size * (n_sub + ROW_TIME_ITERATIONS * per_update)
