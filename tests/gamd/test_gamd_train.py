@@ -153,6 +153,9 @@ res = train(RunConfig.from_yaml(sys.argv[1]))
 rank = torch.distributed.get_rank()
 torch.save({"model": res.model.state_dict(), "losses": res.losses},
            Path(sys.argv[2]) / f"rank{rank}.pt")
+# Leave the group as `gamd train` does (gamd/cli.py): a gloo group still up at exit may abort
+# its process ("terminate called without an active exception", seen once in CI under load).
+torch.distributed.destroy_process_group()
 """
 
 
