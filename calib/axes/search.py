@@ -282,9 +282,14 @@ def check_axes(search: AxisSearch) -> None:
     """Raise :class:`AxisSearchError` unless the search decided the axes clearly."""
     w = search.winner
     if search.motion_px < MIN_MOTION_PX:
+        # Feature tracks measure the images' rotation; laser midpoints, the gyro's carrying
+        # of the dots (:func:`calib.axes.laser.search_axes_laser`): a gyro of zeros shows there.
+        laser = search.source.startswith("laser")
+        moved = "the gyro carries the dots" if laser else "the images turn"
+        why = " (a gyro stream of zeros, or a camera at rest)" if laser else ""
         raise AxisSearchError(
-            f"no rotation to speak of: the images turn by a median {search.motion_px:.2f} px "
-            f"between frames (need {MIN_MOTION_PX:g}); the camera–IMU axes cannot be decided"
+            f"no rotation to speak of: {moved} by a median {search.motion_px:.2f} px between "
+            f"frames (need {MIN_MOTION_PX:g}){why}; the camera–IMU axes cannot be decided"
         )
     if w.score_px > MAX_WINNER_FRACTION * search.motion_px:
         raise AxisSearchError(

@@ -64,6 +64,15 @@ def test_laser_search_refuses_a_foreign_gyro(problem) -> None:
         check_axes(res)
 
 
+def test_laser_search_says_a_gyro_of_zeros_carries_nothing(problem) -> None:
+    g = problem.gyro
+    res = _search(problem, GyroTrace(g.t_s, np.zeros_like(g.omega_radps)))
+    assert res.motion_px < 1e-9
+    # The gyro's prediction is what did not move (the dots did): the message says so.
+    with pytest.raises(AxisSearchError, match="the gyro carries the dots by a median 0.00 px"):
+        check_axes(res)
+
+
 def _cumulative(t: np.ndarray, s: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Exact ``∫ s`` from ``t[0]`` to ``x`` of the piecewise linear ``s`` (held beyond ends)."""
     F = np.concatenate([[0.0], np.cumsum(np.diff(t) * (s[:-1] + s[1:]) / 2)])
