@@ -94,6 +94,14 @@ class FrameStreaks:
         state["profile"] = _unpack(state["profile"])
         self.__dict__.update(state)
 
+    def set_verdict(self, ok: np.ndarray, reason: np.ndarray) -> None:
+        """Replace ``quality``'s ``quality_ok`` and ``reason`` (``(N,)`` each; the checks that
+        follow the frame's own quality: the gyro's, a photograph's whole lights)."""
+        assert self.quality is not None
+        q = list(self.quality)
+        q[2], q[4] = ok, reason
+        self.quality = tuple(q)
+
     def reverse(self, which: np.ndarray) -> None:
         """Swap ends A and B (and reverse the lines) of the streaks where ``which`` is True."""
         flip = np.flatnonzero(which)

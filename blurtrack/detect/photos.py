@@ -131,10 +131,7 @@ def detect_photos(
         prep, ctx = prepare_and_segment(image, p)
         fs = detect_prepared(prep, ctx)
         fs.quality, fs.one_doubt = frame_quality(fs, p)  # as a session's frame worker does
-        ok, reason = whole_lights_check(ctx, fs)
-        q = list(fs.quality)
-        q[2], q[4] = ok, reason
-        fs.quality = tuple(q)
+        fs.set_verdict(*whole_lights_check(ctx, fs))
         return fs, image.shape
 
     got = list(fork_map(one, range(len(paths)), workers))

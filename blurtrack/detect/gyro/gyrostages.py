@@ -158,13 +158,11 @@ def _refuse_all(found: list[FrameStreaks]) -> int:
     for fs in found:
         if fs.quality is None:
             continue
-        q = list(fs.quality)
-        ok = np.asarray(q[2], bool)
+        ok = np.asarray(fs.quality[2], bool)
         refused += int(np.count_nonzero(ok))
-        reason = np.asarray(q[4], object).copy()
+        reason = np.asarray(fs.quality[4], object).copy()
         reason[ok] = "gyro_mismatch"
-        q[2], q[4] = np.zeros_like(ok), reason
-        fs.quality = tuple(q)
+        fs.set_verdict(np.zeros_like(ok), reason)
         fs.one_doubt = np.zeros(len(fs), bool)
     return refused
 

@@ -323,9 +323,6 @@ def check_frames(
             continue
         tol = frame_tolerances(chk.residual, ok0, depth, p)
         fs.gyro_model_error_px = tol.model_error_px
-        ok, reason = apply_check(fs, chk, p, tol)
-        qual = list(fs.quality)
-        qual[2], qual[4] = ok, reason
-        fs.quality = tuple(qual)
+        fs.set_verdict(*apply_check(fs, chk, p, tol))
         checked += 1
     return checked

@@ -7,7 +7,9 @@ point at radius ``r`` by ``r theta``, less. So ``f |integral of omega dt|`` over
 exposure bounds the length of its streaks' start-to-end vectors, and is their length for a
 shake of pan and tilt. :func:`gyro_motion` takes the median of that bound over the frames
 with streaks, over time shifts within the time-shift scan's reach of the session's initial
-one, against the median length of the frames' long streaks (those the scan uses). They agree
+one, against the median start-to-end length of the frames' long streaks (longer than the
+scan's ``timeshift.scan_min_length_px``, neither clipped nor merged, as the scan picks them;
+measured start to end, as the gyro's bound is). They agree
 within :data:`MOTION_RATIO` either way on every simulated session: the gyro's blur is
 0.92-1.36 times the streaks' on ten sessions (`hard` 1, 2 and 4, `dense`, `realistic`,
 `optics`, `phone`, `hard_long_dense_grid`, `dense_long_grid`, `hard_long_exposure`). A gyro
@@ -94,8 +96,8 @@ class GyroMotion:
 
 
 def _long_lengths(fs: FrameStreaks, min_length_px: float) -> np.ndarray:
-    """The lengths (px, start to end) of a frame's streaks that the time-shift scan would use
-    (longer than ``min_length_px``, neither clipped nor merged)."""
+    """The start-to-end lengths (px) of a frame's streaks longer than ``min_length_px``,
+    neither clipped nor merged (the time-shift scan's choice, by chord not arc)."""
     chord = np.hypot(*(fs.end_b - fs.end_a).T)
     use = (chord > min_length_px) & ~fs.flags["clipped"] & ~fs.flags["merged"]
     return np.asarray(chord[use])

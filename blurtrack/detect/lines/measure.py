@@ -140,22 +140,16 @@ def measure_lines(
                 sigma_c = sig_c
     # Lines far narrower than the frame's sigma: their own width is their point spread.
     narrow = _narrower_than_frame(ref.width, sigma_c, ctx.params.source.point_width_ratio)
-    own_raw = sig_raw
-    if sat_comp is not None and sat_comp.any():
-        own_raw = _narrow_raw_sigma(ctx, ref, narrow & line_sat, sig_raw)
-        # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
-        # (there the clipped cross-section integral is an exact function of the true one).
-        if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
-            raw = to_matrix(raw_profiles(signal, sat_lines, sigma_c), sat_lines.sizes)
-            sat_rows = np.flatnonzero(line_sat)
-            own_rows = narrow[sat_rows]
-            A[sat_rows[~own_rows], : raw.shape[1]] = unclip_profiles(
-                raw[~own_rows], saturation, sig_raw
-            )
-            if own_rows.any():
-                A[sat_rows[own_rows], : raw.shape[1]] = unclip_profiles(
-                    raw[own_rows], saturation, own_raw
-                )
+    own_raw = _narrow_raw_sigma(ctx, ref, narrow & line_sat, sig_raw)
+    # Clipping happens before smoothing, so undo it on profiles of the unsmoothed signal
+    # (there the clipped cross-section integral is an exact function of the true one).
+    if line_sat.any():  # only saturated lines are sampled (rows past their ends stay 0)
+        raw = to_matrix(raw_profiles(signal, sat_lines, sigma_c), sat_lines.sizes)
+        sat_rows = np.flatnonzero(line_sat)
+        own_rows = narrow[sat_rows]
+        for rows, sigma in ((~own_rows, sig_raw), (own_rows, own_raw)):
+            if rows.any():
+                A[sat_rows[rows], : raw.shape[1]] = unclip_profiles(raw[rows], saturation, sigma)
     # Raw profiles are sampled bilinearly, which blurs by about 1/6 px^2 more.
     sat_sigma = np.where(narrow, own_raw, sig_raw)
     edge_sigma = np.where(
